@@ -1,0 +1,140 @@
+"""Cost of one 10 ms co-simulation step of the robot FMU, three ways, measured side by side.
+
+1. through fmpy (:class:`wmr.fmu.plant.FmuPlant`, fmpy's checked FMI wrappers),
+2. raw ctypes calls into the same shared library (no fmpy wrapper),
+3. the same physics and integrator in a pure C loop (the FMU's own sources, no FMI calls).
+
+Run: ``python benchmarks/fmu_step.py``.  Prints medians and ratios to the pure C loop.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+from _common import median_time_per_call, print_table
+
+from wmr.fmu.build import build_fmus
+from wmr.fmu.plant import FmuPlant
+from wmr.plant import Pose, RobotParams
+
+H = 0.01
+N_STEPS = 2000
+
+C_LOOP = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include "model.h"
+#include "solver.h"
+int main(int argc, char **argv) {
+    long n = argc > 1 ? atol(argv[1]) : 1000;
+    double p[MODEL_NP], x[MODEL_NX], u[MODEL_NU] = {1.0, 0.8};
+    for (int i = 1; i < MODEL_NV; i++)
+        if (MODEL_VARIABLES[i].kind == MODEL_VAR_PARAMETER)
+            p[MODEL_VARIABLES[i].index] = MODEL_VARIABLES[i].start;
+    model_initial_state(p, x);
+    SolverState s; solver_init(&s);
+    char msg[256];
+    struct timespec a, b;
+    clock_gettime(CLOCK_MONOTONIC, &a);
+    for (long k = 0; k < n; k++) {
+        u[0] = (k % 200) < 100 ? 1.0 : -1.0;
+        if (solver_integrate(&s, k * %(h)r, (k + 1) * %(h)r, x, u, p, msg, sizeof msg)) {
+            fprintf(stderr, "%%s\n", msg); return 1;
+        }
+    }
+    clock_gettime(CLOCK_MONOTONIC, &b);
+    printf("%%.9e\n", ((b.tv_sec - a.tv_sec) + 1e-9 * (b.tv_nsec - a.tv_nsec)) / n);
+    return 0;
+}
+"""
+
+
+def c_loop_seconds(fmu: Path, n: int, repeats: int = 7) -> float:
+    with tempfile.TemporaryDirectory() as tmp:
+        with zipfile.ZipFile(fmu) as zf:
+            zf.extractall(tmp)
+        src = Path(tmp) / "sources"
+        (src / "bench_main.c").write_text(C_LOOP % {"h": H})
+        exe = Path(tmp) / "bench"
+        files = [src / f for f in ("bench_main.c", "solver.c", "model_generated.c",
+                                   "model_variables.c")]
+        subprocess.run(["gcc", "-O2", "-std=c99", f"-I{src}", *map(str, files), "-o", str(exe),
+                        "-lm"], check=True)
+        times = sorted(float(subprocess.run([str(exe), str(n)], check=True, capture_output=True,
+                                            text=True).stdout) for _ in range(repeats))
+        return times[len(times) // 2]
+
+
+def main() -> None:
+    fmus = build_fmus().fmus
+    rows: list[tuple[str, float]] = []
+    for version in (2, 3):
+        plant = FmuPlant(fmus[version])
+        plant.reset(RobotParams(), Pose(0, 0, 0))
+
+        def fmpy_steps(n: int, plant: FmuPlant = plant) -> None:
+            for k in range(n):
+                plant.step(1.0 if (k % 200) < 100 else -1.0, 0.8, H)
+
+        rows.append((f"FMI {version} through fmpy (FmuPlant.step)",
+                     median_time_per_call(fmpy_steps, N_STEPS)))
+
+        # Raw ctypes: the library's own symbols, prebuilt arrays, no fmpy wrapper.
+        fmu = plant._fmu
+        dll = fmu.dll
+        comp = fmu.component
+        vr_in = (ctypes.c_uint32 * 2)(*plant._in_vr)
+        val_in = (ctypes.c_double * 2)(1.0, 0.8)
+        vr_out = (ctypes.c_uint32 * len(plant._out_vr))(*plant._out_vr)
+        val_out = (ctypes.c_double * len(plant._out_vr))()
+        n_out = len(plant._out_vr)
+        if version == 2:
+            set_real, get_real, do_step = dll.fmi2SetReal, dll.fmi2GetReal, dll.fmi2DoStep
+            do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
+            t_box = [plant.time_s]
+
+            def raw_steps(n: int) -> None:
+                t = t_box[0]
+                for k in range(n):
+                    val_in[0] = 1.0 if (k % 200) < 100 else -1.0
+                    set_real(comp, vr_in, 2, val_in)
+                    do_step(comp, t, H, 1)
+                    get_real(comp, vr_out, n_out, val_out)
+                    t = t + H
+                t_box[0] = t
+        else:
+            set_real, get_real, do_step = dll.fmi3SetFloat64, dll.fmi3GetFloat64, dll.fmi3DoStep
+            do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int,
+                                ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
+                                ctypes.c_void_p]
+            flags = [ctypes.c_bool() for _ in range(3)]
+            last = ctypes.c_double()
+            refs = [ctypes.byref(f) for f in flags] + [ctypes.byref(last)]
+            t_box = [plant.time_s]
+
+            def raw_steps(n: int) -> None:
+                t = t_box[0]
+                for k in range(n):
+                    val_in[0] = 1.0 if (k % 200) < 100 else -1.0
+                    set_real(comp, vr_in, 2, val_in, 2)
+                    do_step(comp, t, H, 1, *refs)
+                    get_real(comp, vr_out, n_out, val_out, n_out)
+                    t = last.value
+                t_box[0] = t
+
+        rows.append((f"FMI {version} raw ctypes", median_time_per_call(raw_steps, N_STEPS)))
+        plant.close()
+    rows.append(("pure C loop (solver + model core)", c_loop_seconds(fmus[3], 20 * N_STEPS)))
+    print_table(f"One {H * 1e3:.0f} ms co-simulation step of the robot FMU "
+                f"(median of 7 x {N_STEPS} steps)", rows, "pure C loop (solver + model core)")
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).parent))
+    main()

@@ -1,0 +1,79 @@
+"""The ``wmr`` command line.  Every failure ends as one line on stderr and a non-zero exit."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+
+from wmr import __version__
+from wmr.errors import WmrError
+
+Handler = Callable[[argparse.Namespace], int]
+
+
+def _cmd_fmu_build(args: argparse.Namespace) -> int:
+    from wmr.fmu.build import build_fmus
+
+    result = build_fmus(args.out, force=args.force)
+    for version in sorted(result.fmus):
+        print(result.fmus[version])
+    if args.verbose:
+        state = "reused" if result.reused else "built"
+        print(f"{state}: digest {result.digest[:16]}", file=sys.stderr)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="wmr",
+        description="Co-simulation and log analysis of a two-wheeled differential-drive robot.")
+    parser.add_argument("--version", action="version", version=f"wmr-cosim {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    fmu = sub.add_parser("fmu", help="build the FMUs from the Modelica model")
+    fmu_sub = fmu.add_subparsers(dest="fmu_command", metavar="ACTION", required=True)
+    build = fmu_sub.add_parser(
+        "build", help="build (or reuse, if nothing changed) the FMI 2.0 and 3.0 FMUs",
+        description="Build the FMI 2.0 and FMI 3.0 co-simulation FMUs and print their paths.")
+    build.add_argument("--out", metavar="DIR", default=None,
+                       help="output folder (default: ~/.cache/wmr-cosim/fmu)")
+    build.add_argument("--force", action="store_true", help="rebuild even if nothing changed")
+    build.add_argument("-v", "--verbose", action="store_true", help="say whether it rebuilt")
+    build.set_defaults(handler=_cmd_fmu_build)
+
+    for register in _EXTRA_COMMANDS:
+        register(sub)
+    return parser
+
+
+#: Further sub-commands register themselves here (run, replay, batch, ...).
+_EXTRA_COMMANDS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], None]] = []
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    handler: Handler = args.handler
+    try:
+        return handler(args)
+    except KeyboardInterrupt:
+        print("wmr: interrupted", file=sys.stderr)
+        return 130
+    except WmrError as exc:
+        if args.debug:
+            raise
+        print(f"wmr: error: {exc}".splitlines()[0] if "\n" not in str(exc) or not args.debug
+              else f"wmr: error: {exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:
+        if args.debug:
+            raise
+        print(f"wmr: internal error: {type(exc).__name__}: {exc} (run with --debug for the "
+              "traceback)".replace("\n", " "), file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

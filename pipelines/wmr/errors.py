@@ -1,0 +1,42 @@
+"""Typed errors.  The command line prints any :class:`WmrError` as one line, no traceback."""
+
+from __future__ import annotations
+
+
+class WmrError(Exception):
+    """Base of every error the user can act on."""
+
+
+class ConfigError(WmrError, ValueError):
+    """Bad user input: names the field and says how to fix it.
+
+    Parameters
+    ----------
+    field
+        Dotted path of the offending field, e.g. ``"goal.x_m"`` or ``"gains.K_ps"``.
+    problem
+        What is wrong with the value.
+    fix
+        What the user should do instead.
+    """
+
+    def __init__(self, field: str, problem: str, fix: str = "") -> None:
+        self.field = field
+        self.problem = problem
+        self.fix = fix
+        msg = f"{field}: {problem}"
+        if fix:
+            msg += f" ({fix})"
+        super().__init__(msg)
+
+
+class BuildError(WmrError):
+    """The Modelica-to-FMU build failed."""
+
+
+class FmuError(WmrError):
+    """An FMU call returned an error status, or an FMU archive is unusable."""
+
+
+class LogError(WmrError):
+    """An MCAP log cannot be written or read."""

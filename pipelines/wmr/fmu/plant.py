@@ -1,0 +1,225 @@
+"""The FMU as a :class:`wmr.plant.Plant`: one instance, reset per run, fast per step.
+
+Every FMI call goes through fmpy's wrappers, which raise ``fmpy.fmi1.FMICallException`` on an
+error status; :class:`FmuPlant` turns those into :class:`wmr.errors.FmuError` naming the
+function.  The per-step path holds prebuilt ctypes arrays for the value references, the inputs
+and the outputs, so a step allocates nothing and looks nothing up.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from wmr.errors import FmuError
+from wmr.fmu.archive import file_sha256, safe_extract
+from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
+
+_INPUTS = ("tau_r", "tau_l")
+
+
+class FmuPlant:
+    """Drive a co-simulation FMU of the robot (FMI 2.0 or 3.0) through fmpy.
+
+    Parameters
+    ----------
+    fmu_path
+        The ``.fmu`` file.
+    instance_name
+        Name given to the FMU instance (shows in its log messages).
+    """
+
+    def __init__(self, fmu_path: str | Path, instance_name: str = "robot") -> None:
+        from fmpy import read_model_description
+
+        self.fmu_path = Path(fmu_path)
+        self._tmp = Path(tempfile.mkdtemp(prefix="wmr-fmu-"))
+        try:
+            safe_extract(self.fmu_path, self._tmp)
+            md = read_model_description(str(self._tmp))
+        except FmuError:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
+        except Exception as exc:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise FmuError(f"{self.fmu_path}: unreadable model description: {exc}") from exc
+        if md.coSimulation is None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise FmuError(f"{self.fmu_path}: not a co-simulation FMU")
+        self.model_description = md
+        self.fmi_version = md.fmiVersion
+        self.sha256 = file_sha256(self.fmu_path)
+        self._vr = {v.name: v.valueReference for v in md.modelVariables}
+        missing = [n for n in (*_INPUTS, *OUTPUT_NAMES, *RobotParams().as_dict()) if n not in self._vr]
+        if missing:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise FmuError(f"{self.fmu_path}: lacks the variables {', '.join(missing)}")
+        self._fmu: Any = None
+        self._t = self._t0 = self._h = 0.0
+        self._n = 0
+        self._instance_name = instance_name
+        self._make_arrays()
+
+    def _make_arrays(self) -> None:
+        vr_type = ctypes.c_uint32
+        self._in_vr = (vr_type * 2)(*(self._vr[n] for n in _INPUTS))
+        self._in_val = (ctypes.c_double * 2)()
+        self._out_vr = (vr_type * len(OUTPUT_NAMES))(*(self._vr[n] for n in OUTPUT_NAMES))
+        self._out_val = (ctypes.c_double * len(OUTPUT_NAMES))()
+        self._outputs: npt.NDArray[np.float64] = np.frombuffer(self._out_val, dtype=np.float64)
+
+    def _instantiate(self) -> None:
+        md = self.model_description
+        try:
+            if self.fmi_version.startswith("2"):
+                from fmpy.fmi2 import FMU2Slave
+
+                fmu: Any = FMU2Slave(guid=md.guid, unzipDirectory=str(self._tmp),
+                                     modelIdentifier=md.coSimulation.modelIdentifier,
+                                     instanceName=self._instance_name)
+                fmu.instantiate(loggingOn=False)
+                self._set = fmu.fmi2SetReal
+                self._get = fmu.fmi2GetReal
+                self._do_step = lambda t, h: fmu.fmi2DoStep(fmu.component, t, h, 1)
+            else:
+                from fmpy.fmi3 import FMU3Slave
+
+                fmu = FMU3Slave(guid=md.guid, unzipDirectory=str(self._tmp),
+                                modelIdentifier=md.coSimulation.modelIdentifier,
+                                instanceName=self._instance_name)
+                fmu.instantiate(loggingOn=False)
+                self._set = lambda c, vr, n, val: fmu.fmi3SetFloat64(c, vr, n, val, n)
+                self._get = lambda c, vr, n, val: fmu.fmi3GetFloat64(c, vr, n, val, n)
+                self._fmi3_flags = [ctypes.c_bool() for _ in range(3)]
+                self._fmi3_last = ctypes.c_double()
+                flags = [ctypes.byref(f) for f in self._fmi3_flags]
+                last = ctypes.byref(self._fmi3_last)
+                self._do_step = lambda t, h: fmu.fmi3DoStep(
+                    fmu.component, t, h, 1, flags[0], flags[1], flags[2], last)
+        except Exception as exc:
+            raise FmuError(f"{self.fmu_path}: cannot instantiate: {exc}") from exc
+        self._fmu = fmu
+
+    def _call(self, what: str, fun: Any, *args: Any) -> Any:
+        try:
+            return fun(*args)
+        except Exception as exc:
+            raise FmuError(f"{what} failed at t = {self._t:g} s: {exc}") from exc
+
+    def reset(self, params: RobotParams, start: Pose, v0_mps: float = 0.0,
+              omega0_radps: float = 0.0) -> npt.NDArray[np.float64]:
+        """Start a run at t = 0 from ``start`` with ``params``; return the outputs at t = 0."""
+        if self._fmu is None:
+            self._instantiate()
+        else:
+            self._call("reset", self._fmu.reset)
+        fmu = self._fmu
+        values = params.as_dict()
+        values.update(x0=start.x_m, y0=start.y_m, theta0=start.heading_rad, v0=v0_mps,
+                      omega0=omega0_radps)
+        names = list(values)
+        self._t, self._t0, self._h, self._n = 0.0, 0.0, 0.0, 0
+        if self.fmi_version.startswith("2"):
+            self._call("setupExperiment", fmu.setupExperiment, None, 0.0)
+        self._call("enterInitializationMode", fmu.enterInitializationMode)
+        try:
+            if self.fmi_version.startswith("2"):
+                fmu.setReal([self._vr[n] for n in names], [values[n] for n in names])
+            else:
+                fmu.setFloat64([self._vr[n] for n in names], [values[n] for n in names])
+        except Exception as exc:
+            raise FmuError(f"setting the parameters {values} failed: {exc}") from exc
+        self._in_val[0] = self._in_val[1] = 0.0
+        self._call("set inputs", self._set, fmu.component, self._in_vr, 2, self._in_val)
+        self._call("exitInitializationMode", fmu.exitInitializationMode)
+        self._call("get outputs", self._get, fmu.component, self._out_vr, len(OUTPUT_NAMES),
+                   self._out_val)
+        return self._outputs
+
+    def step(self, tau_r_nm: float, tau_l_nm: float, h_s: float) -> npt.NDArray[np.float64]:
+        """Hold the torques for ``h_s`` seconds; the returned array is reused by the next step."""
+        self._in_val[0] = tau_r_nm
+        self._in_val[1] = tau_l_nm
+        component = self._fmu.component
+        try:
+            self._set(component, self._in_vr, 2, self._in_val)
+            self._do_step(self._t, h_s)
+            self._get(component, self._out_vr, len(OUTPUT_NAMES), self._out_val)
+        except Exception as exc:
+            raise FmuError(f"FMU step at t = {self._t:g} s (tau_r = {tau_r_nm!r}, "
+                           f"tau_l = {tau_l_nm!r}) failed: {exc}") from exc
+        # Time is t0 + n*h while h stays the same (never t += h): no drift over long runs.
+        if h_s != self._h:
+            self._t0, self._h, self._n = self._t, h_s, 0
+        self._n += 1
+        self._t = self._t0 + self._n * h_s
+        return self._outputs
+
+    @property
+    def time_s(self) -> float:
+        """The communication point the FMU is at."""
+        return self._t
+
+    def outputs(self) -> dict[str, float]:
+        """The current outputs by FMU name."""
+        return dict(zip(OUTPUT_NAMES, self._outputs.tolist(), strict=True))
+
+    def set_parameters(self, **values: float) -> None:
+        """Change tunable parameters (e.g. ``m`` for a load change) between steps."""
+        vrs = [self._vr[name] for name in values]
+        setter = self._fmu.setReal if self.fmi_version.startswith("2") else self._fmu.setFloat64
+        self._call(f"setting {values}", setter, vrs, list(values.values()))
+
+    def get_state(self) -> tuple[Any, float, float, float, int]:
+        """Snapshot of the FMU state and of the master's clock (FMI get FMU state)."""
+        fmu = self._fmu
+        getter = fmu.getFMUstate if self.fmi_version.startswith("2") else fmu.getFMUState
+        return (self._call("getFMUState", getter), self._t, self._t0, self._h, self._n)
+
+    def set_state(self, snapshot: tuple[Any, float, float, float, int]) -> None:
+        """Go back to a snapshot of :meth:`get_state`."""
+        fmu = self._fmu
+        setter = fmu.setFMUstate if self.fmi_version.startswith("2") else fmu.setFMUState
+        self._call("setFMUState", setter, snapshot[0])
+        self._t, self._t0, self._h, self._n = snapshot[1:]
+        self._call("get outputs", self._get, fmu.component, self._out_vr, len(OUTPUT_NAMES),
+                   self._out_val)
+
+    def serialize_state(self, snapshot: tuple[Any, float, float, float, int]) -> bytes:
+        """Bytes of a snapshot's FMU state (FMI serialize FMU state)."""
+        fmu = self._fmu
+        ser = fmu.serializeFMUstate if self.fmi_version.startswith("2") else fmu.serializeFMUState
+        return bytes(self._call("serializeFMUState", ser, snapshot[0]))
+
+    def deserialize_state(self, blob: bytes, clock: tuple[float, float, float, int]
+                          ) -> tuple[Any, float, float, float, int]:
+        """A snapshot from bytes of :meth:`serialize_state` and the clock it was taken at."""
+        fmu = self._fmu
+        de = (fmu.deSerializeFMUstate if self.fmi_version.startswith("2")
+              else fmu.deserializeFMUState)
+        return (self._call("deserializeFMUState", de, blob), *clock)
+
+    def close(self) -> None:
+        if self._fmu is not None:
+            try:
+                self._fmu.terminate()
+            except Exception:  # noqa: S110 - a failed run may leave the FMU in error state
+                pass
+            try:
+                self._fmu.freeInstance()
+            except Exception:  # noqa: S110
+                pass
+            self._fmu = None
+        shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def __enter__(self) -> FmuPlant:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
