@@ -26,11 +26,13 @@ H = 0.01
 N_STEPS = 2000
 
 C_LOOP = r"""
+#define _POSIX_C_SOURCE 199309L
 #include <stdio.h>
 #include <stdlib.h>
 #include <time.h>
 #include "model.h"
 #include "solver.h"
+#define STEP_H H_VALUE
 int main(int argc, char **argv) {
     long n = argc > 1 ? atol(argv[1]) : 1000;
     double p[MODEL_NP], x[MODEL_NX], u[MODEL_NU] = {1.0, 0.8};
@@ -44,12 +46,12 @@ int main(int argc, char **argv) {
     clock_gettime(CLOCK_MONOTONIC, &a);
     for (long k = 0; k < n; k++) {
         u[0] = (k % 200) < 100 ? 1.0 : -1.0;
-        if (solver_integrate(&s, k * %(h)r, (k + 1) * %(h)r, x, u, p, msg, sizeof msg)) {
-            fprintf(stderr, "%%s\n", msg); return 1;
+        if (solver_integrate(&s, k * STEP_H, (k + 1) * STEP_H, x, u, p, msg, sizeof msg)) {
+            fprintf(stderr, "%s\n", msg); return 1;
         }
     }
     clock_gettime(CLOCK_MONOTONIC, &b);
-    printf("%%.9e\n", ((b.tv_sec - a.tv_sec) + 1e-9 * (b.tv_nsec - a.tv_nsec)) / n);
+    printf("%.9e\n", ((b.tv_sec - a.tv_sec) + 1e-9 * (b.tv_nsec - a.tv_nsec)) / n);
     return 0;
 }
 """
@@ -60,7 +62,7 @@ def c_loop_seconds(fmu: Path, n: int, repeats: int = 7) -> float:
         with zipfile.ZipFile(fmu) as zf:
             zf.extractall(tmp)
         src = Path(tmp) / "sources"
-        (src / "bench_main.c").write_text(C_LOOP % {"h": H})
+        (src / "bench_main.c").write_text(C_LOOP.replace("H_VALUE", repr(H)))
         exe = Path(tmp) / "bench"
         files = [src / f for f in ("bench_main.c", "solver.c", "model_generated.c",
                                    "model_variables.c")]

@@ -306,18 +306,54 @@ def _solve_blocks(g: ca.SX, z: ca.SX, names: list[str]) -> ca.SX:
         if known:
             gb = ca.substitute(gb, ca.vcat([z[j] for j in known]),
                                ca.vcat([solution[j] for j in known]))
-        zb = ca.vcat([z[j] for j in cols])
-        a = ca.jacobian(gb, zb)
-        if ca.depends_on(a, zb):
-            raise BuildError(
-                "the model is nonlinear in " + ", ".join(names[j] for j in cols)
-                + "; the build only solves blocks that are affine in their unknowns"
-            )
-        rhs = -ca.substitute(gb, zb, ca.SX.zeros(zb.numel()))
-        block = rhs / a if len(rows) == 1 else ca.solve(a, rhs)
-        for k, j in enumerate(cols):
-            solution[j] = block[k]
+        solution.update(_solve_block(gb, [z[j] for j in cols], cols, names))
     result = ca.vcat([solution[j] for j in range(n)])
     if ca.depends_on(result, z):
         raise BuildError("the block-triangular solution still depends on the unknowns")
+    return result
+
+
+def _solve_block(g: ca.SX, unknowns: list[ca.SX], cols: list[int],
+                 names: list[str]) -> dict[int, ca.SX]:
+    """Solve one block ``g(z_b) = 0``, affine in ``z_b``.
+
+    Unknowns with a constant non-zero coefficient (assignments such as ``F_d = ...``) are
+    eliminated first, exactly; only the rest (here the 2 x 2 mass-matrix system of eq. 23) goes
+    to a symbolic QR solve.  A pivot that could vanish for some parameter value (``I_wm``) is
+    never chosen by elimination, so the result holds for every admissible parameter.
+    """
+    eqs = [g[i] for i in range(g.numel())]
+    zb = ca.vcat(unknowns)
+    if ca.depends_on(ca.jacobian(ca.vcat(eqs), zb), zb):
+        raise BuildError(
+            "the model is nonlinear in " + ", ".join(names[j] for j in cols)
+            + "; the build only solves blocks that are affine in their unknowns"
+        )
+    pending = list(range(len(unknowns)))
+    eliminated: list[tuple[int, ca.SX]] = []  # (unknown, expression in the remaining unknowns)
+    progress = True
+    while progress and len(pending) > 1:
+        progress = False
+        for e_idx, eq in enumerate(eqs):
+            for k in pending:
+                coeff = ca.jacobian(eq, unknowns[k])
+                if coeff.is_constant() and float(coeff) != 0.0:
+                    expr = unknowns[k] - eq / float(coeff)  # eq = c z_k + rest = 0
+                    expr = ca.substitute(expr, unknowns[k], ca.SX(0))  # -rest / c
+                    eqs = [ca.substitute(e, unknowns[k], expr)
+                           for i, e in enumerate(eqs) if i != e_idx]
+                    eliminated = [(j, ca.substitute(x, unknowns[k], expr)) for j, x in eliminated]
+                    eliminated.append((k, expr))
+                    pending.remove(k)
+                    progress = True
+                    break
+            if progress:
+                break
+    core = ca.vcat([unknowns[k] for k in pending])
+    a = ca.jacobian(ca.vcat(eqs), core)
+    rhs = -ca.substitute(ca.vcat(eqs), core, ca.SX.zeros(core.numel()))
+    core_sol = rhs / a if len(pending) == 1 else ca.solve(a, rhs)
+    result = {cols[k]: core_sol[i] for i, k in enumerate(pending)}
+    for k, expr in eliminated:
+        result[cols[k]] = ca.substitute(expr, core, core_sol)
     return result
