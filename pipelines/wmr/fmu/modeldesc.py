@@ -68,6 +68,17 @@ def _bounds(v: Variable) -> dict[str, str]:
     return attrs
 
 
+def _log_categories() -> ET.Element:
+    """The categories fmu/src/fmi_layer.c understands."""
+    cats = ET.Element("LogCategories")
+    for name, text in (("logStatusError", "Errors: always logged"),
+                       ("logStatusWarning", "Warnings: always logged"),
+                       ("logEvents", "Information, while debug logging is on"),
+                       ("logAll", "Every category")):
+        ET.SubElement(cats, "Category", name=name, description=text)
+    return cats
+
+
 def _experiment(model: FlatModel) -> ET.Element:
     return ET.Element("DefaultExperiment", startTime=_fmt(model.start_time),
                       stopTime=_fmt(model.stop_time), stepSize=_fmt(model.step_size))
@@ -111,9 +122,7 @@ def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str])
     for name in sources:
         ET.SubElement(files, "File", name=name)
     root.append(_units(model))
-    cats = ET.SubElement(root, "LogCategories")
-    ET.SubElement(cats, "Category", name="logStatusError", description="Errors")
-    ET.SubElement(cats, "Category", name="logAll", description="Every call")
+    root.append(_log_categories())
     root.append(_experiment(model))
     mv = ET.SubElement(root, "ModelVariables")
     sv = ET.SubElement(mv, "ScalarVariable", name="time", valueReference="0",
@@ -156,9 +165,7 @@ def fmi3_model_description(model: FlatModel, token: str) -> bytes:
         "canReturnEarlyAfterIntermediateUpdate": "false",
     })
     root.append(_units(model))
-    cats = ET.SubElement(root, "LogCategories")
-    ET.SubElement(cats, "Category", name="logStatusError", description="Errors")
-    ET.SubElement(cats, "Category", name="logAll", description="Every call")
+    root.append(_log_categories())
     root.append(_experiment(model))
     mv = ET.SubElement(root, "ModelVariables")
     ET.SubElement(mv, "Float64", name="time", valueReference="0", causality="independent",

@@ -1,0 +1,252 @@
+/*
+ * fmi2.c: FMI 2.0 co-simulation entry points, thin shells over fmi_layer.c.
+ *
+ * Binary FMU: the functions are exported without a prefix.  With
+ * -fvisibility=hidden only the fmi2* functions (declared FMI2_Export by
+ * fmi2Functions.h) are visible outside the shared library.
+ */
+#include <stddef.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+#include "fmi_layer.h"
+
+#define INST ((FlInstance *)c)
+
+/* Version-specific log adapter.  The FMI 2 logger is printf-like: the
+ * message is passed as the format string, so '%' is escaped as "%%". */
+static void log_adapter(const FlInstance *inst, FlStatus status, const char *category,
+                        const char *message) {
+    char buf[2048];
+    size_t i, j = 0;
+    fmi2CallbackLogger logger = (fmi2CallbackLogger)inst->importer_logger;
+    if (!logger) return;
+    for (i = 0; message[i] && j + 2 < sizeof(buf); i++) {
+        if (message[i] == '%') buf[j++] = '%';
+        buf[j++] = message[i];
+    }
+    buf[j] = '\0';
+    logger((fmi2ComponentEnvironment)inst->importer_env, inst->name, (fmi2Status)status,
+           category, buf);
+}
+
+/* ---- common functions ---- */
+
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
+                               const fmi2String categories[]) {
+    return (fmi2Status)fl_set_debug_logging("fmi2SetDebugLogging", INST, loggingOn, nCategories,
+                                            categories);
+}
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation,
+                              const fmi2CallbackFunctions *functions, fmi2Boolean visible,
+                              fmi2Boolean loggingOn) {
+    void (*logger)(void);
+    void *env;
+    (void)fmuResourceLocation;
+    (void)visible;
+    if (!functions) return NULL;
+    logger = (void (*)(void))functions->logger;
+    env = functions->componentEnvironment;
+    if (fmuType != fmi2CoSimulation) {
+        fl_log_no_instance(instanceName, log_adapter, logger, env, FL_ERROR,
+                           "fmi2Instantiate: fmuType must be fmi2CoSimulation; this FMU does not "
+                           "support Model Exchange");
+        return NULL;
+    }
+    return (fmi2Component)fl_instantiate("fmi2Instantiate", instanceName, fmuGUID, loggingOn,
+                                         log_adapter, logger, env);
+}
+
+void fmi2FreeInstance(fmi2Component c) { fl_free(INST); }
+
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined,
+                               fmi2Real tolerance, fmi2Real startTime,
+                               fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
+    return (fmi2Status)fl_setup_experiment("fmi2SetupExperiment", INST, toleranceDefined,
+                                           tolerance, startTime, stopTimeDefined, stopTime);
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
+    return (fmi2Status)fl_enter_initialization_mode("fmi2EnterInitializationMode", INST);
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
+    return (fmi2Status)fl_exit_initialization_mode("fmi2ExitInitializationMode", INST);
+}
+
+fmi2Status fmi2Terminate(fmi2Component c) {
+    return (fmi2Status)fl_terminate("fmi2Terminate", INST);
+}
+
+fmi2Status fmi2Reset(fmi2Component c) { return (fmi2Status)fl_reset("fmi2Reset", INST); }
+
+/* ---- getting and setting variable values ---- */
+
+#define GET_MASK (FL_INITIALIZATION_MODE | FL_STEP_MODE | FL_TERMINATED | FL_ERROR_STATE)
+#define SET_MASK (FL_INSTANTIATED | FL_INITIALIZATION_MODE | FL_STEP_MODE)
+
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                       fmi2Real value[]) {
+    return (fmi2Status)fl_get_real("fmi2GetReal", INST, vr, nvr, value);
+}
+
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                          fmi2Integer value[]) {
+    (void)value;
+    return (fmi2Status)fl_no_variables_of_type("fmi2GetInteger", INST, GET_MASK, vr, nvr,
+                                               "Integer");
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                          fmi2Boolean value[]) {
+    (void)value;
+    return (fmi2Status)fl_no_variables_of_type("fmi2GetBoolean", INST, GET_MASK, vr, nvr,
+                                               "Boolean");
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                         fmi2String value[]) {
+    (void)value;
+    return (fmi2Status)fl_no_variables_of_type("fmi2GetString", INST, GET_MASK, vr, nvr,
+                                               "String");
+}
+
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                       const fmi2Real value[]) {
+    return (fmi2Status)fl_set_real("fmi2SetReal", INST, vr, nvr, value);
+}
+
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Integer value[]) {
+    (void)value;
+    return (fmi2Status)fl_no_variables_of_type("fmi2SetInteger", INST, SET_MASK, vr, nvr,
+                                               "Integer");
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Boolean value[]) {
+    (void)value;
+    return (fmi2Status)fl_no_variables_of_type("fmi2SetBoolean", INST, SET_MASK, vr, nvr,
+                                               "Boolean");
+}
+
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                         const fmi2String value[]) {
+    (void)value;
+    return (fmi2Status)fl_no_variables_of_type("fmi2SetString", INST, SET_MASK, vr, nvr,
+                                               "String");
+}
+
+/* ---- FMU state ---- */
+
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
+    return (fmi2Status)fl_get_fmu_state("fmi2GetFMUstate", INST, FMUstate);
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
+    return (fmi2Status)fl_set_fmu_state("fmi2SetFMUstate", INST, FMUstate);
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
+    return (fmi2Status)fl_free_fmu_state("fmi2FreeFMUstate", INST, FMUstate);
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
+    return (fmi2Status)fl_serialized_size("fmi2SerializedFMUstateSize", INST, FMUstate, size);
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate,
+                                 fmi2Byte serializedState[], size_t size) {
+    return (fmi2Status)fl_serialize("fmi2SerializeFMUstate", INST, FMUstate,
+                                    (unsigned char *)serializedState, size);
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[],
+                                   size_t size, fmi2FMUstate *FMUstate) {
+    return (fmi2Status)fl_deserialize("fmi2DeSerializeFMUstate", INST,
+                                      (const unsigned char *)serializedState, size, FMUstate);
+}
+
+/* ---- derivatives ---- */
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
+                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[],
+                                        size_t nKnown, const fmi2Real dvKnown[],
+                                        fmi2Real dvUnknown[]) {
+    (void)vUnknown_ref; (void)nUnknown; (void)vKnown_ref; (void)nKnown; (void)dvKnown;
+    (void)dvUnknown;
+    return (fmi2Status)fl_unsupported("fmi2GetDirectionalDerivative", INST,
+                                      "directional derivatives are not provided");
+}
+
+/* ---- co-simulation ---- */
+
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[],
+                                       size_t nvr, const fmi2Integer order[],
+                                       const fmi2Real value[]) {
+    (void)vr; (void)nvr; (void)order; (void)value;
+    return (fmi2Status)fl_unsupported("fmi2SetRealInputDerivatives", INST,
+                                      "canInterpolateInputs is false");
+}
+
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[],
+                                        size_t nvr, const fmi2Integer order[],
+                                        fmi2Real value[]) {
+    (void)vr; (void)nvr; (void)order; (void)value;
+    return (fmi2Status)fl_unsupported("fmi2GetRealOutputDerivatives", INST,
+                                      "maxOutputDerivativeOrder is 0");
+}
+
+fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
+                      fmi2Real communicationStepSize,
+                      fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
+    (void)noSetFMUStatePriorToCurrentPoint;
+    return (fmi2Status)fl_do_step("fmi2DoStep", INST, currentCommunicationPoint,
+                                  communicationStepSize, NULL);
+}
+
+fmi2Status fmi2CancelStep(fmi2Component c) {
+    return (fmi2Status)fl_unsupported("fmi2CancelStep", INST,
+                                      "fmi2DoStep is synchronous and never returns fmi2Pending");
+}
+
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
+    (void)s; (void)value;
+    return (fmi2Status)fl_unsupported("fmi2GetStatus", INST,
+                                      "fmi2DoStep is synchronous and never returns fmi2Pending");
+}
+
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
+    if (s != fmi2LastSuccessfulTime)
+        return (fmi2Status)fl_unsupported("fmi2GetRealStatus", INST,
+                                          "only fmi2LastSuccessfulTime is available");
+    return (fmi2Status)fl_get_time("fmi2GetRealStatus", INST, value);
+}
+
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
+    (void)s; (void)value;
+    return (fmi2Status)fl_unsupported("fmi2GetIntegerStatus", INST,
+                                      "no integer status is defined");
+}
+
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
+    if (s != fmi2Terminated)
+        return (fmi2Status)fl_unsupported("fmi2GetBooleanStatus", INST,
+                                          "only fmi2Terminated is available");
+    if (!fl_check_state("fmi2GetBooleanStatus", INST, FL_ANY_STATE)) return fmi2Error;
+    if (!value) return (fmi2Status)fl_unsupported("fmi2GetBooleanStatus", INST, "value is NULL");
+    *value = fmi2False; /* the FMU never requests the end of the simulation */
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
+    (void)s; (void)value;
+    return (fmi2Status)fl_unsupported("fmi2GetStringStatus", INST,
+                                      "fmi2DoStep is synchronous and never returns fmi2Pending");
+}

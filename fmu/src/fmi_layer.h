@@ -1,0 +1,149 @@
+/*
+ * fmi_layer.h: the FMI-version-independent co-simulation layer.
+ *
+ * fmi2.c and fmi3.c are thin shells that translate their arguments and call
+ * these functions.  The layer owns the instance (state machine, variables,
+ * solver), validates every call and every value, and reports through a
+ * version-specific log adapter.  It only knows the model contract (model.h).
+ *
+ * Every function takes the name of the calling FMI function (fn) so that
+ * messages read "fmi3DoStep: expected state StepMode, was Instantiated".
+ */
+#ifndef WMR_FMI_LAYER_H
+#define WMR_FMI_LAYER_H
+
+#include <stddef.h>
+
+#include "model.h"
+#include "solver.h"
+
+/* Same numbers as fmi2Status and fmi3Status (OK, Warning, Discard, Error, Fatal). */
+typedef enum {
+    FL_OK = 0,
+    FL_WARNING = 1,
+    FL_DISCARD = 2,
+    FL_ERROR = 3,
+    FL_FATAL = 4
+} FlStatus;
+
+/* Instance states (bit flags, so that allowed states are masks). */
+typedef enum {
+    FL_INSTANTIATED = 1 << 0,
+    FL_INITIALIZATION_MODE = 1 << 1,
+    FL_STEP_MODE = 1 << 2,
+    FL_TERMINATED = 1 << 3,
+    FL_ERROR_STATE = 1 << 4
+} FlMode;
+
+#define FL_ANY_STATE (FL_INSTANTIATED | FL_INITIALIZATION_MODE | FL_STEP_MODE | FL_TERMINATED | FL_ERROR_STATE)
+
+/* Relative tolerance used to compare currentCommunicationPoint with the
+ * instance time: |tc - t| <= FL_TIME_TOL * max(1, |t|). */
+#define FL_TIME_TOL 1e-10
+
+struct FlInstance;
+
+/* Version-specific log adapter: forwards one message to the importer. */
+typedef void (*FlLogAdapter)(const struct FlInstance *inst, FlStatus status,
+                             const char *category, const char *message);
+
+/* Everything that an FMU state captures: plain data, copied with memcpy. */
+typedef struct {
+    int mode;                 /* FlMode */
+    double time;
+    double start_time;
+    double stop_time;
+    int stop_time_defined;
+    double x[MODEL_NX];
+    double u[MODEL_NU];
+    double p[MODEL_NP];
+    double y[MODEL_NY];       /* last good outputs */
+    int outputs_dirty;        /* y must be re-evaluated before it is read */
+    SolverState solver;
+    unsigned long n_comm_steps;
+} FlData;
+
+typedef struct FlInstance {
+    char *name;
+    FlLogAdapter log_adapter;
+    void (*importer_logger)(void); /* the importer's callback (cast back by the adapter) */
+    void *importer_env;            /* componentEnvironment / instanceEnvironment */
+    int logging_on;                /* debug logging on (fmiSetDebugLogging / instantiate) */
+    int log_events;                /* category logEvents enabled: info messages */
+    FlStatus worst_status;         /* worst status returned since instantiation/reset */
+    FlData d;
+} FlInstance;
+
+/* Log categories understood by fl_set_debug_logging.  Errors and warnings
+ * are always reported; info messages (category logEvents) only while debug
+ * logging is on and logEvents (or logAll, or no category at all) is enabled. */
+#define FL_CAT_ERROR "logStatusError"
+#define FL_CAT_WARNING "logStatusWarning"
+#define FL_CAT_EVENTS "logEvents"
+#define FL_CAT_ALL "logAll"
+
+/* ---- creation and destruction ---- */
+
+/* Returns NULL (after logging the reason) if the token does not match
+ * MODEL_INSTANTIATION_TOKEN or memory is exhausted. */
+FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char *token,
+                           int logging_on, FlLogAdapter adapter,
+                           void (*importer_logger)(void), void *importer_env);
+void fl_free(FlInstance *inst);
+
+/* Log without an instance (e.g. when instantiation is refused before any
+ * instance exists); uses a temporary instance on the stack. */
+void fl_log_no_instance(const char *instance_name, FlLogAdapter adapter,
+                        void (*importer_logger)(void), void *importer_env,
+                        FlStatus status, const char *fmt, ...);
+
+/* ---- logging and state checks (used by the shells too) ---- */
+
+void fl_log(FlInstance *inst, FlStatus status, const char *fmt, ...);
+FlStatus fl_set_debug_logging(const char *fn, FlInstance *inst, int logging_on,
+                              size_t n_categories, const char *const categories[]);
+/* 1 if inst is not NULL and in one of the states of mask, else logs and returns 0. */
+int fl_check_state(const char *fn, FlInstance *inst, int mask);
+/* Log an error for an unsupported function and return FL_ERROR. */
+FlStatus fl_unsupported(const char *fn, FlInstance *inst, const char *why);
+/* For the typed accessors of types the model does not have: OK if nvr == 0. */
+FlStatus fl_no_variables_of_type(const char *fn, FlInstance *inst, int mask,
+                                 const unsigned int vr[], size_t nvr, const char *type_name);
+const char *fl_mode_name(int mode);
+
+/* ---- life cycle ---- */
+
+FlStatus fl_setup_experiment(const char *fn, FlInstance *inst, int tolerance_defined,
+                             double tolerance, double start_time, int stop_time_defined,
+                             double stop_time);
+FlStatus fl_enter_initialization_mode(const char *fn, FlInstance *inst);
+FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst);
+FlStatus fl_terminate(const char *fn, FlInstance *inst);
+FlStatus fl_reset(const char *fn, FlInstance *inst);
+
+/* ---- variables (value reference == index in MODEL_VARIABLES) ---- */
+
+FlStatus fl_get_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
+                     double values[]);
+FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
+                     const double values[]);
+
+/* ---- stepping ---- */
+
+/* *last_successful_time (may be NULL) receives the instance time after the call. */
+FlStatus fl_do_step(const char *fn, FlInstance *inst, double current_communication_point,
+                    double step_size, double *last_successful_time);
+FlStatus fl_get_time(const char *fn, FlInstance *inst, double *time);
+
+/* ---- FMU state ---- */
+
+FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state);
+FlStatus fl_set_fmu_state(const char *fn, FlInstance *inst, const void *state);
+FlStatus fl_free_fmu_state(const char *fn, FlInstance *inst, void **state);
+FlStatus fl_serialized_size(const char *fn, FlInstance *inst, const void *state, size_t *size);
+FlStatus fl_serialize(const char *fn, FlInstance *inst, const void *state,
+                      unsigned char *buffer, size_t size);
+FlStatus fl_deserialize(const char *fn, FlInstance *inst, const unsigned char *buffer,
+                        size_t size, void **state);
+
+#endif
