@@ -43,13 +43,17 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("-v", "--verbose", action="store_true", help="say whether it rebuilt")
     build.set_defaults(handler=_cmd_fmu_build)
 
-    for register in _EXTRA_COMMANDS:
+    for register in _extra_commands():
         register(sub)
     return parser
 
 
-#: Further sub-commands register themselves here (run, replay, batch, ...).
-_EXTRA_COMMANDS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], None]] = []
+def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
+                                        None]]:
+    """The ``register`` functions of the other sub-commands, in ``--help`` order."""
+    from wmr import cli_run
+
+    return [cli_run.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -64,8 +68,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except WmrError as exc:
         if args.debug:
             raise
-        print(f"wmr: error: {exc}".splitlines()[0] if "\n" not in str(exc) or not args.debug
-              else f"wmr: error: {exc}", file=sys.stderr)
+        lines = str(exc).splitlines() or [type(exc).__name__]
+        more = " (run with --debug for details)" if len(lines) > 1 else ""
+        print(f"wmr: error: {lines[0]}{more}", file=sys.stderr)
         return 1
     except Exception as exc:
         if args.debug:

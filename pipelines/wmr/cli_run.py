@@ -1,0 +1,134 @@
+"""``wmr run``: one closed-loop co-simulation of the paper's PI stabiliser, logged to MCAP."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from wmr.errors import ConfigError
+
+
+def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
+    """Parse ``NAME=VALUE`` items of a repeated option."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise ConfigError(option, f"{item!r} is not NAME=VALUE", f"e.g. {option} K_ps=0.5")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ConfigError(f"{option} {name}", f"{value!r} is not a number") from None
+    return out
+
+
+def safe_filename(name: str) -> str:
+    """A run name as a file name: letters, digits, ``-``, ``_``, ``.``, ``+`` and ``=``."""
+    return re.sub(r"[^A-Za-z0-9_.+=-]+", "_", name).strip("._") or "run"
+
+
+def add_run_overrides(parser: argparse.ArgumentParser) -> None:
+    """Options shared by ``wmr run`` and the commands that run the stabiliser."""
+    parser.add_argument("--start", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
+                        help="start pose of B: x and y in m, heading in degrees")
+    parser.add_argument("--goal", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
+                        help="goal pose: x and y in m, desired heading theta_d in degrees")
+    parser.add_argument("--gain", action="append", metavar="NAME=VALUE",
+                        help="override a gain (K_ps, K_is, K_ptheta, K_itheta, K_pw, K_iw)")
+    parser.add_argument("--limit", action="append", metavar="NAME=VALUE",
+                        help="override a limit (torque_max_nm, wheel_speed_max_radps, ...)")
+    parser.add_argument("--param", action="append", metavar="NAME=VALUE",
+                        help="override a robot parameter (m, r, L, l, Ig, Iwm, b_f, tau_c)")
+    parser.add_argument("--period", type=float, metavar="S", help="control period, s")
+    parser.add_argument("--stop-radius", type=float, metavar="M",
+                        help="stop radius epsilon, m")
+    parser.add_argument("--max-time", type=float, metavar="S", help="time limit of a run, s")
+    parser.add_argument("--fmi", type=int, choices=(2, 3), default=3,
+                        help="FMI version of the FMU to drive (default 3)")
+    parser.add_argument("--fmu", metavar="FILE.fmu",
+                        help="drive this FMU instead of the project's own build")
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from wmr.fmu.plant import FmuPlant
+    from wmr.run import default_fmu, result_json, run_to_log
+    from wmr.scenario import load_scenario, with_overrides
+
+    scenario = load_scenario(args.scenario)
+    runs = list(scenario.runs)
+    if args.run is not None:
+        chosen = [r for r in runs if r.name == args.run]
+        if not chosen:
+            raise ConfigError("--run", f"scenario {scenario.name} has no run {args.run!r}",
+                              "pick one of: " + ", ".join(r.name for r in runs))
+        runs = chosen
+    if len(runs) != 1:
+        raise ConfigError("--run", f"scenario {scenario.name} has {len(runs)} runs",
+                          "pick one with --run NAME ("
+                          + ", ".join(r.name for r in runs[:6])
+                          + (", ..." if len(runs) > 6 else "") + ") or run them all with "
+                          "'wmr batch'")
+    spec = with_overrides(
+        runs[0], start=args.start, goal=args.goal,
+        gains=_key_values(args.gain, "--gain"), limits=_key_values(args.limit, "--limit"),
+        params=_key_values(args.param, "--param"), period_s=args.period,
+        stop_radius_m=args.stop_radius, t_max_s=args.max_time)
+    out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(spec.name)}.mcap"
+    if out.suffix != ".mcap":
+        raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
+    fmu_path = Path(args.fmu) if args.fmu else default_fmu(args.fmi)
+    progress, finish = _progress_bar(spec.name, args.json)
+    with FmuPlant(fmu_path) as plant:
+        try:
+            record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress)
+        finally:
+            finish()
+    if args.json:
+        print(result_json(record))
+    else:
+        line = (f"{record['status']}: {record['message']}; final position error "
+                f"{record['final_position_error_m']:.4f} m, heading error "
+                f"{record['final_heading_error_rad']:.5f} rad, path "
+                f"{record['path_length_m']:.2f} m; log {record['mcap']}")
+        print(line)
+    return 0 if record["status"] == "converged" else 3 if record["status"] == "timeout" else 1
+
+
+def _progress_bar(name: str, quiet: bool) -> tuple[Callable[[float, float], None],
+                                                   Callable[[], None]]:
+    """A tqdm bar over simulation time on stderr, shown only for runs longer than ~1 s."""
+    from tqdm import tqdm
+
+    bar: list[tqdm[None]] = []
+
+    def update(t_s: float, t_max_s: float) -> None:
+        if not bar:
+            bar.append(tqdm(total=round(t_max_s, 2), desc=name, unit="sim s", delay=1.0,
+                            file=sys.stderr, leave=False, disable=None,
+                            bar_format="{desc}: {n:.1f}/{total:.0f} sim s [{elapsed}]"))
+        bar[0].n = round(t_s, 2)
+        bar[0].refresh()
+
+    def finish() -> None:
+        if bar:
+            bar[0].close()
+
+    return update, finish
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "run", help="one closed-loop co-simulation of the paper's PI stabiliser",
+        description="Run the paper's PI point stabiliser on the FMU and log the run to MCAP. "
+                    "Exit status: 0 converged, 3 timeout, 1 failed.")
+    p.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
+                   help="scenario name (fig9, fig10, fig11) or TOML file (default fig11)")
+    p.add_argument("--run", metavar="NAME", help="the run of a multi-run scenario to simulate")
+    add_run_overrides(p)
+    p.add_argument("--out", metavar="FILE.mcap", help="log file (default runs/NAME.mcap)")
+    p.add_argument("--json", action="store_true",
+                   help="print the result as one JSON object on the last line")
+    p.set_defaults(handler=_cmd_run)
