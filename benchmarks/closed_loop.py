@@ -1,0 +1,90 @@
+"""Cost per 10 ms control step of the closed loop, split into its parts, measured in one run.
+
+Rows (median of repeated runs of the paper's Fig. 11 case on the FMI 3 FMU):
+
+- FMU exchange: ``FmuPlant.step`` alone (set inputs, doStep, get outputs through fmpy),
+- controller: the stabiliser and wheel servos alone, on the states of a recorded run,
+- loop without logging: ``run_closed_loop(..., sink=None)``,
+- loop with logging: ``run_to_log`` (the whole ``wmr run`` minus start-up),
+- logging: the difference of the last two.
+
+Run: ``python benchmarks/closed_loop.py``.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from _common import print_table
+
+from wmr.closedloop import run_closed_loop
+from wmr.control import Controller
+from wmr.fmu.build import build_fmus
+from wmr.fmu.plant import FmuPlant
+from wmr.mcaplog import read_run
+from wmr.run import run_to_log
+from wmr.scenario import load_scenario
+
+REPEATS = 7
+
+
+def _median(samples: list[float]) -> float:
+    return statistics.median(samples)
+
+
+def main() -> None:
+    spec = load_scenario("fig11").runs[0]
+    fmu = build_fmus().fmus[3]
+    with FmuPlant(fmu) as plant, tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / "run.mcap"
+        run_to_log(spec, log, plant)  # warm-up, and a recorded run for the controller row
+        data = read_run(log)
+        steps = data.n_steps
+        s = data.signals
+        states = list(zip(s["x_m"], s["y_m"], s["theta_rad"], s["omega_r_radps"],
+                          s["omega_l_radps"], strict=True))
+        torques = list(zip(s["tau_r_nm"], s["tau_l_nm"], strict=True))
+
+        fmu_t, ctrl_t, loop_t, logged_t = [], [], [], []
+        for _ in range(REPEATS):
+            plant.reset(spec.params, spec.start)
+            t0 = time.perf_counter()
+            for tr, tl in torques:
+                plant.step(tr, tl, spec.period_s)
+            fmu_t.append((time.perf_counter() - t0) / steps)
+
+            ctrl = Controller(spec.goal, spec.gains, spec.limits, spec.params, spec.period_s,
+                              spec.stop_radius_m)
+            t0 = time.perf_counter()
+            for x, y, th, wr, wl in states:
+                ctrl.step(x, y, th, wr, wl)
+            ctrl_t.append((time.perf_counter() - t0) / steps)
+
+            t0 = time.perf_counter()
+            result = run_closed_loop(spec, plant)
+            loop_t.append((time.perf_counter() - t0) / result.steps)
+
+            t0 = time.perf_counter()
+            record = run_to_log(spec, log, plant)
+            logged_t.append((time.perf_counter() - t0) / int(record["steps"]))
+
+    fmu_s, ctrl_s, loop_s, logged_s = map(_median, (fmu_t, ctrl_t, loop_t, logged_t))
+    rows = [
+        ("FMU exchange (FmuPlant.step, fmpy)", fmu_s),
+        ("controller (stabiliser + wheel servos)", ctrl_s),
+        ("loop without logging", loop_s),
+        ("loop with MCAP logging (wmr run)", logged_s),
+        ("logging (difference)", max(logged_s - loop_s, 0.0)),
+        ("loop bookkeeping (loop - FMU - controller)", max(loop_s - fmu_s - ctrl_s, 0.0)),
+    ]
+    print_table(f"Closed loop, Fig. 11 case, {steps} steps of {spec.period_s * 1e3:.0f} ms "
+                f"(median of {REPEATS})", rows, "FMU exchange (FmuPlant.step, fmpy)")
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).parent))
+    main()
