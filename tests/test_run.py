@@ -1,0 +1,182 @@
+"""``wmr run`` end to end on the FMU: results, logs, reproducibility, failures, bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wmr.cli import main
+from wmr.errors import FmuError
+from wmr.fmu.build import BuildResult
+from wmr.fmu.plant import FmuPlant
+from wmr.mcaplog import read_run
+from wmr.plant import Pose, RobotParams
+from wmr.run import run_to_log
+from wmr.scenario import load_scenario
+
+RESULT_FIELDS = {"status", "final_position_error_m", "final_heading_error_rad",
+                 "time_to_goal_s", "path_length_m", "mcap"}
+
+
+@pytest.fixture(autouse=True)
+def _use_session_fmus(built: BuildResult, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`wmr run` builds into the user cache; point it at the session's build instead."""
+    monkeypatch.setattr("wmr.run.default_fmu", lambda v=3: built.fmus[v])
+
+
+def _run_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict[str, object]]:
+    code = main(["run", *args, "--json"])
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    return code, json.loads(last)
+
+
+def test_default_run_is_the_fig11_case_and_converges(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "fig11.mcap"
+    code, record = _run_json(capsys, "--out", str(out))
+    assert code == 0
+    assert RESULT_FIELDS <= set(record)
+    assert record["status"] == "converged"
+    assert float(record["final_position_error_m"]) < 0.05  # type: ignore[arg-type]
+    assert float(record["final_heading_error_rad"]) < math.radians(2)  # type: ignore[arg-type]
+    assert Path(str(record["mcap"])) == out
+    log = read_run(out)
+    assert not log.truncated
+    assert log.metadata["result"]["status"] == "converged"
+    run = log.metadata["run"]
+    assert run["fmi_version"] == "3.0" and len(run["fmu_sha256"]) == 64
+    assert json.loads(run["goal"]) == {"x_m": 20.0, "y_m": 10.0, "heading_rad": 0.0}
+    assert {"modelDescription.xml", "fig11.toml"} <= set(log.attachments)
+    assert log.n_steps == int(log.metadata["result"]["steps"])
+    assert log.signals["x_m"][-1] == pytest.approx(20.0, abs=0.05)
+
+
+def test_the_same_run_gives_the_same_bytes(tmp_path: Path, built: BuildResult) -> None:
+    spec = load_scenario("fig11").runs[0]
+    with FmuPlant(built.fmus[3]) as plant:
+        run_to_log(spec, tmp_path / "a" / "run.mcap", plant)
+        run_to_log(spec, tmp_path / "b" / "run.mcap", plant)
+    a, b = (tmp_path / "a" / "run.mcap").read_bytes(), (tmp_path / "b" / "run.mcap").read_bytes()
+    assert len(a) > 100_000
+    assert a.replace(b"/a/run.mcap", b"/b/run.mcap") == b
+
+
+def test_fmi2_and_fmi3_runs_log_the_same_signals(tmp_path: Path, built: BuildResult) -> None:
+    spec = load_scenario("fig11").runs[0]
+    blocks = []
+    for version in (2, 3):
+        with FmuPlant(built.fmus[version]) as plant:
+            run_to_log(spec, tmp_path / f"v{version}.mcap", plant)
+        blocks.append(read_run(tmp_path / f"v{version}.mcap").block())
+    np.testing.assert_array_equal(blocks[0], blocks[1])
+
+
+@pytest.mark.parametrize("args, field", [
+    (["--goal", "nan", "10", "0"], "goal.x_m"),
+    (["--start", "0", "inf", "0"], "start.y_m"),
+    (["--period", "-0.01"], "control_period_s"),
+    (["--gain", "K_ps=nan"], "K_ps"),
+    (["--param", "m=-3"], "m"),
+    (["no_such_scenario"], "scenario"),
+])
+def test_bad_input_is_one_line_naming_the_field_and_writes_no_log(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], field: str) -> None:
+    out = tmp_path / "bad.mcap"
+    code = main(["run", *args, "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0
+    assert len(err) == 1 and err[0].startswith("wmr: error:") and field in err[0]
+    assert not out.exists()
+
+
+def test_a_hostile_fmu_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "evil.fmu").write_bytes(b"PK\x03\x04 definitely not a zip")
+    code = main(["run", "--fmu", str(tmp_path / "evil.fmu"), "--out", str(tmp_path / "x.mcap")])
+    err = capsys.readouterr().err
+    assert code == 1 and "not an FMU" in err
+    assert not (tmp_path / "x.mcap").exists()
+
+
+class _FailingPlant:
+    """The FMU, failing at step ``fail_at`` the way a diverging model would."""
+
+    def __init__(self, inner: FmuPlant, fail_at: int) -> None:
+        self.inner, self.fail_at, self.n = inner, fail_at, 0
+        self.sha256, self.fmu_path, self.fmi_version = inner.sha256, inner.fmu_path, "3.0"
+
+    def reset(self, params: RobotParams, start: Pose, v0_mps: float = 0.0,
+              omega0_radps: float = 0.0) -> np.ndarray:
+        self.n = 0
+        return self.inner.reset(params, start, v0_mps, omega0_radps)
+
+    def step(self, tau_r_nm: float, tau_l_nm: float, h_s: float) -> np.ndarray:
+        self.n += 1
+        if self.n == self.fail_at:
+            raise FmuError("fmi3DoStep returned fmi3Error")
+        return self.inner.step(tau_r_nm, tau_l_nm, h_s)
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+def test_a_failed_run_is_recorded_as_failed_with_its_log_readable(tmp_path: Path,
+                                                                  built: BuildResult) -> None:
+    spec = load_scenario("fig11").runs[0]
+    with FmuPlant(built.fmus[3]) as inner:
+        record = run_to_log(spec, tmp_path / "f.mcap", _FailingPlant(inner, 700))  # type: ignore[arg-type]
+    assert record["status"] == "failed"
+    assert "fmi3DoStep" in str(record["message"])
+    log = read_run(tmp_path / "f.mcap")
+    assert not log.truncated
+    assert log.metadata["result"]["status"] == "failed"
+    assert log.n_steps == 700  # every step before the failure is in the log
+
+
+def test_timeout_is_a_status_not_a_hang(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, record = _run_json(capsys, "--max-time", "3", "--out", str(tmp_path / "t.mcap"))
+    assert code == 3
+    assert record["status"] == "timeout"
+    assert "max_time_s" in str(record["message"])
+
+
+def test_a_killed_run_leaves_a_log_readable_up_to_its_last_chunk(tmp_path: Path,
+                                                                 built: BuildResult) -> None:
+    out = tmp_path / "killed.mcap"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    code = (f"import wmr.run, wmr.cli, sys; wmr.run.default_fmu = lambda v=3: {str(built.fmus[3])!r};"
+            f"sys.exit(wmr.cli.main(['run', '--goal', '300', '300', '0', '--max-time', '2000',"
+            f"'--out', {str(out)!r}]))")
+    proc = subprocess.Popen([sys.executable, "-c", code], env=env)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 300_000):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    log = read_run(out)
+    assert log.truncated
+    assert log.n_steps >= 100 and "result" not in log.metadata
+    assert np.all(np.diff(log.t_ns) == 10_000_000)
+
+
+@pytest.mark.parametrize("scenario", ["fig9", "fig10"])
+def test_every_paper_run_converges_on_the_fmu(scenario: str, built: BuildResult) -> None:
+    from wmr.closedloop import run_closed_loop
+
+    failures = []
+    with FmuPlant(built.fmus[3]) as plant:
+        for spec in load_scenario(scenario).runs:
+            res = run_closed_loop(spec, plant)
+            if not (res.status == "converged" and res.final_position_error_m < 0.05
+                    and res.final_heading_error_rad < math.radians(2)):
+                failures.append((spec.name, res.status, res.final_position_error_m,
+                                 math.degrees(res.final_heading_error_rad)))
+    assert failures == []
