@@ -1,0 +1,478 @@
+"""The MCAP run log: vectorised encoding, round trip, reproducibility, damage tolerance."""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+from mcap.exceptions import EndOfFile
+from mcap.reader import make_reader
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
+from mcap.writer import Writer
+from mcap_protobuf.decoder import DecoderFactory
+from numpy.typing import NDArray
+
+from wmr.errors import LogError
+from wmr.mcaplog import RunLogWriter, read_run
+from wmr.mcaplog.schemas import (
+    SRC_QW,
+    SRC_QZ,
+    STEP_TOPICS,
+    RowEncoder,
+    decode_bodies,
+    file_descriptor_set,
+    message_class,
+)
+from wmr.mcaplog.writer import LIBRARY
+from wmr.signals import COLUMN, SIGNALS
+
+N_SIG = len(SIGNALS)
+STEP_NS = 10_000_000  # 100 Hz
+RUN = {"scenario": "fig9", "start": {"x_m": 0.0, "y_m": 0.0}, "gains": {"K_ps": 1.5}}
+ATTACH = {
+    "scenario.toml": ("application/toml", b"[goal]\nx_m = 20\n"),
+    "modelDescription.xml": ("application/xml", b"<fmiModelDescription/>"),
+}
+GOAL = (20.0, 10.0, 0.5)
+
+
+def bits(a: NDArray[np.float64]) -> NDArray[np.uint64]:
+    """The bit patterns of float64 values (equality of these is bit-for-bit equality)."""
+    return np.ascontiguousarray(a, np.float64).view(np.uint64)
+
+
+def make_run(n: int, seed: int = 0) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    rng = np.random.default_rng(seed)
+    t = np.arange(n, dtype=np.int64) * STEP_NS
+    block = rng.normal(scale=10.0, size=(n, N_SIG))
+    return t, block
+
+
+def write_run(
+    path: Path,
+    t: NDArray[np.int64],
+    block: NDArray[np.float64],
+    rows_per_call: int = 100,
+    result: dict[str, object] | None = None,
+    **kwargs: object,
+) -> None:
+    with RunLogWriter(path, run=RUN, goal=GOAL, attachments=ATTACH, **kwargs) as w:  # type: ignore[arg-type]
+        buf_t = np.empty(rows_per_call, np.int64)
+        buf_x = np.empty((rows_per_call, N_SIG))
+        for i in range(0, len(t), rows_per_call):
+            m = min(rows_per_call, len(t) - i)
+            # the master reuses its buffers: the writer must copy
+            buf_t[:m], buf_x[:m] = t[i : i + m], block[i : i + m]
+            w.write_block(buf_t[:m], buf_x[:m])
+            buf_x[:] = np.nan
+        w.close(result if result is not None else {"status": "converged", "path_length_m": 22.5})
+
+
+def message_records(data: bytes) -> list[Message]:
+    out: list[Message] = []
+    try:
+        for r in StreamReader(io.BytesIO(data), skip_magic=True).records:
+            out.append(r)
+    except EndOfFile:
+        pass
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# Vectorised encoding == protobuf
+# ------------------------------------------------------------------------------------------
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+extremes = st.sampled_from([0.0, -0.0, 5e-324, -5e-324, 1.7976931348623157e308, -1e-300, 1.0])
+values = st.one_of(finite, extremes)
+DAY_NS = 86_400 * 10**9
+times = st.one_of(
+    st.integers(0, 3 * DAY_NS),
+    st.integers(0, 10**6).map(lambda k: k * 10**9),  # whole seconds: nanos field omitted
+    st.integers(0, 999_999_999),  # seconds field omitted
+    st.integers(0, 2**63 - 1),
+)
+
+
+CHANNEL_IDS = tuple(range(3, 3 + len(STEP_TOPICS)))
+ENCODER = RowEncoder(CHANNEL_IDS)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    data=st.data(),
+    n=st.integers(1, 12),
+)
+def test_vectorised_encoding_parses_as_protobuf(data: st.DataObject, n: int) -> None:
+    t = np.sort(np.array(data.draw(st.lists(times, min_size=n, max_size=n)), np.int64))
+    block = data.draw(hnp.arrays(np.float64, (n, N_SIG), elements=values))
+    records, offsets = ENCODER.encode(t, block)
+    msgs = message_records(records)
+    assert len(msgs) == n * len(STEP_TOPICS)
+    # the offsets point at each record's opcode
+    assert all(records[o] == 0x05 for o in offsets.ravel())
+    for i in range(n):
+        sec, nanos = divmod(int(t[i]), 10**9)
+        for k, layout in enumerate(STEP_TOPICS):
+            rec = msgs[i * len(STEP_TOPICS) + k]
+            assert rec.channel_id == CHANNEL_IDS[k]
+            assert rec.log_time == rec.publish_time == t[i]
+            assert records.index(rec.data, int(offsets[i, k])) == int(offsets[i, k]) + 31
+            msg = message_class(layout.schema_name)()
+            msg.ParseFromString(rec.data)
+            assert (msg.timestamp.seconds, msg.timestamp.nanos) == (sec, nanos)
+            for name in layout.signals:
+                assert bits(np.float64(getattr(msg, name))) == bits(block[i, COLUMN[name]])
+            if layout.signals:
+                # canonical proto3 omits zero fields; ours keeps them, so compare when none is 0
+                if all(block[i, COLUMN[s]] != 0 for s in layout.signals):
+                    assert rec.data == msg.SerializeToString(deterministic=True)
+                continue
+            theta = block[i, COLUMN["theta_rad"]]
+            pos = msg.pose.position if layout.topic == "/robot/pose" else msg.translation
+            rot = msg.pose.orientation if layout.topic == "/robot/pose" else msg.rotation
+            assert (pos.x, pos.y, pos.z) == (block[i, COLUMN["x_m"]], block[i, COLUMN["y_m"]], 0)
+            assert (rot.x, rot.y) == (0.0, 0.0)
+            assert (rot.z, rot.w) == (math.sin(0.5 * theta), math.cos(0.5 * theta))
+
+
+def test_source_columns_for_quaternion_follow_signals() -> None:
+    assert (SRC_QZ, SRC_QW) == (N_SIG, N_SIG + 1)
+    carried = [s for layout in STEP_TOPICS for s in layout.signals]
+    assert sorted(carried) == sorted(SIGNALS), "every signal is carried exactly once"
+
+
+def test_decode_bodies_rejects_foreign_layout() -> None:
+    layout = next(lay for lay in STEP_TOPICS if lay.topic == "/controller/errors")
+    msg = message_class(layout.schema_name)(dr_m=1.0, e_s_m=2.0)  # canonical: zeros omitted
+    assert decode_bodies(layout, [msg.SerializeToString()]) is None
+    msg = message_class(layout.schema_name)(**{s: 1.0 + i for i, s in enumerate(layout.signals)})
+    assert decode_bodies(layout, [msg.SerializeToString()]) is None, "no timestamp field"
+    msg.timestamp.FromNanoseconds(1_500_000_000)
+    decoded = decode_bodies(layout, [msg.SerializeToString()])
+    assert decoded is not None and decoded.tolist() == [[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]]
+
+
+# ------------------------------------------------------------------------------------------
+# Round trip, reproducibility
+# ------------------------------------------------------------------------------------------
+
+
+def test_round_trip_is_bit_exact(tmp_path: Path) -> None:
+    t, block = make_run(537)
+    block[3, 0] = np.nan
+    block[4, 5] = -0.0
+    block[5, 7] = np.inf
+    block[6, 9] = 5e-324
+    path = tmp_path / "run.mcap"
+    write_run(path, t, block, rows_per_call=37)
+    run = read_run(path)
+    assert not run.truncated and run.warnings == []
+    assert np.array_equal(run.t_ns, t)
+    assert np.array_equal(run.t_s, t * 1e-9)
+    assert set(run.signals) == set(SIGNALS)
+    for name in SIGNALS:
+        assert np.array_equal(bits(run.signals[name]), bits(block[:, COLUMN[name]])), name
+    assert np.array_equal(bits(run.block()), bits(block))
+    assert run.metadata["run"] == {
+        "scenario": "fig9",
+        "start": '{"x_m": 0.0, "y_m": 0.0}',
+        "gains": '{"K_ps": 1.5}',
+    }
+    assert run.metadata["result"] == {"status": "converged", "path_length_m": "22.5"}
+    assert run.attachments == {name: data for name, (_, data) in ATTACH.items()}
+    assert run.media_types["modelDescription.xml"] == "application/xml"
+    assert run.goal is not None
+    assert run.goal.x_m == 20.0 and run.goal.y_m == 10.0
+    assert run.goal.theta_rad == pytest.approx(0.5, abs=1e-15)
+
+
+@pytest.mark.parametrize("compression", ["lz4", "zstd", ""])
+def test_same_inputs_same_bytes(tmp_path: Path, compression: str) -> None:
+    t, block = make_run(450, seed=3)
+    a, b, c = tmp_path / "a.mcap", tmp_path / "b.mcap", tmp_path / "c.mcap"
+    write_run(a, t, block, compression=compression)
+    write_run(b, t, block, compression=compression)
+    # chunk boundaries are multiples of 1 s of sim time, whatever the caller's batching
+    write_run(c, t, block, rows_per_call=7, compression=compression)
+    assert a.read_bytes() == b.read_bytes() == c.read_bytes()
+    with open(a, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().library == LIBRARY
+        attachments = list(reader.iter_attachments())
+        assert [(x.create_time, x.log_time) for x in attachments] == [(0, 0), (0, 0)]
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert summary.statistics.chunk_count == 1 + 5  # goal + seconds 0..4
+        assert summary.statistics.message_count == 1 + 450 * len(STEP_TOPICS)
+        assert {i.compression for i in summary.chunk_indexes} == {compression}
+
+
+def test_different_data_different_bytes(tmp_path: Path) -> None:
+    t, block = make_run(50)
+    write_run(tmp_path / "a.mcap", t, block)
+    block[49, 31] += 1.0
+    write_run(tmp_path / "b.mcap", t, block)
+    assert (tmp_path / "a.mcap").read_bytes() != (tmp_path / "b.mcap").read_bytes()
+
+
+# ------------------------------------------------------------------------------------------
+# Generic MCAP tools can read it
+# ------------------------------------------------------------------------------------------
+
+
+def test_generic_reader_sees_foxglove_poses(tmp_path: Path) -> None:
+    n = 230
+    t, block = make_run(n, seed=5)
+    headings = np.array([0.0, 0.3, 2.5, -1.2, 3.1, 7.0, -9.4])
+    block[: len(headings), COLUMN["theta_rad"]] = headings
+    path = tmp_path / "run.mcap"
+    write_run(path, t, block)
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
+        poses = list(reader.iter_decoded_messages(topics=["/robot/pose"]))
+        tfs = list(reader.iter_decoded_messages(topics=["/tf"]))
+        goals = list(reader.iter_decoded_messages(topics=["/goal"]))
+        # the index is right: a time-range query returns exactly the rows in range
+        window = list(reader.iter_messages(starting_at=int(t[100]), ending_before=int(t[150])))
+    assert len(poses) == len(tfs) == n and len(goals) == 1
+    assert len(window) == 50 * len(STEP_TOPICS)
+    assert {m.log_time for _, _, m in window} == set(t[100:150].tolist())
+    for i, (schema, _, message, pose) in enumerate(poses[: len(headings)]):
+        assert schema is not None and schema.name == "foxglove.PoseInFrame"
+        assert message.log_time == t[i]
+        assert pose.frame_id == "world"
+        assert pose.timestamp.ToNanoseconds() == t[i]
+        q = pose.pose.orientation
+        assert math.isclose(q.x**2 + q.y**2 + q.z**2 + q.w**2, 1.0, rel_tol=1e-15)
+        # rotate the body x axis by q: it must point along the heading in the xy plane
+        x_axis = (
+            1 - 2 * (q.y**2 + q.z**2),
+            2 * (q.x * q.y + q.w * q.z),
+            2 * (q.x * q.z - q.w * q.y),
+        )
+        assert x_axis == pytest.approx((math.cos(headings[i]), math.sin(headings[i]), 0.0))
+        assert (pose.pose.position.x, pose.pose.position.y) == (block[i, 0], block[i, 1])
+    tf = tfs[0][3]
+    assert (tf.parent_frame_id, tf.child_frame_id) == ("world", "base_link")
+    goal = goals[0][3]
+    assert goal.frame_id == "world" and goal.pose.position.x == 20.0
+    assert 2 * math.atan2(goal.pose.orientation.z, goal.pose.orientation.w) == pytest.approx(0.5)
+
+
+def test_reads_a_log_written_by_the_plain_mcap_writer(tmp_path: Path) -> None:
+    """Canonical protobuf (zero fields omitted) goes through the reader's protobuf path."""
+    t, block = make_run(120, seed=7)
+    block[:, COLUMN["e_s_m"]] = 0.0
+    path = tmp_path / "plain.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        channels = {}
+        for layout in STEP_TOPICS:
+            sid = w.register_schema(
+                layout.schema_name, "protobuf", file_descriptor_set(layout.schema_name)
+            )
+            channels[layout.topic] = w.register_channel(layout.topic, "protobuf", sid)
+        for i in range(len(t)):
+            for layout in STEP_TOPICS[2:]:
+                msg = message_class(layout.schema_name)()
+                msg.timestamp.FromNanoseconds(int(t[i]))
+                for s in layout.signals:
+                    setattr(msg, s, block[i, COLUMN[s]])
+                w.add_message(channels[layout.topic], int(t[i]), msg.SerializeToString(), int(t[i]))
+        w.finish()
+    run = read_run(path)
+    assert not run.truncated
+    assert np.array_equal(run.t_ns, t)
+    assert np.array_equal(bits(run.block()), bits(block))
+    assert run.goal is None
+    assert "no 'run' metadata record" in run.warnings
+
+
+# ------------------------------------------------------------------------------------------
+# Damage: cut files, killed writers, failures, garbage
+# ------------------------------------------------------------------------------------------
+
+
+def test_cut_at_half_reads_a_prefix(tmp_path: Path) -> None:
+    t, block = make_run(1000, seed=1)
+    path = tmp_path / "run.mcap"
+    write_run(path, t, block)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    run = read_run(cut)
+    assert run.truncated
+    assert any("no footer" in w for w in run.warnings)
+    assert 0 < run.n_steps < 1000
+    assert run.n_steps % 100 == 0, "whole chunks of 1 s at 100 Hz"
+    assert np.array_equal(run.t_ns, t[: run.n_steps])
+    assert np.array_equal(bits(run.block()), bits(block[: run.n_steps]))
+    assert "run" in run.metadata and "result" not in run.metadata
+    assert run.goal is not None
+
+
+class SmallLog:
+    """A 3.5 s log and its block (short repr: hypothesis prints the test's arguments)."""
+
+    def __init__(self, data: bytes, block: NDArray[np.float64]) -> None:
+        self.data, self.block = data, block
+
+    def __repr__(self) -> str:
+        return f"SmallLog({len(self.data)} bytes)"
+
+
+@pytest.fixture(scope="module")
+def small_log(tmp_path_factory: pytest.TempPathFactory) -> SmallLog:
+    t, block = make_run(350, seed=2)
+    path = tmp_path_factory.mktemp("log") / "small.mcap"
+    write_run(path, t, block, rows_per_call=50)
+    return SmallLog(path.read_bytes(), block)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(fraction=st.floats(0.0, 1.0, exclude_max=True))
+def test_cut_anywhere_never_raises(
+    tmp_path_factory: pytest.TempPathFactory,
+    small_log: SmallLog,
+    fraction: float,
+) -> None:
+    data, block = small_log.data, small_log.block
+    size = max(1, int(len(data) * fraction))
+    path = tmp_path_factory.mktemp("cut") / "cut.mcap"
+    path.write_bytes(data[:size])
+    run = read_run(path)
+    assert run.truncated
+    # whole chunks only: seconds 0, 1, 2, then the last half second written at close
+    assert run.n_steps in (0, 100, 200, 300, 350)
+    assert np.array_equal(bits(run.block()), bits(block[: run.n_steps]))
+
+
+def test_killed_writer_leaves_whole_seconds(tmp_path: Path) -> None:
+    path = tmp_path / "killed.mcap"
+    script = textwrap.dedent(
+        f"""
+        import os
+        import numpy as np
+        from wmr.mcaplog import RunLogWriter
+        w = RunLogWriter({str(path)!r}, run={{"scenario": "k"}}, goal=(1.0, 2.0, 0.0))
+        t = np.arange(350, dtype=np.int64) * {STEP_NS}
+        x = np.tile(np.arange({N_SIG}, dtype=float), (350, 1)) + t[:, None] * 1e-9
+        for i in range(0, 350, 10):
+            w.write_block(t[i : i + 10], x[i : i + 10])
+        os._exit(9)  # no close, no atexit, no buffer flush: like SIGKILL
+        """
+    )
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parents[1] / "pipelines"), *sys.path])
+    proc = subprocess.run([sys.executable, "-c", script], env=env, check=False, timeout=60)
+    assert proc.returncode == 9
+    run = read_run(path)
+    assert run.truncated
+    assert run.n_steps == 300  # seconds 0, 1, 2 were flushed; the chunk of second 3 was not
+    assert run.signals["tau_l_nm"][299] == COLUMN["tau_l_nm"] + 2.99
+    assert run.metadata == {"run": {"scenario": "k"}}
+
+
+def test_exception_inside_with_writes_failed_result(tmp_path: Path) -> None:
+    t, block = make_run(260)
+    path = tmp_path / "failed.mcap"
+    with pytest.raises(ZeroDivisionError), RunLogWriter(path, run=RUN, goal=GOAL) as w:
+        w.write_block(t, block)
+        _ = 1 / 0
+    run = read_run(path)
+    assert not run.truncated
+    assert run.metadata["result"] == {
+        "status": "failed",
+        "error": "ZeroDivisionError: division by zero",
+    }
+    assert run.n_steps == 260, "buffered rows are not lost"
+    assert np.array_equal(run.block(), block)
+
+
+def test_with_block_without_close_is_marked_failed(tmp_path: Path) -> None:
+    path = tmp_path / "unclosed.mcap"
+    with RunLogWriter(path, run=RUN, goal=GOAL):
+        pass
+    run = read_run(path)
+    assert run.metadata["result"]["status"] == "failed"
+    assert run.n_steps == 0 and not run.truncated
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"", "empty file"),
+        (b"PK\x03\x04 this is a zip, not a log" * 10, "not an MCAP file"),
+        (b"\x89MCAP1\r\n" + bytes(100), "not an MCAP file"),
+    ],
+)
+def test_not_mcap_raises_log_error(tmp_path: Path, content: bytes, message: str) -> None:
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(content)
+    with pytest.raises(LogError, match=message) as info:
+        read_run(path)
+    text = str(info.value)
+    assert str(path) in text and "\n" not in text
+
+
+def test_missing_file_raises_log_error(tmp_path: Path) -> None:
+    with pytest.raises(LogError, match="cannot open"):
+        read_run(tmp_path / "nope.mcap")
+
+
+def test_damaged_chunk_is_dropped_not_trusted(tmp_path: Path) -> None:
+    t, block = make_run(300)
+    path = tmp_path / "run.mcap"
+    write_run(path, t, block, compression="")
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    third = summary.chunk_indexes[2]  # goal, second 0, second 1 <- damaged, second 2
+    data = bytearray(path.read_bytes())
+    data[third.chunk_start_offset + third.chunk_length - 50] ^= 0xFF
+    path.write_bytes(bytes(data))
+    run = read_run(path)
+    assert run.truncated
+    assert any("crc" in w.lower() for w in run.warnings)
+    assert run.n_steps == 100
+    assert np.array_equal(run.block(), block[:100])
+
+
+# ------------------------------------------------------------------------------------------
+# Writer input checks
+# ------------------------------------------------------------------------------------------
+
+
+def test_write_block_checks_its_input(tmp_path: Path) -> None:
+    with RunLogWriter(tmp_path / "x.mcap", run={}, goal=GOAL) as w:
+        with pytest.raises(LogError, match="shape"):
+            w.write_block(np.zeros(3, np.int64), np.zeros((3, N_SIG - 1)))
+        with pytest.raises(LogError, match="integer"):
+            w.write_block(np.zeros(3), np.zeros((3, N_SIG)))
+        w.write_block(np.array([5, 6], np.int64), np.zeros((2, N_SIG)))
+        with pytest.raises(LogError, match="non-decreasing"):
+            w.write_block(np.array([4], np.int64), np.zeros((1, N_SIG)))
+        with pytest.raises(LogError, match="non-decreasing"):
+            w.write_block(np.array([7, 6], np.int64), np.zeros((2, N_SIG)))
+        assert w.rows_written == 2
+        w.close({"status": "timeout"})
+        with pytest.raises(LogError, match="after close"):
+            w.write_block(np.array([9], np.int64), np.zeros((1, N_SIG)))
+
+
+def test_unwritable_path_raises_log_error(tmp_path: Path) -> None:
+    with pytest.raises(LogError, match="cannot create"):
+        RunLogWriter(tmp_path / "no" / "such" / "dir.mcap", run={}, goal=GOAL)
