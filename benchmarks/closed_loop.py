@@ -20,7 +20,6 @@ import time
 from pathlib import Path
 
 from _common import print_table
-
 from wmr.closedloop import run_closed_loop
 from wmr.control import Controller
 from wmr.fmu.build import build_fmus

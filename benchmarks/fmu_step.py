@@ -14,10 +14,10 @@ import subprocess
 import sys
 import tempfile
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 from _common import median_time_per_call, print_table
-
 from wmr.fmu.build import build_fmus
 from wmr.fmu.plant import FmuPlant
 from wmr.plant import Pose, RobotParams
@@ -73,6 +73,50 @@ def c_loop_seconds(fmu: Path, n: int, repeats: int = 7) -> float:
         return times[len(times) // 2]
 
 
+def _raw_stepper(plant: FmuPlant, version: int) -> Callable[[int], None]:
+    """Steps through the library's own symbols with prebuilt arrays, no fmpy wrapper."""
+    fmu = plant._fmu
+    dll = fmu.dll
+    comp = fmu.component
+    vr_in = (ctypes.c_uint32 * 2)(*plant._in_vr)
+    val_in = (ctypes.c_double * 2)(1.0, 0.8)
+    vr_out = (ctypes.c_uint32 * len(plant._out_vr))(*plant._out_vr)
+    val_out = (ctypes.c_double * len(plant._out_vr))()
+    n_out = len(plant._out_vr)
+    t_box = [plant.time_s]
+    if version == 2:
+        set_real, get_real, do_step = dll.fmi2SetReal, dll.fmi2GetReal, dll.fmi2DoStep
+        do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
+
+        def raw_steps(n: int) -> None:
+            t0, h = t_box[0], H
+            for k in range(n):
+                val_in[0] = 1.0 if (k % 200) < 100 else -1.0
+                set_real(comp, vr_in, 2, val_in)
+                do_step(comp, t0 + k * h, h, 1)
+                get_real(comp, vr_out, n_out, val_out)
+            t_box[0] = t0 + n * h
+
+        return raw_steps
+    set_real, get_real, do_step = dll.fmi3SetFloat64, dll.fmi3GetFloat64, dll.fmi3DoStep
+    do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int,
+                        ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+    flags = [ctypes.c_bool() for _ in range(3)]
+    last = ctypes.c_double()
+    refs = [ctypes.byref(f) for f in flags] + [ctypes.byref(last)]
+
+    def raw_steps3(n: int) -> None:
+        t0, h = t_box[0], H
+        for k in range(n):
+            val_in[0] = 1.0 if (k % 200) < 100 else -1.0
+            set_real(comp, vr_in, 2, val_in, 2)
+            do_step(comp, t0 + k * h, h, 1, *refs)
+            get_real(comp, vr_out, n_out, val_out, n_out)
+        t_box[0] = t0 + n * h
+
+    return raw_steps3
+
+
 def main() -> None:
     fmus = build_fmus().fmus
     rows: list[tuple[str, float]] = []
@@ -87,49 +131,7 @@ def main() -> None:
         rows.append((f"FMI {version} through fmpy (FmuPlant.step)",
                      median_time_per_call(fmpy_steps, N_STEPS)))
 
-        # Raw ctypes: the library's own symbols, prebuilt arrays, no fmpy wrapper.
-        fmu = plant._fmu
-        dll = fmu.dll
-        comp = fmu.component
-        vr_in = (ctypes.c_uint32 * 2)(*plant._in_vr)
-        val_in = (ctypes.c_double * 2)(1.0, 0.8)
-        vr_out = (ctypes.c_uint32 * len(plant._out_vr))(*plant._out_vr)
-        val_out = (ctypes.c_double * len(plant._out_vr))()
-        n_out = len(plant._out_vr)
-        if version == 2:
-            set_real, get_real, do_step = dll.fmi2SetReal, dll.fmi2GetReal, dll.fmi2DoStep
-            do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
-            t_box = [plant.time_s]
-
-            def raw_steps(n: int) -> None:
-                t = t_box[0]
-                for k in range(n):
-                    val_in[0] = 1.0 if (k % 200) < 100 else -1.0
-                    set_real(comp, vr_in, 2, val_in)
-                    do_step(comp, t, H, 1)
-                    get_real(comp, vr_out, n_out, val_out)
-                    t = t + H
-                t_box[0] = t
-        else:
-            set_real, get_real, do_step = dll.fmi3SetFloat64, dll.fmi3GetFloat64, dll.fmi3DoStep
-            do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int,
-                                ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
-                                ctypes.c_void_p]
-            flags = [ctypes.c_bool() for _ in range(3)]
-            last = ctypes.c_double()
-            refs = [ctypes.byref(f) for f in flags] + [ctypes.byref(last)]
-            t_box = [plant.time_s]
-
-            def raw_steps(n: int) -> None:
-                t = t_box[0]
-                for k in range(n):
-                    val_in[0] = 1.0 if (k % 200) < 100 else -1.0
-                    set_real(comp, vr_in, 2, val_in, 2)
-                    do_step(comp, t, H, 1, *refs)
-                    get_real(comp, vr_out, n_out, val_out, n_out)
-                    t = last.value
-                t_box[0] = t
-
+        raw_steps = _raw_stepper(plant, version)
         rows.append((f"FMI {version} raw ctypes", median_time_per_call(raw_steps, N_STEPS)))
         plant.close()
     rows.append(("pure C loop (solver + model core)", c_loop_seconds(fmus[3], 20 * N_STEPS)))

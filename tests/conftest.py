@@ -6,13 +6,12 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
-import matplotlib
 import pytest
 
-matplotlib.use("Agg")
+from wmr.fmu.build import BuildResult, build_fmus
+from wmr.fmu.plant import FmuPlant
 
-from wmr.fmu.build import BuildResult, build_fmus  # noqa: E402
-from wmr.fmu.plant import FmuPlant  # noqa: E402
+os.environ.setdefault("MPLBACKEND", "Agg")  # headless: no figure ever opens a window
 
 
 @pytest.fixture(scope="session")

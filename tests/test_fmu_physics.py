@@ -23,9 +23,9 @@ M22 = P.Ig + P.m * P.l**2 + 2 * P.L**2 * P.Iwm / P.r**2
 
 
 def _run(plant: FmuPlant, torques: list[tuple[float, float]], h: float,
-         params: RobotParams = P, start: Pose = Pose(0, 0, 0), v0: float = 0.0,
+         params: RobotParams = P, start: Pose | None = None, v0: float = 0.0,
          omega0: float = 0.0) -> np.ndarray:
-    rows = [plant.reset(params, start, v0, omega0).copy()]
+    rows = [plant.reset(params, start or Pose(0, 0, 0), v0, omega0).copy()]
     for tau_r, tau_l in torques:
         rows.append(plant.step(tau_r, tau_l, h).copy())
     return np.array(rows)

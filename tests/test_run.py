@@ -152,7 +152,8 @@ def test_a_killed_run_leaves_a_log_readable_up_to_its_last_chunk(tmp_path: Path,
                                                                  built: BuildResult) -> None:
     out = tmp_path / "killed.mcap"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
-    code = (f"import wmr.run, wmr.cli, sys; wmr.run.default_fmu = lambda v=3: {str(built.fmus[3])!r};"
+    fmu = str(built.fmus[3])
+    code = (f"import wmr.run, wmr.cli, sys; wmr.run.default_fmu = lambda v=3: {fmu!r};"
             f"sys.exit(wmr.cli.main(['run', '--goal', '300', '300', '0', '--max-time', '2000',"
             f"'--out', {str(out)!r}]))")
     proc = subprocess.Popen([sys.executable, "-c", code], env=env)

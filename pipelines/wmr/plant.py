@@ -58,7 +58,8 @@ class RobotParams:
             if not isinstance(value, int | float) or not math.isfinite(value):
                 raise ConfigError(f"params.{f.name}", f"must be a finite number, got {value!r}")
             if f.name in lower and value < lower[f.name]:
-                raise ConfigError(f"params.{f.name}", f"must be >= {lower[f.name]:g}, got {value!r}")
+                raise ConfigError(f"params.{f.name}",
+                                  f"must be >= {lower[f.name]:g}, got {value!r}")
 
     def as_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in asdict(self).items()}

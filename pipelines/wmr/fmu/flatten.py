@@ -87,7 +87,8 @@ def source_digest(modelica_dir: Path) -> str:
     return h.hexdigest()
 
 
-def _tree_symbols(modelica_dir: Path, model_name: str) -> tuple[dict[str, object], str, dict[str, float]]:
+def _tree_symbols(modelica_dir: Path,
+                  model_name: str) -> tuple[dict[str, object], str, dict[str, float]]:
     """Comments, units and the experiment annotation from pymoca's flattened tree."""
     import pymoca.ast as ast
     import pymoca.parser as parser

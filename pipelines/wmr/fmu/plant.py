@@ -56,7 +56,8 @@ class FmuPlant:
         self.fmi_version = md.fmiVersion
         self.sha256 = file_sha256(self.fmu_path)
         self._vr = {v.name: v.valueReference for v in md.modelVariables}
-        missing = [n for n in (*_INPUTS, *OUTPUT_NAMES, *RobotParams().as_dict()) if n not in self._vr]
+        needed = (*_INPUTS, *OUTPUT_NAMES, *RobotParams().as_dict())
+        missing = [n for n in needed if n not in self._vr]
         if missing:
             shutil.rmtree(self._tmp, ignore_errors=True)
             raise FmuError(f"{self.fmu_path}: lacks the variables {', '.join(missing)}")
@@ -72,7 +73,7 @@ class FmuPlant:
         self._in_val = (ctypes.c_double * 2)()
         self._out_vr = (vr_type * len(OUTPUT_NAMES))(*(self._vr[n] for n in OUTPUT_NAMES))
         self._out_val = (ctypes.c_double * len(OUTPUT_NAMES))()
-        self._outputs: npt.NDArray[np.float64] = np.frombuffer(self._out_val, dtype=np.float64)
+        self._outputs: npt.NDArray[np.float64] = np.ctypeslib.as_array(self._out_val)
 
     def _instantiate(self) -> None:
         md = self.model_description
@@ -209,11 +210,11 @@ class FmuPlant:
         if self._fmu is not None:
             try:
                 self._fmu.terminate()
-            except Exception:  # noqa: S110 - a failed run may leave the FMU in error state
+            except Exception:  # a failed run may leave the FMU in its error state
                 pass
             try:
                 self._fmu.freeInstance()
-            except Exception:  # noqa: S110
+            except Exception:  # same: nothing left to do but free it
                 pass
             self._fmu = None
         shutil.rmtree(self._tmp, ignore_errors=True)
