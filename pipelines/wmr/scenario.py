@@ -1,0 +1,303 @@
+"""Scenario files (TOML): what to run, validated, expanded into :class:`RunSpec` s.
+
+A scenario file::
+
+    name = "fig11"
+    description = "Fig. 11: (0, 0, 0 deg) to (20, 10, 0 deg)"
+    start = [0.0, 0.0, 0.0]          # x_m, y_m, heading_deg
+    goal = [20.0, 10.0, 0.0]         # x_m, y_m, heading_deg
+    control_period_s = 0.01          # default 0.01
+    stop_radius_m = 0.05             # epsilon of Section 4, default 0.05
+    heading_tolerance_deg = 0.5      # final alignment tolerance, default 0.5
+    max_time_s = 120.0               # default 120
+
+    [gains]                          # any of wmr.control.Gains
+    K_ps = 0.5
+    [limits]                         # any of wmr.control.Limits
+    torque_max_nm = 8.0
+    [params]                         # any of wmr.plant.RobotParams
+    m = 25.0
+
+    [[runs]]                         # optional: a set of runs (Figs. 9 and 10); each may
+    name = "theta_d=+30"             # give name, start, goal, max_time_s, and inherits
+    goal = [20.0, 10.0, 30.0]        # the top-level start and goal otherwise
+
+Every error is a :class:`~wmr.errors.ConfigError` that names the field.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from wmr.control.stabiliser import Gains, Limits
+from wmr.errors import ConfigError
+from wmr.paths import scenarios_dir
+from wmr.plant import Pose, RobotParams
+
+DEFAULT_SCENARIO = "fig11"
+DEFAULT_PERIOD_S = 0.01
+DEFAULT_STOP_RADIUS_M = 0.05
+DEFAULT_HEADING_TOLERANCE_DEG = 0.5
+DEFAULT_MAX_TIME_S = 120.0
+#: Upper bound on the number of control steps of one run (keeps a typo from hanging a run).
+MAX_STEPS = 10_000_000
+
+TOP_FIELDS = ("name", "description", "start", "goal", "runs", "gains", "limits", "params",
+              "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s")
+RUN_FIELDS = ("name", "start", "goal", "max_time_s")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything one closed-loop run needs.  Angles in rad, SI units."""
+
+    name: str
+    start: Pose
+    goal: Pose
+    params: RobotParams = field(default_factory=RobotParams)
+    gains: Gains = field(default_factory=Gains)
+    limits: Limits = field(default_factory=Limits)
+    period_s: float = DEFAULT_PERIOD_S
+    stop_radius_m: float = DEFAULT_STOP_RADIUS_M
+    t_max_s: float = DEFAULT_MAX_TIME_S
+    heading_tolerance_rad: float = math.radians(DEFAULT_HEADING_TOLERANCE_DEG)
+    scenario: str = ""
+
+    def __post_init__(self) -> None:
+        _positive("control_period_s", self.period_s)
+        _positive("stop_radius_m", self.stop_radius_m)
+        _positive("max_time_s", self.t_max_s)
+        _positive("heading_tolerance_deg", self.heading_tolerance_rad)
+        if self.t_max_s < self.period_s:
+            raise ConfigError("max_time_s", f"{self.t_max_s!r} s is shorter than one control "
+                              f"period ({self.period_s!r} s)", "give a longer max_time_s")
+        if self.t_max_s / self.period_s > MAX_STEPS:
+            raise ConfigError("max_time_s", f"{self.t_max_s / self.period_s:.3g} control steps "
+                              f"is more than {MAX_STEPS}",
+                              "shorten max_time_s or lengthen control_period_s")
+        for label, pose in (("start", self.start), ("goal", self.goal)):
+            for f in fields(pose):
+                _finite(f"{label}.{f.name}", getattr(pose, f.name))
+
+    @property
+    def n_steps_max(self) -> int:
+        """Number of control periods in ``t_max_s`` (rounded to the nearest step)."""
+        return max(1, round(self.t_max_s / self.period_s))
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A loaded scenario file: its runs, already expanded."""
+
+    name: str
+    description: str
+    runs: tuple[RunSpec, ...]
+    path: Path | None = None
+
+
+def _finite(field: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(field, f"must be a number, got {value!r}", "write a plain number")
+    if not math.isfinite(value):
+        raise ConfigError(field, f"must be finite, got {value!r}",
+                          "replace nan/inf by a finite number")
+    return float(value)
+
+
+def _positive(field: str, value: object) -> float:
+    v = _finite(field, value)
+    if v <= 0.0:
+        raise ConfigError(field, f"must be > 0, got {value!r}", "give a positive value")
+    return v
+
+
+def _check_keys(table: Mapping[str, Any], allowed: tuple[str, ...], where: str) -> None:
+    for key in table:
+        if key not in allowed:
+            field = f"{where}.{key}" if where else key
+            raise ConfigError(field, "unknown field",
+                              f"allowed fields: {', '.join(allowed)}")
+
+
+def _pose(value: object, field: str) -> Pose:
+    if not isinstance(value, list | tuple) or len(value) != 3:
+        raise ConfigError(field, f"must be [x_m, y_m, heading_deg], got {value!r}",
+                          "write three numbers, e.g. [20.0, 10.0, 0.0]")
+    x = _finite(f"{field}.x_m", value[0])
+    y = _finite(f"{field}.y_m", value[1])
+    h = _finite(f"{field}.heading_deg", value[2])
+    return Pose(x, y, math.radians(h))
+
+
+def _table(data: Mapping[str, Any], key: str) -> Mapping[str, Any]:
+    value = data.get(key, {})
+    if not isinstance(value, Mapping):
+        raise ConfigError(key, f"must be a table, got {value!r}", f"write [{key}] with fields")
+    return value
+
+
+def _build(cls: type[Any], values: Mapping[str, Any], section: str, base: Any = None) -> Any:
+    allowed = tuple(f.name for f in fields(cls))
+    _check_keys(values, allowed, section)
+    checked = {k: _finite(f"{section}.{k}", v) for k, v in values.items()}
+    try:
+        return cls(**checked) if base is None else replace(base, **checked)
+    except ConfigError as exc:
+        if exc.fix:
+            raise
+        raise ConfigError(exc.field, exc.problem, "give a value within the bound") from None
+
+
+def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
+                   path: Path | None = None) -> Scenario:
+    """Validate a scenario's parsed TOML ``data`` and expand it into runs."""
+    _check_keys(data, TOP_FIELDS, "")
+    name = data.get("name", Path(source).stem)
+    if not isinstance(name, str) or not name:
+        raise ConfigError("name", f"must be a non-empty string, got {name!r}",
+                          'write e.g. name = "fig11"')
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise ConfigError("description", f"must be a string, got {description!r}",
+                          "quote the text")
+    gains = _build(Gains, _table(data, "gains"), "gains")
+    limits = _build(Limits, _table(data, "limits"), "limits")
+    params = _build(RobotParams, _table(data, "params"), "params")
+    period = _positive("control_period_s", data.get("control_period_s", DEFAULT_PERIOD_S))
+    eps = _positive("stop_radius_m", data.get("stop_radius_m", DEFAULT_STOP_RADIUS_M))
+    tol = _positive("heading_tolerance_deg",
+                    data.get("heading_tolerance_deg", DEFAULT_HEADING_TOLERANCE_DEG))
+    t_max = _positive("max_time_s", data.get("max_time_s", DEFAULT_MAX_TIME_S))
+    start = _pose(data["start"], "start") if "start" in data else None
+    goal = _pose(data["goal"], "goal") if "goal" in data else None
+
+    raw_runs = data.get("runs")
+    if raw_runs is None:
+        raw_runs = [{}]
+    elif not isinstance(raw_runs, list) or not raw_runs:
+        raise ConfigError("runs", "must be a non-empty array of tables",
+                          'write [[runs]] blocks, each with start and/or goal')
+    runs: list[RunSpec] = []
+    for i, run in enumerate(raw_runs):
+        where = f"runs[{i}]"
+        if not isinstance(run, Mapping):
+            raise ConfigError(where, f"must be a table, got {run!r}", "write a [[runs]] block")
+        _check_keys(run, RUN_FIELDS, where)
+        run_start = _pose(run["start"], f"{where}.start") if "start" in run else start
+        run_goal = _pose(run["goal"], f"{where}.goal") if "goal" in run else goal
+        if run_start is None:
+            raise ConfigError("start" if raw_runs == [{}] else f"{where}.start", "missing",
+                              "give start = [x_m, y_m, heading_deg]")
+        if run_goal is None:
+            raise ConfigError("goal" if raw_runs == [{}] else f"{where}.goal", "missing",
+                              "give goal = [x_m, y_m, heading_deg]")
+        run_name = run.get("name", name if len(raw_runs) == 1 else f"{name}-{i:02d}")
+        if not isinstance(run_name, str) or not run_name:
+            raise ConfigError(f"{where}.name", f"must be a non-empty string, got {run_name!r}",
+                              "quote the name")
+        run_t_max = _positive(f"{where}.max_time_s", run.get("max_time_s", t_max))
+        runs.append(RunSpec(name=run_name, start=run_start, goal=run_goal, params=params,
+                            gains=gains, limits=limits, period_s=period, stop_radius_m=eps,
+                            t_max_s=run_t_max, heading_tolerance_rad=math.radians(tol),
+                            scenario=name))
+    return Scenario(name=name, description=description, runs=tuple(runs), path=path)
+
+
+def resolve_scenario_path(name_or_path: str | Path | None = None) -> Path:
+    """A file path as is; a bare name (``"fig9"``) from the shipped scenarios folder."""
+    if name_or_path is None:
+        name_or_path = DEFAULT_SCENARIO
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists() or len(p.parts) > 1:
+        return p
+    return scenarios_dir() / f"{p.name}.toml"
+
+
+def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
+    """Read, validate and expand a scenario file (default: ``fig11``)."""
+    path = resolve_scenario_path(name_or_path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        shipped = ", ".join(sorted(p.stem for p in scenarios_dir().glob("*.toml")))
+        raise ConfigError("scenario", f"no such file: {path}",
+                          f"give a path to a .toml file or one of: {shipped}") from None
+    except OSError as exc:
+        raise ConfigError("scenario", f"cannot read {path}: {exc.strerror}",
+                          "check the path and its permissions") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError("scenario", f"{path} is not valid TOML: {exc}",
+                          "fix the syntax") from None
+    return parse_scenario(data, source=str(path), path=path)
+
+
+def expand(scenario: Scenario) -> list[RunSpec]:
+    """The runs of a scenario, one :class:`RunSpec` each."""
+    return list(scenario.runs)
+
+
+def _pose_override(value: Pose | tuple[float, float, float] | list[float] | None,
+                   field: str) -> Pose | None:
+    """A Pose as is; a sequence as ``(x_m, y_m, heading_deg)`` (the command line's form)."""
+    if value is None or isinstance(value, Pose):
+        return value
+    return _pose(list(value), field)
+
+
+def with_overrides(spec: RunSpec, start: Pose | tuple[float, float, float] | list[float] | None
+                   = None, goal: Pose | tuple[float, float, float] | list[float] | None = None,
+                   *, name: str | None = None, gains: Mapping[str, float] | None = None,
+                   limits: Mapping[str, float] | None = None,
+                   params: Mapping[str, float] | None = None, period_s: float | None = None,
+                   stop_radius_m: float | None = None, t_max_s: float | None = None,
+                   heading_tolerance_deg: float | None = None) -> RunSpec:
+    """Merge command-line overrides into a run.
+
+    ``start`` and ``goal`` are a :class:`~wmr.plant.Pose` (heading in rad) or a sequence
+    ``(x_m, y_m, heading_deg)`` as typed on the command line; ``gains``, ``limits`` and
+    ``params`` replace the named fields only.  ``None`` keeps the run's value.
+    """
+    changes: dict[str, Any] = {}
+    new_start = _pose_override(start, "start")
+    new_goal = _pose_override(goal, "goal")
+    if new_start is not None:
+        changes["start"] = new_start
+    if new_goal is not None:
+        changes["goal"] = new_goal
+    if name is not None:
+        changes["name"] = name
+    if gains:
+        changes["gains"] = _build(Gains, gains, "gains", spec.gains)
+    if limits:
+        changes["limits"] = _build(Limits, limits, "limits", spec.limits)
+    if params:
+        changes["params"] = _build(RobotParams, params, "params", spec.params)
+    if period_s is not None:
+        changes["period_s"] = _positive("control_period_s", period_s)
+    if stop_radius_m is not None:
+        changes["stop_radius_m"] = _positive("stop_radius_m", stop_radius_m)
+    if t_max_s is not None:
+        changes["t_max_s"] = _positive("max_time_s", t_max_s)
+    if heading_tolerance_deg is not None:
+        changes["heading_tolerance_rad"] = math.radians(
+            _positive("heading_tolerance_deg", heading_tolerance_deg))
+    return replace(spec, **changes)
+
+
+__all__ = [
+    "DEFAULT_SCENARIO",
+    "RunSpec",
+    "Scenario",
+    "expand",
+    "load_scenario",
+    "parse_scenario",
+    "resolve_scenario_path",
+    "with_overrides",
+]

@@ -1,0 +1,150 @@
+"""The co-simulation master (wmr.closedloop) on the reference physics."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from wmr.closedloop import BLOCK_ROWS, run_closed_loop
+from wmr.physics import ReferencePlant
+from wmr.plant import Pose, RobotParams
+from wmr.scenario import RunSpec, expand, load_scenario, with_overrides
+from wmr.signals import COLUMN, SIGNALS
+
+POS_BAR_M = 0.05
+HEAD_BAR_RAD = math.radians(2.0)
+
+
+class Recorder:
+    def __init__(self) -> None:
+        self.t: list[npt.NDArray[np.int64]] = []
+        self.blocks: list[npt.NDArray[np.float64]] = []
+
+    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
+        self.t.append(t_ns.copy())
+        self.blocks.append(block.copy())
+
+    @property
+    def rows(self) -> npt.NDArray[np.float64]:
+        return np.vstack(self.blocks)
+
+
+def _spec(start: tuple[float, float, float], goal: tuple[float, float, float],
+          **kw: Any) -> RunSpec:
+    return RunSpec("t", Pose(start[0], start[1], math.radians(start[2])),
+                   Pose(goal[0], goal[1], math.radians(goal[2])), **kw)
+
+
+def _assert_converged(spec: RunSpec) -> None:
+    res = run_closed_loop(spec, ReferencePlant())
+    assert res.status == "converged", (spec.name, spec.start, spec.goal, res.message)
+    assert res.final_position_error_m < POS_BAR_M
+    assert res.final_heading_error_rad < HEAD_BAR_RAD
+    assert res.time_to_goal_s is not None
+
+
+def test_fig11_converges_and_logs_every_step() -> None:
+    (spec,) = expand(load_scenario("fig11"))
+    rec = Recorder()
+    ticks: list[float] = []
+    res = run_closed_loop(spec, ReferencePlant(), rec, progress=lambda t, tm: ticks.append(t))
+    assert res.status == "converged", res.message
+    assert res.final_position_error_m < POS_BAR_M
+    assert res.final_heading_error_rad < HEAD_BAR_RAD
+    assert res.time_to_goal_s is not None and 20.0 < res.time_to_goal_s < 60.0
+    assert math.hypot(20, 10) <= res.path_length_m < 1.2 * math.hypot(20, 10)
+    assert 0.0 < res.peak_torque_nm <= spec.limits.torque_max_nm
+    assert res.energy_abs_j > abs(res.energy_j) and res.torque_sq_integral > 0.0
+    assert abs(res.energy_j) < 1.0  # no friction: the net work is the final kinetic energy, 0
+    rows = rec.rows
+    assert rows.shape == (res.steps, len(SIGNALS))
+    assert all(len(b) == BLOCK_ROWS for b in rec.blocks[:-1])
+    t_ns = np.concatenate(rec.t)
+    np.testing.assert_array_equal(t_ns, np.arange(res.steps, dtype=np.int64) * 10_000_000)
+    assert rows[-1, COLUMN["tau_r_nm"]] == 0.0
+    assert rows[0, COLUMN["x_m"]] == 0.0
+    assert rows[-1, COLUMN["x_m"]] == pytest.approx(res.final_pose.x_m)
+    # the ROC errors of Fig. 11 converge
+    assert abs(rows[-1, COLUMN["e_s_m"]]) < POS_BAR_M
+    assert ticks and ticks[-1] == pytest.approx(res.time_to_goal_s)
+    assert res.as_dict()["status"] == "converged"
+
+
+@pytest.mark.parametrize(("start", "goal"), [
+    ((0.0, 0.0, 0.0), (20.0, 10.0, -90.0)),  # Fig. 9, the largest |theta_d - alpha|
+    ((0.0, 10.0, 0.0), (0.0, 0.0, 180.0)),  # Fig. 10, x >= 0
+    ((-8.66, -5.0, 0.0), (0.0, 0.0, 0.0)),  # Fig. 10, x < 0
+    ((0.0, 0.0, 0.0), (-10.0, 0.0, 0.0)),  # goal behind, on the heading line, pose facing away
+    ((0.0, 0.0, 0.0), (10.0, 0.0, 180.0)),  # goal ahead, pose facing the robot (beta = pi)
+    ((0.0, 0.0, 0.0), (0.02, -0.01, -170.0)),  # inside the stop radius: alignment only
+    ((3.0, -4.0, 135.0), (3.5, -4.2, 0.0)),  # close, facing away
+])
+def test_hard_cases_converge(start: tuple[float, float, float],
+                             goal: tuple[float, float, float]) -> None:
+    _assert_converged(_spec(start, goal))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["fig9", "fig10"])
+def test_paper_sweeps_converge(name: str) -> None:
+    for spec in expand(load_scenario(name)):
+        _assert_converged(spec)
+
+
+@pytest.mark.slow
+def test_random_poses_in_a_40m_square_converge() -> None:
+    rng = np.random.default_rng(2024)
+    for _ in range(12):
+        s = (*rng.uniform(-20, 20, 2), rng.uniform(-180, 180))
+        g = (*rng.uniform(-20, 20, 2), rng.uniform(-180, 180))
+        _assert_converged(_spec(s, g, t_max_s=200.0))
+
+
+def test_timeout_is_reported_not_hung() -> None:
+    res = run_closed_loop(_spec((0, 0, 0), (20, 10, 0), t_max_s=1.0), ReferencePlant())
+    assert res.status == "timeout"
+    assert "max_time_s" in res.message
+    assert res.steps == 101 and res.time_to_goal_s is None
+
+
+class _Exploding(ReferencePlant):
+    def __init__(self, at: int) -> None:
+        super().__init__()
+        self.at = at
+        self.n = 0
+
+    def step(self, tau_r_nm: float, tau_l_nm: float, h_s: float) -> npt.NDArray[np.float64]:
+        self.n += 1
+        if self.n == self.at:
+            raise RuntimeError("solver blew up")
+        return super().step(tau_r_nm, tau_l_nm, h_s)
+
+
+def test_plant_failure_is_a_status_and_keeps_the_rows() -> None:
+    rec = Recorder()
+    res = run_closed_loop(_spec((0, 0, 0), (5, 0, 0)), _Exploding(150), rec)
+    assert res.status == "failed"
+    assert "solver blew up" in res.message
+    assert rec.rows.shape[0] == 150
+
+
+class _Interrupted(ReferencePlant):
+    def step(self, tau_r_nm: float, tau_l_nm: float, h_s: float) -> npt.NDArray[np.float64]:
+        raise KeyboardInterrupt
+
+
+def test_keyboard_interrupt_goes_through() -> None:
+    with pytest.raises(KeyboardInterrupt):
+        run_closed_loop(_spec((0, 0, 0), (5, 0, 0)), _Interrupted())
+
+
+def test_parameter_overrides_reach_the_plant() -> None:
+    (spec,) = expand(load_scenario("fig11"))
+    spec = with_overrides(spec, goal=(3.0, 0.0, 0.0), params={"m": 40.0, "b_f": 0.02,
+                                                               "tau_c": 0.1})
+    assert spec.params == RobotParams(m=40.0, b_f=0.02, tau_c=0.1)
+    _assert_converged(spec)

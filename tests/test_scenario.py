@@ -1,0 +1,151 @@
+"""Scenario files (wmr.scenario): loading, expansion, validation naming the field."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from wmr.errors import ConfigError
+from wmr.plant import Pose
+from wmr.scenario import (
+    RunSpec,
+    expand,
+    load_scenario,
+    parse_scenario,
+    resolve_scenario_path,
+    with_overrides,
+)
+
+BASE: dict[str, Any] = {"name": "t", "start": [0.0, 0.0, 0.0], "goal": [20.0, 10.0, 0.0]}
+
+
+def test_shipped_scenarios_load() -> None:
+    fig11 = load_scenario()  # the default
+    assert fig11.name == "fig11"
+    (run,) = expand(fig11)
+    assert run.start == Pose(0.0, 0.0, 0.0)
+    assert run.goal == Pose(20.0, 10.0, 0.0)
+    assert run.period_s == 0.01 and run.stop_radius_m == 0.05
+    fig9 = expand(load_scenario("fig9"))
+    assert len(fig9) >= 7
+    heads = sorted(round(math.degrees(r.goal.heading_rad)) for r in fig9)
+    assert heads[0] == -90 and heads[-1] == 90
+    assert all(r.start == Pose(0.0, 0.0, 0.0) for r in fig9)
+    fig10 = expand(load_scenario("fig10"))
+    assert len(fig10) >= 8
+    for r in fig10:
+        assert (r.goal.x_m, r.goal.y_m) == (0.0, 0.0)
+        want = math.pi if r.start.x_m >= 0 else 0.0
+        assert r.goal.heading_rad == pytest.approx(want)
+    assert len({r.name for r in fig10}) == len(fig10)
+
+
+def test_defaults_and_degrees() -> None:
+    (run,) = parse_scenario({**BASE, "goal": [1.0, 2.0, 90.0]}).runs
+    assert run.goal.heading_rad == pytest.approx(math.pi / 2)
+    assert run.t_max_s == 120.0 and run.period_s == 0.01
+
+
+def test_unknown_field_names_it_and_lists_the_allowed() -> None:
+    with pytest.raises(ConfigError) as err:
+        parse_scenario({**BASE, "stop_radius": 0.1})
+    assert err.value.field == "stop_radius"
+    assert "stop_radius_m" in err.value.fix
+    with pytest.raises(ConfigError, match=r"gains\.K_p\b"):
+        parse_scenario({**BASE, "gains": {"K_p": 1.0}})
+    with pytest.raises(ConfigError, match=r"params\.mass"):
+        parse_scenario({**BASE, "params": {"mass": 1.0}})
+    with pytest.raises(ConfigError, match=r"runs\[1\]\.goall"):
+        parse_scenario({**BASE, "runs": [{}, {"goall": [1, 2, 3]}]})
+
+
+@pytest.mark.parametrize(("patch", "field"), [
+    ({"control_period_s": -0.01}, "control_period_s"),
+    ({"control_period_s": 0.0}, "control_period_s"),
+    ({"stop_radius_m": math.nan}, "stop_radius_m"),
+    ({"max_time_s": math.inf}, "max_time_s"),
+    ({"start": [0.0, math.nan, 0.0]}, "start.y_m"),
+    ({"goal": [0.0, 1.0]}, "goal"),
+    ({"goal": [0.0, 1.0, "north"]}, "goal.heading_deg"),
+    ({"gains": {"K_ps": math.inf}}, "gains.K_ps"),
+    ({"limits": {"torque_max_nm": -1.0}}, "limits.torque_max_nm"),
+    ({"params": {"r": 0.0}}, "params.r"),
+    ({"params": {"m": True}}, "params.m"),
+    ({"name": ""}, "name"),
+    ({"runs": []}, "runs"),
+    ({"max_time_s": 0.001}, "max_time_s"),
+])
+def test_bad_values_name_the_field(patch: dict[str, Any], field: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        parse_scenario({**BASE, **patch})
+    assert err.value.field == field
+    assert err.value.fix
+
+
+def test_missing_goal() -> None:
+    with pytest.raises(ConfigError) as err:
+        parse_scenario({"name": "t", "start": [0, 0, 0]})
+    assert err.value.field == "goal"
+
+
+def test_missing_file_says_what_exists(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as err:
+        load_scenario(tmp_path / "nope.toml")
+    assert err.value.field == "scenario"
+    assert "fig11" in err.value.fix
+
+
+def test_bad_toml(tmp_path: Path) -> None:
+    f = tmp_path / "bad.toml"
+    f.write_text("name = \n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_scenario(f)
+
+
+def test_runs_inherit_and_override(tmp_path: Path) -> None:
+    f = tmp_path / "s.toml"
+    f.write_text('name = "s"\nstart = [1.0, 2.0, 0.0]\nmax_time_s = 50\n'
+                 '[[runs]]\ngoal = [3.0, 4.0, 45.0]\n'
+                 '[[runs]]\nname = "b"\nstart = [0.0, 0.0, 10.0]\ngoal = [5.0, 5.0, 0.0]\n'
+                 'max_time_s = 10\n')
+    a, b = expand(load_scenario(f))
+    assert a.name == "s-00" and a.start == Pose(1.0, 2.0, 0.0) and a.t_max_s == 50
+    assert b.name == "b" and b.start.heading_rad == pytest.approx(math.radians(10))
+    assert b.t_max_s == 10
+    assert resolve_scenario_path("fig9").name == "fig9.toml"
+
+
+def test_with_overrides() -> None:
+    (run,) = parse_scenario(BASE).runs
+    new = with_overrides(run, start=(1.0, 1.0, 90.0), goal=Pose(5.0, 5.0, 0.0),
+                         gains={"K_ps": 0.8}, limits={"torque_max_nm": 5.0},
+                         params={"m": 30.0}, t_max_s=60.0)
+    assert new.start.heading_rad == pytest.approx(math.pi / 2)
+    assert new.goal == Pose(5.0, 5.0, 0.0)
+    assert new.gains.K_ps == 0.8 and new.gains.K_ptheta == run.gains.K_ptheta
+    assert new.limits.torque_max_nm == 5.0 and new.params.m == 30.0 and new.t_max_s == 60.0
+    assert with_overrides(run) == run
+    with pytest.raises(ConfigError, match=r"start\.x_m"):
+        with_overrides(run, start=(math.nan, 0.0, 0.0))
+    with pytest.raises(ConfigError, match=r"gains\.K_x"):
+        with_overrides(run, gains={"K_x": 1.0})
+    with pytest.raises(ConfigError, match="control_period_s"):
+        with_overrides(run, period_s=-1.0)
+
+
+def test_runspec_is_frozen_and_validated() -> None:
+    spec = RunSpec("x", Pose(0, 0, 0), Pose(1, 1, 0))
+    with pytest.raises(AttributeError):
+        spec.name = "y"  # type: ignore[misc]
+    with pytest.raises(ConfigError, match="control_period_s"):
+        RunSpec("x", Pose(0, 0, 0), Pose(1, 1, 0), period_s=0.0)
+
+
+def test_shipped_files_are_plain_toml() -> None:
+    for name in ("fig9", "fig10", "fig11"):
+        with resolve_scenario_path(name).open("rb") as fh:
+            assert "name" in tomllib.load(fh)
