@@ -7,6 +7,7 @@ import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from wmr.errors import ConfigError
 
@@ -102,7 +103,7 @@ def _progress_bar(name: str, quiet: bool) -> tuple[Callable[[float, float], None
     """A tqdm bar over simulation time on stderr, shown only for runs longer than ~1 s."""
     from tqdm import tqdm
 
-    bar: list[tqdm[None]] = []
+    bar: list[Any] = []
 
     def update(t_s: float, t_max_s: float) -> None:
         if not bar:
