@@ -181,3 +181,21 @@ def test_every_paper_run_converges_on_the_fmu(scenario: str, built: BuildResult)
                 failures.append((spec.name, res.status, res.final_position_error_m,
                                  math.degrees(res.final_heading_error_rad)))
     assert failures == []
+
+
+def test_view_writes_a_live_recording_beside_the_log(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    import rerun.chunk as rrc
+
+    from wmr.replay import TIMELINE
+
+    out = tmp_path / "live.mcap"
+    code, record = _run_json(capsys, "--view", "--out", str(out))
+    assert code == 0 and record["status"] == "converged"
+    steps = int(record["steps"])  # type: ignore[call-overload]
+    rows: dict[str, int] = {}
+    for chunk in rrc.RrdReader(out.with_suffix(".rrd")).stream():
+        if TIMELINE in chunk.to_record_batch().schema.names:
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    assert rows and max(rows.values()) == steps  # every step reached the live view
+    assert read_run(out).n_steps == steps  # and the log is unchanged by the view

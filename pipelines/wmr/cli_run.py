@@ -82,11 +82,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
     fmu_path = Path(args.fmu) if args.fmu else default_fmu(args.fmi)
     progress, finish = _progress_bar(spec.name, args.json)
+    live = None
+    if args.view:
+        from wmr.replay import live_view_sink
+
+        live = live_view_sink(spec.name, spec.goal, out.with_suffix(".rrd"))
     with FmuPlant(fmu_path) as plant:
         try:
-            record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress)
+            record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress,
+                                also=live)
         finally:
             finish()
+            if live is not None:
+                live.close()
     if args.json:
         print(result_json(record))
     else:
@@ -132,4 +140,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--out", metavar="FILE.mcap", help="log file (default runs/NAME.mcap)")
     p.add_argument("--json", action="store_true",
                    help="print the result as one JSON object on the last line")
+    p.add_argument("--view", action="store_true",
+                   help="show the run live in Rerun (a viewer when there is a screen; always "
+                        "also saved as FILE.rrd next to the log)")
     p.set_defaults(handler=_cmd_run)

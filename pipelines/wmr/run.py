@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from wmr import __version__
-from wmr.closedloop import Progress, run_closed_loop
+from wmr.closedloop import BlockSink, Progress, run_closed_loop
 from wmr.fmu.plant import FmuPlant
 from wmr.mcaplog import RunLogWriter
 from wmr.scenario import RunSpec
@@ -42,6 +42,8 @@ def run_metadata(spec: RunSpec, plant: FmuPlant) -> dict[str, object]:
         "goal": asdict(spec.goal),
         "params": spec.params.as_dict(),
         "gains": spec.gains.as_dict(),
+        "controller": spec.controller,
+        "controller_gains": dict(spec.controller_gains),
         "limits": spec.limits.as_dict(),
         "control_period_s": spec.period_s,
         "stop_radius_m": spec.stop_radius_m,
@@ -65,12 +67,14 @@ def _attachments(plant: FmuPlant, scenario_file: Path | None) -> dict[str, tuple
 
 def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant, *,
                scenario_file: Path | None = None,
-               progress: Progress | None = None) -> dict[str, Any]:
+               progress: Progress | None = None,
+               also: BlockSink | None = None) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
 
     The log is written as the run goes: a run killed midway leaves a log readable up to its
     last chunk (without a ``result`` record).  A run that fails is logged with status
-    ``failed`` and its error, and the file is closed and readable.
+    ``failed`` and its error, and the file is closed and readable.  ``also`` receives the same
+    blocks as the log (the live Rerun view of ``wmr run --view``).
 
     Returns
     -------
@@ -84,7 +88,12 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
     with RunLogWriter(path, run=run_metadata(spec, plant), goal=goal,
                       attachments=_attachments(plant, scenario_file)) as log:
-        result = run_closed_loop(spec, plant, sink=log, progress=progress)
+        sink: BlockSink = log
+        if also is not None:
+            from wmr.replay import TeeSink
+
+            sink = TeeSink(log, also)
+        result = run_closed_loop(spec, plant, sink=sink, progress=progress)
         record: dict[str, Any] = {
             "name": spec.name,
             "status": result.status,

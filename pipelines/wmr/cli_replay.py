@@ -1,0 +1,84 @@
+"""``wmr replay`` (run logs in Rerun) and ``wmr figures`` (the paper's figures as PNG files)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _warn(line: str) -> None:
+    print(f"wmr: warning: {line}", file=sys.stderr, flush=True)
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from wmr.replay import replay
+
+    spawn = False if args.no_viewer else None
+    result = replay(args.logs, rrd=args.rrd, spawn=spawn)
+    for line in result.warnings:
+        _warn(line)
+    steps = sum(result.steps.values())
+    runs = f"{len(result.runs)} run{'s' if len(result.runs) != 1 else ''}, {steps} steps"
+    if result.spawned:
+        print(f"replayed {runs} in the Rerun viewer", file=sys.stderr)
+    if result.rrd is not None:
+        print(result.rrd)
+        print(f"wrote {runs}; open it with: rerun {result.rrd}", file=sys.stderr)
+    return 0
+
+
+def _cmd_figures(args: argparse.Namespace) -> int:
+    from wmr.errors import ConfigError
+    from wmr.figures import make_figures
+
+    if args.roa_grid < 0 or args.roa_headings < 1:
+        raise ConfigError("--roa-grid", "needs N >= 0 and --roa-headings K >= 1",
+                          "e.g. --roa-grid 9 --roa-headings 4, or --roa-grid 0 to skip it")
+
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    written = make_figures(Path(args.out), logs=Path(args.logs) if args.logs else None,
+                           roa_grid=args.roa_grid, roa_headings=args.roa_headings,
+                           progress=progress)
+    for path in written:
+        print(path)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add the ``replay`` and ``figures`` sub-commands."""
+    from wmr.figures import ROA_GRID, ROA_HEADINGS
+
+    p = sub.add_parser(
+        "replay", help="replay run logs in Rerun (a viewer, or an .rrd file)",
+        description="Replay MCAP run logs in Rerun: the path, pose, goal and the points D and "
+                    "R in a 2-D view, and the errors, speeds, torques and PI terms on the "
+                    "sim_time timeline.  Several logs (or folders of them) go into one "
+                    "recording, each under runs/<name>.  Opens a viewer when there is a "
+                    "screen; otherwise, or with --rrd, writes an .rrd file (default: next to "
+                    "the input) and prints its path.")
+    p.add_argument("logs", nargs="+", metavar="FILE.mcap|DIR",
+                   help="run logs, or folders searched recursively for *.mcap")
+    p.add_argument("--rrd", metavar="OUT.rrd", help="write the recording to this file")
+    p.add_argument("--no-viewer", action="store_true",
+                   help="do not open a viewer even if there is a screen (write the .rrd)")
+    p.set_defaults(handler=_cmd_replay)
+
+    f = sub.add_parser(
+        "figures", help="the paper's Figs. 9-12 and a region-of-attraction map as PNG files",
+        description="Draw the paper's Figs. 9, 10, 11 and 12 from the logs of the fig9, fig10 "
+                    "and fig11 scenarios (run now, into OUT/logs/, unless --logs has them), "
+                    "and a map of the time to goal from a grid of start poses.  Prints the "
+                    "path of each PNG file, one per line.")
+    f.add_argument("--out", metavar="DIR", default="figures",
+                   help="output folder (default: figures)")
+    f.add_argument("--logs", metavar="DIR",
+                   help="folder with the scenario logs (searched recursively)")
+    f.add_argument("--roa-grid", type=int, default=ROA_GRID, metavar="N",
+                   help=f"N x N start positions on [-10, 10] m around the goal (default "
+                        f"{ROA_GRID}; 0 skips the map)")
+    f.add_argument("--roa-headings", type=int, default=ROA_HEADINGS, metavar="K",
+                   help=f"start headings per position, evenly spaced (default {ROA_HEADINGS})")
+    f.set_defaults(handler=_cmd_figures)

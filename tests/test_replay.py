@@ -1,0 +1,351 @@
+"""``wmr replay``, the live view sinks, and Rerun's own MCAP loader on our logs."""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Iterator
+from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pytest
+import rerun.chunk as rrc
+from numpy.typing import NDArray
+
+from wmr.cli import main
+from wmr.closedloop import run_closed_loop
+from wmr.errors import LogError
+from wmr.fmu.plant import FmuPlant
+from wmr.mcaplog import read_run
+from wmr.replay import (
+    PANELS,
+    TIMELINE,
+    TeeSink,
+    default_rrd_path,
+    find_logs,
+    has_screen,
+    live_view_sink,
+    replay,
+)
+from wmr.run import run_to_log
+from wmr.scenario import RunSpec, load_scenario, with_overrides
+from wmr.signals import SIGNALS
+
+
+@dataclass
+class Entity:
+    """Everything an .rrd holds for one entity: rows on the timeline, components, values."""
+
+    rows: int = 0
+    static_rows: int = 0
+    components: set[str] = field(default_factory=set)
+    columns: dict[str, list[pa.Array]] = field(default_factory=dict)
+    times: list[pa.Array] = field(default_factory=list)
+
+    def column(self, name: str) -> list[Any]:
+        """All values of a component, in time order (as Python lists)."""
+        values: list[Any] = []
+        for arr in self.columns.get(name, []):
+            values.extend(arr.to_pylist())
+        return values
+
+
+def read_rrd(path: Path) -> tuple[dict[str, Entity], int]:
+    """Entities of the first recording of an .rrd file, and the number of blueprints."""
+    reader = rrc.RrdReader(path)
+    out: dict[str, Entity] = {}
+    for chunk in reader.stream():
+        ent = out.setdefault(chunk.entity_path, Entity())
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        timed = TIMELINE in names
+        if timed:
+            ent.rows += chunk.num_rows
+            ent.times.append(batch.column(TIMELINE))
+        else:
+            ent.static_rows += chunk.num_rows
+        for name in names:
+            if ":" in name:
+                ent.components.add(name)
+                ent.columns.setdefault(name, []).append(batch.column(name))
+    return out, len(reader.blueprints())
+
+
+def run_cli(*argv: str) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        rc = main(list(argv))
+    return rc, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def spec() -> RunSpec:
+    return load_scenario("fig11").runs[0]
+
+
+@pytest.fixture(scope="module")
+def fmu_plant(fmu3: Path) -> Iterator[FmuPlant]:
+    with FmuPlant(fmu3) as plant:
+        yield plant
+
+
+@pytest.fixture(scope="module")
+def fig11_log(tmp_path_factory: pytest.TempPathFactory, spec: RunSpec,
+              fmu_plant: FmuPlant) -> Path:
+    path = tmp_path_factory.mktemp("logs") / "fig11.mcap"
+    record = run_to_log(spec, path, fmu_plant)
+    assert record["status"] == "converged"
+    return path
+
+
+@pytest.fixture(autouse=True)
+def no_screen(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Never spawn a viewer from the tests."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+
+
+def test_replay_rrd_holds_path_pose_goal_and_every_series(fig11_log: Path,
+                                                           tmp_path: Path) -> None:
+    run = read_run(fig11_log)
+    n = run.n_steps
+    assert n > 1000
+    out = tmp_path / "fig11.rrd"
+    rc, stdout, stderr = run_cli("replay", str(fig11_log), "--rrd", str(out))
+    assert rc == 0, stderr
+    assert stdout.strip() == str(out)
+    assert "truncated" not in stderr
+
+    ents, n_blueprints = read_rrd(out)
+    assert n_blueprints == 1
+    root = "/runs/fig11"
+    # the path: one static strip through every logged position
+    path = ents[f"{root}/world/path"]
+    assert path.rows == 0 and path.static_rows == 1
+    strip = np.array(path.column("LineStrips2D:strips")[0][0])
+    assert strip.shape == (n, 2)
+    np.testing.assert_allclose(strip[:, 0], run.signals["x_m"], atol=1e-5)
+    np.testing.assert_allclose(strip[:, 1], run.signals["y_m"], atol=1e-5)
+    # the pose: a transform per step, on sim_time
+    robot = ents[f"{root}/world/robot"]
+    assert robot.rows == n
+    assert {"Transform3D:translation", "Transform3D:quaternion", "Boxes2D:half_sizes",
+            "Arrows2D:vectors"} <= robot.components
+    trans = np.array([row[0] for row in robot.column("Transform3D:translation")])
+    np.testing.assert_allclose(trans[:, 0], run.signals["x_m"], atol=1e-5)
+    np.testing.assert_allclose(trans[:, 1], run.signals["y_m"], atol=1e-5)
+    quat = np.array([row[0] for row in robot.column("Transform3D:quaternion")])
+    yaw = 2.0 * np.arctan2(quat[:, 2], quat[:, 3])
+    np.testing.assert_allclose(np.cos(yaw), np.cos(run.signals["theta_rad"]), atol=1e-5)
+    times = np.concatenate([np.asarray(t.cast(pa.int64())) for t in robot.times])
+    np.testing.assert_array_equal(times, run.t_ns)
+    # the goal
+    goal = ents[f"{root}/world/goal"]
+    assert goal.static_rows == 1
+    assert run.goal is not None
+    np.testing.assert_allclose(goal.column("Arrows2D:origins")[0][0],
+                               [run.goal.x_m, run.goal.y_m])
+    # the points D and R, with their construction lines
+    for point, (cx, cy) in {"D": ("D_x_m", "D_y_m"), "R": ("R_x_m", "R_y_m")}.items():
+        ent = ents[f"{root}/world/{point}"]
+        assert ent.rows == n
+        pos = np.array([row[0] for row in ent.column("Points2D:positions")])
+        np.testing.assert_allclose(pos[:, 0], run.signals[cx], atol=1e-4)
+        np.testing.assert_allclose(pos[:, 1], run.signals[cy], atol=1e-4)
+    assert ents[f"{root}/world/construction"].rows == n
+    # every time-series panel, with each of its signals, on every step
+    for panel in PANELS:
+        ent = ents[f"{root}/{panel.entity}"]
+        assert ent.rows == n, panel.entity
+        values = np.array(ent.column("Scalars:scalars"))
+        assert values.shape == (n, len(panel.series))
+        for j, series in enumerate(panel.series):
+            np.testing.assert_array_equal(values[:, j], run.signals[series.signal])
+        names = ent.column("SeriesLines:names")[0]
+        assert names == [s.label for s in panel.series]
+
+
+def test_panels_cover_the_figures_signals() -> None:
+    plotted = {s.signal for p in PANELS for s in p.series}
+    assert {"e_s_m", "e_theta_rad", "omega_radps", "omega_r_radps", "omega_l_radps",
+            "tau_r_nm", "tau_l_nm", "p_s_mps", "i_s_mps", "p_theta_radps",
+            "i_theta_radps"} <= plotted
+    assert plotted <= set(SIGNALS)
+
+
+def test_truncated_log_replays_its_prefix_with_a_warning(fig11_log: Path,
+                                                          tmp_path: Path) -> None:
+    data = fig11_log.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    prefix = read_run(cut)
+    full = read_run(fig11_log)
+    assert prefix.truncated and 0 < prefix.n_steps < full.n_steps
+    rc, stdout, stderr = run_cli("replay", str(cut))
+    assert rc == 0
+    assert "warning" in stderr and "truncated" in stderr
+    out = Path(stdout.strip())
+    assert out == tmp_path / "cut.rrd" and out.is_file()
+    ents, _ = read_rrd(out)
+    assert ents["/runs/cut/world/robot"].rows == prefix.n_steps
+    assert ents["/runs/cut/errors"].rows == prefix.n_steps
+    strip = ents["/runs/cut/world/path"].column("LineStrips2D:strips")[0][0]
+    assert len(strip) == prefix.n_steps
+
+
+@pytest.mark.parametrize("content", [b"", os.urandom(4096), b"\x89MCAP0\r\n" + b"\0" * 64])
+def test_corrupt_log_is_one_error_line(tmp_path: Path, content: bytes) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(content)
+    rc, stdout, stderr = run_cli("replay", str(bad), "--rrd", str(tmp_path / "x.rrd"))
+    assert rc == 1
+    assert stdout == ""
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("wmr: error:") and "bad.mcap" in lines[0]
+    with pytest.raises(LogError):
+        replay([bad], rrd=tmp_path / "y.rrd")
+
+
+def test_folder_of_runs_is_one_recording(fig11_log: Path, spec: RunSpec, fmu_plant: FmuPlant,
+                                         tmp_path: Path) -> None:
+    batch = tmp_path / "batch"
+    (batch / "a").mkdir(parents=True)
+    (batch / "b").mkdir()
+    (batch / "a" / "fig11.mcap").write_bytes(fig11_log.read_bytes())
+    short = with_overrides(spec, start=(10.0, 10.0, 90.0), name="short")
+    run_to_log(short, batch / "b" / "fig11.mcap", fmu_plant)  # same file name, other folder
+    run_to_log(short, batch / "b" / "other+run.mcap", fmu_plant)
+    logs = find_logs([batch])
+    assert [lg.name for lg in logs] == ["a_fig11", "b_fig11", "other+run"]
+    result = replay([batch])
+    assert result.rrd == tmp_path / "batch.rrd" and not result.spawned
+    ents, n_bp = read_rrd(tmp_path / "batch.rrd")
+    assert n_bp == 1
+    for lg in logs:
+        root = f"/runs/{lg.name.replace('+', chr(92) + '+')}"
+        assert ents[f"{root}/world/robot"].rows == read_run(lg.path).n_steps
+        assert ents[f"{root}/world/path"].static_rows == 1
+        names = ents[f"{root}/errors"].column("SeriesLines:names")[0]
+        assert all(name.startswith(f"{lg.name}: ") for name in names)  # comparable in one plot
+
+
+def test_find_logs_errors(tmp_path: Path) -> None:
+    with pytest.raises(LogError, match="no such file"):
+        find_logs([tmp_path / "missing.mcap"])
+    with pytest.raises(LogError, match=r"no \.mcap files"):
+        find_logs([tmp_path])
+
+
+def test_screen_and_default_paths(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    assert not has_screen()
+    monkeypatch.setenv("WAYLAND_DISPLAY", "wayland-0")
+    assert has_screen()
+    assert default_rrd_path([tmp_path / "x.mcap"]) == tmp_path / "x.rrd"
+    assert default_rrd_path([tmp_path]) == tmp_path.parent / f"{tmp_path.name}.rrd"
+    assert default_rrd_path([tmp_path / "a.mcap", tmp_path / "b.mcap"]) == (
+        tmp_path / "replay.rrd")
+
+
+def test_replay_refuses_a_non_rrd_output(fig11_log: Path, tmp_path: Path) -> None:
+    rc, _, stderr = run_cli("replay", str(fig11_log), "--rrd", str(tmp_path / "x.txt"))
+    assert rc == 1 and "must end in .rrd" in stderr
+
+
+class Recorder:
+    """A sink that keeps copies of what it gets (and spoils the arrays like the master)."""
+
+    def __init__(self) -> None:
+        self.t: list[NDArray[np.int64]] = []
+        self.blocks: list[NDArray[np.float64]] = []
+
+    def write_block(self, t_ns: NDArray[np.int64], block: NDArray[np.float64]) -> None:
+        self.t.append(t_ns.copy())
+        self.blocks.append(block.copy())
+
+
+def test_live_view_sink_through_a_tee(spec: RunSpec, fmu_plant: FmuPlant,
+                                      tmp_path: Path) -> None:
+    rrd = tmp_path / "live.rrd"
+    recorder = Recorder()
+    with live_view_sink(spec.name, spec.goal, rrd) as live:
+        result = run_closed_loop(spec, fmu_plant, sink=TeeSink(recorder, live))
+    assert result.status == "converged"
+    n = result.steps
+    assert sum(len(t) for t in recorder.t) == n
+    assert live.rows == n
+    ents, n_bp = read_rrd(rrd)
+    assert n_bp == 1
+    root = f"/runs/{spec.name}"
+    block = np.concatenate(recorder.blocks)
+    for panel in PANELS:
+        values = np.array(ents[f"{root}/{panel.entity}"].column("Scalars:scalars"))
+        assert values.shape == (n, len(panel.series))
+        for j, series in enumerate(panel.series):
+            np.testing.assert_array_equal(values[:, j], block[:, SIGNALS.index(series.signal)])
+    assert ents[f"{root}/world/robot"].rows == n
+    # the path grows block by block; its last version ends where the robot stopped
+    path = ents[f"{root}/world/path"]
+    assert path.rows == -(-n // 100)
+    last = np.array(path.column("LineStrips2D:strips")[-1][0])
+    np.testing.assert_allclose(last[-1], [result.final_pose.x_m, result.final_pose.y_m],
+                               atol=1e-5)
+    assert ents[f"{root}/world/goal"].static_rows == 1
+
+
+def test_live_view_default_rrd_without_screen(spec: RunSpec, tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    sink = live_view_sink("a run/with spaces", (1.0, 2.0, 0.5), None)
+    t = np.arange(3, dtype=np.int64) * 10_000_000
+    sink.write_block(t, np.zeros((3, len(SIGNALS))))
+    sink.close()
+    out = tmp_path / "runs" / "a_run_with_spaces.rrd"
+    assert out.is_file()
+    ents, _ = read_rrd(out)
+    assert ents["/runs/a\\ run\\/with\\ spaces/errors"].rows == 3
+
+
+def test_rerun_reads_our_mcap_log_natively(fig11_log: Path) -> None:
+    """Rerun's own MCAP loader (no lens, no help from us) yields the pose and the transform."""
+    run = read_run(fig11_log)
+    n = run.n_steps
+    reader = rrc.McapReader(fig11_log)
+    assert "foxglove" in rrc.McapReader.available_decoders()
+    poses: list[list[float]] = []
+    frames: set[str] = set()
+    parents: set[str] = set()
+    children: set[str] = set()
+    tf_rows = 0
+    for chunk in reader.stream():
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        if chunk.entity_path == "/robot/pose" and "InstancePoses3D:translations" in names:
+            poses.extend(row[0] for row in batch.column("InstancePoses3D:translations")
+                         .to_pylist())
+            frames.update(f[0] for f in batch.column("CoordinateFrame:frame").to_pylist())
+        if chunk.entity_path == "/tf" and "Transform3D:translation" in names:
+            tf_rows += chunk.num_rows
+            parents.update(f[0] for f in batch.column("Transform3D:parent_frame").to_pylist())
+            children.update(f[0] for f in batch.column("Transform3D:child_frame").to_pylist())
+    assert len(poses) == n and tf_rows == n
+    xy = np.array(poses)[:, :2]
+    np.testing.assert_allclose(xy[:, 0], run.signals["x_m"], atol=1e-5)
+    np.testing.assert_allclose(xy[:, 1], run.signals["y_m"], atol=1e-5)
+    assert frames == {"world"}
+    assert parents == {"world"} and children == {"base_link"}
+
+
+def test_rerun_recovers_a_cut_mcap_log(fig11_log: Path, tmp_path: Path) -> None:
+    data = fig11_log.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    rows = 0
+    for chunk in rrc.McapReader(cut, recover=True).stream():
+        if chunk.entity_path == "/tf" and "Transform3D:translation" in (
+                chunk.to_record_batch().schema.names):
+            rows += chunk.num_rows
+    assert 0 < rows < read_run(fig11_log).n_steps
