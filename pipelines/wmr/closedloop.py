@@ -1,4 +1,7 @@
-"""The co-simulation master: one closed-loop run of the paper's controller on any plant.
+"""The co-simulation master: one closed-loop run of a controller on any plant.
+
+The controller is the paper's PI stabiliser by default, or a peer (``spec.controller``, built
+by :func:`wmr.control.peers.make_controller`).
 
 Plant-agnostic: it takes a :class:`wmr.plant.Plant` (the FMU or the reference physics) and one
 code path serves every scenario.  Per control step ``n`` at ``t_n = n h`` (exact, never
@@ -24,7 +27,8 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from wmr.control import Controller, wrap_angle
+from wmr.control import wrap_angle
+from wmr.control.peers import make_controller
 from wmr.plant import Plant, Pose
 from wmr.scenario import RunSpec
 from wmr.signals import COLUMN, PLANT_SIGNALS, SIGNALS
@@ -113,8 +117,9 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
             sink.write_block(t_ns[:rows], block[:rows])
 
     try:
-        controller = Controller(goal, spec.gains, spec.limits, spec.params, h,
-                                spec.stop_radius_m)
+        controller = make_controller(spec.controller, goal, spec.gains, spec.limits,
+                                     spec.params, h, spec.stop_radius_m,
+                                     dict(spec.controller_gains))
         stab = controller.stabiliser
         out = plant.reset(spec.params, spec.start)
         x, y, theta = float(out[0]), float(out[1]), float(out[2])

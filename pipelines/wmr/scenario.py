@@ -10,6 +10,10 @@ A scenario file::
     stop_radius_m = 0.05             # epsilon of Section 4, default 0.05
     heading_tolerance_deg = 0.5      # final alignment tolerance, default 0.5
     max_time_s = 120.0               # default 120
+    controller = "pi"                # pi (default), astolfi or graceful (wmr.control.peers)
+
+    [controller_gains]               # a peer's own gains (astolfi: k_rho, k_alpha, ...)
+    k_rho = 3.0
 
     [gains]                          # any of wmr.control.Gains
     K_ps = 0.5
@@ -34,6 +38,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from wmr.control.peers import controller_gains
 from wmr.control.stabiliser import Gains, Limits
 from wmr.errors import ConfigError
 from wmr.paths import scenarios_dir
@@ -48,7 +53,8 @@ DEFAULT_MAX_TIME_S = 120.0
 MAX_STEPS = 10_000_000
 
 TOP_FIELDS = ("name", "description", "start", "goal", "runs", "gains", "limits", "params",
-              "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s")
+              "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s",
+              "controller", "controller_gains")
 RUN_FIELDS = ("name", "start", "goal", "max_time_s")
 
 
@@ -67,8 +73,13 @@ class RunSpec:
     t_max_s: float = DEFAULT_MAX_TIME_S
     heading_tolerance_rad: float = math.radians(DEFAULT_HEADING_TOLERANCE_DEG)
     scenario: str = ""
+    #: ``pi`` (the paper's), ``astolfi`` or ``graceful`` (:mod:`wmr.control.peers`).
+    controller: str = "pi"
+    #: A peer's own gains as ``(name, value)`` pairs; empty: its published defaults.
+    controller_gains: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
+        controller_gains(self.controller, dict(self.controller_gains))
         _positive("control_period_s", self.period_s)
         _positive("stop_radius_m", self.stop_radius_m)
         _positive("max_time_s", self.t_max_s)
@@ -153,6 +164,15 @@ def _build(cls: type[Any], values: Mapping[str, Any], section: str, base: Any = 
         raise ConfigError(exc.field, exc.problem, "give a value within the bound") from None
 
 
+def _peer_gains(controller: str, values: Mapping[str, Any]) -> tuple[tuple[str, float], ...]:
+    """Validated ``controller_gains`` of ``controller`` as ``(name, value)`` pairs."""
+    out: list[tuple[str, float]] = []
+    for k, v in values.items():
+        out.append((k, float(v) if isinstance(v, bool) else _finite(f"controller_gains.{k}", v)))
+    controller_gains(controller, dict(out))
+    return tuple(out)
+
+
 def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                    path: Path | None = None) -> Scenario:
     """Validate a scenario's parsed TOML ``data`` and expand it into runs."""
@@ -173,6 +193,11 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
     tol = _positive("heading_tolerance_deg",
                     data.get("heading_tolerance_deg", DEFAULT_HEADING_TOLERANCE_DEG))
     t_max = _positive("max_time_s", data.get("max_time_s", DEFAULT_MAX_TIME_S))
+    controller = data.get("controller", "pi")
+    if not isinstance(controller, str):
+        raise ConfigError("controller", f"must be a string, got {controller!r}",
+                          'write e.g. controller = "astolfi"')
+    peer_gains = _peer_gains(controller, _table(data, "controller_gains"))
     start = _pose(data["start"], "start") if "start" in data else None
     goal = _pose(data["goal"], "goal") if "goal" in data else None
 
@@ -204,7 +229,8 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
         runs.append(RunSpec(name=run_name, start=run_start, goal=run_goal, params=params,
                             gains=gains, limits=limits, period_s=period, stop_radius_m=eps,
                             t_max_s=run_t_max, heading_tolerance_rad=math.radians(tol),
-                            scenario=name))
+                            scenario=name, controller=controller,
+                            controller_gains=peer_gains))
     return Scenario(name=name, description=description, runs=tuple(runs), path=path)
 
 
@@ -257,12 +283,15 @@ def with_overrides(spec: RunSpec, start: Pose | tuple[float, float, float] | lis
                    limits: Mapping[str, float] | None = None,
                    params: Mapping[str, float] | None = None, period_s: float | None = None,
                    stop_radius_m: float | None = None, t_max_s: float | None = None,
-                   heading_tolerance_deg: float | None = None) -> RunSpec:
+                   heading_tolerance_deg: float | None = None, controller: str | None = None,
+                   controller_gains: Mapping[str, float] | None = None) -> RunSpec:
     """Merge command-line overrides into a run.
 
     ``start`` and ``goal`` are a :class:`~wmr.plant.Pose` (heading in rad) or a sequence
     ``(x_m, y_m, heading_deg)`` as typed on the command line; ``gains``, ``limits`` and
-    ``params`` replace the named fields only.  ``None`` keeps the run's value.
+    ``params`` replace the named fields only; ``controller`` selects another controller
+    (its ``controller_gains`` then start from its defaults), ``controller_gains`` replace the
+    named gains of the (new) controller.  ``None`` keeps the run's value.
     """
     changes: dict[str, Any] = {}
     new_start = _pose_override(start, "start")
@@ -288,6 +317,14 @@ def with_overrides(spec: RunSpec, start: Pose | tuple[float, float, float] | lis
     if heading_tolerance_deg is not None:
         changes["heading_tolerance_rad"] = math.radians(
             _positive("heading_tolerance_deg", heading_tolerance_deg))
+    if controller is not None and controller != spec.controller:
+        changes["controller"] = controller
+        changes["controller_gains"] = ()
+    if controller_gains:
+        base = dict(() if "controller_gains" in changes else spec.controller_gains)
+        base.update(controller_gains)
+        changes["controller_gains"] = _peer_gains(changes.get("controller", spec.controller),
+                                                  base)
     return replace(spec, **changes)
 
 

@@ -1,0 +1,295 @@
+"""``wmr optimal``, ``wmr benchmark`` and ``wmr tune``: the optimal reference, the side-by-side
+benchmark of the PI stabiliser against its peers and the optimum, and gain tuning."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from wmr.errors import ConfigError
+
+
+def _fmu_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=3,
+                   help="FMI version of the FMU to drive (default 3)")
+    p.add_argument("--fmu", metavar="FILE.fmu",
+                   help="drive this FMU instead of the project's own build")
+
+
+def _fmu_path(args: argparse.Namespace) -> Path:
+    from wmr.run import default_fmu
+
+    return Path(args.fmu) if args.fmu else default_fmu(args.fmi)
+
+
+def _json_line(obj: Any) -> str:
+    """One line of JSON, NaN/inf as null."""
+
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [clean(x) for x in v]
+        return v
+
+    return json.dumps(clean(obj), allow_nan=False)
+
+
+# ---------------------------------------------------------------------------------- optimal
+
+
+def _cmd_optimal(args: argparse.Namespace) -> int:
+    from wmr.benchmark import optimal_metadata, replay_figures, write_optimal_log
+    from wmr.control import Limits
+    from wmr.fmu.plant import FmuPlant
+    from wmr.optimal import OptimalLimits, replay_open_loop, solve_optimal
+    from wmr.plant import Pose, RobotParams
+
+    def pose(v: list[float] | None, default: tuple[float, float, float], name: str) -> Pose:
+        x, y, h = default if v is None else v
+        for label, val in (("x", x), ("y", y), ("theta_deg", h)):
+            if not math.isfinite(val):
+                raise ConfigError(f"--{name} {label}", f"must be finite, got {val!r}")
+        return Pose(float(x), float(y), math.radians(h))
+
+    start = pose(args.start, (0.0, 0.0, 0.0), "start")
+    goal = pose(args.goal, (20.0, 10.0, 0.0), "goal")
+    pi = Limits()
+    torque = pi.torque_max_nm if args.torque_limit is None else args.torque_limit
+    if not math.isfinite(torque) or torque <= 0.0:
+        raise ConfigError("--torque-limit", f"must be > 0, got {torque!r}")
+    if args.torque_only:
+        limits = OptimalLimits(torque_max_nm=torque)
+    else:
+        limits = OptimalLimits(torque_max_nm=torque,
+                               wheel_speed_max_radps=pi.wheel_speed_max_radps,
+                               v_max_mps=pi.v_max_mps, omega_max_radps=pi.omega_max_radps)
+    params = RobotParams()
+    final_time = args.final_time
+    note = ""
+    if args.objective == "energy" and final_time is None:
+        t_min = solve_optimal(start, goal, params, objective="time", limits=limits)
+        if t_min.status != "solved":
+            raise ConfigError("--final-time", "no minimum time to base the energy run on "
+                              f"({t_min.status}: {t_min.message})", "give --final-time S")
+        final_time = 1.5 * t_min.final_time_s
+        note = f"final time 1.5 x the minimum time {t_min.final_time_s:.3f} s"
+    if args.objective == "time" and final_time is not None:
+        raise ConfigError("--final-time", "the time objective leaves the final time free",
+                          "drop --final-time or use --objective energy")
+    res = solve_optimal(start, goal, params, objective=args.objective, limits=limits,
+                        final_time_s=final_time)
+    out = Path(args.out) if args.out else Path("runs") / f"optimal-{args.objective}.mcap"
+    if out.suffix != ".mcap":
+        raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
+    record: dict[str, Any] = {
+        "status": res.status, "message": res.message + (f"; {note}" if note else ""),
+        "objective": res.objective,
+        "final_time_s": res.final_time_s if res.status == "solved" else None,
+        "path_length_m": None, "mcap": None,
+        "ocp_path_length_m": res.path_length_m, "energy_J": res.energy_J,
+        "effort_N2m2s": res.effort_N2m2s, "solve_time_s": res.solve_time_s,
+        "iterations": res.iterations, "limits": res.summary()["limits"],
+    }
+    if res.status == "solved":
+        with FmuPlant(_fmu_path(args)) as plant:
+            replay = replay_open_loop(res, plant, params=params, start=start,
+                                      control_period_s=args.period)
+            figs = replay_figures(replay, goal, 0.05)
+            record.update(figs)
+            record["mcap"] = str(out)
+            record["final_heading_error_rad"] = float(replay.final_heading_error_rad)
+            record["final_speed_mps"] = replay.final_speed_mps
+            write_optimal_log(out, res, replay, plant,
+                              optimal_metadata("optimal", "", start, goal, params, limits,
+                                               args.objective, plant, args.period),
+                              {k: v for k, v in record.items()
+                               if not isinstance(v, dict)})
+    if args.json:
+        print(_json_line(record))
+    else:
+        if res.status == "solved":
+            print(f"{res.status}: T = {res.final_time_s:.3f} s, path {record['path_length_m']:.2f}"
+                  f" m; FMU replay ends {record['final_position_error_m']:.4f} m and "
+                  f"{math.degrees(abs(record['final_heading_error_rad'])):.3f} deg from the "
+                  f"goal; log {out}")
+        else:
+            print(f"{res.status}: {res.message}")
+    return {"solved": 0, "infeasible": 3}.get(res.status, 1)
+
+
+# ---------------------------------------------------------------------------------- benchmark
+
+
+def _cmd_benchmark(args: argparse.Namespace) -> int:
+    from wmr.benchmark import (
+        CONTROLLERS,
+        DEFAULT_SCENARIOS,
+        benchmark_specs,
+        format_tables,
+        load_tuned,
+        run_benchmark,
+        write_tables,
+    )
+    from wmr.fmu.plant import FmuPlant
+
+    specs = benchmark_specs(args.scenarios or list(DEFAULT_SCENARIOS))
+    if args.limit_cases is not None:
+        specs = specs[: args.limit_cases]
+    labels = (list(CONTROLLERS) if not args.controllers
+              else [c.strip() for c in args.controllers.split(",") if c.strip()])
+    tuned = load_tuned(args.tuned)
+    out = Path(args.out) if args.out else Path("runs") / "benchmark"
+
+    def progress(case: str, label: str) -> None:
+        if not args.json:
+            print(f"  {case}: {label}", file=sys.stderr, flush=True)
+
+    with FmuPlant(_fmu_path(args)) as plant:
+        rows = run_benchmark(specs, plant, out, labels, tuned, optimal=not args.no_optimal,
+                             progress=progress)
+    csv_path, pq_path = write_tables(rows, out)
+    print(format_tables(rows))
+    print(f"tables: {csv_path}, {pq_path}; logs: {out / 'logs'}")
+    if args.json:
+        print(_json_line(rows))
+    failed = [r for r in rows if r["status"] == "failed"]
+    return 1 if failed else 0
+
+
+# ---------------------------------------------------------------------------------- tune
+
+
+def _cmd_tune(args: argparse.Namespace) -> int:
+    from wmr.benchmark import run_optimal
+    from wmr.fmu.plant import FmuPlant
+    from wmr.scenario import RunSpec, load_scenario
+    from wmr.tune import DEFAULT_BUDGET, default_cases, tune
+
+    specs: list[RunSpec] = []
+    if args.scenarios:
+        for s in args.scenarios:
+            specs.extend(load_scenario(s).runs)
+    else:
+        specs = default_cases()
+    controllers = (["pi", "astolfi", "graceful"] if args.controller == "all"
+                   else [args.controller])
+    saved: dict[str, dict[str, float]] = {}
+    out: list[dict[str, Any]] = []
+    with FmuPlant(_fmu_path(args)) as plant:
+        opt_times: list[float | None] = []
+        if not args.no_optimal:
+            for s in specs:
+                o = run_optimal(s, plant, None)
+                opt_times.append(o.final_time_s)
+        for c in controllers:
+            res = tune(c, specs, plant,
+                       budget=DEFAULT_BUDGET if args.budget is None else args.budget)
+            saved[c] = res.gains
+            gains = ", ".join(f"{k} = {v:.4g}" for k, v in res.gains.items())
+            start = ", ".join(f"{k} = {v:.4g}" for k, v in res.start_gains.items())
+            print(f"{c}: objective {res.start_cost_s:.3f} s -> {res.cost_s:.3f} s in "
+                  f"{res.evaluations} evaluations ({res.wall_time_s:.0f} s)")
+            print(f"  start: {start}")
+            print(f"  tuned: {gains}")
+            ratios = []
+            for s, r, t_opt in zip(specs, res.results, opt_times or [None] * len(specs),
+                                   strict=True):
+                t = r.time_to_goal_s if r is not None else None
+                ratio = t / t_opt if t is not None and t_opt else None
+                if ratio is not None:
+                    ratios.append(ratio)
+                print(f"    {s.name:22s} {r.status if r else 'rejected':9s} "
+                      f"t = {t if t is not None else float('nan'):7.2f} s  optimal "
+                      f"{t_opt if t_opt is not None else float('nan'):7.2f} s  ratio "
+                      f"{ratio if ratio is not None else float('nan'):.3f}")
+            if ratios:
+                print(f"  time / optimal time: mean {sum(ratios) / len(ratios):.3f}, "
+                      f"max {max(ratios):.3f}")
+            out.append({"controller": c, "gains": res.gains, "start_gains": res.start_gains,
+                        "start_objective_s": res.start_cost_s, "objective_s": res.cost_s,
+                        "evaluations": res.evaluations,
+                        "mean_time_ratio": sum(ratios) / len(ratios) if ratios else None})
+    if args.save:
+        Path(args.save).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.save).write_text(json.dumps(saved, indent=2) + "\n", encoding="utf-8")
+        print(f"tuned gains saved to {args.save} (use: wmr benchmark --tuned {args.save})")
+    if args.json:
+        print(_json_line(out if len(out) > 1 else out[0]))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add the ``optimal``, ``benchmark`` and ``tune`` sub-commands."""
+    p = sub.add_parser(
+        "optimal", help="the optimal manoeuvre (CasADi), replayed open-loop on the FMU",
+        description="Solve the minimum-time (or minimum-effort) rest-to-rest manoeuvre on the "
+                    "Modelica model's dynamics, replay its torques open-loop through the FMU "
+                    "and log the FMU run to MCAP. Limits: the PI's (torque, wheel speed, v, "
+                    "omega) unless --torque-only. Exit status: 0 solved, 3 infeasible, "
+                    "1 failed.")
+    p.add_argument("--start", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
+                   help="start pose (default 0 0 0)")
+    p.add_argument("--goal", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
+                   help="goal pose (default 20 10 0)")
+    p.add_argument("--objective", choices=("time", "energy"), default="time",
+                   help="minimum time (default), or minimum integral of tau^2 in a fixed time")
+    p.add_argument("--final-time", type=float, metavar="S",
+                   help="duration for --objective energy (default 1.5 x the minimum time)")
+    p.add_argument("--torque-limit", type=float, metavar="NM",
+                   help="torque limit per wheel, N.m (default the PI's, 8)")
+    p.add_argument("--torque-only", action="store_true",
+                   help="drop the wheel speed, v and omega limits")
+    p.add_argument("--period", type=float, default=0.01, metavar="S",
+                   help="longest FMU step of the replay, s (default 0.01)")
+    p.add_argument("--out", metavar="FILE.mcap",
+                   help="log file (default runs/optimal-OBJECTIVE.mcap)")
+    p.add_argument("--json", action="store_true", help="the result as JSON on the last line")
+    _fmu_options(p)
+    p.set_defaults(handler=_cmd_optimal)
+
+    b = sub.add_parser(
+        "benchmark", help="PI against the peer stabilisers and the optimum",
+        description="Run every case of the scenarios with the PI, the tuned PI, Astolfi's and "
+                    "the graceful stabiliser (default and tuned gains) on one FMU, solve the "
+                    "minimum-time manoeuvre under the same limits, and tabulate time to goal, "
+                    "path, energy, torque and heading error (CSV and Parquet in --out, a log "
+                    "per run in --out/logs/CONTROLLER/CASE.mcap).")
+    b.add_argument("scenarios", nargs="*", metavar="SCENARIO",
+                   help="scenario names or TOML files (default fig9 fig10)")
+    b.add_argument("--out", metavar="DIR", help="output folder (default runs/benchmark)")
+    b.add_argument("--controllers", metavar="LIST",
+                   help="comma-separated subset of pi,pi-tuned,astolfi,astolfi-tuned,"
+                        "graceful,graceful-tuned (default all)")
+    b.add_argument("--tuned", metavar="FILE.json",
+                   help="tuned gains from 'wmr tune --save' (default: the built-in ones)")
+    b.add_argument("--no-optimal", action="store_true", help="skip the optimal solves")
+    b.add_argument("--limit-cases", type=int, metavar="N", help="only the first N cases")
+    b.add_argument("--json", action="store_true",
+                   help="the rows as one JSON list on the last line")
+    _fmu_options(b)
+    b.set_defaults(handler=_cmd_benchmark)
+
+    t = sub.add_parser(
+        "tune", help="tune a controller's gains by Nelder-Mead on a scenario set",
+        description="Tune the gains of the PI (or a peer) to minimise the mean time to goal "
+                    "over a scenario set, with penalties for timeouts, failures and heading "
+                    "error; print the gains and the times against the optimal times.")
+    t.add_argument("scenarios", nargs="*", metavar="SCENARIO",
+                   help="scenario names or TOML files (default: a subset of fig9 + fig10)")
+    t.add_argument("--controller", choices=("pi", "astolfi", "graceful", "all"), default="pi",
+                   help="controller to tune (default pi)")
+    t.add_argument("--budget", type=int, default=None, metavar="N",
+                   help="objective evaluations per controller (default 60)")
+    t.add_argument("--save", metavar="FILE.json", help="write the tuned gains here")
+    t.add_argument("--no-optimal", action="store_true", help="skip the optimal reference times")
+    t.add_argument("--json", action="store_true", help="the result as JSON on the last line")
+    _fmu_options(t)
+    t.set_defaults(handler=_cmd_tune)
+
