@@ -1,0 +1,28 @@
+"""Batches of closed-loop runs: sweeps, explicit variants and Monte Carlo, locally or on Dask.
+
+* :mod:`wmr.batch.spec`: the spec file (a scenario plus ``[grid]``, ``[[list]]``, ``[random]``)
+  expanded into runs with stable ids;
+* :mod:`wmr.batch.runner`: :func:`run_batch`, resumable, writing ``OUT/summary.parquet``;
+* :mod:`wmr.batch.local` and :mod:`wmr.batch.dask_exec`: the two executors;
+* :mod:`wmr.batch.report`: ``wmr report``, the summary as Markdown and plots.
+
+See ``docs/batch.md``.
+"""
+
+from __future__ import annotations
+
+from wmr.batch.runner import DEFAULT_RUN_TIMEOUT_S, BatchOutcome, run_batch
+from wmr.batch.spec import BatchRun, BatchSpec, load_batch, parse_batch, spec_digest
+from wmr.batch.summary import read_summary
+
+__all__ = [
+    "DEFAULT_RUN_TIMEOUT_S",
+    "BatchOutcome",
+    "BatchRun",
+    "BatchSpec",
+    "load_batch",
+    "parse_batch",
+    "read_summary",
+    "run_batch",
+    "spec_digest",
+]

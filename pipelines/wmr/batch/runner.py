@@ -1,0 +1,256 @@
+"""``wmr batch``: run every run of a spec, resumably, locally or on Dask.
+
+Layout of the output folder::
+
+    OUT/runs/<run_id>.mcap   one log per run
+    OUT/journal.jsonl        one line per finished run (with its wall time and worker)
+    OUT/summary.parquet      one row per finished run, sorted by run id (see summary.py)
+    OUT/summary.csv          the same as CSV
+    OUT/batch.json           counts and timings of the last invocation
+    OUT/logs/worker-<n>.log  the FMU's messages (local workers)
+
+Rerunning the same command skips the runs that are done (:mod:`wmr.batch.journal`) and redoes
+the others, half-written logs included; a run is never reported twice.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+from wmr.batch.journal import JOURNAL, Journal, log_complete
+from wmr.batch.local import LocalPool, Outcome
+from wmr.batch.spec import BatchSpec, spec_digest
+from wmr.batch.summary import status_counts, summary_table, write_summary
+from wmr.batch.worker import FAULTS, Task
+from wmr.errors import ConfigError
+from wmr.fmu.archive import file_sha256
+
+#: Default per-run wall-clock limit, s: generous (a 120 s simulated run takes about 1 s).
+DEFAULT_RUN_TIMEOUT_S: Final = 600.0
+
+
+@dataclass
+class BatchOutcome:
+    """What :func:`run_batch` did.
+
+    Attributes
+    ----------
+    out_dir
+        The batch folder.
+    total
+        Runs in the spec.
+    skipped
+        Runs already done by an earlier invocation.
+    executed
+        Run ids executed by this invocation, in finishing order.
+    counts
+        Runs per status over the whole summary (done earlier or now).
+    interrupted
+        Stopped early (Ctrl-C or ``stop_after``); the summary holds the finished runs.
+    wall_s
+        Wall time of this invocation, s.
+    """
+
+    out_dir: Path
+    total: int
+    skipped: int
+    executed: list[str] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    interrupted: bool = False
+    wall_s: float = 0.0
+
+    @property
+    def finished(self) -> int:
+        """Runs in the summary."""
+        return sum(self.counts.values())
+
+
+class _Lock:
+    """An exclusive lock on the batch folder: two batches must not share a journal."""
+
+    def __init__(self, out_dir: Path) -> None:
+        self._fd = os.open(out_dir / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(self._fd)
+            raise ConfigError("--out", f"another batch is running in {out_dir}",
+                              "wait for it or give another --out folder") from None
+
+    def release(self) -> None:
+        fcntl.flock(self._fd, fcntl.LOCK_UN)
+        os.close(self._fd)
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
+              workers: int | None = None, scheduler: str | None = None, client: Any = None,
+              run_timeout_s: float | None = DEFAULT_RUN_TIMEOUT_S,
+              fmu_path: str | os.PathLike[str] | None = None, fmi_version: int = 3,
+              progress: bool | None = None, stop_after: int | None = None,
+              faults: Mapping[str, str] | None = None, dask_ship_logs: bool = False,
+              on_outcome: Callable[[Outcome], None] | None = None) -> BatchOutcome:
+    """Run the runs of ``batch`` not done yet into ``out_dir``; write the summary.
+
+    Parameters
+    ----------
+    batch
+        The expanded spec (:func:`wmr.batch.load_batch`).
+    out_dir
+        The batch folder (created).
+    workers
+        Local worker processes (default: one per core).  Ignored on Dask.
+    scheduler, client
+        A Dask scheduler address, or a :class:`distributed.Client`: run there.
+    run_timeout_s
+        Wall-clock limit per run, s; a run past it is a ``timeout`` row ("wall-clock limit").
+        Local workers still busy ``max(1 s, 10 %)`` later are killed.  ``None``: no limit.
+    fmu_path, fmi_version
+        The FMU to drive; by default the project's own, built (or reused) once, here.
+    progress
+        tqdm bar on stderr: ``None`` shows it on a terminal only.
+    stop_after
+        Test hook: behave as if Ctrl-C came after this many runs of this invocation.
+    faults
+        Test hook: run id -> ``"hang"`` or ``"crash"``.
+    dask_ship_logs
+        On Dask, have every worker send its logs back, as workers on other hosts do.
+    on_outcome
+        Called with each finished run (after its journal line is written).
+
+    Returns
+    -------
+    BatchOutcome
+        Counts and run ids; ``interrupted`` when Ctrl-C (or ``stop_after``) stopped it.
+
+    Raises
+    ------
+    ConfigError
+        Bad arguments, or the folder is in use by another batch.
+    FmuError
+        The workers cannot open the FMU.
+    """
+    from tqdm import tqdm
+
+    from wmr.run import default_fmu
+
+    t0 = time.perf_counter()
+    if workers is not None and workers < 1:
+        raise ConfigError("--workers", f"must be >= 1, got {workers}", "give e.g. --workers 2")
+    if run_timeout_s is not None and not run_timeout_s > 0:
+        raise ConfigError("--run-timeout", f"must be > 0, got {run_timeout_s}",
+                          "give seconds, e.g. --run-timeout 600")
+    for run_id, fault in (faults or {}).items():
+        if fault not in FAULTS:
+            raise ConfigError("faults", f"{run_id}: unknown fault {fault!r}",
+                              f"use one of {FAULTS}")
+    out = Path(out_dir)
+    runs_dir = out / "runs"
+    try:
+        runs_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError("--out", f"cannot create {runs_dir}: {exc.strerror}",
+                          "give a writable folder") from None
+    fmu = Path(fmu_path) if fmu_path is not None else default_fmu(fmi_version)
+    fmu_sha = file_sha256(fmu)
+    lock = _Lock(out)
+    try:
+        journal = Journal(out / JOURNAL)
+        digests = {r.run_id: spec_digest(r.spec) for r in batch.runs}
+        records: dict[str, dict[str, Any]] = {}
+        for run_id, row in journal.load().items():
+            if digests.get(run_id) != row.get("digest") or row.get("fmu_sha256") != fmu_sha:
+                continue
+            if row.get("killed") or log_complete(runs_dir / f"{run_id}.mcap"):
+                records[run_id] = row["record"]
+        todo = [r for r in batch.runs if r.run_id not in records]
+        result = BatchOutcome(out_dir=out, total=len(batch.runs), skipped=len(records))
+        attachment = None
+        if batch.path is not None and batch.source:
+            attachment = out / f"spec-{batch.path.name}"
+            if not attachment.exists() or attachment.read_bytes() != batch.source:
+                _write_atomic(attachment, batch.source)
+        tasks = [Task(r.run_id, r.spec, run_timeout_s, (faults or {}).get(r.run_id))
+                 for r in todo]
+        if not tasks:
+            stream: Iterator[Outcome] = iter(())
+        elif scheduler is not None or client is not None:
+            from wmr.batch.dask_exec import DaskExecutor
+
+            stream = DaskExecutor(fmu, out, scheduler=scheduler, client=client,
+                                  attachment=attachment, ship_logs=dask_ship_logs).run(tasks)
+        else:
+            n = workers if workers is not None else (os.cpu_count() or 1)
+            (out / "logs").mkdir(exist_ok=True)
+            hard = None if run_timeout_s is None else run_timeout_s + max(1.0,
+                                                                          0.1 * run_timeout_s)
+            stream = LocalPool(fmu, runs_dir, n, hard_limit_s=hard, attachment=attachment,
+                               log_dir=out / "logs").run(tasks)
+        statuses = [str(r.get("status")) for r in records.values()]
+        bar = tqdm(total=len(batch.runs), initial=len(records), unit="run", file=sys.stderr,
+                   disable=None if progress is None else not progress, smoothing=0.05,
+                   dynamic_ncols=True, desc=batch.name)
+        counts = status_counts(statuses)
+
+        def show() -> None:
+            bar.set_postfix_str(f"ok {counts['converged']}, timeout {counts['timeout']}, "
+                                f"failed {counts['failed']}", refresh=False)
+
+        show()
+        try:
+            for outcome in stream:
+                if outcome.log is not None:
+                    _write_atomic(runs_dir / f"{outcome.run_id}.mcap", outcome.log)
+                journal.append({"run_id": outcome.run_id, "digest": digests[outcome.run_id],
+                                "fmu_sha256": fmu_sha, "killed": outcome.killed,
+                                "wall_s": round(outcome.wall_s, 6), "worker": outcome.worker,
+                                "record": outcome.record})
+                records[outcome.run_id] = outcome.record
+                result.executed.append(outcome.run_id)
+                status = str(outcome.record.get("status"))
+                counts[status] = counts.get(status, 0) + 1
+                show()
+                bar.update(1)
+                if on_outcome is not None:
+                    on_outcome(outcome)
+                if stop_after is not None and len(result.executed) >= stop_after \
+                        and len(records) < len(batch.runs):
+                    raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            result.interrupted = True
+        finally:
+            close = getattr(stream, "close", None)
+            if close is not None:
+                close()  # stops the workers
+            bar.close()
+            table = summary_table(batch.runs, batch.input_columns, records)
+            write_summary(table, out)
+            result.counts = status_counts(table.column("status").to_pylist())
+            result.wall_s = time.perf_counter() - t0
+            _write_atomic(out / "batch.json", (json.dumps({
+                "spec": str(batch.path) if batch.path else batch.name, "total": result.total,
+                "finished": result.finished, "skipped": result.skipped,
+                "executed": len(result.executed), "counts": result.counts,
+                "interrupted": result.interrupted, "wall_s": round(result.wall_s, 3),
+                "executor": (f"dask {scheduler or 'client'}" if scheduler or client
+                             else f"local, {workers or os.cpu_count()} workers"),
+                "fmu": fmu.name, "fmu_sha256": fmu_sha}, indent=1) + "\n").encode())
+    finally:
+        lock.release()
+    return result
+
+
+__all__ = ["DEFAULT_RUN_TIMEOUT_S", "BatchOutcome", "run_batch"]

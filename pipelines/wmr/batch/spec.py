@@ -1,0 +1,543 @@
+"""Batch spec files: a scenario plus the ways to vary it, expanded into identified runs.
+
+A batch spec is a scenario file (:mod:`wmr.scenario`) with up to three more sections::
+
+    name = "gains"                     # the scenario part: base run(s), as in any scenario
+    start = [0.0, 0.0, 0.0]
+    goal = [5.0, 2.0, 0.0]
+
+    [grid]                             # cartesian product of lists ([sweep] is a synonym)
+    max_time_s = [30.0, 60.0]
+    start = [[0, 0, 0], [1, 0, 90]]    # whole poses, [x_m, y_m, heading_deg] ...
+    [grid.goal]
+    heading_deg = [-30.0, 0.0, 30.0]   # ... or pose components
+    [grid.gains]
+    K_ps = [0.3, 0.5, 0.8]
+
+    [[list]]                           # explicit variants, one table each
+    name = "heavy"
+    params = { m = 40.0 }
+    [[list]]
+    name = "weak-motor"
+    limits = { torque_max_nm = 4.0 }
+
+    [random]                           # Monte Carlo samples
+    seed = 1
+    n = 100
+    [random.params]
+    m = { dist = "normal", mean = 25.0, std = 3.0, low = 15.0, high = 35.0 }
+    l = { dist = "uniform", low = 0.25, high = 0.45 }
+    [random.start]
+    r_m = { dist = "uniform", low = 5.0, high = 12.0 }     # polar, about the goal
+    bearing_deg = { dist = "uniform", low = 0.0, high = 360.0 }
+    [random.goal]
+    heading_deg = { dist = "along_x" }                      # the paper's Fig. 10 rule
+
+Fields that can vary: ``gains.*``, ``limits.*``, ``params.*`` (the fields of
+:class:`~wmr.control.stabiliser.Gains`, :class:`~wmr.control.stabiliser.Limits` and
+:class:`~wmr.plant.RobotParams`), ``start`` and ``goal`` (whole poses, or the components
+``x_m``, ``y_m``, ``heading_deg``; the start also ``r_m`` and ``bearing_deg``, its distance from
+and bearing about the goal), ``max_time_s``, ``stop_radius_m``, ``control_period_s`` and
+``heading_tolerance_deg``.
+
+Distributions of ``[random]``: ``uniform`` (``low``, ``high``), ``normal`` (``mean``, ``std``,
+optional ``low``/``high`` bounds: a truncated normal, by rejection), ``choice`` (``values``), and
+for ``goal.heading_deg`` only ``along_x``: 0 deg when the start is left of the goal
+(``x_start < x_goal``), 180 deg otherwise (Section 5, Fig. 10).  Sample ``i`` of field ``f`` is
+drawn from a generator seeded by ``(seed, i, crc32(f))``: adding samples or fields keeps the
+values drawn already.
+
+The runs are every combination: base run x grid point x list entry x random sample (a missing
+section counts as one empty variant), in that order (base run slowest).  Each gets a stable id
+``NNNN-hhhhhhhh``: its index in that order and the first 8 hex digits of the SHA-256 of its
+complete :class:`~wmr.scenario.RunSpec`.  Every error is a :class:`~wmr.errors.ConfigError`
+naming the field, e.g. ``random.params.m.std``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import tomllib
+import zlib
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from wmr.control.stabiliser import Gains, Limits
+from wmr.errors import ConfigError
+from wmr.plant import Pose, RobotParams
+from wmr.scenario import RunSpec, parse_scenario, resolve_scenario_path, with_overrides
+
+#: Sections a batch spec adds to a scenario file.
+BATCH_SECTIONS: Final = ("grid", "sweep", "list", "random")
+#: Upper bound on the number of runs of one spec (a typo in a grid should not mean 10^9 runs).
+MAX_RUNS: Final = 1_000_000
+#: Pose columns every summary has, resolved from the run itself.
+POSE_COLUMNS: Final = ("start.x_m", "start.y_m", "start.heading_deg",
+                       "goal.x_m", "goal.y_m", "goal.heading_deg")
+_GROUPS: Final[dict[str, tuple[str, ...]]] = {
+    "gains": tuple(f.name for f in fields(Gains)),
+    "limits": tuple(f.name for f in fields(Limits)),
+    "params": tuple(f.name for f in fields(RobotParams)),
+}
+_POSE_PARTS: Final[dict[str, tuple[str, ...]]] = {
+    "start": ("x_m", "y_m", "heading_deg", "r_m", "bearing_deg"),
+    "goal": ("x_m", "y_m", "heading_deg"),
+}
+_SCALARS: Final = ("max_time_s", "stop_radius_m", "control_period_s", "heading_tolerance_deg")
+_FIELDS: Final = (*_GROUPS, *_POSE_PARTS, *_SCALARS)
+_DISTS: Final[dict[str, tuple[tuple[str, ...], tuple[str, ...]]]] = {
+    # name: (required keys, optional keys)
+    "uniform": (("low", "high"), ()),
+    "normal": (("mean", "std"), ("low", "high")),
+    "choice": (("values",), ()),
+    "along_x": ((), ()),
+}
+ALONG_X: Final = "along_x"
+
+Value = float | str
+"""A variant's value of one field: a number, or the name of a rule (``"along_x"``)."""
+
+
+@dataclass(frozen=True)
+class BatchRun:
+    """One run of a batch.
+
+    Attributes
+    ----------
+    run_id
+        Stable id ``NNNN-hhhhhhhh`` (index, hash of the run's inputs).
+    spec
+        The complete run.
+    base
+        Name of the scenario run it derives from.
+    variant
+        Name of its ``[[list]]`` entry, ``""`` if none.
+    inputs
+        The varied fields as summary columns (``"params.m"``, ``"start.r_m"``, ...), plus the
+        pose columns of :data:`POSE_COLUMNS`.
+    """
+
+    run_id: str
+    spec: RunSpec
+    base: str
+    variant: str
+    inputs: dict[str, float]
+
+
+@dataclass(frozen=True)
+class BatchSpec:
+    """A loaded batch spec.
+
+    Attributes
+    ----------
+    name, description
+        From the scenario part.
+    runs
+        Every run, in index order (sorted by id).
+    input_columns
+        Summary input columns: :data:`POSE_COLUMNS` then the varied fields in order of first
+        appearance.
+    path
+        The file, if loaded from one.
+    source
+        The file's bytes (attached to each run's log), ``b""`` if none.
+    """
+
+    name: str
+    description: str
+    runs: tuple[BatchRun, ...]
+    input_columns: tuple[str, ...]
+    path: Path | None = None
+    source: bytes = b""
+
+
+@dataclass(frozen=True)
+class _Dist:
+    kind: str
+    args: dict[str, Any]
+    where: str
+
+    def sample(self, rng: np.random.Generator) -> Value:
+        a = self.args
+        if self.kind == "uniform":
+            return float(rng.uniform(a["low"], a["high"]))
+        if self.kind == "choice":
+            values: list[float] = a["values"]
+            return values[int(rng.integers(len(values)))]
+        if self.kind == ALONG_X:
+            return ALONG_X
+        low, high = a.get("low", -math.inf), a.get("high", math.inf)
+        for _ in range(10_000):
+            x = float(rng.normal(a["mean"], a["std"]))
+            if low <= x <= high:
+                return x
+        raise ConfigError(self.where, f"no sample of normal({a['mean']:g}, {a['std']:g}) fell "
+                          f"within [{low:g}, {high:g}] in 10000 draws",
+                          "widen the bounds or move the mean inside them")
+
+
+# -- parsing ---------------------------------------------------------------------------------
+
+def _number(value: object, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(where, f"must be a number, got {value!r}", "write a plain number")
+    if not math.isfinite(value):
+        raise ConfigError(where, f"must be finite, got {value!r}", "give a finite number")
+    return float(value)
+
+
+def _table(value: object, where: str, example: str) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ConfigError(where, f"must be a table, got {value!r}", f"write e.g. {example}")
+    return value
+
+
+def _unknown(where: str, allowed: Sequence[str]) -> ConfigError:
+    return ConfigError(where, "unknown field", f"allowed fields: {', '.join(allowed)}")
+
+
+def _pose_values(value: object, where: str, part: str) -> dict[str, float]:
+    if not isinstance(value, list | tuple) or len(value) != 3:
+        raise ConfigError(where, f"must be a pose [x_m, y_m, heading_deg], got {value!r}",
+                          "write three numbers, e.g. [10.0, 0.0, 0.0]")
+    return {f"{part}.{k}": _number(v, f"{where}.{k}")
+            for k, v in zip(("x_m", "y_m", "heading_deg"), value, strict=True)}
+
+
+def _leaves(table: Mapping[str, Any], where: str,
+            skip: tuple[str, ...] = ()) -> list[tuple[str, str, object]]:
+    """Walk a grid/list/random table: ``(field, source path, raw value)`` per leaf.
+
+    A whole pose (``start = [...]``) is one leaf with field ``"start"``.
+    """
+    out: list[tuple[str, str, object]] = []
+    for key, value in table.items():
+        src = f"{where}.{key}"
+        if key in skip:
+            continue
+        if key in _GROUPS:
+            for name, v in _table(value, src, f"[{src}] with fields").items():
+                if name not in _GROUPS[key]:
+                    raise _unknown(f"{src}.{name}", _GROUPS[key])
+                out.append((f"{key}.{name}", f"{src}.{name}", v))
+        elif key in _POSE_PARTS:
+            if isinstance(value, Mapping) and not ("dist" in value and where.startswith("random")):
+                for name, v in value.items():
+                    if name not in _POSE_PARTS[key]:
+                        raise _unknown(f"{src}.{name}", _POSE_PARTS[key])
+                    out.append((f"{key}.{name}", f"{src}.{name}", v))
+            else:
+                out.append((key, src, value))
+        elif key in _SCALARS:
+            out.append((key, src, value))
+        else:
+            raise _unknown(src, (*skip, *_FIELDS))
+    return out
+
+
+def _grid(table: Mapping[str, Any], where: str
+          ) -> tuple[list[dict[str, Value]], dict[str, str]]:
+    """Grid points (cartesian product, first field slowest) and the source of each field."""
+    axes: list[list[dict[str, Value]]] = []
+    sources: dict[str, str] = {}
+    for field, src, raw in _leaves(table, where):
+        if not isinstance(raw, list) or not raw:
+            raise ConfigError(src, f"must be a non-empty list of values, got {raw!r}",
+                              "write e.g. [0.3, 0.5, 0.8]")
+        if field in _POSE_PARTS:
+            axis = [dict(_pose_values(v, f"{src}[{i}]", field)) for i, v in enumerate(raw)]
+            for k in axis[0]:
+                sources[k] = src
+        else:
+            axis = [{field: _number(v, f"{src}[{i}]")} for i, v in enumerate(raw)]
+            sources[field] = src
+        axes.append(axis)  # type: ignore[arg-type]
+    points = [dict(itertools.chain.from_iterable(d.items() for d in combo))
+              for combo in itertools.product(*axes)]
+    return points, sources
+
+
+def _list(entries: object) -> tuple[list[tuple[str, dict[str, Value]]], dict[str, str]]:
+    if not isinstance(entries, list) or not entries:
+        raise ConfigError("list", "must be a non-empty array of tables",
+                          "write [[list]] blocks, each with the fields it changes")
+    out: list[tuple[str, dict[str, Value]]] = []
+    sources: dict[str, str] = {}
+    for i, entry in enumerate(entries):
+        where = f"list[{i}]"
+        table = _table(entry, where, "a [[list]] block")
+        name = table.get("name", "")
+        if not isinstance(name, str):
+            raise ConfigError(f"{where}.name", f"must be a string, got {name!r}", "quote it")
+        values: dict[str, Value] = {}
+        for field, src, raw in _leaves(table, where, skip=("name",)):
+            if field in _POSE_PARTS:
+                values.update(_pose_values(raw, src, field))
+                for k in ("x_m", "y_m", "heading_deg"):
+                    sources.setdefault(f"{field}.{k}", f"{src}.{k}")
+            else:
+                values[field] = _number(raw, src)
+                sources.setdefault(field, src)
+        out.append((name, values))
+    return out, sources
+
+
+def _dist(raw: object, field: str, src: str) -> _Dist:
+    table = _table(raw, src, '{ dist = "uniform", low = 0.0, high = 1.0 }')
+    kind = table.get("dist")
+    if kind not in _DISTS:
+        raise ConfigError(f"{src}.dist", f"unknown distribution {kind!r}",
+                          f"use one of: {', '.join(_DISTS)}")
+    if kind == ALONG_X and field != "goal.heading_deg":
+        raise ConfigError(f"{src}.dist", "'along_x' is a rule for goal.heading_deg only",
+                          "use it under [random.goal] heading_deg")
+    required, optional = _DISTS[kind]
+    args: dict[str, Any] = {}
+    for key, value in table.items():
+        if key == "dist":
+            continue
+        if key not in required + optional:
+            raise _unknown(f"{src}.{key}", ("dist", *required, *optional))
+        if key == "values":
+            if not isinstance(value, list) or not value:
+                raise ConfigError(f"{src}.values", f"must be a non-empty list, got {value!r}",
+                                  "write e.g. values = [1.0, 2.0]")
+            args[key] = [_number(v, f"{src}.values[{i}]") for i, v in enumerate(value)]
+        else:
+            args[key] = _number(value, f"{src}.{key}")
+    for key in required:
+        if key not in args:
+            raise ConfigError(f"{src}.{key}", "missing", f"a {kind} distribution needs "
+                              f"{', '.join(required)}")
+    if "std" in args and args["std"] <= 0.0:
+        raise ConfigError(f"{src}.std", f"must be > 0, got {args['std']!r}",
+                          "give a positive standard deviation")
+    if "low" in args and "high" in args and not args["low"] < args["high"]:
+        raise ConfigError(f"{src}.high", f"must be > low ({args['low']!r}), got {args['high']!r}",
+                          "give low < high")
+    return _Dist(kind, args, src)
+
+
+def _random(table: Mapping[str, Any]) -> tuple[list[dict[str, Value]], dict[str, str]]:
+    seed = table.get("seed")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError("random.seed", f"must be a non-negative integer, got {seed!r}",
+                          "write e.g. seed = 1")
+    n = table.get("n")
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_RUNS:
+        raise ConfigError("random.n", f"must be an integer in [1, {MAX_RUNS}], got {n!r}",
+                          "write e.g. n = 100")
+    dists: list[tuple[str, _Dist]] = []
+    sources: dict[str, str] = {}
+    for field, src, raw in _leaves(table, "random", skip=("seed", "n")):
+        if field in _POSE_PARTS:
+            raise ConfigError(src, "a random pose is drawn per component",
+                              f"write [random.{field}] with x_m, y_m, heading_deg"
+                              + (", r_m, bearing_deg" if field == "start" else ""))
+        dists.append((field, _dist(raw, field, src)))
+        sources[field] = src
+    if not dists:
+        raise ConfigError("random", "draws nothing", "add e.g. [random.params] with m = {...}")
+    samples: list[dict[str, Value]] = []
+    for i in range(n):
+        samples.append({field: d.sample(np.random.default_rng(
+            [seed, i, zlib.crc32(field.encode())])) for field, d in dists})
+    return samples, sources
+
+
+# -- expansion -------------------------------------------------------------------------------
+
+def _resolve(base: RunSpec, values: Mapping[str, Value], name: str) -> RunSpec:
+    """``base`` with a variant's values applied."""
+    def num(key: str) -> float:
+        return float(values[key])
+
+    goal = base.goal
+    gx = num("goal.x_m") if "goal.x_m" in values else goal.x_m
+    gy = num("goal.y_m") if "goal.y_m" in values else goal.y_m
+    start = base.start
+    sx, sy, sh = start.x_m, start.y_m, start.heading_rad
+    polar = [k for k in ("start.r_m", "start.bearing_deg") if k in values]
+    if polar:
+        clash = [k for k in ("start.x_m", "start.y_m") if k in values]
+        if clash:
+            raise ConfigError(polar[0], f"conflicts with {clash[0]}",
+                              "give the start either as x_m/y_m or as r_m/bearing_deg")
+        r0 = math.hypot(sx - gx, sy - gy)
+        b0 = math.atan2(sy - gy, sx - gx)
+        r = num("start.r_m") if "start.r_m" in values else r0
+        if r < 0.0:
+            raise ConfigError("start.r_m", f"must be >= 0, got {r!r}", "give a distance")
+        b = math.radians(num("start.bearing_deg")) if "start.bearing_deg" in values else b0
+        sx, sy = gx + r * math.cos(b), gy + r * math.sin(b)
+    sx = num("start.x_m") if "start.x_m" in values else sx
+    sy = num("start.y_m") if "start.y_m" in values else sy
+    if "start.heading_deg" in values:
+        sh = math.radians(num("start.heading_deg"))
+    gh = goal.heading_rad
+    rule = values.get("goal.heading_deg")
+    if rule == ALONG_X:
+        gh = 0.0 if sx < gx else math.pi
+    elif rule is not None:
+        gh = math.radians(float(rule))
+
+    def group(prefix: str) -> dict[str, float]:
+        return {k[len(prefix) + 1:]: float(v) for k, v in values.items()
+                if k.startswith(prefix + ".")}
+
+    def opt(key: str) -> float | None:
+        return num(key) if key in values else None
+
+    return with_overrides(
+        base, start=Pose(sx, sy, sh), goal=Pose(gx, gy, gh), name=name,
+        gains=group("gains"), limits=group("limits"), params=group("params"),
+        period_s=opt("control_period_s"), stop_radius_m=opt("stop_radius_m"),
+        t_max_s=opt("max_time_s"), heading_tolerance_deg=opt("heading_tolerance_deg"))
+
+
+def _canonical(value: Any) -> Any:
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, dict):
+        return {k: _canonical(v) for k, v in value.items()}
+    return value
+
+
+def spec_digest(spec: RunSpec) -> str:
+    """SHA-256 of a run's complete inputs (floats by ``repr``: bit-exact)."""
+    text = json.dumps(_canonical(asdict(spec)), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _inputs(spec: RunSpec, values: Mapping[str, Value], columns: Sequence[str]
+            ) -> dict[str, float]:
+    row = {
+        "start.x_m": spec.start.x_m, "start.y_m": spec.start.y_m,
+        "start.heading_deg": math.degrees(spec.start.heading_rad),
+        "goal.x_m": spec.goal.x_m, "goal.y_m": spec.goal.y_m,
+        "goal.heading_deg": math.degrees(spec.goal.heading_rad),
+    }
+    actual: dict[str, float] = {
+        "max_time_s": spec.t_max_s, "stop_radius_m": spec.stop_radius_m,
+        "control_period_s": spec.period_s,
+        "heading_tolerance_deg": math.degrees(spec.heading_tolerance_rad),
+    }
+    for group, obj in (("gains", spec.gains), ("limits", spec.limits), ("params", spec.params)):
+        actual.update({f"{group}.{k}": v for k, v in obj.as_dict().items()})
+    for col in columns:
+        if col in row:
+            continue
+        if col in actual:
+            row[col] = float(actual[col])
+        else:  # start.r_m, start.bearing_deg: as drawn, NaN where not given
+            v = values.get(col)
+            row[col] = float(v) if isinstance(v, int | float) else math.nan
+    return row
+
+
+def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | None = None,
+                raw: bytes = b"") -> BatchSpec:
+    """Validate a batch spec's parsed TOML ``data`` and expand it into runs.
+
+    Parameters
+    ----------
+    data
+        The parsed TOML.
+    source
+        File name, for the default scenario name.
+    path, raw
+        The file and its bytes, kept for the logs' attachments.
+
+    Raises
+    ------
+    ConfigError
+        Naming the bad field.
+    """
+    sections = {k: data[k] for k in BATCH_SECTIONS if k in data}
+    scenario = parse_scenario({k: v for k, v in data.items() if k not in BATCH_SECTIONS},
+                              source=source, path=path)
+    sources: dict[str, str] = {}
+    points: list[dict[str, Value]] = [{}]
+    if "grid" in sections and "sweep" in sections:
+        raise ConfigError("sweep", "given together with [grid], its synonym",
+                          "merge the two tables into one [grid]")
+    for key in ("grid", "sweep"):
+        if key in sections:
+            points, src = _grid(_table(sections[key], key, f"[{key}] with lists"), key)
+            sources.update(src)
+    entries: list[tuple[str, dict[str, Value]]] = [("", {})]
+    if "list" in sections:
+        entries, src = _list(sections["list"])
+        for k, v in src.items():
+            sources.setdefault(k, v)
+    samples: list[dict[str, Value]] = [{}]
+    if "random" in sections:
+        samples, src = _random(_table(sections["random"], "random", "[random] with seed, n"))
+        for k, v in src.items():
+            sources.setdefault(k, v)
+    total = len(scenario.runs) * len(points) * len(entries) * len(samples)
+    if total > MAX_RUNS:
+        raise ConfigError("grid" if len(points) > 1 else "random.n",
+                          f"the spec expands to {total} runs, more than {MAX_RUNS}",
+                          "use fewer values")
+    columns = list(POSE_COLUMNS)
+    for key in sources:
+        if key not in columns:
+            columns.append(key)
+    width = max(4, len(str(total - 1)))
+    n_variants = len(points) * len(entries) * len(samples)
+    runs: list[BatchRun] = []
+    index = 0
+    for base in scenario.runs:
+        for point in points:
+            for variant, entry in entries:
+                for sample in samples:
+                    values = {**point, **entry, **sample}
+                    label = base.name + (f"-{variant}" if variant else "")
+                    name = label if n_variants == 1 else f"{label}-{index:0{width}d}"
+                    try:
+                        spec = _resolve(base, values, name)
+                    except ConfigError as exc:
+                        field = sources.get(exc.field, exc.field)
+                        raise ConfigError(f"{field}", f"{exc.problem} (run {index}, {name})",
+                                          exc.fix) from None
+                    run_id = f"{index:0{width}d}-{spec_digest(spec)[:8]}"
+                    runs.append(BatchRun(run_id=run_id, spec=spec, base=base.name,
+                                         variant=variant,
+                                         inputs=_inputs(spec, values, columns)))
+                    index += 1
+    return BatchSpec(name=scenario.name, description=scenario.description, runs=tuple(runs),
+                     input_columns=tuple(columns), path=path, source=raw)
+
+
+def load_batch(name_or_path: str | Path) -> BatchSpec:
+    """Read, validate and expand a batch spec (or a plain scenario) file.
+
+    Raises
+    ------
+    ConfigError
+        The file is missing or not TOML (field ``spec``), or a field is bad (named).
+    """
+    path = resolve_scenario_path(name_or_path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError("spec", f"no such file: {path}", "give a batch spec .toml") from None
+    except OSError as exc:
+        raise ConfigError("spec", f"cannot read {path}: {exc.strerror}",
+                          "check the path") from None
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError("spec", f"{path} is not valid TOML: {exc}", "fix the syntax") from None
+    return parse_batch(data, source=str(path), path=path, raw=raw)
+
+
+__all__ = ["BatchRun", "BatchSpec", "load_batch", "parse_batch", "spec_digest"]

@@ -1,0 +1,144 @@
+"""The summary of a batch: one row per finished run, sorted by run id, as Parquet and CSV.
+
+Nothing in it depends on the execution (no timings, no worker, no host, logs by relative path),
+so the same spec gives the same bytes with any number of workers or on Dask.  Wall times go to
+the journal only.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Final
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from wmr.batch.spec import BatchRun
+
+SUMMARY_PARQUET: Final = "summary.parquet"
+SUMMARY_CSV: Final = "summary.csv"
+ID_COLUMNS: Final = ("run_id", "name", "base", "variant")
+#: Result columns: name -> Arrow type.
+RESULT_COLUMNS: Final[dict[str, pa.DataType]] = {
+    "status": pa.string(),
+    "message": pa.string(),
+    "final_position_error_m": pa.float64(),
+    "final_heading_error_rad": pa.float64(),
+    "time_to_goal_s": pa.float64(),
+    "path_length_m": pa.float64(),
+    "energy_j": pa.float64(),
+    "torque_sq_integral_n2m2s": pa.float64(),
+    "peak_torque_nm": pa.float64(),
+    "steps": pa.int64(),
+    "mcap": pa.string(),
+}
+STATUSES: Final = ("converged", "timeout", "failed")
+
+
+def log_relpath(run_id: str) -> str:
+    """A run's log, relative to the batch folder."""
+    return f"runs/{run_id}.mcap"
+
+
+def _float(value: object) -> float | None:
+    if value is None or isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    v = float(value)
+    return v if math.isfinite(v) else None
+
+
+def summary_table(runs: Sequence[BatchRun], input_columns: Sequence[str],
+                  records: Mapping[str, Mapping[str, Any]]) -> pa.Table:
+    """The summary of the runs of ``runs`` that have a record, sorted by run id.
+
+    Parameters
+    ----------
+    runs
+        The batch's runs.
+    input_columns
+        Input columns (:attr:`wmr.batch.spec.BatchSpec.input_columns`).
+    records
+        Result records (:func:`wmr.run.run_to_log`) by run id.
+    """
+    done = sorted((r for r in runs if r.run_id in records), key=lambda r: r.run_id)
+    cols: dict[str, list[Any]] = {c: [] for c in (*ID_COLUMNS, *input_columns,
+                                                  *RESULT_COLUMNS)}
+    for run in done:
+        rec = records[run.run_id]
+        cols["run_id"].append(run.run_id)
+        cols["name"].append(run.spec.name)
+        cols["base"].append(run.base)
+        cols["variant"].append(run.variant)
+        for c in input_columns:
+            v = run.inputs.get(c, math.nan)
+            cols[c].append(None if math.isnan(v) else v)
+        for c, kind in RESULT_COLUMNS.items():
+            if c == "mcap":
+                cols[c].append(log_relpath(run.run_id))
+            elif kind == pa.string():
+                cols[c].append(str(rec.get(c) or ""))
+            elif kind == pa.int64():
+                steps = rec.get(c)
+                cols[c].append(int(steps) if isinstance(steps, int) else None)
+            else:
+                cols[c].append(_float(rec.get(c)))
+    fields = [pa.field(c, pa.string(), nullable=False) for c in ID_COLUMNS]
+    fields += [pa.field(c, pa.float64()) for c in input_columns]
+    fields += [pa.field(c, t) for c, t in RESULT_COLUMNS.items()]
+    schema = pa.schema(fields)
+    return pa.table({f.name: pa.array(cols[f.name], f.type) for f in fields}, schema=schema)
+
+
+def _csv_cell(value: object) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return repr(value)  # shortest text that reads back to the same double
+    return str(value)
+
+
+def write_summary(table: pa.Table, out_dir: Path) -> tuple[Path, Path]:
+    """Write ``table`` as ``summary.parquet`` and ``summary.csv`` (each atomically).
+
+    Returns
+    -------
+    tuple of Path
+        The Parquet and the CSV file.
+    """
+    parquet = out_dir / SUMMARY_PARQUET
+    tmp = parquet.with_suffix(".parquet.tmp")
+    pq.write_table(table, tmp, compression="zstd", write_statistics=False)
+    os.replace(tmp, parquet)
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(table.column_names)
+    columns = [table.column(i).to_pylist() for i in range(table.num_columns)]
+    for row in zip(*columns, strict=True):
+        writer.writerow([_csv_cell(v) for v in row])
+    csv_path = out_dir / SUMMARY_CSV
+    tmp = csv_path.with_suffix(".csv.tmp")
+    tmp.write_text(text.getvalue(), encoding="utf-8")
+    os.replace(tmp, csv_path)
+    return parquet, csv_path
+
+
+def read_summary(out_dir: Path) -> pa.Table:
+    """The summary table of a batch folder (Parquet)."""
+    return pq.read_table(out_dir / SUMMARY_PARQUET)
+
+
+def status_counts(statuses: Sequence[str]) -> dict[str, int]:
+    """Runs per status, the three statuses always present."""
+    counts = dict.fromkeys(STATUSES, 0)
+    for s in statuses:
+        counts[s] = counts.get(s, 0) + 1
+    return counts
+
+
+__all__ = ["RESULT_COLUMNS", "SUMMARY_CSV", "SUMMARY_PARQUET", "log_relpath", "read_summary",
+           "status_counts", "summary_table", "write_summary"]

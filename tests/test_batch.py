@@ -1,0 +1,393 @@
+"""``wmr batch`` and ``wmr report``: spec expansion, executors, resume, failures, report."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from wmr.batch import BatchSpec, load_batch, parse_batch, run_batch
+from wmr.batch.journal import Journal, log_complete
+from wmr.batch.report import write_report
+from wmr.cli import main
+from wmr.errors import ConfigError
+from wmr.mcaplog import read_run
+
+# 20 short runs (about 25 ms each): 2 list entries x 10 random samples, starts 0.5-1.5 m away.
+SPEC20 = """
+name = "t20"
+start = [1.0, 0.0, 0.0]
+goal = [0.0, 0.0, 180.0]
+max_time_s = 15.0
+[random]
+seed = 3
+n = 10
+[random.start]
+r_m = { dist = "uniform", low = 0.5, high = 1.5 }
+bearing_deg = { dist = "uniform", low = -180.0, high = 180.0 }
+[random.goal]
+heading_deg = { dist = "along_x" }
+[random.params]
+m = { dist = "normal", mean = 25.0, std = 3.0, low = 18.0, high = 32.0 }
+[[list]]
+name = "a"
+[[list]]
+name = "b"
+gains = { K_ps = 0.8 }
+"""
+
+
+def _write(tmp: Path, text: str, name: str = "spec.toml") -> Path:
+    path = tmp / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _parse(text: str) -> BatchSpec:
+    return parse_batch(tomllib.loads(text))
+
+
+def _summary_bytes(out: Path) -> tuple[bytes, bytes]:
+    return (out / "summary.csv").read_bytes(), (out / "summary.parquet").read_bytes()
+
+
+def _journal_ids(out: Path) -> list[str]:
+    return [json.loads(line)["run_id"]
+            for line in (out / "journal.jsonl").read_text().splitlines() if line.strip()]
+
+
+# -- spec expansion ------------------------------------------------------------------------------
+
+def test_plain_scenario_is_a_spec_with_its_run_names() -> None:
+    batch = load_batch("fig9")
+    assert len(batch.runs) == 13
+    assert [r.spec.name for r in batch.runs][:2] == ["fig9-thd-090", "fig9-thd-075"]
+    ids = [r.run_id for r in batch.runs]
+    assert ids == sorted(ids) and len(set(ids)) == 13
+    assert ids == [r.run_id for r in load_batch("fig9").runs]  # stable
+
+
+def test_grid_list_random_expand_to_their_product() -> None:
+    batch = _parse("""
+        start = [0.0, 0.0, 0.0]
+        goal = [5.0, 0.0, 0.0]
+        [grid]
+        max_time_s = [10.0, 20.0]
+        [grid.gains]
+        K_ps = [0.3, 0.5, 0.8]
+        [[list]]
+        name = "light"
+        params = { m = 20.0 }
+        [[list]]
+        name = "heavy"
+        params = { m = 40.0 }
+        goal = [6.0, 1.0, 90.0]
+        [random]
+        seed = 7
+        n = 2
+        [random.params]
+        l = { dist = "uniform", low = 0.3, high = 0.4 }
+    """)
+    assert len(batch.runs) == 2 * 3 * 2 * 2
+    first, last = batch.runs[0], batch.runs[-1]
+    assert (first.spec.t_max_s, first.spec.gains.K_ps, first.spec.params.m) == (10.0, 0.3, 20.0)
+    assert (last.spec.t_max_s, last.spec.gains.K_ps, last.spec.params.m) == (20.0, 0.8, 40.0)
+    assert last.variant == "heavy" and last.spec.goal.x_m == 6.0
+    assert last.spec.goal.heading_rad == pytest.approx(math.pi / 2)
+    assert all(0.3 <= r.spec.params.l <= 0.4 for r in batch.runs)
+    for col in ("max_time_s", "gains.K_ps", "params.m", "params.l"):
+        assert col in batch.input_columns
+    assert len({r.run_id for r in batch.runs}) == len(batch.runs)
+
+
+def test_random_samples_are_reproducible_and_keep_their_values_when_n_grows() -> None:
+    five, ten = _parse(SPEC20.replace("n = 10", "n = 5")), _parse(SPEC20)
+    assert [r.spec for r in five.runs[:5]] == [r.spec for r in ten.runs[:5]]
+    assert len({r.spec.params.m for r in ten.runs[:10]}) == 10
+    other_seed = _parse(SPEC20.replace("seed = 3", "seed = 4"))
+    assert other_seed.runs[0].spec.params.m != five.runs[0].spec.params.m
+
+
+def test_polar_start_and_the_fig10_heading_rule() -> None:
+    batch = _parse(SPEC20)
+    for run in batch.runs:
+        s, g = run.spec.start, run.spec.goal
+        assert math.hypot(s.x_m, s.y_m) == pytest.approx(run.inputs["start.r_m"])
+        assert 0.5 <= run.inputs["start.r_m"] <= 1.5
+        assert math.degrees(g.heading_rad) == (180.0 if s.x_m >= 0.0 else 0.0)
+        assert 18.0 <= run.spec.params.m <= 32.0
+
+
+@pytest.mark.parametrize(("snippet", "field"), [
+    ("[grid.gains]\nK_px = [1.0]", "grid.gains.K_px"),
+    ("[grid.params]\nm = []", "grid.params.m"),
+    ("[grid.params]\nm = [25.0, -1.0]", "grid.params.m"),
+    ("[grid]\nstart = [[0, 0]]", "grid.start[0]"),
+    ("[grid]\nspeed = [1.0]", "grid.speed"),
+    ("[[list]]\nparams = { m = -5.0 }", "list[0].params.m"),
+    ("[[list]]\nname = 3", "list[0].name"),
+    ("[random]\nseed = 1\nn = 0\n[random.params]\nm = { dist = 'uniform', low = 1, high = 2 }",
+     "random.n"),
+    ("[random]\nn = 3\n[random.params]\nm = { dist = 'uniform', low = 1, high = 2 }",
+     "random.seed"),
+    ("[random]\nseed = 1\nn = 3\n[random.params]\nm = { dist = 'normal', mean = 25, std = -1 }",
+     "random.params.m.std"),
+    ("[random]\nseed = 1\nn = 3\n[random.params]\nm = { dist = 'gauss', mean = 25, std = 1 }",
+     "random.params.m.dist"),
+    ("[random]\nseed = 1\nn = 3\n[random.params]\nm = { dist = 'uniform', low = 30, high = 20 }",
+     "random.params.m.high"),
+    ("[random]\nseed = 1\nn = 3\n[random.params]\nm = { dist = 'uniform', low = 1 }",
+     "random.params.m.high"),
+    ("[random]\nseed = 1\nn = 3\n[random.goal]\nx_m = { dist = 'along_x' }",
+     "random.goal.x_m.dist"),
+    ("[random]\nseed = 1\nn = 3\n[random.params]\nm = { dist = 'uniform', low = -9, high = -1 }",
+     "random.params.m"),
+    ("[grid]\nmax_time_s = [1.0]\n[sweep]\nstop_radius_m = [0.1]", "sweep"),
+    ("[gains]\nK_ps = 'fast'", "gains.K_ps"),
+])
+def test_bad_fields_are_named(snippet: str, field: str) -> None:
+    text = "start = [0.0, 0.0, 0.0]\ngoal = [5.0, 0.0, 0.0]\n" + snippet
+    with pytest.raises(ConfigError) as err:
+        _parse(text)
+    assert err.value.field == field, str(err.value)
+
+
+def test_missing_spec_file_is_a_config_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as err:
+        load_batch(tmp_path / "nope.toml")
+    assert err.value.field == "spec"
+
+
+# -- execution -----------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def spec20(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _write(tmp_path_factory.mktemp("spec"), SPEC20, "t20.toml")
+
+
+@pytest.fixture(scope="module")
+def reference(spec20: Path, fmu3: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The 20-run batch on one worker."""
+    out = tmp_path_factory.mktemp("ref")
+    result = run_batch(load_batch(spec20), out, workers=1, fmu_path=fmu3, progress=False)
+    assert not result.interrupted and len(result.executed) == 20
+    return out
+
+
+def test_reference_summary_has_one_row_per_run(reference: Path, spec20: Path) -> None:
+    table = pq.read_table(reference / "summary.parquet")
+    ids = [r.run_id for r in load_batch(spec20).runs]
+    assert table.column("run_id").to_pylist() == ids
+    assert set(table.column("status").to_pylist()) == {"converged"}
+    assert table.column("mcap").to_pylist()[0] == f"runs/{ids[0]}.mcap"
+    for col in ("start.r_m", "params.m", "gains.K_ps", "time_to_goal_s", "path_length_m"):
+        assert col in table.column_names
+    assert "wall_s" not in table.column_names
+    assert all(log_complete(reference / "runs" / f"{i}.mcap") for i in ids)
+    log = read_run(reference / "runs" / f"{ids[3]}.mcap")
+    assert json.loads(log.metadata["result"]["steps"]) == table.column("steps")[3].as_py()
+
+
+def test_two_workers_give_the_same_summary_bit_for_bit(reference: Path, spec20: Path,
+                                                       fmu3: Path, tmp_path: Path) -> None:
+    result = run_batch(load_batch(spec20), tmp_path, workers=2, fmu_path=fmu3, progress=False)
+    assert len(result.executed) == 20
+    assert {j.get("worker") for j in map(json.loads, (tmp_path / "journal.jsonl")
+                                         .read_text().splitlines())} != {""}
+    assert _summary_bytes(tmp_path) == _summary_bytes(reference)
+
+
+@pytest.mark.parametrize("ship_logs", [False, True], ids=["shared-folder", "logs-shipped"])
+def test_dask_gives_the_same_summary_and_logs(reference: Path, spec20: Path, fmu3: Path,
+                                              tmp_path: Path, ship_logs: bool) -> None:
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        result = run_batch(load_batch(spec20), tmp_path, client=client, fmu_path=fmu3,
+                           progress=False, dask_ship_logs=ship_logs)
+    assert len(result.executed) == 20 and result.counts["converged"] == 20
+    assert _summary_bytes(tmp_path) == _summary_bytes(reference)
+    some = sorted((reference / "runs").glob("*.mcap"))[5].name
+    here, there = read_run(tmp_path / "runs" / some), read_run(reference / "runs" / some)
+    assert here.metadata["run"] == there.metadata["run"]  # same FMU file name and hash
+    assert here.attachments == there.attachments
+    assert all(np.array_equal(here.signals[k], there.signals[k]) for k in here.signals)
+
+
+@pytest.mark.slow
+def test_dask_scheduler_address_with_worker_processes(reference: Path, spec20: Path,
+                                                      fmu3: Path, tmp_path: Path) -> None:
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      host="127.0.0.1", dashboard_address=None) as cluster:
+        assert main(["batch", str(spec20), "--out", str(tmp_path), "--fmu", str(fmu3),
+                     "--scheduler", cluster.scheduler_address, "--no-progress"]) == 0
+    assert _summary_bytes(tmp_path) == _summary_bytes(reference)
+
+
+def test_interrupted_batch_resumes_with_only_the_missing_runs(reference: Path, spec20: Path,
+                                                              fmu3: Path, tmp_path: Path) -> None:
+    batch = load_batch(spec20)
+    first = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False, stop_after=7)
+    assert first.interrupted and len(first.executed) == 7
+    assert pq.read_table(tmp_path / "summary.parquet").num_rows == 7
+    # a run killed mid-write: a half log without its journal line; and a finished run whose
+    # log was cut afterwards
+    todo = [r.run_id for r in batch.runs if r.run_id not in first.executed]
+    half = tmp_path / "runs" / f"{todo[0]}.mcap"
+    half.write_bytes((reference / "runs" / half.name).read_bytes()[:3000])
+    cut = tmp_path / "runs" / f"{first.executed[0]}.mcap"
+    cut.write_bytes(cut.read_bytes()[:-100])
+    second = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False)
+    assert not second.interrupted and second.skipped == 6
+    assert sorted(second.executed) == sorted([*todo, first.executed[0]])
+    assert _summary_bytes(tmp_path) == _summary_bytes(reference)
+    third = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False)
+    assert third.executed == [] and third.skipped == 20
+    assert len(Journal(tmp_path / "journal.jsonl").load()) == 20
+    ids = _journal_ids(tmp_path)
+    assert len(ids) == 21 and len(set(ids)) == 20  # only the cut log's run twice in the journal
+
+
+def test_a_cut_journal_line_is_ignored_and_redone(spec20: Path, fmu3: Path,
+                                                  tmp_path: Path) -> None:
+    batch = load_batch(spec20)
+    run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False, stop_after=3)
+    journal = tmp_path / "journal.jsonl"
+    journal.write_bytes(journal.read_bytes()[:-40])  # the third line is cut
+    assert len(Journal(journal).load()) == 2
+    again = run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False)
+    assert len(again.executed) == 18 and again.finished == 20
+    assert len(Journal(journal).load()) == 20
+
+
+FAILING = """
+name = "bad"
+start = [1.0, 0.0, 0.0]
+goal = [0.0, 0.0, 180.0]
+max_time_s = 15.0
+[[list]]
+name = "ok"
+[[list]]
+name = "singular"                     # valid fields, but the FMU cannot initialise
+params = { m = 0.0, Ig = 0.0, Iwm = 0.0 }
+[[list]]
+name = "weak"                         # 0.01 N m cannot move the robot in 2 s
+limits = { torque_max_nm = 0.01 }
+max_time_s = 2.0
+[[list]]
+name = "slow"                         # would take seconds: the wall clock stops it
+limits = { torque_max_nm = 0.01 }
+max_time_s = 3000.0
+[[list]]
+name = "hang"
+[[list]]
+name = "crash"
+[[list]]
+name = "ok2"
+start = [0.0, 1.0, 0.0]
+"""
+
+
+def test_failures_timeouts_hangs_and_crashes_are_rows(fmu3: Path, tmp_path: Path) -> None:
+    batch = load_batch(_write(tmp_path, FAILING))
+    by_variant = {r.variant: r.run_id for r in batch.runs}
+    out = tmp_path / "out"
+    result = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False, run_timeout_s=0.5,
+                       faults={by_variant["hang"]: "hang", by_variant["crash"]: "crash"})
+    assert not result.interrupted and result.finished == 7
+    table = pq.read_table(out / "summary.parquet").to_pylist()
+    rows = {row["variant"]: row for row in table}
+    assert rows["ok"]["status"] == rows["ok2"]["status"] == "converged"
+    assert rows["singular"]["status"] == "failed"
+    assert "exitInitializationMode" in rows["singular"]["message"]
+    assert rows["weak"]["status"] == "timeout"
+    assert "max_time_s" in rows["weak"]["message"]
+    assert rows["slow"]["status"] == "timeout"
+    assert "wall-clock limit" in rows["slow"]["message"]
+    assert log_complete(out / "runs" / f"{by_variant['slow']}.mcap")  # stopped cleanly
+    assert rows["hang"]["status"] == "timeout"
+    assert "wall-clock limit" in rows["hang"]["message"] and "killed" in rows["hang"]["message"]
+    assert rows["crash"]["status"] == "failed" and "died" in rows["crash"]["message"]
+    assert rows["crash"]["time_to_goal_s"] is None
+    assert result.counts == {"converged": 2, "timeout": 3, "failed": 2}
+    # killed runs are final: a rerun does nothing
+    again = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False, run_timeout_s=0.5)
+    assert again.executed == []
+
+
+def test_cli_exit_codes_and_messages(spec20: Path, fmu3: Path, tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    bad = _write(tmp_path, "start = [0.0, 0.0, 0.0]\ngoal = [1.0, 0.0, 0.0]\n"
+                           "[grid.gains]\nK_ps = [0.5, 'x']\n", "bad.toml")
+    assert main(["batch", str(bad), "--out", str(tmp_path / "b")]) == 1
+    assert "grid.gains.K_ps[1]" in capsys.readouterr().err
+    assert main(["batch", str(spec20), "--out", str(tmp_path / "o"), "--fmu", str(fmu3),
+                 "--workers", "0"]) == 1
+    assert "--workers" in capsys.readouterr().err
+    assert main(["batch", str(spec20), "--out", str(tmp_path / "o"), "--fmu", str(fmu3),
+                 "--workers", "2", "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.strip() == str(tmp_path / "o" / "summary.parquet")
+    assert "20 converged" in captured.err
+
+
+def test_report_from_a_sweep(reference: Path, tmp_path: Path,
+                             capsys: pytest.CaptureFixture[str]) -> None:
+    path = write_report(reference)
+    text = path.read_text()
+    assert path == reference / "report" / "report.md"
+    assert "Success rate: 100.0 %" in text
+    for png in ("status.png", "spread.png", "vs_params_m.png", "vs_gains_K_ps.png"):
+        assert (reference / "report" / png).stat().st_size > 1000
+        assert png in text
+    assert main(["report", str(reference)]) == 0
+    assert capsys.readouterr().out.strip() == str(path)
+    assert main(["report", str(tmp_path)]) == 1
+    assert "summary.parquet" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_cleanly_and_the_rerun_finishes(spec20: Path, fmu3: Path,
+                                                     tmp_path: Path) -> None:
+    slow = _write(tmp_path, SPEC20.replace("n = 10", "n = 40").replace("seed = 3", "seed = 5"),
+                  "t80.toml")
+    cmd = [sys.executable, "-m", "wmr.cli", "batch", str(slow), "--out", str(tmp_path / "o"),
+           "--fmu", str(fmu3), "--workers", "2", "--no-progress"]
+    env = dict(os.environ)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                            start_new_session=True)
+    journal = tmp_path / "o" / "journal.jsonl"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (
+            not journal.exists() or len(journal.read_text().splitlines()) < 5):
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGINT)  # as a terminal does: the whole process group
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    done = set(_journal_ids(tmp_path / "o"))
+    assert 5 <= len(done) < 80
+    rows = pq.read_table(tmp_path / "o" / "summary.parquet").column("run_id").to_pylist()
+    assert set(rows) == done
+    rerun = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=120)
+    assert rerun.returncode == 0, rerun.stderr
+    assert f"{80 - len(done)} run now, {len(done)} done before" in rerun.stderr
+    ids = _journal_ids(tmp_path / "o")
+    assert len(ids) == len(set(ids)) == 80
+
+
+def _rows(out: Path) -> list[dict[str, Any]]:
+    return pq.read_table(out / "summary.parquet").to_pylist()
