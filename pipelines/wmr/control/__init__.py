@@ -10,6 +10,8 @@ Fig. 5 / Fig. 7 block structure, one period::
 
 from __future__ import annotations
 
+from typing import Protocol
+
 from wmr.control.actuator import WheelServo
 from wmr.control.stabiliser import (
     ALIGN,
@@ -23,28 +25,46 @@ from wmr.control.stabiliser import (
 from wmr.plant import Pose, RobotParams
 
 
-class Controller:
-    """Stabiliser plus wheel actuators: the complete controller of Fig. 7.
+class Stabiliser(Protocol):
+    """A point-stabilising law that ends in wheel speed references (eq. 28's output)."""
+
+    def reset(self) -> None: ...
+
+    def update(self, x: float, y: float, theta: float) -> tuple[float, ...]:
+        """The 18 stabiliser columns of :data:`wmr.signals.CONTROL_SIGNALS` (all but the two
+        torques), ``omega_r_ref, omega_l_ref`` at positions 12 and 13."""
+        ...
+
+    def converged(self, x: float, y: float, theta: float, v: float, omega: float,
+                  heading_tolerance_rad: float) -> bool:
+        """At the goal, aligned and at rest: the master loop stops the run."""
+        ...
+
+    def heading_error(self, theta: float) -> float:
+        """Heading minus the desired heading, wrapped, rad."""
+        ...
+
+
+class ServoedController:
+    """Any stabiliser feeding the two wheel speed servos: the Fig. 7 structure.
+
+    The paper's :class:`Controller` and the peer stabilisers (:mod:`wmr.control.peers`) share
+    this class, so that a comparison differs only in the law, never in the actuators.
 
     Parameters
     ----------
-    goal
-        Desired posture.
-    gains, limits
-        PI and servo gains, command and actuator limits.
-    params
-        Robot parameters the controller knows: ``r`` and ``L`` for eq. 28 and the friction
-        for the servos' feed-forward.
-    period_s, stop_radius_m
-        Control period and the stop radius epsilon.
+    stabiliser
+        The law: errors -> commands -> wheel references.
+    gains, limits, params, period_s
+        The servo gains ``K_pw, K_iw`` come from ``gains``, the torque limit from ``limits``,
+        the friction feed-forward from ``params``.
     """
 
     __slots__ = ("left", "right", "stabiliser")
 
-    def __init__(self, goal: Pose, gains: Gains, limits: Limits, params: RobotParams,
-                 period_s: float, stop_radius_m: float) -> None:
-        self.stabiliser = PointStabiliser(goal.x_m, goal.y_m, goal.heading_rad, gains, limits,
-                                          params.r, params.L, period_s, stop_radius_m)
+    def __init__(self, stabiliser: Stabiliser, gains: Gains, limits: Limits,
+                 params: RobotParams, period_s: float) -> None:
+        self.stabiliser = stabiliser
         servo = (gains.K_pw, gains.K_iw, limits.torque_max_nm, period_s, params.b_f,
                  params.tau_c, params.w_c)
         self.right = WheelServo(*servo)
@@ -76,6 +96,31 @@ class Controller:
                 i_theta, w_r_ref, w_l_ref, tau_r, tau_l, d_x, d_y, r_x, r_y)
 
 
+class Controller(ServoedController):
+    """Stabiliser plus wheel actuators: the complete controller of Fig. 7.
+
+    Parameters
+    ----------
+    goal
+        Desired posture.
+    gains, limits
+        PI and servo gains, command and actuator limits.
+    params
+        Robot parameters the controller knows: ``r`` and ``L`` for eq. 28 and the friction
+        for the servos' feed-forward.
+    period_s, stop_radius_m
+        Control period and the stop radius epsilon.
+    """
+
+    __slots__ = ()
+
+    def __init__(self, goal: Pose, gains: Gains, limits: Limits, params: RobotParams,
+                 period_s: float, stop_radius_m: float) -> None:
+        super().__init__(PointStabiliser(goal.x_m, goal.y_m, goal.heading_rad, gains, limits,
+                                         params.r, params.L, period_s, stop_radius_m),
+                         gains, limits, params, period_s)
+
+
 __all__ = [
     "ALIGN",
     "APPROACH",
@@ -83,6 +128,8 @@ __all__ = [
     "Gains",
     "Limits",
     "PointStabiliser",
+    "ServoedController",
+    "Stabiliser",
     "WheelServo",
     "unwrap_near",
     "wrap_angle",

@@ -109,10 +109,9 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
-from typing import Any, Final, Protocol
+from typing import Any, Final
 
-from wmr.control import Controller
-from wmr.control.actuator import WheelServo
+from wmr.control import Controller, ServoedController
 from wmr.control.stabiliser import (
     ALIGN,
     APPROACH,
@@ -265,27 +264,6 @@ def controller_gains(name: str, values: Mapping[str, Any] | None = None
             raise ConfigError(f"controller_gains.{key}", f"not a gain of {name}",
                               f"allowed: {', '.join(allowed)}")
     return cls(**values)
-
-
-class StabiliserLike(Protocol):
-    """What the master loop asks of a controller's stabiliser."""
-
-    def converged(self, x: float, y: float, theta: float, v: float, omega: float,
-                  heading_tolerance_rad: float) -> bool: ...
-
-    def heading_error(self, theta: float) -> float: ...
-
-
-class ControllerLike(Protocol):
-    """A complete controller: the PI's :class:`~wmr.control.Controller` or a peer's."""
-
-    @property
-    def stabiliser(self) -> StabiliserLike: ...
-
-    def reset(self) -> None: ...
-
-    def step(self, x: float, y: float, theta: float, omega_r: float,
-             omega_l: float) -> tuple[float, ...]: ...
 
 
 class PolarStabiliser:
@@ -475,7 +453,7 @@ class GracefulStabiliser(PolarStabiliser):
         return v, kappa * v, dr, delta, bearing, phi, err, v, kappa * v
 
 
-class PeerController:
+class PeerController(ServoedController):
     """A peer stabiliser plus the PI's wheel servos: the same Fig. 7 structure.
 
     Parameters
@@ -487,37 +465,17 @@ class PeerController:
         ``limits``, friction feed-forward from ``params``: the servos are the PI's.
     """
 
-    __slots__ = ("left", "right", "stabiliser")
+    __slots__ = ()
 
     def __init__(self, stabiliser: PolarStabiliser, gains: Gains, limits: Limits,
                  params: RobotParams, period_s: float) -> None:
-        self.stabiliser = stabiliser
-        servo = (gains.K_pw, gains.K_iw, limits.torque_max_nm, period_s, params.b_f,
-                 params.tau_c, params.w_c)
-        self.right = WheelServo(*servo)
-        self.left = WheelServo(*servo)
-
-    def reset(self) -> None:
-        """Start of a run."""
-        self.stabiliser.reset()
-        self.right.reset()
-        self.left.reset()
-
-    def step(self, x: float, y: float, theta: float, omega_r: float,
-             omega_l: float) -> tuple[float, ...]:
-        """One period; returns the :data:`wmr.signals.CONTROL_SIGNALS` row."""
-        (dr, e_s, e_theta, alpha, beta, gamma, u_s, u_theta, p_s, i_s, p_theta, i_theta,
-         w_r_ref, w_l_ref, d_x, d_y, r_x, r_y) = self.stabiliser.update(x, y, theta)
-        tau_r = self.right.update(w_r_ref, omega_r)
-        tau_l = self.left.update(w_l_ref, omega_l)
-        return (dr, e_s, e_theta, alpha, beta, gamma, u_s, u_theta, p_s, i_s, p_theta,
-                i_theta, w_r_ref, w_l_ref, tau_r, tau_l, d_x, d_y, r_x, r_y)
+        super().__init__(stabiliser, gains, limits, params, period_s)
 
 
 def make_controller(name: str, goal: Pose, gains: Gains, limits: Limits, params: RobotParams,
                     period_s: float, stop_radius_m: float,
                     controller_gains_: Mapping[str, Any] | None = None
-                    ) -> Controller | PeerController:
+                    ) -> ServoedController:
     """The registry: build controller ``name`` (``pi``, ``astolfi`` or ``graceful``).
 
     Parameters
@@ -545,7 +503,6 @@ __all__ = [
     "CONTROLLER_NAMES",
     "AstolfiGains",
     "AstolfiStabiliser",
-    "ControllerLike",
     "GracefulGains",
     "GracefulStabiliser",
     "PeerController",
