@@ -681,6 +681,21 @@ static int check_saved(const char *fn, FlInstance *inst, const void *state) {
     return 1;
 }
 
+/* The state to write into: the importer's previous one (checked), or a new one. */
+static FlSavedState *state_slot(const char *fn, FlInstance *inst, void *previous) {
+    FlSavedState *s;
+    if (previous) {
+        return check_saved(fn, inst, previous) ? (FlSavedState *)previous : NULL;
+    }
+    s = (FlSavedState *)calloc(1, sizeof(FlSavedState));
+    if (!s) {
+        fl_log(inst, FL_ERROR, "%s: out of memory", fn);
+        return NULL;
+    }
+    memcpy(s->magic, STATE_MAGIC, sizeof(STATE_MAGIC));
+    return s;
+}
+
 FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state) {
     FlSavedState *s;
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
@@ -688,18 +703,8 @@ FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state) {
         fl_log(inst, FL_ERROR, "%s: FMUState pointer is NULL", fn);
         return ret(inst, FL_ERROR);
     }
-    if (*state) {
-        /* overwrite a previously allocated state */
-        if (!check_saved(fn, inst, *state)) return ret(inst, FL_ERROR);
-        s = (FlSavedState *)*state;
-    } else {
-        s = (FlSavedState *)calloc(1, sizeof(FlSavedState));
-        if (!s) {
-            fl_log(inst, FL_ERROR, "%s: out of memory", fn);
-            return ret(inst, FL_ERROR);
-        }
-        memcpy(s->magic, STATE_MAGIC, sizeof(STATE_MAGIC));
-    }
+    s = state_slot(fn, inst, *state);
+    if (!s) return ret(inst, FL_ERROR);
     memcpy(&s->d, &inst->d, sizeof(FlData));
     *state = s;
     return FL_OK;
@@ -830,17 +835,8 @@ FlStatus fl_deserialize(const char *fn, FlInstance *inst, const unsigned char *b
                fn);
         return ret(inst, FL_ERROR);
     }
-    if (*state) {
-        if (!check_saved(fn, inst, *state)) return ret(inst, FL_ERROR);
-        s = (FlSavedState *)*state;
-    } else {
-        s = (FlSavedState *)calloc(1, sizeof(FlSavedState));
-        if (!s) {
-            fl_log(inst, FL_ERROR, "%s: out of memory", fn);
-            return ret(inst, FL_ERROR);
-        }
-        memcpy(s->magic, STATE_MAGIC, sizeof(STATE_MAGIC));
-    }
+    s = state_slot(fn, inst, *state);
+    if (!s) return ret(inst, FL_ERROR);
     memcpy(&s->d, &d, sizeof(FlData));
     *state = s;
     return FL_OK;
