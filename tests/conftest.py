@@ -8,19 +8,31 @@ from pathlib import Path
 
 import pytest
 
+from wmr import paths
 from wmr.fmu.build import BuildResult, build_fmus
 from wmr.fmu.plant import FmuPlant
 
 os.environ.setdefault("MPLBACKEND", "Agg")  # headless: no figure ever opens a window
 
 
-@pytest.fixture(scope="session")
-def fmu_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One build folder for the whole session; xdist workers share it (the build is locked)."""
+@pytest.fixture(scope="session", autouse=True)
+def fmu_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """One build folder for the whole session; xdist workers share it (the build is locked).
+
+    ``WMR_CACHE_DIR`` points there too, so that everything that builds or reuses the
+    project's FMUs (``wmr run`` and its subprocesses included) finds this build, and no test
+    writes into the user's cache.
+    """
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent
-    return root / "fmus"
+    old = os.environ.get("WMR_CACHE_DIR")
+    os.environ["WMR_CACHE_DIR"] = str(root / "cache")
+    yield paths.default_fmu_dir()
+    if old is None:
+        os.environ.pop("WMR_CACHE_DIR", None)
+    else:
+        os.environ["WMR_CACHE_DIR"] = old
 
 
 @pytest.fixture(scope="session")

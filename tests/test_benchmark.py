@@ -13,7 +13,6 @@ import pytest
 from wmr.benchmark import CONTROLLERS, FIELDS, OPTIMAL, run_benchmark, run_optimal
 from wmr.cli import main
 from wmr.closedloop import run_closed_loop
-from wmr.fmu.build import BuildResult
 from wmr.fmu.plant import FmuPlant
 from wmr.mcaplog import read_run
 from wmr.scenario import load_scenario
@@ -34,10 +33,6 @@ name = "near-left"
 goal = [2.0, 3.0, 90.0]
 """
 
-
-@pytest.fixture(autouse=True)
-def _use_session_fmus(built: BuildResult, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr("wmr.run.default_fmu", lambda v=3: built.fmus[v])
 
 
 @pytest.fixture(scope="module")

@@ -27,11 +27,6 @@ RESULT_FIELDS = {"status", "final_position_error_m", "final_heading_error_rad",
                  "time_to_goal_s", "path_length_m", "mcap"}
 
 
-@pytest.fixture(autouse=True)
-def _use_session_fmus(built: BuildResult, monkeypatch: pytest.MonkeyPatch) -> None:
-    """`wmr run` builds into the user cache; point it at the session's build instead."""
-    monkeypatch.setattr("wmr.run.default_fmu", lambda v=3: built.fmus[v])
-
 
 def _run_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict[str, object]]:
     code = main(["run", *args, "--json"])
@@ -152,10 +147,8 @@ def test_a_killed_run_leaves_a_log_readable_up_to_its_last_chunk(tmp_path: Path,
                                                                  built: BuildResult) -> None:
     out = tmp_path / "killed.mcap"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
-    fmu = str(built.fmus[3])
-    code = (f"import wmr.run, wmr.cli, sys; wmr.run.default_fmu = lambda v=3: {fmu!r};"
-            f"sys.exit(wmr.cli.main(['run', '--goal', '300', '300', '0', '--max-time', '2000',"
-            f"'--out', {str(out)!r}]))")
+    code = ("import sys, wmr.cli; sys.exit(wmr.cli.main(['run', '--goal', '300', '300', '0',"
+            f" '--max-time', '2000', '--out', {str(out)!r}]))")
     proc = subprocess.Popen([sys.executable, "-c", code], env=env)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 300_000):

@@ -10,7 +10,6 @@ import pytest
 
 from wmr.cli import main
 from wmr.closedloop import RunResult
-from wmr.fmu.build import BuildResult
 from wmr.fmu.plant import FmuPlant
 from wmr.plant import Pose
 from wmr.scenario import RunSpec
@@ -30,10 +29,6 @@ name = "b"
 goal = [2.0, -2.0, -60.0]
 """
 
-
-@pytest.fixture(autouse=True)
-def _use_session_fmus(built: BuildResult, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr("wmr.run.default_fmu", lambda v=3: built.fmus[v])
 
 
 @pytest.fixture(scope="module")
