@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import shutil
 import tempfile
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +107,36 @@ class FmuPlant:
         except Exception as exc:
             raise FmuError(f"{self.fmu_path}: cannot instantiate: {exc}") from exc
         self._fmu = fmu
+        self._bind_hot_path(fmu)
+
+    def _bind_hot_path(self, fmu: Any) -> None:
+        """The three calls of a step, bound once to the instance and the prebuilt arrays.
+
+        fmpy's wrappers cost about as much again as the FMU's own step; the step calls the
+        library directly (fmpy set the prototypes) and :meth:`_step_failed` turns a status
+        above fmiWarning into an :class:`FmuError` naming the function.
+        """
+        dll, comp, n_out = fmu.dll, fmu.component, len(OUTPUT_NAMES)
+        if self.fmi_version.startswith("2"):
+            self._names = ("fmi2SetReal", "fmi2DoStep", "fmi2GetReal")
+            self._raw_set = partial(dll.fmi2SetReal, comp, self._in_vr, 2, self._in_val)
+            self._raw_get = partial(dll.fmi2GetReal, comp, self._out_vr, n_out, self._out_val)
+            raw_step = dll.fmi2DoStep
+            self._raw_step = lambda t, h: raw_step(comp, t, h, 1)
+        else:
+            self._names = ("fmi3SetFloat64", "fmi3DoStep", "fmi3GetFloat64")
+            self._raw_set = partial(dll.fmi3SetFloat64, comp, self._in_vr, 2, self._in_val, 2)
+            self._raw_get = partial(dll.fmi3GetFloat64, comp, self._out_vr, n_out,
+                                    self._out_val, n_out)
+            flags = [ctypes.byref(f) for f in self._fmi3_flags]
+            last = ctypes.byref(self._fmi3_last)
+            raw_step3 = dll.fmi3DoStep
+            self._raw_step = lambda t, h: raw_step3(comp, t, h, 1, *flags, last)
+
+    def _step_failed(self, which: int, status: int, tau_r_nm: float, tau_l_nm: float) -> FmuError:
+        name = ("OK", "Warning", "Discard", "Error", "Fatal")[status] if 0 <= status < 5 else status
+        return FmuError(f"{self._names[which]} returned {name} at t = {self._t:g} s "
+                        f"(tau_r = {tau_r_nm!r}, tau_l = {tau_l_nm!r}); the FMU's log says why")
 
     def _call(self, what: str, fun: Any, *args: Any) -> Any:
         try:
@@ -147,14 +178,13 @@ class FmuPlant:
         """Hold the torques for ``h_s`` seconds; the returned array is reused by the next step."""
         self._in_val[0] = tau_r_nm
         self._in_val[1] = tau_l_nm
-        component = self._fmu.component
-        try:
-            self._set(component, self._in_vr, 2, self._in_val)
-            self._do_step(self._t, h_s)
-            self._get(component, self._out_vr, len(OUTPUT_NAMES), self._out_val)
-        except Exception as exc:
-            raise FmuError(f"FMU step at t = {self._t:g} s (tau_r = {tau_r_nm!r}, "
-                           f"tau_l = {tau_l_nm!r}) failed: {exc}") from exc
+        # statuses above fmiWarning (1) fail the step; the outputs keep their last good values
+        if (status := self._raw_set()) > 1:
+            raise self._step_failed(0, status, tau_r_nm, tau_l_nm)
+        if (status := self._raw_step(self._t, h_s)) > 1:
+            raise self._step_failed(1, status, tau_r_nm, tau_l_nm)
+        if (status := self._raw_get()) > 1:
+            raise self._step_failed(2, status, tau_r_nm, tau_l_nm)
         # Time is t0 + n*h while h stays the same (never t += h): no drift over long runs.
         if h_s != self._h:
             self._t0, self._h, self._n = self._t, h_s, 0
