@@ -22,6 +22,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from mcap.writer import CompressionType, Writer
@@ -45,16 +46,22 @@ def fake_run(n: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     return t, amp * np.sin(np.outer(ts, freq)) + 0.01 * np.outer(ts, amp)
 
 
+def _mcap_writer(stream: BinaryIO) -> tuple[Writer, list[int]]:
+    """mcap's own writer with our schemas and one channel per step topic."""
+    w = Writer(stream, compression=CompressionType.LZ4)
+    w.start()
+    chans = []
+    for layout in STEP_TOPICS:
+        sid = w.register_schema(
+            layout.schema_name, "protobuf", file_descriptor_set(layout.schema_name)
+        )
+        chans.append(w.register_channel(layout.topic, "protobuf", sid))
+    return w, chans
+
+
 def naive(path: Path, t: NDArray[np.int64], x: NDArray[np.float64]) -> None:
     with open(path, "wb") as f:
-        w = Writer(f, compression=CompressionType.LZ4)
-        w.start()
-        chans = []
-        for layout in STEP_TOPICS:
-            sid = w.register_schema(
-                layout.schema_name, "protobuf", file_descriptor_set(layout.schema_name)
-            )
-            chans.append(w.register_channel(layout.topic, "protobuf", sid))
+        w, chans = _mcap_writer(f)
         classes = [message_class(layout.schema_name) for layout in STEP_TOPICS]
         pose_cls, tf_cls = classes[0], classes[1]
         signal_cols = [[COLUMN[s] for s in layout.signals] for layout in STEP_TOPICS]
@@ -87,14 +94,7 @@ def naive(path: Path, t: NDArray[np.int64], x: NDArray[np.float64]) -> None:
 
 def vec_plus_writer(path: Path, t: NDArray[np.int64], x: NDArray[np.float64]) -> None:
     with open(path, "wb") as f:
-        w = Writer(f, compression=CompressionType.LZ4)
-        w.start()
-        chans = []
-        for layout in STEP_TOPICS:
-            sid = w.register_schema(
-                layout.schema_name, "protobuf", file_descriptor_set(layout.schema_name)
-            )
-            chans.append(w.register_channel(layout.topic, "protobuf", sid))
+        w, chans = _mcap_writer(f)
         enc = RowEncoder(tuple(chans))
         add = w.add_message
         k_topics = len(STEP_TOPICS)
