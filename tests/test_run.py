@@ -192,3 +192,16 @@ def test_view_writes_a_live_recording_beside_the_log(tmp_path: Path,
             rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
     assert rows and max(rows.values()) == steps  # every step reached the live view
     assert read_run(out).n_steps == steps  # and the log is unchanged by the view
+
+
+def test_a_typed_in_goal_names_the_run_and_its_default_log(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, record = _run_json(capsys, "--goal", "3", "-1", "90")
+    assert code == 0
+    assert record["name"] == "fig11-to_3_-1_90deg"
+    assert Path(str(record["mcap"])) == Path("runs/fig11-to_3_-1_90deg.mcap")
+    log = read_run(tmp_path / str(record["mcap"]))
+    assert log.metadata["run"]["name"] == "fig11-to_3_-1_90deg"
+    assert not (tmp_path / "runs" / "fig11.mcap").exists()

@@ -31,6 +31,18 @@ def safe_filename(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.+=-]+", "_", name).strip("._") or "run"
 
 
+def _pose_name(name: str, start: list[float] | None, goal: list[float] | None) -> str | None:
+    """A run whose start or goal is typed in is named after them, so that its log and its
+    ``run`` record do not pass for the scenario's own run (``fig11`` to (20, 10, 0))."""
+    if start is None and goal is None:
+        return None
+    parts = [name]
+    for label, pose in (("from", start), ("to", goal)):
+        if pose is not None:
+            parts.append(f"{label}_{pose[0]:g}_{pose[1]:g}_{pose[2]:g}deg")
+    return "-".join(parts)
+
+
 def add_run_overrides(parser: argparse.ArgumentParser) -> None:
     """Options shared by ``wmr run`` and the commands that run the stabiliser."""
     parser.add_argument("--start", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
@@ -76,7 +88,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         runs[0], start=args.start, goal=args.goal,
         gains=_key_values(args.gain, "--gain"), limits=_key_values(args.limit, "--limit"),
         params=_key_values(args.param, "--param"), period_s=args.period,
-        stop_radius_m=args.stop_radius, t_max_s=args.max_time)
+        stop_radius_m=args.stop_radius, t_max_s=args.max_time,
+        name=_pose_name(runs[0].name, args.start, args.goal))
     out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(spec.name)}.mcap"
     if out.suffix != ".mcap":
         raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
