@@ -86,9 +86,6 @@ class FmuPlant:
                                      modelIdentifier=md.coSimulation.modelIdentifier,
                                      instanceName=self._instance_name)
                 fmu.instantiate(loggingOn=False)
-                self._set = fmu.fmi2SetReal
-                self._get = fmu.fmi2GetReal
-                self._do_step = lambda t, h: fmu.fmi2DoStep(fmu.component, t, h, 1)
             else:
                 from fmpy.fmi3 import FMU3Slave
 
@@ -96,14 +93,6 @@ class FmuPlant:
                                 modelIdentifier=md.coSimulation.modelIdentifier,
                                 instanceName=self._instance_name)
                 fmu.instantiate(loggingOn=False)
-                self._set = lambda c, vr, n, val: fmu.fmi3SetFloat64(c, vr, n, val, n)
-                self._get = lambda c, vr, n, val: fmu.fmi3GetFloat64(c, vr, n, val, n)
-                self._fmi3_flags = [ctypes.c_bool() for _ in range(3)]
-                self._fmi3_last = ctypes.c_double()
-                flags = [ctypes.byref(f) for f in self._fmi3_flags]
-                last = ctypes.byref(self._fmi3_last)
-                self._do_step = lambda t, h: fmu.fmi3DoStep(
-                    fmu.component, t, h, 1, flags[0], flags[1], flags[2], last)
         except Exception as exc:
             raise FmuError(f"{self.fmu_path}: cannot instantiate: {exc}") from exc
         self._fmu = fmu
@@ -112,9 +101,9 @@ class FmuPlant:
     def _bind_hot_path(self, fmu: Any) -> None:
         """The three calls of a step, bound once to the instance and the prebuilt arrays.
 
-        fmpy's wrappers cost about as much again as the FMU's own step; the step calls the
-        library directly (fmpy set the prototypes) and :meth:`_step_failed` turns a status
-        above fmiWarning into an :class:`FmuError` naming the function.
+        fmpy's wrappers cost about as much again as the FMU's own step; the input and output
+        exchange calls the library directly (fmpy set the prototypes) and :meth:`_check`
+        turns a status above fmiWarning into an :class:`FmuError` naming the function.
         """
         dll, comp, n_out = fmu.dll, fmu.component, len(OUTPUT_NAMES)
         if self.fmi_version.startswith("2"):
@@ -128,15 +117,21 @@ class FmuPlant:
             self._raw_set = partial(dll.fmi3SetFloat64, comp, self._in_vr, 2, self._in_val, 2)
             self._raw_get = partial(dll.fmi3GetFloat64, comp, self._out_vr, n_out,
                                     self._out_val, n_out)
-            flags = [ctypes.byref(f) for f in self._fmi3_flags]
-            last = ctypes.byref(self._fmi3_last)
+            # eventHandlingNeeded, terminateSimulation, earlyReturn, lastSuccessfulTime
+            self._fmi3_out = (ctypes.c_bool(), ctypes.c_bool(), ctypes.c_bool(), ctypes.c_double())
+            flags = [ctypes.byref(f) for f in self._fmi3_out[:3]]
+            last = ctypes.byref(self._fmi3_out[3])
             raw_step3 = dll.fmi3DoStep
             self._raw_step = lambda t, h: raw_step3(comp, t, h, 1, *flags, last)
 
-    def _step_failed(self, which: int, status: int, tau_r_nm: float, tau_l_nm: float) -> FmuError:
-        name = ("OK", "Warning", "Discard", "Error", "Fatal")[status] if 0 <= status < 5 else status
-        return FmuError(f"{self._names[which]} returned {name} at t = {self._t:g} s "
-                        f"(tau_r = {tau_r_nm!r}, tau_l = {tau_l_nm!r}); the FMU's log says why")
+    def _check(self, which: int, status: int) -> None:
+        """Raise for a status above fmiWarning of call ``which`` (0 set, 1 step, 2 get)."""
+        if status <= 1:
+            return
+        name = ("OK", "Warning", "Discard", "Error", "Fatal")[status] if status < 5 else status
+        raise FmuError(f"{self._names[which]} returned {name} at t = {self._t:g} s "
+                       f"(tau_r = {self._in_val[0]!r}, tau_l = {self._in_val[1]!r}); "
+                       "the FMU's log says why")
 
     def _call(self, what: str, fun: Any, *args: Any) -> Any:
         try:
@@ -168,23 +163,19 @@ class FmuPlant:
         except Exception as exc:
             raise FmuError(f"setting the parameters {values} failed: {exc}") from exc
         self._in_val[0] = self._in_val[1] = 0.0
-        self._call("set inputs", self._set, fmu.component, self._in_vr, 2, self._in_val)
+        self._check(0, self._raw_set())
         self._call("exitInitializationMode", fmu.exitInitializationMode)
-        self._call("get outputs", self._get, fmu.component, self._out_vr, len(OUTPUT_NAMES),
-                   self._out_val)
+        self._check(2, self._raw_get())
         return self._outputs
 
     def step(self, tau_r_nm: float, tau_l_nm: float, h_s: float) -> npt.NDArray[np.float64]:
         """Hold the torques for ``h_s`` seconds; the returned array is reused by the next step."""
         self._in_val[0] = tau_r_nm
         self._in_val[1] = tau_l_nm
-        # statuses above fmiWarning (1) fail the step; the outputs keep their last good values
-        if (status := self._raw_set()) > 1:
-            raise self._step_failed(0, status, tau_r_nm, tau_l_nm)
-        if (status := self._raw_step(self._t, h_s)) > 1:
-            raise self._step_failed(1, status, tau_r_nm, tau_l_nm)
-        if (status := self._raw_get()) > 1:
-            raise self._step_failed(2, status, tau_r_nm, tau_l_nm)
+        # a failed call raises; the outputs keep their last good values
+        self._check(0, self._raw_set())
+        self._check(1, self._raw_step(self._t, h_s))
+        self._check(2, self._raw_get())
         # Time is t0 + n*h while h stays the same (never t += h): no drift over long runs.
         if h_s != self._h:
             self._t0, self._h, self._n = self._t, h_s, 0
@@ -219,8 +210,7 @@ class FmuPlant:
         setter = fmu.setFMUstate if self.fmi_version.startswith("2") else fmu.setFMUState
         self._call("setFMUState", setter, snapshot[0])
         self._t, self._t0, self._h, self._n = snapshot[1:]
-        self._call("get outputs", self._get, fmu.component, self._out_vr, len(OUTPUT_NAMES),
-                   self._out_val)
+        self._check(2, self._raw_get())
 
     def serialize_state(self, snapshot: tuple[Any, float, float, float, int]) -> bytes:
         """Bytes of a snapshot's FMU state (FMI serialize FMU state)."""
