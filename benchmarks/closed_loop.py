@@ -2,7 +2,7 @@
 
 Rows (median of repeated runs of the paper's Fig. 11 case on the FMI 3 FMU):
 
-- FMU exchange: ``FmuPlant.step`` alone (set inputs, doStep, get outputs through fmpy),
+- FMU exchange: ``FmuPlant.step`` alone (set inputs, doStep, get outputs),
 - controller: the stabiliser and wheel servos alone, on the states of a recorded run,
 - loop without logging: ``run_closed_loop(..., sink=None)``,
 - loop with logging: ``run_to_log`` (the whole ``wmr run`` minus start-up),
@@ -90,7 +90,7 @@ def main() -> None:
     fmu_s, ctrl_s, loop_s, logged_s, log_s = map(_median, (fmu_t, ctrl_t, loop_t, logged_t,
                                                            log_t))
     rows = [
-        ("FMU exchange (FmuPlant.step, fmpy)", fmu_s),
+        ("FMU exchange (FmuPlant.step)", fmu_s),
         ("controller (stabiliser + wheel servos)", ctrl_s),
         ("loop without logging", loop_s),
         ("loop with MCAP logging (wmr run)", logged_s),
@@ -98,7 +98,7 @@ def main() -> None:
         ("loop bookkeeping (loop - FMU - controller)", max(loop_s - fmu_s - ctrl_s, 0.0)),
     ]
     print_table(f"Closed loop, Fig. 11 case, {steps} steps of {spec.period_s * 1e3:.0f} ms "
-                f"(median of {REPEATS})", rows, "FMU exchange (FmuPlant.step, fmpy)")
+                f"(median of {REPEATS})", rows, "FMU exchange (FmuPlant.step)")
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """Cost of one 10 ms co-simulation step of the robot FMU, three ways, measured side by side.
 
-1. through fmpy (:class:`wmr.fmu.plant.FmuPlant`, fmpy's checked FMI wrappers),
-2. raw ctypes calls into the same shared library (no fmpy wrapper),
+1. through fmpy's own API (``setReal``/``doStep``/``getReal``, its checked wrappers),
+2. raw ctypes calls into the same shared library: :meth:`wmr.fmu.plant.FmuPlant.step`, whose
+   prebound calls check each status themselves,
 3. the same physics and integrator in a pure C loop (the FMU's own sources, no FMI calls).
 
 Run: ``python benchmarks/fmu_step.py``.  Prints medians and ratios to the pure C loop.
@@ -9,7 +10,6 @@ Run: ``python benchmarks/fmu_step.py``.  Prints medians and ratios to the pure C
 
 from __future__ import annotations
 
-import ctypes
 import subprocess
 import sys
 import tempfile
@@ -73,48 +73,24 @@ def c_loop_seconds(fmu: Path, n: int, repeats: int = 7) -> float:
         return times[len(times) // 2]
 
 
-def _raw_stepper(plant: FmuPlant, version: int) -> Callable[[int], None]:
-    """Steps through the library's own symbols with prebuilt arrays, no fmpy wrapper."""
+def _fmpy_stepper(plant: FmuPlant, version: int) -> Callable[[int], None]:
+    """Steps through fmpy's own FMU2Slave/FMU3Slave API on the plant's instance."""
     fmu = plant._fmu
-    dll = fmu.dll
-    comp = fmu.component
-    vr_in = (ctypes.c_uint32 * 2)(*plant._in_vr)
-    val_in = (ctypes.c_double * 2)(1.0, 0.8)
-    vr_out = (ctypes.c_uint32 * len(plant._out_vr))(*plant._out_vr)
-    val_out = (ctypes.c_double * len(plant._out_vr))()
-    n_out = len(plant._out_vr)
+    vr_in = [int(v) for v in plant._in_vr]
+    vr_out = [int(v) for v in plant._out_vr]
+    set_values = fmu.setReal if version == 2 else fmu.setFloat64
+    get_values = fmu.getReal if version == 2 else fmu.getFloat64
     t_box = [plant.time_s]
-    if version == 2:
-        set_real, get_real, do_step = dll.fmi2SetReal, dll.fmi2GetReal, dll.fmi2DoStep
-        do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
 
-        def raw_steps(n: int) -> None:
-            t0, h = t_box[0], H
-            for k in range(n):
-                val_in[0] = 1.0 if (k % 200) < 100 else -1.0
-                set_real(comp, vr_in, 2, val_in)
-                do_step(comp, t0 + k * h, h, 1)
-                get_real(comp, vr_out, n_out, val_out)
-            t_box[0] = t0 + n * h
-
-        return raw_steps
-    set_real, get_real, do_step = dll.fmi3SetFloat64, dll.fmi3GetFloat64, dll.fmi3DoStep
-    do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int,
-                        ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
-    flags = [ctypes.c_bool() for _ in range(3)]
-    last = ctypes.c_double()
-    refs = [ctypes.byref(f) for f in flags] + [ctypes.byref(last)]
-
-    def raw_steps3(n: int) -> None:
+    def steps(n: int) -> None:
         t0, h = t_box[0], H
         for k in range(n):
-            val_in[0] = 1.0 if (k % 200) < 100 else -1.0
-            set_real(comp, vr_in, 2, val_in, 2)
-            do_step(comp, t0 + k * h, h, 1, *refs)
-            get_real(comp, vr_out, n_out, val_out, n_out)
+            set_values(vr_in, [1.0 if (k % 200) < 100 else -1.0, 0.8])
+            fmu.doStep(t0 + k * h, h)
+            get_values(vr_out)
         t_box[0] = t0 + n * h
 
-    return raw_steps3
+    return steps
 
 
 def main() -> None:
@@ -124,15 +100,16 @@ def main() -> None:
         plant = FmuPlant(fmus[version])
         plant.reset(RobotParams(), Pose(0, 0, 0))
 
-        def fmpy_steps(n: int, plant: FmuPlant = plant) -> None:
+        rows.append((f"FMI {version} through fmpy's API",
+                     median_time_per_call(_fmpy_stepper(plant, version), N_STEPS)))
+        plant.reset(RobotParams(), Pose(0, 0, 0))
+
+        def raw_steps(n: int, plant: FmuPlant = plant) -> None:
             for k in range(n):
                 plant.step(1.0 if (k % 200) < 100 else -1.0, 0.8, H)
 
-        rows.append((f"FMI {version} through fmpy (FmuPlant.step)",
-                     median_time_per_call(fmpy_steps, N_STEPS)))
-
-        raw_steps = _raw_stepper(plant, version)
-        rows.append((f"FMI {version} raw ctypes", median_time_per_call(raw_steps, N_STEPS)))
+        rows.append((f"FMI {version} raw ctypes (FmuPlant.step)",
+                     median_time_per_call(raw_steps, N_STEPS)))
         plant.close()
     rows.append(("pure C loop (solver + model core)", c_loop_seconds(fmus[3], 20 * N_STEPS)))
     print_table(f"One {H * 1e3:.0f} ms co-simulation step of the robot FMU "
