@@ -82,7 +82,7 @@ def _num(v: float | None) -> float | None:
 
 def safe_name(name: str) -> str:
     """A case name as a file name."""
-    from wmr.cli_run import safe_filename
+    from wmr.paths import safe_filename
 
     return safe_filename(name)
 

@@ -486,8 +486,8 @@ def _read_dir(logs: Path) -> dict[str, list[RunData]]:
 def _run_scenarios(names: Sequence[str], log_dir: Path, fmu: Path,
                    progress: Log) -> dict[str, list[RunData]]:
     """Run the named scenarios on one FMU plant, log to ``log_dir/<scenario>/``, read back."""
-    from wmr.cli_run import safe_filename
     from wmr.fmu.plant import FmuPlant
+    from wmr.paths import safe_filename
     from wmr.run import run_to_log
     from wmr.scenario import load_scenario
 

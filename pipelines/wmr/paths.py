@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
@@ -45,3 +46,8 @@ def cache_dir() -> Path:
 def default_fmu_dir() -> Path:
     """Where ``wmr fmu build`` writes when ``--out`` is not given."""
     return cache_dir() / "fmu"
+
+
+def safe_filename(name: str) -> str:
+    """A run name as a file name: letters, digits, ``-``, ``_``, ``.``, ``+`` and ``=``."""
+    return re.sub(r"[^A-Za-z0-9_.+=-]+", "_", name).strip("._") or "run"

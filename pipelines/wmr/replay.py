@@ -643,7 +643,7 @@ def live_view_sink(spec_name: str, goal: Any, rrd: Path | None = None, *,
     LiveViewSink
         Call :meth:`LiveViewSink.close` (or use it as a context manager) after the run.
     """
-    from wmr.cli_run import safe_filename
+    from wmr.paths import safe_filename
 
     rec = rr.RecordingStream(APPLICATION_ID)
     rec.send_recording_name(f"{spec_name} (live)")

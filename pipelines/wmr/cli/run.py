@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from wmr.errors import ConfigError
+from wmr.paths import safe_filename
 
 
 def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
@@ -24,11 +24,6 @@ def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
         except ValueError:
             raise ConfigError(f"{option} {name}", f"{value!r} is not a number") from None
     return out
-
-
-def safe_filename(name: str) -> str:
-    """A run name as a file name: letters, digits, ``-``, ``_``, ``.``, ``+`` and ``=``."""
-    return re.sub(r"[^A-Za-z0-9_.+=-]+", "_", name).strip("._") or "run"
 
 
 def _pose_name(name: str, start: list[float] | None, goal: list[float] | None) -> str | None:

@@ -51,9 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
                                         None]]:
     """The ``register`` functions of the other sub-commands, in ``--help`` order."""
-    from wmr import cli_batch, cli_optimal, cli_replay, cli_run
+    from wmr.cli import batch, optimal, replay, run
 
-    return [cli_run.register, cli_replay.register, cli_batch.register, cli_optimal.register]
+    return [run.register, replay.register, batch.register, optimal.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
