@@ -40,3 +40,7 @@ class FmuError(WmrError):
 
 class LogError(WmrError):
     """An MCAP log cannot be written or read."""
+
+
+class DiskFullError(WmrError):
+    """An output cannot be written: no space left on its device (``ENOSPC``, ``EDQUOT``)."""

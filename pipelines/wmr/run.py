@@ -112,6 +112,15 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     return record
 
 
+def failed_record(name: str, message: str) -> dict[str, Any]:
+    """The result record of a run that could not produce one (its log cannot be written)."""
+    return {"name": name, "status": "failed", "message": message,
+            "final_position_error_m": None, "final_heading_error_rad": None,
+            "time_to_goal_s": None, "path_length_m": None, "energy_j": None,
+            "torque_sq_integral_n2m2s": None, "peak_torque_nm": None, "steps": None,
+            "mcap": None}
+
+
 def result_json(record: dict[str, Any]) -> str:
     """One line of JSON (NaN-free: non-finite figures are ``null``)."""
     return json.dumps(record, allow_nan=False, sort_keys=False)

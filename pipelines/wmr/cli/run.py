@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from wmr.errors import ConfigError
+from wmr.errors import ConfigError, WmrError
 from wmr.paths import safe_filename
 
 
@@ -62,7 +62,7 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.fmu.plant import FmuPlant
-    from wmr.run import default_fmu, result_json, run_to_log
+    from wmr.run import default_fmu, failed_record, result_json, run_to_log
     from wmr.scenario import load_scenario, with_overrides
 
     scenario = load_scenario(args.scenario)
@@ -99,6 +99,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         try:
             record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress,
                                 also=live)
+        except WmrError as exc:  # the log cannot be written (disk full, ...): say so in JSON too
+            if args.json:
+                print(result_json(failed_record(spec.name, str(exc))))
+            raise
         finally:
             finish()
             if live is not None:

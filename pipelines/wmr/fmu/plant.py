@@ -8,7 +8,10 @@ and the outputs, so a step allocates nothing and looks nothing up.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import fcntl
+import os
 import shutil
 import tempfile
 from functools import partial
@@ -23,6 +26,48 @@ from wmr.fmu.archive import file_sha256, safe_extract
 from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
 
 _INPUTS = ("tau_r", "tau_l")
+#: Prefix of the folders an FMU is extracted to (in the temp folder).
+TMP_PREFIX = "wmr-fmu-"
+#: File in such a folder, locked while its :class:`FmuPlant` lives.
+_LOCK_NAME = ".wmr-owner.lock"
+
+
+def _hold(folder: Path) -> int | None:
+    """Lock ``folder``'s owner file; the lock dies with the process, however it ends."""
+    # locked under another name, then renamed: a cleaner never sees it unlocked
+    tmp = folder / (_LOCK_NAME + ".new")
+    try:
+        fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    except OSError:
+        return None
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    os.replace(tmp, folder / _LOCK_NAME)
+    return fd
+
+
+def remove_stale_folders(tmp_dir: str | Path | None = None) -> list[Path]:
+    """Remove the extraction folders of FMU plants whose process is gone (killed runs).
+
+    A folder counts as stale when its owner file exists and nobody holds its lock: folders
+    without one (being created, or not ours) are left alone.  Returns the folders removed.
+    """
+    removed: list[Path] = []
+    base = Path(tmp_dir) if tmp_dir is not None else Path(tempfile.gettempdir())
+    with contextlib.suppress(OSError):
+        for folder in base.glob(TMP_PREFIX + "*"):
+            try:
+                fd = os.open(folder / _LOCK_NAME, os.O_RDWR | os.O_CLOEXEC)
+            except OSError:
+                continue
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:  # its owner is alive
+                os.close(fd)
+                continue
+            shutil.rmtree(folder, ignore_errors=True)
+            os.close(fd)
+            removed.append(folder)
+    return removed
 
 
 class FmuPlant:
@@ -40,18 +85,20 @@ class FmuPlant:
         from fmpy import read_model_description
 
         self.fmu_path = Path(fmu_path)
-        self._tmp = Path(tempfile.mkdtemp(prefix="wmr-fmu-"))
+        remove_stale_folders()
+        self._tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX))
+        self._tmp_lock = _hold(self._tmp)
         try:
             safe_extract(self.fmu_path, self._tmp)
             md = read_model_description(str(self._tmp))
         except FmuError:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._drop_tmp()
             raise
         except Exception as exc:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._drop_tmp()
             raise FmuError(f"{self.fmu_path}: unreadable model description: {exc}") from exc
         if md.coSimulation is None:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._drop_tmp()
             raise FmuError(f"{self.fmu_path}: not a co-simulation FMU")
         self.model_description = md
         self.fmi_version = md.fmiVersion
@@ -60,7 +107,7 @@ class FmuPlant:
         needed = (*_INPUTS, *OUTPUT_NAMES, *RobotParams().as_dict())
         missing = [n for n in needed if n not in self._vr]
         if missing:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._drop_tmp()
             raise FmuError(f"{self.fmu_path}: lacks the variables {', '.join(missing)}")
         self._fmu: Any = None
         self._t = self._t0 = self._h = 0.0
@@ -237,7 +284,14 @@ class FmuPlant:
             except Exception:  # same: nothing left to do but free it
                 pass
             self._fmu = None
+        self._drop_tmp()
+
+    def _drop_tmp(self) -> None:
+        """Remove the extraction folder (idempotent)."""
         shutil.rmtree(self._tmp, ignore_errors=True)
+        if self._tmp_lock is not None:
+            os.close(self._tmp_lock)
+            self._tmp_lock = None
 
     def __enter__(self) -> FmuPlant:
         return self
