@@ -42,7 +42,8 @@ def mount_point(path: str | os.PathLike[str]) -> str:
 
 def storage_error(exc: OSError, path: str | os.PathLike[str]) -> OSError | DiskFullError:
     """``exc`` as a :class:`DiskFullError` when the disk is full, else ``exc`` itself."""
-    if exc.errno in _FULL:
+    # pyarrow raises OSError without an errno, with the C library's message
+    if exc.errno in _FULL or os.strerror(errno.ENOSPC) in str(exc):
         err = DiskFullError(f"no space left on {mount_point(path)} while writing {path}")
         err.__cause__ = exc
         return err

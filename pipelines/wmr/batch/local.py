@@ -1,19 +1,23 @@
 """Local execution: a pool of worker processes, one FMU instance each.
 
 Not :class:`concurrent.futures.ProcessPoolExecutor`: a run that hangs must be killable on its
-own, and a worker that dies (a crash in the FMU's C code) must cost its run only, not the pool.
+own, and a worker that dies (a crash in the FMU's C code, the OOM killer) must cost its run
+only, not the pool: the run is given once more to a fresh worker, then recorded ``failed``.
 Each worker has its own pipe; the parent hands out one run at a time, kills a worker whose run
 passes the hard wall-clock limit, and starts a new one in its place.  Workers come from a
 ``forkserver`` that has imported the simulation code once, so a replacement starts in
-milliseconds and no worker inherits the parent's threads.  Workers ignore SIGINT: Ctrl-C reaches
-the parent only, which stops them.
+milliseconds and no worker inherits the parent's threads.  Workers ignore SIGINT and SIGTERM:
+the parent alone stops them; and they die with it (a parent-death signal), even when it is
+killed outright.
 """
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing as mp
 import os
 import signal
+import sys
 import time
 from collections import deque
 from collections.abc import Iterator, Sequence
@@ -29,6 +33,7 @@ from wmr.errors import FmuError, WmrError
 
 #: Exit code of a worker that could not open the FMU.
 _INIT_FAILED = 3
+_PR_SET_PDEATHSIG = 1
 
 
 @dataclass
@@ -69,10 +74,29 @@ def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
             "mcap": None}
 
 
+def _die_with_parent() -> None:
+    """Have the kernel kill this process when its parent dies (Linux ``PR_SET_PDEATHSIG``).
+
+    The parent of a worker is the forkserver, which exits when the batch process dies, even
+    by SIGKILL: an orphaned worker then stops at once instead of writing into a folder that a
+    resumed batch already uses.
+    """
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    except (OSError, AttributeError):  # no prctl: the parent still kills its workers on exit
+        return
+
+
 def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str | None,
                  log_file: str | None) -> None:
     """A worker process: open the FMU once, then run what the pipe brings until ``None``."""
+    _die_with_parent()
+    # Ctrl-C and SIGTERM reach the whole process group: the parent alone decides what stops
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     if log_file is not None:  # the FMU's own messages go to a file, not over the progress bar
         fd = os.open(log_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         os.dup2(fd, 1)
@@ -182,6 +206,7 @@ class LocalPool:
             A worker cannot open the FMU.
         """
         pending = deque(tasks)
+        retried: set[str] = set()
         slots: list[_Slot] = []
         spawned = 0
         try:
@@ -237,9 +262,13 @@ class LocalPool:
                     self._stop(slot, kill=True)
                     slots[slots.index(slot)] = self._spawn(spawned)
                     spawned += 1
+                    if task.run_id not in retried:  # e.g. the OOM killer: once more, then failed
+                        retried.add(task.run_id)
+                        pending.appendleft(task)
+                        continue
                     yield Outcome(task.run_id, made_up_record(
                         task.run_id, "failed",
-                        f"the worker process died during the run (exit code {code})"),
+                        f"the worker process died during the run, twice (exit code {code})"),
                         wall, killed=True, worker=str(slot.proc.pid))
                 if self.hard_limit_s is not None:
                     now = time.monotonic()

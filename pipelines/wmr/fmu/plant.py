@@ -13,6 +13,7 @@ import ctypes
 import fcntl
 import os
 import shutil
+import sys
 import tempfile
 from functools import partial
 from pathlib import Path
@@ -43,6 +44,55 @@ def _hold(folder: Path) -> int | None:
     fcntl.flock(fd, fcntl.LOCK_EX)
     os.replace(tmp, folder / _LOCK_NAME)
     return fd
+
+
+_LABELS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
+
+
+def _log(status: int, message: bytes | None) -> None:
+    """An FMU's log message, on stderr: stdout is for results (``--json``), never for FMUs."""
+    label = _LABELS[status] if 0 <= status < len(_LABELS) else str(status)
+    text = (message or b"").decode("utf-8", "replace")
+    print(f"[{label}] {text}", file=sys.stderr)
+
+
+def _fmi3_log(env: object, status: int, category: bytes, message: bytes) -> None:
+    _log(status, message)
+
+
+def _fmi2_log(component: object, instance: bytes, status: int, category: bytes,
+              message: bytes) -> None:
+    _log(status, message)
+
+
+_FMI2_CALLBACKS: list[Any] = []
+
+
+def _fmi2_callbacks() -> Any:
+    """fmpy's default FMI 2 callbacks with the logger on stderr (one set per process)."""
+    if not _FMI2_CALLBACKS:
+        from ctypes import byref
+
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(_fmi2_log)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        try:  # formats the variadic message in C, as fmpy does for its own logger
+            from fmpy.logging import addLoggerProxy
+
+            addLoggerProxy(byref(cb))
+        except Exception:  # no proxy: messages arrive unformatted, still on stderr
+            pass
+        _FMI2_CALLBACKS.append(cb)
+    return _FMI2_CALLBACKS[0]
 
 
 def remove_stale_folders(tmp_dir: str | Path | None = None) -> list[Path]:
@@ -94,6 +144,11 @@ class FmuPlant:
         except FmuError:
             self._drop_tmp()
             raise
+        except KeyError as exc:  # fmpy looks references up in a dict of the variables
+            self._drop_tmp()
+            raise FmuError(f"{self.fmu_path}: invalid model description: value reference "
+                           f"{exc.args[0] if exc.args else '?'} is used (in ModelStructure, a "
+                           "derivative, dimension or clock) but no variable has it") from exc
         except Exception as exc:
             self._drop_tmp()
             raise FmuError(f"{self.fmu_path}: unreadable model description: {exc}") from exc
@@ -132,14 +187,14 @@ class FmuPlant:
                 fmu: Any = FMU2Slave(guid=md.guid, unzipDirectory=str(self._tmp),
                                      modelIdentifier=md.coSimulation.modelIdentifier,
                                      instanceName=self._instance_name)
-                fmu.instantiate(loggingOn=False)
+                fmu.instantiate(loggingOn=False, callbacks=_fmi2_callbacks())
             else:
                 from fmpy.fmi3 import FMU3Slave
 
                 fmu = FMU3Slave(guid=md.guid, unzipDirectory=str(self._tmp),
                                 modelIdentifier=md.coSimulation.modelIdentifier,
                                 instanceName=self._instance_name)
-                fmu.instantiate(loggingOn=False)
+                fmu.instantiate(loggingOn=False, logMessage=_fmi3_log)
         except Exception as exc:
             raise FmuError(f"{self.fmu_path}: cannot instantiate: {exc}") from exc
         self._fmu = fmu

@@ -22,7 +22,7 @@ from typing import Final
 
 import numpy as np
 
-from wmr.durable import PARTIAL_SUFFIX, AtomicFile
+from wmr.durable import PARTIAL_SUFFIX, AtomicFile, partial_path
 from wmr.errors import LogError
 from wmr.mcaplog.reader import scan_file
 from wmr.mcaplog.writer import McapFile
@@ -115,6 +115,12 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
     if dst.exists() and not overwrite:
         raise LogError(f"{dst}: exists; give another output file or allow overwriting "
                        "(--force)")
+    if src.exists() and partial_path(dst).exists() and os.path.samefile(src, partial_path(dst)):
+        # X.mcap.partial -> X.mcap: the writer of X.mcap would empty its own source first;
+        # the source is kept, renamed
+        aside = src.with_name(src.name + ".recovering")
+        os.replace(src, aside)
+        src = aside
     scan = scan_file(str(src))
     rec = Recovery(source=src, output=dst, lost=list(scan.warnings))
     if "result" not in scan.metadata:
