@@ -14,6 +14,16 @@
 #include "fmi2Functions.h"
 #include "fmi_layer.h"
 
+#if defined(FMI2_FUNCTION_PREFIX)
+/* The standard's fmi2Functions.h prefixes the names through fmi2FullName; some copies of it
+ * (fmpy's) define fmi2FullName(name) as name.  The function-name macros expand fmi2FullName
+ * where they are used, so redefining it here prefixes the definitions below either way. */
+#undef fmi2FullName
+#define WMR_PASTE(a, b) a##b
+#define WMR_PASTE2(a, b) WMR_PASTE(a, b)
+#define fmi2FullName(name) WMR_PASTE2(FMI2_FUNCTION_PREFIX, name)
+#endif
+
 #define INST ((FlInstance *)c)
 
 /* Version-specific log adapter.  The FMI 2 logger is printf-like: the
