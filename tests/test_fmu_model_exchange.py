@@ -3,11 +3,14 @@ own Dormand-Prince) on a torque profile with steps, in FMI 2.0 and FMI 3.0."""
 
 from __future__ import annotations
 
+import ctypes
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from fmpy import read_model_description, simulate_fmu
+from fmpy import extract, instantiate_fmu, read_model_description, simulate_fmu
+from fmpy.fmi1 import FMICallException
 
 from wmr.fmu.build import BuildResult
 
@@ -72,3 +75,47 @@ def test_euler_converges_to_co_simulation(built: BuildResult, version: int) -> N
     assert 1.8 < err_coarse / err_fine < 2.2
     extrapolated = {n: 2 * fine[n] - coarse[n] for n in OUTPUTS}
     assert max(float(np.max(np.abs(cs[n] - extrapolated[n]))) for n in OUTPUTS) < 1e-7
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_model_exchange_calls_are_checked(built: BuildResult, version: int,
+                                          tmp_path: Path) -> None:
+    md = read_model_description(str(built.fmus[version]))
+    fmu: Any = instantiate_fmu(extract(str(built.fmus[version]), str(tmp_path)), md,
+                               fmi_type="ModelExchange")
+    if version == 2:
+        fmu.setupExperiment()
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    with pytest.raises(FMICallException):  # ContinuousTimeMode is entered from EventMode only
+        fmu.completedIntegratorStep()
+    fmu.newDiscreteStates() if version == 2 else fmu.updateDiscreteStates()
+    fmu.enterContinuousTimeMode()
+
+    def states(n: int = 7) -> np.ndarray:
+        x = np.zeros(n)
+        fmu.getContinuousStates(x.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), n)
+        return x
+
+    def set_states(x: np.ndarray) -> None:
+        fmu.setContinuousStates(x.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), len(x))
+
+    good = np.linspace(0.1, 0.7, 7)
+    set_states(good)
+    saved = fmu.getFMUState() if version == 3 else fmu.getFMUstate()
+    with pytest.raises(FMICallException):
+        set_states(good[:6])
+    with pytest.raises(FMICallException):
+        set_states(np.where(np.arange(7) == 3, np.nan, good))
+    assert np.array_equal(states(), good)  # a refused set changes nothing
+    set_states(-good)
+    fmu.setFMUState(saved) if version == 3 else fmu.setFMUstate(saved)
+    assert np.array_equal(states(), good)
+    mass = next(v.valueReference for v in md.modelVariables if v.name == "m")
+    set_real = fmu.setFloat64 if version == 3 else fmu.setReal
+    with pytest.raises(FMICallException):  # parameters wait for EventMode
+        set_real([mass], [30.0])
+    fmu.enterEventMode()
+    set_real([mass], [30.0])
+    fmu.terminate()
+    fmu.freeInstance()
