@@ -203,7 +203,7 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
 
 
 def _build(out: Path, digest: str, cc: str) -> dict[int, Path]:
-    from wmr.fmu.codegen import MODEL_IDENTIFIER, write_model_core
+    from wmr.fmu.codegen import MODEL_IDENTIFIER, unity_source, write_model_core
     from wmr.fmu.flatten import flatten
     from wmr.fmu.modeldesc import (
         fmi2_model_description,
@@ -222,10 +222,13 @@ def _build(out: Path, digest: str, cc: str) -> dict[int, Path]:
         generated = write_model_core(model, token, gen_dir)
         for version in FMI_VERSIONS:
             skip = "fmi3.c" if version == 2 else "fmi2.c"
-            sources = [p for p in hand if p.name != skip] + generated
-            c_files = [p for p in sources if p.suffix == ".c"]
             library = Path(tmp) / f"fmi{version}" / f"{MODEL_IDENTIFIER}.so"
             library.parent.mkdir()
+            # One translation unit that includes all the others: only fmi* symbols are global.
+            unity = library.parent / f"{MODEL_IDENTIFIER}.c"
+            unity.write_text(unity_source(model, version))
+            sources = [p for p in hand if p.name != skip] + generated + [unity]
+            c_files = [unity]
             _compile(cc, c_files, [gen_dir, paths.fmu_src_dir(), headers], library)
             _check_exports(library)
             c_names = [p.name for p in c_files]
