@@ -284,3 +284,15 @@ def test_fuzzed_logs_never_raise_and_never_pass_for_good(tmp_path: Path) -> None
 @pytest.mark.slow
 def test_fuzzed_logs_many_more(tmp_path: Path) -> None:
     _fuzz(tmp_path, range(300, 2300))
+
+
+def test_replay_says_what_it_could_not_show(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "run.mcap"
+    write_log(path, compression="")
+    data = bytearray(path.read_bytes())
+    data[bytes(data).index(b'"K_ps"') + 1] ^= 0x01  # the run record, outside every chunk
+    path.write_bytes(bytes(data))
+    assert main(["replay", str(path), "--no-viewer", "--rrd", str(tmp_path / "r.rrd")]) == 0
+    err = capsys.readouterr().err
+    assert "wmr: warning:" in err and "data section CRC mismatch" in err

@@ -455,6 +455,8 @@ def read_logs(logs: Sequence[RunLog]) -> tuple[list[tuple[RunLog, RunData]], lis
         if data.truncated:
             warnings.append(f"{log.path}: truncated log, replaying its first {data.n_steps} "
                             f"steps (to t = {data.t_s[-1]:.2f} s)")
+        # what the reader left out or could not check: never replayed silently
+        warnings += [f"{log.path}: {line}" for line in data.warnings]
         runs.append((log, data))
     return runs, warnings
 
