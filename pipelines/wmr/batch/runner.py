@@ -30,7 +30,7 @@ from wmr.batch.local import LocalPool, Outcome
 from wmr.batch.spec import BatchSpec, spec_digest
 from wmr.batch.summary import status_counts, summary_table, write_summary
 from wmr.batch.worker import DISK_FULL, FAULTS, Task
-from wmr.durable import partial_path, storage_error
+from wmr.durable import AtomicFile, partial_path, storage_error
 from wmr.errors import ConfigError, DiskFullError, WmrError
 from wmr.fmu.archive import file_sha256
 
@@ -95,9 +95,13 @@ class _Lock:
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    """Write ``path`` whole or not at all (fsynced; a full disk is a DiskFullError)."""
+    out = AtomicFile(path, "file")
+    try:
+        out.write(data)
+        out.commit()
+    finally:
+        out.abandon()
 
 
 def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
