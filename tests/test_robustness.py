@@ -212,6 +212,8 @@ def test_workers_die_with_a_killed_batch(tmp_path: Path, fmu3: Path) -> None:
             f"run_batch(b, {str(tmp_path / 'o')!r}, workers=2, fmu_path={str(fmu3)!r}, "
             "progress=False, faults={r.run_id: 'hang' for r in b.runs})")
     proc = subprocess.Popen([sys.executable, "-c", code], env=_env(**{marker: "1"}))
+    logs = [tmp_path / "o" / "logs" / f"worker-{i}.log" for i in (0, 1)]
+    _wait_for(lambda: all(log.exists() for log in logs))  # each worker opens its own
     _wait_for(lambda: len(_processes_with(marker)) >= 4)  # parent, forkserver, 2 workers
     proc.kill()
     proc.wait()

@@ -7,17 +7,16 @@ Each worker has its own pipe; the parent hands out one run at a time, kills a wo
 passes the hard wall-clock limit, and starts a new one in its place.  Workers come from a
 ``forkserver`` that has imported the simulation code once, so a replacement starts in
 milliseconds and no worker inherits the parent's threads.  Workers ignore SIGINT and SIGTERM:
-the parent alone stops them; and they die with it (a parent-death signal), even when it is
-killed outright.
+the parent alone stops them; and they end as soon as it is gone, even killed outright.
 """
 
 from __future__ import annotations
 
-import ctypes
 import multiprocessing as mp
 import os
+import select
 import signal
-import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Iterator, Sequence
@@ -33,7 +32,8 @@ from wmr.errors import FmuError, WmrError
 
 #: Exit code of a worker that could not open the FMU.
 _INIT_FAILED = 3
-_PR_SET_PDEATHSIG = 1
+#: Exit code of a worker whose batch process is gone.
+_ORPHANED = 4
 
 
 @dataclass
@@ -74,26 +74,39 @@ def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
             "mcap": None}
 
 
-def _die_with_parent() -> None:
-    """Have the kernel kill this process when its parent dies (Linux ``PR_SET_PDEATHSIG``).
+def _die_with(batch_pid: int) -> None:
+    """End this worker as soon as the batch process ``batch_pid`` is gone, even killed by
+    SIGKILL: an orphan must not go on writing into a folder that a resumed batch uses.
 
-    The parent of a worker is the forkserver, which exits when the batch process dies, even
-    by SIGKILL: an orphaned worker then stops at once instead of writing into a folder that a
-    resumed batch already uses.
+    The worker's parent is the forkserver, not the batch process, and the forkserver outlives
+    the batch while workers hold its liveness pipe, so ``PR_SET_PDEATHSIG`` cannot do this.
+    A daemon thread waits on a pidfd of the batch process (Linux >= 5.3), else polls it.
     """
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except (OSError, AttributeError):  # no prctl: the parent still kills its workers on exit
-        return
+    def watch() -> None:
+        try:
+            fd = os.pidfd_open(batch_pid)
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            select.select([fd], [], [])  # readable when the process has ended
+        else:
+            while True:
+                time.sleep(0.5)
+                try:
+                    os.kill(batch_pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:  # alive, someone else's: cannot be ours
+                    continue
+        os._exit(_ORPHANED)
+
+    threading.Thread(target=watch, name="wmr-die-with-batch", daemon=True).start()
 
 
 def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str | None,
-                 log_file: str | None) -> None:
+                 log_file: str | None, batch_pid: int) -> None:
     """A worker process: open the FMU once, then run what the pipe brings until ``None``."""
-    _die_with_parent()
+    _die_with(batch_pid)
     # Ctrl-C and SIGTERM reach the whole process group: the parent alone decides what stops
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -175,7 +188,7 @@ class LocalPool:
         proc = self._ctx.Process(
             target=_worker_main, name=f"wmr-batch-{number}", daemon=True,
             args=(child, str(self.fmu_path), str(self.runs_dir),
-                  str(self.attachment) if self.attachment else None, log_file))
+                  str(self.attachment) if self.attachment else None, log_file, os.getpid()))
         proc.start()
         child.close()
         return _Slot(number, proc, parent)
