@@ -506,11 +506,15 @@ FlStatus fl_terminate(const char *fn, FlInstance *inst) {
     if (!fl_check_state(fn, inst, FL_SIMULATING)) return FL_ERROR;
     d = &inst->d;
     d->mode = FL_TERMINATED;
-    fl_log(inst, FL_OK,
-           "%s: terminated at t = %.17g after %lu communication steps (%lu internal steps accepted, "
-           "%lu rejected, %lu derivative evaluations)",
-           fn, d->time, d->n_comm_steps, d->solver.n_accepted, d->solver.n_rejected,
-           d->solver.n_rhs);
+    if (inst->model_exchange)
+        fl_log(inst, FL_OK, "%s: terminated at t = %.17g after %lu completed integrator steps",
+               fn, d->time, d->n_comm_steps);
+    else
+        fl_log(inst, FL_OK,
+               "%s: terminated at t = %.17g after %lu communication steps (%lu internal steps "
+               "accepted, %lu rejected, %lu derivative evaluations)",
+               fn, d->time, d->n_comm_steps, d->solver.n_accepted, d->solver.n_rejected,
+               d->solver.n_rhs);
     return FL_OK;
 }
 

@@ -68,7 +68,7 @@ typedef struct {
     double y[MODEL_NY];       /* last good outputs */
     int outputs_dirty;        /* y must be re-evaluated before it is read */
     SolverState solver;
-    unsigned long n_comm_steps;
+    unsigned long n_comm_steps; /* doStep calls (CS) or completed integrator steps (ME) */
 } FlData;
 
 typedef struct FlInstance {
