@@ -191,5 +191,35 @@ def preset(name: str) -> SensorConfig:
     return SensorConfig(**PRESETS[name])
 
 
-__all__ = ["ESTIMATORS", "HEADINGS", "NAME_FIELDS", "PRESETS", "SensorConfig", "preset",
-           "sensor_config"]
+def command_line_sensors(current: SensorConfig | None, preset_name: str | None,
+                         items: list[str] | None) -> SensorConfig | None:
+    """``wmr run --sensors PRESET|off --sensor NAME=VALUE ...`` applied to a run's sensors.
+
+    ``off`` removes them (perfect state feedback); a preset replaces them; each ``NAME=VALUE``
+    then replaces one field (of the defaults when the run has no sensors).
+    """
+    cfg = current
+    if preset_name == "off":
+        cfg = None
+    elif preset_name is not None:
+        cfg = preset(preset_name)
+    values: dict[str, Any] = {}
+    for item in items or []:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise ConfigError("--sensor", f"{item!r} is not NAME=VALUE",
+                              "e.g. --sensor gps_sigma_m=0.05")
+        if name in NAME_FIELDS:
+            values[name] = text.strip()
+            continue
+        try:
+            values[name] = float(text)
+        except ValueError:
+            raise ConfigError(f"--sensor {name}", f"{text!r} is not a number",
+                              "give a plain number") from None
+    return sensor_config(values, cfg) if values else cfg
+
+
+__all__ = ["ESTIMATORS", "HEADINGS", "NAME_FIELDS", "PRESETS", "SensorConfig",
+           "command_line_sensors", "preset", "sensor_config"]
