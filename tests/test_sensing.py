@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from scipy import stats
 
+from wmr.batch.spec import load_batch, parse_batch
+from wmr.batch.summary import summary_table
 from wmr.closedloop import run_closed_loop
 from wmr.errors import ConfigError
 from wmr.physics import ReferencePlant
@@ -64,7 +68,7 @@ def test_scenario_sensors_table_and_overrides() -> None:
     assert plain.sensors is None
     assert with_overrides(plain, sensors={"gps_sigma_m": 0.5}).sensors == SensorConfig(
         gps_sigma_m=0.5)
-    with pytest.raises(ConfigError, match="sensors.gps_rate_hz"):
+    with pytest.raises(ConfigError, match=r"sensors\.gps_rate_hz"):
         with_overrides(plain, period_s=0.5, sensors={"gps_rate_hz": 10.0})
 
 
@@ -175,7 +179,7 @@ def test_ekf_textbook_static_fixes() -> None:
     P_n = 1 / (1/P0 + n/R) (the textbook recursive estimate of a constant)."""
     p0, sigma = 4.0, 0.5
     rng = np.random.default_rng(1)
-    z = rng.normal(0.0, sigma, (50, 2)) + (3.0, -1.0)
+    z = rng.normal(0.0, sigma, (50, 2)) + np.array([3.0, -1.0])
     ekf = PoseEKF((0.0, 0.0, 0.0), np.diag([p0, p0, 0.1]), 0.3)
     for i, (zx, zy) in enumerate(z):
         ekf.predict(0.0, 0.0)
@@ -241,7 +245,7 @@ def _simulate(seed: int, latency_steps: int, compensate: bool, steps: int = 600,
         # the truth moves by the odometry model with the true wheel travels
         ds, dth = 0.5 * (d_r + d_l), (d_r - d_l) / (2 * half)
         th_m = truth[2] + 0.5 * dth
-        truth = truth + (ds * math.cos(th_m), ds * math.sin(th_m), dth)
+        truth = truth + np.array([ds * math.cos(th_m), ds * math.sin(th_m), dth])
         hist.append(truth.copy())
         m_r = d_r + rng.normal(0.0, math.sqrt(k2 * abs(d_r)))
         m_l = d_l + rng.normal(0.0, math.sqrt(k2 * abs(d_l)))
@@ -324,6 +328,81 @@ def test_sensors_off_is_bit_identical_and_reports_true_errors() -> None:
     res2 = run_closed_loop(with_overrides(spec, sensors=exact), ReferencePlant(), rec2)
     assert np.array_equal(np.vstack(rec.blocks), np.vstack(rec2.blocks))
     assert res2.final_pose == res.final_pose
+    # the rows as the code before wmr.sensing wrote them (commit 9cba7f7, same machine class)
+    digest = hashlib.sha256(np.vstack(rec.blocks).tobytes()).hexdigest()
+    assert digest == "4ab553eef04d6fabd94e6a4f188e76785c81eaca7a300a2e5c09d6d7557278de"
+
+
+def test_run_ids_without_sensors_are_unchanged() -> None:
+    """The ids of the shipped batches, as before sensors existed (commit 9cba7f7)."""
+    assert [r.run_id for r in load_batch("fig10").runs[:2]] == ["0000-6967d8ca",
+                                                                 "0001-70fb44b4"]
+    assert load_batch("sweep_gains").runs[0].run_id == "0000-6dbddae1"
+
+
+def test_batch_sweeps_sensor_fields() -> None:
+    data = {"name": "s", "start": [0, 0, 0], "goal": [1, 0, 0],
+            "grid": {"sensors": {"gps_sigma_m": [0.01, 0.05]}, "stop_radius_m": [0.05, 0.1]},
+            "list": [{"name": "raw", "sensors": {"estimator": "none"}},
+                     {"name": "ekf", "sensors": {"estimator": "ekf", "heading": "none"}}],
+            "random": {"seed": 1, "n": 2,
+                       "sensors": {"seed": {"dist": "choice", "values": [1, 2, 3]}}}}
+    batch = parse_batch(data)
+    assert len(batch.runs) == 2 * 2 * 2 * 2
+    assert "sensors.gps_sigma_m" in batch.input_columns
+    r = batch.runs[-1]
+    assert r.spec.sensors is not None and r.spec.sensors.estimator == "ekf"
+    assert r.spec.sensors.gps_sigma_m == 0.05 and r.inputs["sensors.estimator"] == "ekf"
+    assert isinstance(r.spec.sensors.seed, int)
+    table = summary_table(batch.runs, batch.input_columns,
+                          {r.run_id: {"status": "converged"} for r in batch.runs})
+    assert table.column("sensors.estimator").to_pylist()[:2] == ["none", "none"]
+    assert table.column("sensors.gps_sigma_m").to_pylist()[0] == 0.01
+    bad = dict(data, grid={"sensors": {"gps_sigma_m": [0.01, -1.0]}})
+    with pytest.raises(ConfigError, match=r"^grid\.sensors\.gps_sigma_m: must be >= 0"):
+        parse_batch(bad)
+    with pytest.raises(ConfigError, match=r"^grid\.sensors\.estimator\[0\]: must be a name"):
+        parse_batch(dict(data, grid={"sensors": {"estimator": [1.0]}}))
+
+
+def test_wmr_run_sensors_gps_logs_fixes_and_estimate(tmp_path: Path) -> None:
+    """``wmr run --sensors gps`` on the FMU: the Fig. 11 case converges; the log has the true
+    pose, the fixes and the estimate; the replay draws all three."""
+    import io
+    import json
+    from contextlib import redirect_stderr, redirect_stdout
+
+    import rerun.chunk as rrc
+
+    from wmr.cli import main
+    from wmr.mcaplog import read_run
+    from wmr.sensing.log import read_sensing
+
+    out = tmp_path / "gps.mcap"
+    buf, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(buf), redirect_stderr(err):
+        rc = main(["run", "--sensors", "gps", "--out", str(out), "--json"])
+    assert rc == 0, err.getvalue()
+    record = json.loads(buf.getvalue().strip().splitlines()[-1])
+    assert record["status"] == "converged"
+    assert record["estimated_final_position_error_m"] <= 0.05
+    assert record["final_position_error_m"] < 0.1
+    run = read_run(out)
+    assert json.loads(run.metadata["run"]["sensors"])["gps_sigma_m"] == 0.02
+    trace = read_sensing(out)
+    assert trace is not None
+    assert len(trace.est_t_ns) == run.n_steps
+    assert np.array_equal(trace.est_t_ns, run.t_ns)
+    # the fixes scatter about the true path by about their sigma
+    idx = np.searchsorted(run.t_ns, trace.gps_t_ns)
+    d = trace.gps_xy_m - np.column_stack([run.signals["x_m"][idx], run.signals["y_m"][idx]])
+    assert 0.01 < float(np.std(d)) < 0.04
+    rrd = tmp_path / "gps.rrd"
+    with redirect_stdout(io.StringIO()), redirect_stderr(io.StringIO()):
+        assert main(["replay", str(out), "--rrd", str(rrd)]) == 0
+    entities = {chunk.entity_path for chunk in rrc.RrdReader(rrd).stream()}
+    assert {"/runs/gps/world/path", "/runs/gps/world/gps",
+            "/runs/gps/world/estimate"} <= entities
 
 
 def test_noisy_run_is_reproducible_and_seeded() -> None:
