@@ -428,3 +428,35 @@ def test_fig11_converges_with_2cm_gps_at_10hz_and_50ms() -> None:
     assert res.final_position_error_m < 2 * spec.stop_radius_m
     assert res.final_heading_error_rad < math.radians(2.0)
     assert res.final_position_error_m != res.estimated_final_position_error_m
+
+
+def test_study_epsilon_table_and_figure(tmp_path: Path) -> None:
+    """The report's sensing section on a made-up summary: the epsilon needed per sigma."""
+    import pyarrow as pa
+
+    from wmr.sensing.study import sensing_section, study
+
+    rows = []
+    for variant in ("raw", "ekf"):
+        for sigma in (0.01, 0.1):
+            for eps in (0.05, 0.2, 0.5):
+                for k in range(10):
+                    # raw fails below eps = 2 sigma, and once at (0.01, 0.2); ekf never fails
+                    fail = variant == "raw" and (eps < 2 * sigma or (sigma, eps, k) == (
+                        0.01, 0.2, 3))
+                    rows.append({"variant": variant, "sensors.gps_sigma_m": sigma,
+                                 "stop_radius_m": eps,
+                                 "status": "timeout" if fail else "converged",
+                                 "final_position_error_m": sigma / 2,
+                                 "final_heading_error_rad": 0.01})
+    table = pa.Table.from_pylist(rows)
+    st = study(table)
+    assert st is not None and st.variants == ("raw", "ekf")
+    assert st.epsilon_for("ekf", 0.1) == 0.05
+    assert st.epsilon_for("raw", 0.01) == 0.5  # 9/10 at 0.2 is below 99 %
+    assert st.epsilon_for("raw", 0.1) == 0.2
+    assert st.epsilon_for("raw", 0.1, target=1.0) == 0.2
+    lines = sensing_section(table, tmp_path)
+    assert "| 0.01 | 0.5 | 0.05 |" in lines and "| 0.1 | 0.2 | 0.05 |" in lines
+    assert (tmp_path / "sensing.png").stat().st_size > 10_000
+    assert sensing_section(table.drop_columns(["stop_radius_m"]), tmp_path) == []
