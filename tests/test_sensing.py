@@ -444,19 +444,22 @@ def test_study_epsilon_table_and_figure(tmp_path: Path) -> None:
                     # raw fails below eps = 2 sigma, and once at (0.01, 0.2); ekf never fails
                     fail = variant == "raw" and (eps < 2 * sigma or (sigma, eps, k) == (
                         0.01, 0.2, 3))
+                    # ekf once converged but truly outside epsilon: no success
+                    outside = variant == "ekf" and (sigma, eps, k) == (0.1, 0.05, 0)
                     rows.append({"variant": variant, "sensors.gps_sigma_m": sigma,
                                  "stop_radius_m": eps,
                                  "status": "timeout" if fail else "converged",
-                                 "final_position_error_m": sigma / 2,
+                                 "final_position_error_m": 0.06 if outside else sigma / 2,
                                  "final_heading_error_rad": 0.01})
     table = pa.Table.from_pylist(rows)
     st = study(table)
     assert st is not None and st.variants == ("raw", "ekf")
-    assert st.epsilon_for("ekf", 0.1) == 0.05
+    assert st.epsilon_for("ekf", 0.1) == 0.2
+    assert st.cells[("ekf", 0.1, 0.05)].converged == 10
     assert st.epsilon_for("raw", 0.01) == 0.5  # 9/10 at 0.2 is below 99 %
     assert st.epsilon_for("raw", 0.1) == 0.2
     assert st.epsilon_for("raw", 0.1, target=1.0) == 0.2
     lines = sensing_section(table, tmp_path)
-    assert "| 0.01 | 0.5 | 0.05 |" in lines and "| 0.1 | 0.2 | 0.05 |" in lines
+    assert "| 0.01 | 0.5 | 0.05 |" in lines and "| 0.1 | 0.2 | 0.2 |" in lines
     assert (tmp_path / "sensing.png").stat().st_size > 10_000
     assert sensing_section(table.drop_columns(["stop_radius_m"]), tmp_path) == []

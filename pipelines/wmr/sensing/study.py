@@ -6,6 +6,10 @@ summary varies both ``sensors.gps_sigma_m`` and ``stop_radius_m``: one heat map 
 ``[[list]]`` entry, e.g. ``tuned-ekf``) of the success rate, the median true final position
 error and the median true final heading error of the converged runs, and the table of the
 smallest epsilon that reaches the success target for each sigma.
+
+A run **succeeds** when it converged (on its estimate) and its true final position error is
+within the stop radius: the robot really stopped where it believes it did.  Converged runs that
+stopped outside epsilon count as converged but not as successes.
 """
 
 from __future__ import annotations
@@ -31,13 +35,14 @@ class Cell:
 
     runs: int
     converged: int
+    succeeded: int  # converged and truly within epsilon
     position_error_m: float  # median true final position error of the converged runs
     heading_error_deg: float  # median true final heading error of the converged runs
 
     @property
     def rate(self) -> float:
         """Success rate (0 to 1), NaN without runs."""
-        return self.converged / self.runs if self.runs else math.nan
+        return self.succeeded / self.runs if self.runs else math.nan
 
 
 @dataclass(frozen=True)
@@ -91,7 +96,7 @@ def study(table: pa.Table) -> Study | None:
                     continue
                 good = m & ok
                 cells[(v, float(s), float(e))] = Cell(
-                    int(m.sum()), int(good.sum()),
+                    int(m.sum()), int(good.sum()), int((good & (pos <= e)).sum()),
                     float(np.median(pos[good])) if good.any() else math.nan,
                     float(np.median(head[good])) if good.any() else math.nan)
     return Study(variants, tuple(float(s) for s in np.unique(sigma[np.isfinite(sigma)])),
@@ -117,10 +122,8 @@ def plot_study(st: Study, path: Path) -> None:
             for i, s in enumerate(st.sigmas_m):
                 for j, e in enumerate(st.epsilons_m):
                     cell = st.cells.get((v, s, e))
-                    if cell is not None and cell.converged:
+                    if cell is not None and (cell.converged or r == 0):
                         g[i, j] = value(cell)
-                    elif cell is not None and r == 0:
-                        g[i, j] = 0.0
             grids.append(g)
         finite = np.concatenate([g[np.isfinite(g)] for g in grids])
         lo, hi = limits if limits else ((float(finite.min()), float(finite.max()))
@@ -131,8 +134,11 @@ def plot_study(st: Study, path: Path) -> None:
             for i in range(g.shape[0]):
                 for j in range(g.shape[1]):
                     if np.isfinite(g[i, j]):
+                        # white on the dark ends of viridis and magma
+                        dark = r > 0 and (g[i, j] - lo) < 0.4 * (hi - lo)
                         ax.text(j, i, f"{g[i, j]:.0f}" if r == 0 else f"{g[i, j]:.3g}",
-                                ha="center", va="center", fontsize=7)
+                                ha="center", va="center", fontsize=7,
+                                color="white" if dark else "black")
             ax.set_xticks(range(len(st.epsilons_m)), [f"{e:g}" for e in st.epsilons_m])
             ax.set_yticks(range(len(st.sigmas_m)), [f"{s:g}" for s in st.sigmas_m])
             if r == 0:
@@ -157,9 +163,10 @@ def epsilon_table(st: Study, target: float = TARGET) -> list[str]:
             eps = st.epsilon_for(v, s, target)
             row.append("none tried" if eps is None else f"{eps:g}")
         lines.append(f"| {s:g} | " + " | ".join(row) + " |")
-    lines += ["", f"Epsilon (m) from which every larger epsilon tried converged in at least "
-              f"{100 * target:g} % of its runs ({'/'.join(str(r) for r in sorted(runs))} runs "
-              "per cell); 'none tried': not even the largest."]
+    lines += ["", f"Epsilon (m) from which on every larger epsilon tried succeeded (converged, "
+              f"and truly within epsilon) in at least {100 * target:g} % of its runs "
+              f"({'/'.join(str(r) for r in sorted(runs))} runs per cell); 'none tried': not "
+              "even the largest."]
     return lines
 
 
