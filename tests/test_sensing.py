@@ -51,6 +51,7 @@ def _outputs(x: float, y: float, theta: float, phi_r: float = 0.0,
     ({"gps_dropout_windows": [[5.0, 1.0]]}, "sensors.gps_dropout_windows[0]"),
     ({"encoder_counts_per_rev": 10.5}, "sensors.encoder_counts_per_rev"),
     ({"seed": -1}, "sensors.seed"),
+    ({"wheel_radius_error_frac": 0.7}, "sensors.wheel_radius_error_frac"),
 ])
 def test_bad_sensor_config_names_the_field(table: dict[str, Any], field: str) -> None:
     data = {"start": [0, 0, 0], "goal": [1, 0, 0], "sensors": table}
@@ -221,6 +222,20 @@ def test_ekf_run_on_the_plant_with_exact_sensors_matches_truth() -> None:
     assert est[0] == pytest.approx(res.final_pose.x_m, abs=1e-9)
     assert est[1] == pytest.approx(res.final_pose.y_m, abs=1e-9)
     assert est[2] == pytest.approx(res.final_pose.heading_rad, abs=1e-9)
+
+
+def test_wheel_radius_error_scales_the_odometry() -> None:
+    """With no fix after the first, the EKF dead-reckons: its distance is (1 + e) times the
+    true one on a straight run."""
+    err = 0.02
+    spec = RunSpec("scale", Pose(0.0, 0.0, 0.0), Pose(3.0, 0.0, 0.0), t_max_s=4.0,
+                   sensors=SensorConfig(estimator="ekf", heading="none", gps_rate_hz=0.1,
+                                        initial_heading_sigma_deg=0.0,
+                                        wheel_radius_error_frac=err))
+    res = run_closed_loop(spec, ReferencePlant())
+    assert res.sensing is not None and len(res.sensing.gps_t_ns) == 1
+    assert res.sensing.est_pose[-1][0] == pytest.approx((1 + err) * res.final_pose.x_m,
+                                                        rel=1e-9)
 
 
 def _simulate(seed: int, latency_steps: int, compensate: bool, steps: int = 600,

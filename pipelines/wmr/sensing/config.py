@@ -18,6 +18,8 @@
     encoder_counts_per_rev = 4096      # wheel encoder quantisation; 0: exact angles
     encoder_rate_hz = 100.0            # at most the control rate; 0: the control rate
     odometry_noise_m2_per_m = 1e-4     # the EKF's odometry noise: variance per metre rolled
+    wheel_radius_error_frac = 0.0      # the estimator's wheel radius is r (1 + this): odometry
+                                       # scale error, as a tyre worn or inflated differently
     initial_heading_sigma_deg = 1.0    # how well the start heading is known (no compass)
 
 Every numeric field is also a batch field (``[grid.sensors]``, ``[[list]] sensors = {...}``,
@@ -75,6 +77,7 @@ class SensorConfig:
     encoder_counts_per_rev: float = 0.0
     encoder_rate_hz: float = 0.0
     odometry_noise_m2_per_m: float = 1e-4
+    wheel_radius_error_frac: float = 0.0
     initial_heading_sigma_deg: float = 1.0
 
     def __post_init__(self) -> None:
@@ -95,6 +98,9 @@ class SensorConfig:
                               "write e.g. seed = 1")
         for f in fields(self):
             if f.name in (*NAME_FIELDS, "seed", "gps_dropout_windows"):
+                continue
+            if f.name == "wheel_radius_error_frac":
+                _finite_fraction(self.wheel_radius_error_frac)
                 continue
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, int | float) \
@@ -145,6 +151,16 @@ class SensorConfig:
         d = {f.name: getattr(self, f.name) for f in fields(self)}
         d["gps_dropout_windows"] = [list(w) for w in self.gps_dropout_windows]
         return d
+
+
+def _finite_fraction(value: object) -> None:
+    where = "sensors.wheel_radius_error_frac"
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ConfigError(where, f"must be a finite number, got {value!r}",
+                          "write a plain number")
+    if not -0.5 < value < 0.5:
+        raise ConfigError(where, f"must be within (-0.5, 0.5), got {value!r}",
+                          "give a relative error, e.g. 0.01 for 1 %")
 
 
 def _windows(value: object) -> tuple[tuple[float, float], ...]:

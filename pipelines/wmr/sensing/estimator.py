@@ -82,7 +82,8 @@ class Sensing:
         cfg.check(period_s)
         self.cfg = cfg
         self._h = period_s
-        self._r = params.r
+        # the estimator's wheel radius: the odometry's scale error, if any
+        self._r = params.r * (1.0 + cfg.wheel_radius_error_frac)
         self._half_track = params.L
         rngs = generators(cfg.seed, run_name)
         self.gps = Gps(cfg, period_s, rngs)
