@@ -122,6 +122,10 @@ class AtomicFile:
         What the file is, for messages (``"log"``).
     buffer_bytes
         Write buffer, bytes; :meth:`flush` hands it to the OS.
+    durable
+        fsync the file (and its folder) at :meth:`commit`, so that the rename survives a power
+        loss, not only a killed process.  Off where a later check redoes what a power loss
+        would damage (a batch's resume checks every log).
 
     Raises
     ------
@@ -130,8 +134,9 @@ class AtomicFile:
     """
 
     def __init__(self, path: str | os.PathLike[str], what: str = "file",
-                 buffer_bytes: int = 1 << 20) -> None:
+                 buffer_bytes: int = 1 << 20, durable: bool = True) -> None:
         self.path = Path(path)
+        self.durable = durable
         self.partial = partial_path(self.path)
         self._what = what
         for _ in range(10):
@@ -180,7 +185,7 @@ class AtomicFile:
             self._file.flush()
         except OSError as exc:
             raise storage_error(exc, self.partial) from exc
-        if _start_writeback is not None:
+        if self.durable and _start_writeback is not None:
             _start_writeback(self._fd)
 
     def commit(self) -> None:
@@ -189,14 +194,16 @@ class AtomicFile:
             raise LogError(f"{self.path}: {self._what} committed after close")
         try:
             self.flush()
-            try:
-                os.fsync(self._fd)
-            except OSError as exc:
-                raise storage_error(exc, self.partial) from exc
+            if self.durable:
+                try:
+                    os.fsync(self._fd)
+                except OSError as exc:
+                    raise storage_error(exc, self.partial) from exc
             os.replace(self.partial, self.path)  # still locked: nobody can reopen it meanwhile
         finally:
             self.abandon()
-        fsync_dir(self.path.parent)
+        if self.durable:
+            fsync_dir(self.path.parent)
 
     def abandon(self) -> None:
         """Stop writing; what was flushed stays in ``.partial``.  Idempotent."""

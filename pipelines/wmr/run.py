@@ -71,13 +71,15 @@ def _attachments(plant: FmuPlant, scenario_file: Path | None) -> dict[str, tuple
 def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant, *,
                scenario_file: Path | None = None,
                progress: Progress | None = None,
-               also: BlockSink | None = None) -> dict[str, Any]:
+               also: BlockSink | None = None, durable: bool = True) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
 
-    The log is written as the run goes: a run killed midway leaves a log readable up to its
-    last chunk (without a ``result`` record).  A run that fails is logged with status
-    ``failed`` and its error, and the file is closed and readable.  ``also`` receives the same
-    blocks as the log (the live Rerun view of ``wmr run --view``).
+    The log is written as the run goes, to ``mcap_path + ".partial"``, and renamed into place
+    when finished (fsynced first unless ``durable`` is false): a run killed midway leaves the
+    previous log whole and its own readable up to its last chunk in the ``.partial`` file
+    (without a ``result`` record).  A run that fails is logged with status ``failed`` and its
+    error, and the file is closed and readable.  ``also`` receives the same blocks as the log
+    (the live Rerun view of ``wmr run --view``).
 
     Returns
     -------
@@ -93,7 +95,7 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     path.parent.mkdir(parents=True, exist_ok=True)
     goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
     with RunLogWriter(path, run=run_metadata(spec, plant), goal=goal,
-                      attachments=_attachments(plant, scenario_file)) as log:
+                      attachments=_attachments(plant, scenario_file), durable=durable) as log:
         sink: BlockSink = log
         if also is not None:
             from wmr.replay import TeeSink

@@ -124,8 +124,9 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
                 raised.append(True)
                 raise WallClockLimit(wall_limit_message(limit))
 
+    # no fsync per log: the resume checks every log, and redoes one a power loss damaged
     record = run_to_log(task.spec, mcap_path, plant, scenario_file=attachment,
-                        progress=progress)
+                        progress=progress, durable=False)
     if limit is not None and record["status"] == "failed" \
             and str(record["message"]).startswith(WallClockLimit.__name__):
         record["status"] = "timeout"

@@ -401,6 +401,9 @@ class RunLogWriter:
         Chunk compression, ``"lz4"`` (default, fastest), ``"zstd"`` or ``""``.
     chunk_period_ns
         Simulation time per chunk, ns (default 1 s).
+    durable
+        fsync the finished log before its rename (default); off, a power loss (not a kill)
+        may damage a finished log.
 
     Raises
     ------
@@ -420,12 +423,14 @@ class RunLogWriter:
         attachments: Mapping[str, tuple[str, bytes]] | None = None,
         compression: Compression = "lz4",
         chunk_period_ns: int = 1_000_000_000,
+        durable: bool = True,
     ) -> None:
         self.path = os.fspath(path)
         if chunk_period_ns <= 0:
             raise LogError(f"chunk_period_ns must be positive, got {chunk_period_ns}")
         run_record = _str_dict("run", run)
-        stream = AtomicFile(self.path, "log")  # committed by McapFile.finish, or abandoned
+        # committed by McapFile.finish, or abandoned
+        stream = AtomicFile(self.path, "log", durable=durable)
         self._period = int(chunk_period_ns)
         self._pending_t: list[NDArray[np.int64]] = []
         self._pending_x: list[NDArray[np.float64]] = []
