@@ -27,6 +27,7 @@ from mcap.reader import NonSeekingReader, make_reader
 
 from wmr.batch import load_batch, parse_batch, run_batch
 from wmr.batch.journal import Journal
+from wmr.batch.local import DIED_TWICE
 from wmr.cli import main
 from wmr.durable import partial_path, write_all
 from wmr.errors import ConfigError, DiskFullError, FmuError
@@ -434,5 +435,22 @@ def test_a_dead_worker_gets_its_run_once_more(tmp_path: Path, fmu3: Path) -> Non
                        faults={first: "crash-once", second: "crash"})
     rows = {r["run_id"]: r for r in pq.read_table(tmp_path / "o" / "summary.parquet").to_pylist()}
     assert rows[first]["status"] == "timeout", "the retry ran it"
-    assert rows[second]["status"] == "failed" and "twice" in rows[second]["message"]
+    assert rows[second]["status"] == "failed" and rows[second]["message"] == DIED_TWICE
     assert result.counts["failed"] == 1
+
+
+@pytest.mark.slow
+def test_dask_retries_a_dead_worker_s_run_like_the_local_pool(tmp_path: Path,
+                                                              fmu3: Path) -> None:
+    from distributed import Client, LocalCluster
+
+    batch = load_batch(_spec(tmp_path, SPEC.replace("max_time_s = 60.0", "max_time_s = 2.0")))
+    faults = {batch.runs[0].run_id: "crash-once", batch.runs[1].run_id: "crash"}
+    run_batch(batch, tmp_path / "local", workers=1, fmu_path=fmu3, progress=False,
+              faults=faults)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        run_batch(batch, tmp_path / "dask", client=client, fmu_path=fmu3, progress=False,
+                  faults=faults)
+    local, dask = ((tmp_path / d / "summary.csv").read_bytes() for d in ("local", "dask"))
+    assert dask == local, "the same summary whichever executor ran it"

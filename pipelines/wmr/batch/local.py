@@ -65,6 +65,10 @@ class Outcome:
     worker: str = ""
 
 
+#: Message of a run whose worker process died on it twice (the same on every executor).
+DIED_TWICE = "the worker process died during the run, and again when it was retried"
+
+
 def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
     """The result record of a run that produced none (killed, or its worker died)."""
     return {"name": run_id, "status": status, "message": message,
@@ -279,10 +283,9 @@ class LocalPool:
                         retried.add(task.run_id)
                         pending.appendleft(task)
                         continue
-                    yield Outcome(task.run_id, made_up_record(
-                        task.run_id, "failed",
-                        f"the worker process died during the run, twice (exit code {code})"),
-                        wall, killed=True, worker=str(slot.proc.pid))
+                    yield Outcome(task.run_id, made_up_record(task.run_id, "failed", DIED_TWICE),
+                                  wall, killed=True,
+                                  worker=f"{slot.proc.pid} (died, exit code {code})")
                 if self.hard_limit_s is not None:
                     now = time.monotonic()
                     for i, slot in enumerate(slots):
@@ -302,4 +305,4 @@ class LocalPool:
                 self._stop(slot, kill=slot.task is not None)
 
 
-__all__ = ["LocalPool", "Outcome", "made_up_record"]
+__all__ = ["DIED_TWICE", "LocalPool", "Outcome", "made_up_record"]

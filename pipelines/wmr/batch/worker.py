@@ -104,7 +104,7 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
     if task.fault == "crash":
         os._exit(70)
     if task.fault == "crash-once":  # dies on the first attempt only (a marker beside the log)
-        marker = mcap_path.with_name(mcap_path.name + ".crashed")
+        marker = mcap_path.with_name(f"{task.run_id}.crashed")
         if not marker.exists():
             marker.touch()
             os._exit(70)
