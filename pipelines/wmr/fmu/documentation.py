@@ -41,7 +41,7 @@ ERRATA: tuple[tuple[str, str, str], ...] = (
     ("8, 16", "(v - l thetadot^2), l theta", "(vdot - l thetadot^2), l thetadot"),
     ("11, 13", "+l sin, mixed entries", "product of eq. 11 and eq. 3"),
     ("19", "L (tau_mr - tau_mr) / r (always 0)", "L (tau_r - tau_l) / r"),
-    ("24", "2 I_wm/r^2 in row 1, column 2",
+    ("24", "2 I_wm / r^2 in row 1, column 2",
      "diag(m + 2 I_wm/r^2, I_g + m l^2 + 2 L^2 I_wm / r^2)"),
 )
 
