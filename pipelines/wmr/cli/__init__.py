@@ -28,6 +28,8 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from wmr.cli import crosscheck
+
     parser = argparse.ArgumentParser(
         prog="wmr",
         description="Co-simulation and log analysis of a two-wheeled differential-drive robot.")
@@ -48,6 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("--force", action="store_true", help="rebuild even if nothing changed")
     build.add_argument("-v", "--verbose", action="store_true", help="say whether it rebuilt")
     build.set_defaults(handler=_cmd_fmu_build)
+    crosscheck.register(fmu_sub)
 
     for register in _extra_commands():
         register(sub)
