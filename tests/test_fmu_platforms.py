@@ -16,7 +16,7 @@ import pytest
 from fmpy import read_model_description
 
 from wmr.errors import BuildError
-from wmr.fmu.build import BuildResult, summarize
+from wmr.fmu.build import BuildResult, build_digest, build_fmus, summarize
 from wmr.fmu.platforms import (
     CFLAGS,
     PLATFORM_BY_NAME,
@@ -24,6 +24,7 @@ from wmr.fmu.platforms import (
     Compiler,
     check_binary,
     find_compiler,
+    host_platform,
     zig_compiler,
 )
 
@@ -188,13 +189,36 @@ def test_the_checks_catch_a_stray_export_a_wrong_architecture_and_a_new_glibc(
     assert any("needs GLIBC_2.29" in p for p in check_binary(new, PLATFORM_BY_NAME["x86_64-linux"]))
 
 
-def test_without_zig_gcc_builds_the_host_only() -> None:
+def test_the_digest_covers_the_compiler_and_the_platforms() -> None:
+    zig = _zig()
     if shutil.which("gcc") is None:
         pytest.skip("gcc is not installed")
-    gcc = find_compiler("gcc")
-    assert not gcc.cross and [p.name for p in gcc.platforms()] == ["x86_64-linux"]
+    everything = build_digest(zig, PLATFORMS)
+    assert everything == build_digest(zig, PLATFORMS)
+    assert everything != build_digest(zig, PLATFORMS[:1])
+    assert build_digest(find_compiler("gcc"), PLATFORMS[:1]) != build_digest(zig, PLATFORMS[:1])
+
+
+def test_without_zig_gcc_builds_the_host_platform(built: BuildResult, tmp_path: Path) -> None:
+    host = host_platform()
+    if shutil.which("gcc") is None or host is None or host.binary_format != "ELF":
+        pytest.skip("needs gcc on Linux")
     with pytest.raises(BuildError, match="not on PATH"):
         find_compiler("no-such-cc-wmr")
+    gcc = build_fmus(tmp_path, cc="gcc")  # validated by fmpy inside the build
+    assert gcc.platforms == (host.name,) and gcc.digest != built.digest
+    assert summarize(gcc.fmus[2]).platforms == (host.fmi2,)
+    assert summarize(gcc.fmus[3]).platforms == (host.name,)
+
+
+@pytest.mark.slow
+def test_a_forced_rebuild_elsewhere_gives_the_same_bytes(built: BuildResult,
+                                                         tmp_path: Path) -> None:
+    """Reproducible: other folders, other temporary paths, the same archives."""
+    again = build_fmus(tmp_path, force=True, validate=False)
+    assert again.digest == built.digest
+    for version, path in built.fmus.items():
+        assert again.fmus[version].read_bytes() == path.read_bytes(), version
 
 
 @pytest.mark.xfail(strict=True, reason="CasADi's generated model core marks its functions "

@@ -27,7 +27,15 @@ from pathlib import Path
 
 from wmr import __version__, paths
 from wmr.errors import BuildError
-from wmr.fmu.platforms import CFLAGS, PLATFORMS, Compiler, Platform, check_binary, find_compiler
+from wmr.fmu.platforms import (
+    CFLAGS,
+    GLIBC_FLOOR,
+    PLATFORMS,
+    Compiler,
+    Platform,
+    check_binary,
+    find_compiler,
+)
 
 FMI_VERSIONS = (2, 3)
 _STAMP = ".wmr-build.json"
@@ -134,7 +142,7 @@ def _compile(compiler: Compiler, target: Platform, sources: list[Path],
     if proc.stderr.strip():
         raise BuildError(f"the C sources must compile without warnings ({target.name}):\n"
                          f"{proc.stderr.strip()}")
-    problems = check_binary(output, target)
+    problems = check_binary(output, target, GLIBC_FLOOR if compiler.cross else None)
     if problems:
         raise BuildError("; ".join(problems))
 
