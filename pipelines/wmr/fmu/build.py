@@ -208,7 +208,7 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
 
 def _build(out: Path, digest: str, compiler: Compiler,
            targets: Sequence[Platform]) -> dict[int, Path]:
-    from wmr.fmu.codegen import MODEL_IDENTIFIER, write_model_core
+    from wmr.fmu.codegen import MODEL_IDENTIFIER, unity_source, write_model_core
     from wmr.fmu.documentation import index_html, license_files
     from wmr.fmu.flatten import flatten
     from wmr.fmu.modeldesc import (
@@ -226,15 +226,21 @@ def _build(out: Path, digest: str, compiler: Compiler,
     with tempfile.TemporaryDirectory(prefix="wmr-fmu-") as tmp:
         gen_dir = Path(tmp) / "generated"
         generated = write_model_core(model, token, gen_dir)
+        # One translation unit per FMI version includes all the others, so that only the fmi*
+        # entry points are global symbols (fmu/src/README.md).
+        unity: dict[int, Path] = {}
+        for v in FMI_VERSIONS:
+            unity[v] = Path(tmp) / f"fmi{v}" / f"{MODEL_IDENTIFIER}.c"
+            unity[v].parent.mkdir()
+            unity[v].write_text(unity_source(model, v))
         sources = {v: [p for p in hand if p.name != ("fmi3.c" if v == 2 else "fmi2.c")]
-                   + generated for v in FMI_VERSIONS}
+                   + generated + [unity[v]] for v in FMI_VERSIONS}
         # One job per FMI version and platform; FMI 2 has no folder name for aarch64.
         jobs = [(v, t, Path(tmp) / f"fmi{v}" / t.name / f"{MODEL_IDENTIFIER}{t.extension}")
                 for v in FMI_VERSIONS for t in targets if t.folder(v) is not None]
         include = [gen_dir, paths.fmu_src_dir(), headers]
         with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
-            futures = [pool.submit(_compile, compiler, t, [p for p in sources[v]
-                                                           if p.suffix == ".c"], include, lib)
+            futures = [pool.submit(_compile, compiler, t, [unity[v]], include, lib)
                        for v, t, lib in jobs]
             for future in futures:
                 future.result()
@@ -243,7 +249,7 @@ def _build(out: Path, digest: str, compiler: Compiler,
         if readme.exists():
             docs["documentation/README.md"] = readme.read_bytes()
         for version in FMI_VERSIONS:
-            c_names = [p.name for p in sources[version] if p.suffix == ".c"]
+            c_names = [unity[version].name]
             members = {f"sources/{p.name}": p.read_bytes() for p in sources[version]}
             members.update(docs)
             for v, t, lib in jobs:

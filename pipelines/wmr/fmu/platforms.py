@@ -27,11 +27,10 @@ GLIBC_FLOOR = (2, 17)
 MACOS_MIN = "11.0"
 #: Flags for every compiler and platform.  ``-g0`` and no absolute paths in the objects keep the
 #: binaries byte-identical between builds; ``-fvisibility=hidden`` leaves only what the FMI
-#: headers mark ``FMI2_Export``/``FMI3_Export`` visible.
-#: ``CASADI_SYMBOL_EXPORT`` is empty because CasADi's generated code marks its functions
-#: ``__declspec(dllexport)`` on Windows otherwise, and the FMU's API is the fmi* functions only.
-CFLAGS = ("-O2", "-g0", "-fvisibility=hidden", "-std=c99", "-Wall", "-Wextra",
-          "-DCASADI_SYMBOL_EXPORT=")
+#: headers mark ``FMI2_Export``/``FMI3_Export`` visible.  (CasADi's ``CASADI_SYMBOL_EXPORT``,
+#: ``__declspec(dllexport)`` on Windows, is made ``static`` by the generated model core itself:
+#: see :func:`wmr.fmu.codegen.model_source`.)
+CFLAGS = ("-O2", "-g0", "-fvisibility=hidden", "-std=c99", "-Wall", "-Wextra")
 
 
 @dataclass(frozen=True)
