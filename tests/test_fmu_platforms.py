@@ -331,3 +331,18 @@ def test_win64_binary_under_wine_gives_the_linux64_result(
     rows = _run([wine, str(exe), "Z:" + str(library).replace("/", "\\"),
                  *_arguments(built.fmus[version])], env=env)
     assert _agree(rows, linux64[version]) < 1e-12
+
+
+def test_build_prints_paths_on_stdout_and_what_each_fmu_offers_on_stderr(
+        built: BuildResult, capsys: pytest.CaptureFixture[str]) -> None:
+    from wmr.cli import main
+
+    _zig()
+    assert main(["fmu", "build", "--out", str(built.fmus[2].parent)]) == 0
+    captured = capsys.readouterr()
+    assert [Path(p) for p in captured.out.splitlines()] == [built.fmus[2], built.fmus[3]]
+    err = captured.err.splitlines()
+    assert err[0].startswith("wmr_robot-fmi2.fmu: FMI 2.0, co-simulation")
+    assert err[0].split("binaries for ")[1].startswith("linux64 win64 darwin64 (")
+    assert err[1].startswith("wmr_robot-fmi3.fmu: FMI 3.0, co-simulation")
+    assert err[1].endswith("binaries for " + " ".join(ALL))
