@@ -440,3 +440,15 @@ def test_a_nan_wheel_speed_fails_the_run_with_the_fmu_error(built: BuildResult) 
         assert all(math.isfinite(s) for s in sig)
         with pytest.raises(FmuError, match=r"fmi3SetFloat64 returned Error .*omega_r = nan"):
             ctrl.step(0.0, 0.0, 0.0, math.nan, 0.0)
+
+
+def test_the_variables_table_of_docs_control_md_matches_the_code() -> None:
+    text = (Path(__file__).parent.parent / "docs" / "control.md").read_text()
+    section = text.split("## The controller FMU", 1)[1].split("\n## ", 1)[0]
+    rows = [line.split("|")[1:-1] for line in section.splitlines()
+            if line.startswith("| `")]
+    documented = [(c[0].strip().strip("`"), c[1].strip(), c[2].strip(), c[3].strip())
+                  for c in rows]
+    expected = [(v.name, v.kind, v.unit or "1", "" if v.kind == "output" else repr(v.start))
+                for v in controller_model().variables]
+    assert documented == expected
