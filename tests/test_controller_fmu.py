@@ -452,3 +452,26 @@ def test_the_variables_table_of_docs_control_md_matches_the_code() -> None:
     expected = [(v.name, v.kind, v.unit or "1", "" if v.kind == "output" else repr(v.start))
                 for v in controller_model().variables]
     assert documented == expected
+
+
+def test_a_batch_with_the_controller_fmu_key_logs_the_python_paths(tmp_path: Path,
+                                                                   built: BuildResult) -> None:
+    from wmr.batch import load_batch, run_batch
+
+    spec = ('name = "b"\nstart = [0.0, 0.0, 0.0]\ngoal = [1.5, 0.5, 20.0]\n{key}'
+            '[grid]\ngoal = [[1.5, 0.5, 20.0], [-1.0, 1.0, 90.0]]\n')
+    logs = {}
+    for label, key in (("py", ""), ("fmu", "controller_fmu = true\n")):
+        path = tmp_path / f"{label}.toml"
+        path.write_text(spec.format(key=key))
+        batch = load_batch(path)
+        out = tmp_path / label
+        result = run_batch(batch, out, workers=1, fmu_path=built.fmus[3], progress=False)
+        assert result.counts["converged"] == 2 == result.total
+        logs[label] = [read_run(out / "runs" / f"{r.run_id}.mcap") for r in batch.runs]
+    for ref, got in zip(logs["py"], logs["fmu"], strict=True):
+        assert got.metadata["run"]["controller_fmu_file"] == "wmr_controller-fmi3.fmu"
+        assert ref.n_steps == got.n_steps
+        for name in SIGNALS:
+            np.testing.assert_allclose(got.signals[name], ref.signals[name], rtol=0,
+                                       atol=1e-9, err_msg=name)
