@@ -475,3 +475,51 @@ def test_a_batch_with_the_controller_fmu_key_logs_the_python_paths(tmp_path: Pat
         for name in SIGNALS:
             np.testing.assert_allclose(got.signals[name], ref.signals[name], rtol=0,
                                        atol=1e-9, err_msg=name)
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_outputs_are_the_sample_of_the_current_state_and_inputs(built: BuildResult,
+                                                                version: int) -> None:
+    """After doStep the outputs are g(z_next, u) even when the master sets no new input, and
+    an FMU state restores the controller's discrete state."""
+    from fmpy import extract, instantiate_fmu
+
+    path = built.controllers[version]
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    outs = [vr[n] for n in SIGNAL_OUTPUTS]
+    ins = [vr[n] for n in INPUTS]
+    u1 = [19.8, 9.9, 0.2, 0.0, 0.0, 1.0, 0.8]  # near the goal: no saturation
+    u2 = [19.81, 9.9, 0.21, 0.0, 0.0, 1.1, 0.9]
+    unzipdir = extract(str(path))
+    fmu = instantiate_fmu(unzipdir, md, fmi_type="CoSimulation")
+    get = fmu.getReal if version == 2 else fmu.getFloat64
+    put = fmu.setReal if version == 2 else fmu.setFloat64
+    try:
+        if version == 2:
+            fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        put(ins, u1)
+        y0 = get(outs)
+        fmu.doStep(0.0, 0.01)
+        state = fmu.getFMUstate() if version == 2 else fmu.getFMUState()
+        y1 = get(outs)  # no input set since the step
+        fmu.doStep(0.01, 0.01)
+        put(ins, u2)
+        y2 = get(outs)
+        (fmu.setFMUstate if version == 2 else fmu.setFMUState)(state)
+        y1_again = get(outs)
+    finally:
+        fmu.freeInstance()
+        shutil.rmtree(unzipdir, ignore_errors=True)
+    spec = controller_model()
+    defaults = {v.name: v.start for v in spec.parameters}
+    ctrl = Controller(Pose(defaults["goal.x_m"], defaults["goal.y_m"],
+                           math.radians(defaults["goal.heading_deg"])), Gains(), Limits(),
+                      RobotParams(), defaults["control_period_s"], defaults["stop_radius_m"])
+    for u, y in ((u1, y0), (u1, y1), (u2, y2)):
+        x, yy, theta, _, _, w_r, w_l = u
+        assert ctrl.step(x, yy, theta, w_r, w_l) == pytest.approx(y, abs=1e-12)
+    assert y1_again == y1
+    assert y1 != y0  # the integrals moved: the second sample differs from the first
