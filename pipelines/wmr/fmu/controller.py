@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Final
 
 from wmr.control.stabiliser import Gains, Limits
+from wmr.errors import BuildError
 from wmr.fmu.codegen import sizes_header, variables_source
 from wmr.fmu.flatten import Variable
 from wmr.plant import RobotParams
@@ -196,7 +197,11 @@ def controller_sources() -> list[Path]:
     """The hand-written C of the controller core."""
     from wmr import paths
 
-    return sorted((paths.fmu_src_dir() / "controller").glob("*.c"))
+    sources = sorted((paths.fmu_src_dir() / "controller").glob("*.c"))
+    if not sources:
+        raise BuildError(f"{paths.fmu_src_dir() / 'controller'} has no C sources of the "
+                         "controller; restore fmu/src/controller/controller.c")
+    return sources
 
 
 def write_controller_core(model: ControllerModel, token: str, out_dir: Path) -> list[Path]:
