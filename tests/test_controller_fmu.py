@@ -523,3 +523,22 @@ def test_outputs_are_the_sample_of_the_current_state_and_inputs(built: BuildResu
         assert ctrl.step(x, yy, theta, w_r, w_l) == pytest.approx(y, abs=1e-12)
     assert y1_again == y1
     assert y1 != y0  # the integrals moved: the second sample differs from the first
+
+
+def test_run_ids_of_python_runs_do_not_move_and_fmu_runs_get_their_own() -> None:
+    """A batch folder written before the controller_fmu key resumes without rerunning."""
+    import hashlib
+    import json
+    from dataclasses import asdict, replace
+
+    from wmr.batch.spec import spec_digest
+
+    spec = load_scenario("fig11").runs[0]
+    fields_before = asdict(spec)
+    del fields_before["controller_fmu"]
+    text = json.dumps({k: repr(v) if isinstance(v, float) else
+                       ({kk: repr(vv) if isinstance(vv, float) else vv for kk, vv in v.items()}
+                        if isinstance(v, dict) else v) for k, v in fields_before.items()},
+                      sort_keys=True, separators=(",", ":"))
+    assert spec_digest(spec) == hashlib.sha256(text.encode()).hexdigest()
+    assert spec_digest(replace(spec, controller_fmu="")) != spec_digest(spec)
