@@ -542,3 +542,30 @@ def test_run_ids_of_python_runs_do_not_move_and_fmu_runs_get_their_own() -> None
                       sort_keys=True, separators=(",", ":"))
     assert spec_digest(spec) == hashlib.sha256(text.encode()).hexdigest()
     assert spec_digest(replace(spec, controller_fmu="")) != spec_digest(spec)
+
+
+def test_the_convergence_test_refuses_a_tolerance_the_fmu_was_not_given(
+        built: BuildResult) -> None:
+    spec = load_scenario("fig11").runs[0]
+    with FmuController(built.controllers[2]) as ctrl:
+        ctrl.configure(spec)
+        assert ctrl.stabiliser.converged(0.0, 0.0, 0.0, 0.0, 0.0,
+                                         spec.heading_tolerance_rad) is False
+        with pytest.raises(ConfigError, match="heading_tolerance_deg"):
+            ctrl.stabiliser.converged(0.0, 0.0, 0.0, 0.0, 0.0, 2 * spec.heading_tolerance_rad)
+
+
+def test_a_robot_fmu_or_a_peer_controller_is_refused_in_one_line(
+        tmp_path: Path, built: BuildResult, capsys: pytest.CaptureFixture[str]) -> None:
+    from dataclasses import replace
+
+    with pytest.raises(FmuError, match=r"not a controller FMU .*wrong: x \(output\)"):
+        FmuController(built.fmus[3])
+    code = main(["run", "--controller-fmu", str(built.fmus[3]),
+                 "--out", str(tmp_path / "x.mcap")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "not a controller FMU" in err[0]
+    spec = replace(load_scenario("fig11").runs[0], controller="astolfi")
+    with FmuController(built.controllers[3]) as ctrl, \
+            pytest.raises(ConfigError, match=r"controller_fmu.*astolfi"):
+        ctrl.configure(spec)
