@@ -28,7 +28,7 @@ from wmr.cli import main
 from wmr.closedloop import run_closed_loop
 from wmr.control import ALIGN, Controller, Gains, Limits
 from wmr.errors import ConfigError, FmuError
-from wmr.fmu.build import CFLAGS, BuildResult
+from wmr.fmu.build import BuildResult
 from wmr.fmu.controller import (
     INPUTS,
     SIGNAL_OUTPUTS,
@@ -39,6 +39,7 @@ from wmr.fmu.controller import (
 )
 from wmr.fmu.fmu_controller import FmuController
 from wmr.fmu.plant import FmuPlant
+from wmr.fmu.platforms import CFLAGS
 from wmr.mcaplog import read_run
 from wmr.plant import Pose, RobotParams
 from wmr.scenario import RunSpec, load_scenario
@@ -72,7 +73,7 @@ def harness(tmp_path_factory: pytest.TempPathFactory) -> ctypes.CDLL:
     write_controller_core(controller_model(), "{test}", tmp)
     (tmp / "harness.c").write_text(_HARNESS)
     lib = tmp / "harness.so"
-    cmd = ["gcc", *CFLAGS, f"-I{tmp}", f"-I{paths.fmu_src_dir()}",
+    cmd = ["gcc", "-fPIC", "-shared", *CFLAGS, f"-I{tmp}", f"-I{paths.fmu_src_dir()}",
            *map(str, controller_sources()), str(tmp / "harness.c"), "-o", str(lib), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     assert proc.returncode == 0 and not proc.stderr.strip(), proc.stderr
