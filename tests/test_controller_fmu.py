@@ -532,15 +532,12 @@ def test_run_ids_of_python_runs_do_not_move_and_fmu_runs_get_their_own() -> None
     import json
     from dataclasses import asdict, replace
 
-    from wmr.batch.spec import spec_digest
+    from wmr.batch.spec import _canonical, spec_digest
 
     spec = load_scenario("fig11").runs[0]
-    fields_before = asdict(spec)
-    del fields_before["controller_fmu"]
-    text = json.dumps({k: repr(v) if isinstance(v, float) else
-                       ({kk: repr(vv) if isinstance(vv, float) else vv for kk, vv in v.items()}
-                        if isinstance(v, dict) else v) for k, v in fields_before.items()},
-                      sort_keys=True, separators=(",", ":"))
+    before = asdict(spec)
+    del before["controller_fmu"], before["sensors"]  # the fields of a run before either key
+    text = json.dumps(_canonical(before), sort_keys=True, separators=(",", ":"))
     assert spec_digest(spec) == hashlib.sha256(text.encode()).hexdigest()
     assert spec_digest(replace(spec, controller_fmu="")) != spec_digest(spec)
 
@@ -570,3 +567,16 @@ def test_a_robot_fmu_or_a_peer_controller_is_refused_in_one_line(
     with FmuController(built.controllers[3]) as ctrl, \
             pytest.raises(ConfigError, match=r"controller_fmu.*astolfi"):
         ctrl.configure(spec)
+
+
+def test_with_sensors_the_controller_fmu_gets_the_estimate_and_logs_the_same(
+        tmp_path: Path, built: BuildResult, capsys: pytest.CaptureFixture[str]) -> None:
+    """The master feeds either controller the EKF's estimate: same rows with sensors on."""
+    py, fmu = tmp_path / "py.mcap", tmp_path / "fmu.mcap"
+    assert main(["run", "--sensors", "gps", "--out", str(py)]) == 0
+    assert main(["run", "--sensors", "gps", "--controller-fmu", "--out", str(fmu)]) == 0
+    ref, got = read_run(py), read_run(fmu)
+    assert ref.n_steps == got.n_steps
+    for name in SIGNALS:
+        np.testing.assert_allclose(got.signals[name], ref.signals[name], rtol=0, atol=1e-9,
+                                   err_msg=name)
