@@ -105,12 +105,14 @@ int model_jacobian(const double x[MODEL_NX], const double u[MODEL_NU],
 
 #if MODEL_SAMPLED
 /* The sample period h (s), the only communication step size doStep accepts. */
-WMR_INTERNAL double model_sample_period(const double p[MODEL_NP]);
+WMR_INTERNAL
+double model_sample_period(const double p[MODEL_NP]);
 
 /* z_next: the discrete state after the sample at the current communication
  * point with inputs u.  Returns 0 on success. */
-WMR_INTERNAL int model_update(const double z[MODEL_NX], const double u[MODEL_NU],
-                              const double p[MODEL_NP], double z_next[MODEL_NX]);
+WMR_INTERNAL
+int model_update(const double z[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
+                 double z_next[MODEL_NX]);
 #endif
 
 #endif

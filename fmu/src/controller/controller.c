@@ -205,33 +205,40 @@ static void sample(const double z[MODEL_NX], const double u[MODEL_NU], const dou
 
 /* ---- the model.h contract ---- */
 
-WMR_INTERNAL int model_initial_state(const double p[MODEL_NP], double x[MODEL_NX]) {
+WMR_INTERNAL
+int model_initial_state(const double p[MODEL_NP], double x[MODEL_NX]) {
     int i;
     (void)p;
     for (i = 0; i < MODEL_NX; i++) x[i] = 0.0; /* PointStabiliser.reset, WheelServo.reset */
     return 0;
 }
 
-WMR_INTERNAL int model_derivatives(const double x[MODEL_NX], const double u[MODEL_NU],
-                      const double p[MODEL_NP], double dx[MODEL_NX]) {
+WMR_INTERNAL
+int model_derivatives(const double x[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
+                      double dx[MODEL_NX]) {
     int i;
     (void)x; (void)u; (void)p;
     for (i = 0; i < MODEL_NX; i++) dx[i] = 0.0; /* discrete states hold between samples */
     return 0;
 }
 
-WMR_INTERNAL int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
+WMR_INTERNAL
+int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
                   double y[MODEL_NY]) {
     double zn[MODEL_NX];
     sample(x, u, p, y, zn);
     return 0;
 }
 
-WMR_INTERNAL int model_update(const double z[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
+WMR_INTERNAL
+int model_update(const double z[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
                  double z_next[MODEL_NX]) {
     double y[MODEL_NY];
     sample(z, u, p, y, z_next);
     return 0;
 }
 
-WMR_INTERNAL double model_sample_period(const double p[MODEL_NP]) { return p[P_control_period_s]; }
+WMR_INTERNAL
+double model_sample_period(const double p[MODEL_NP]) {
+    return p[P_control_period_s];
+}
