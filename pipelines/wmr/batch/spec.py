@@ -433,8 +433,10 @@ def _canonical(value: Any) -> Any:
 def spec_digest(spec: RunSpec) -> str:
     """SHA-256 of a run's complete inputs (floats by ``repr``: bit-exact)."""
     d = asdict(spec)
-    if d["sensors"] is None:  # runs without sensors keep the ids they had before sensors
-        del d["sensors"]
+    # runs without sensors or a controller FMU keep the ids they had before those keys
+    for key in ("sensors", "controller_fmu"):
+        if d[key] is None:
+            del d[key]
     text = json.dumps(_canonical(d), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 

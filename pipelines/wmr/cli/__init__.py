@@ -18,9 +18,10 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
     result = build_fmus(args.out, force=args.force)
     # Standard output stays one path a line (scripts read it); what each FMU offers goes to
     # standard error.
-    for version in sorted(result.fmus):
-        print(result.fmus[version])
-        print(summarize(result.fmus[version]).line(), file=sys.stderr)
+    for fmu in [result.fmus[v] for v in sorted(result.fmus)] + \
+            [result.controllers[v] for v in sorted(result.controllers)]:
+        print(fmu)
+        print(summarize(fmu).line(), file=sys.stderr)
     if args.verbose:
         state = "reused" if result.reused else "built"
         print(f"{state}: digest {result.digest[:16]}", file=sys.stderr)

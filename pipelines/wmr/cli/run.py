@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -62,7 +63,7 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.fmu.plant import FmuPlant
-    from wmr.run import default_fmu, result_json, run_to_log
+    from wmr.run import default_controller_fmu, default_fmu, result_json, run_to_log
     from wmr.scenario import load_scenario, with_overrides
 
     scenario = load_scenario(args.scenario)
@@ -96,16 +97,32 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if out.suffix != ".mcap":
         raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
     fmu_path = Path(args.fmu) if args.fmu else default_fmu(args.fmi)
+    ctrl_choice = args.controller_fmu if args.controller_fmu is not None else spec.controller_fmu
+    ctrl_path = None
+    if ctrl_choice is not None:
+        if spec.controller != "pi":
+            raise ConfigError("--controller-fmu", f"the controller FMU is the PI stabiliser, "
+                              f"but the run uses controller = {spec.controller!r}",
+                              "drop --controller-fmu or run the pi controller")
+        ctrl_path = Path(ctrl_choice) if ctrl_choice else default_controller_fmu(args.fmi)
+        if not ctrl_path.is_file():
+            raise ConfigError("--controller-fmu", f"no such file: {ctrl_path}",
+                              "give a controller .fmu, or no FILE for the built one")
     progress, finish = _progress_bar(spec.name, args.json)
     live = None
     if args.view:
         from wmr.replay import live_view_sink
 
         live = live_view_sink(spec.name, spec.goal, out.with_suffix(".rrd"))
-    with FmuPlant(fmu_path) as plant:
+    with FmuPlant(fmu_path) as plant, ExitStack() as stack:
+        ctrl = None
+        if ctrl_path is not None:
+            from wmr.fmu.fmu_controller import FmuController
+
+            ctrl = stack.enter_context(FmuController(ctrl_path))
         try:
             record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress,
-                                also=live)
+                                also=live, controller_fmu=ctrl)
         finally:
             finish()
             if live is not None:
@@ -155,6 +172,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="scenario name (fig9, fig10, fig11) or TOML file (default fig11)")
     p.add_argument("--run", metavar="NAME", help="the run of a multi-run scenario to simulate")
     add_run_overrides(p)
+    p.add_argument("--controller-fmu", nargs="?", const="", default=None, metavar="FILE.fmu",
+                   help="run the stabiliser in the controller FMU (C, FMI --fmi) instead of "
+                        "Python: the built one, or FILE.fmu (scenario key controller_fmu)")
     p.add_argument("--sensors", metavar="PRESET", choices=("gps", "raw", "off"),
                    help="measure instead of knowing: gps (2 cm fixes at 10 Hz, 50 ms late, "
                         "encoders, EKF), raw (the same fixes and a compass fed raw), off "
