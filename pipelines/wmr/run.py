@@ -34,8 +34,8 @@ def _jsonable(value: float | None) -> float | None:
 
 
 def run_metadata(spec: RunSpec, plant: FmuPlant) -> dict[str, object]:
-    """The ``run`` metadata record of a log (interface.md)."""
-    return {
+    """The ``run`` metadata record of a log (interface.md); ``fmu_map`` for a mapped FMU."""
+    meta: dict[str, object] = {
         "name": spec.name,
         "scenario": spec.scenario,
         "start": asdict(spec.start),
@@ -54,6 +54,10 @@ def run_metadata(spec: RunSpec, plant: FmuPlant) -> dict[str, object]:
         "fmi_version": plant.fmi_version,
         "software_version": f"wmr-cosim {__version__}",
     }
+    var_map = getattr(plant, "var_map", None)  # test doubles of a plant have none
+    if var_map is not None:
+        meta["fmu_map"] = var_map.as_dict()
+    return meta
 
 
 def _attachments(plant: FmuPlant, scenario_file: Path | None) -> dict[str, tuple[str, bytes]]:

@@ -58,10 +58,14 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
                         help="FMI version of the FMU to drive (default 3)")
     parser.add_argument("--fmu", metavar="FILE.fmu",
                         help="drive this FMU instead of the project's own build")
+    parser.add_argument("--map", metavar="FILE.toml",
+                        help="variable map of an FMU made by another tool: its names and "
+                             "units for ours (docs/fmu_map.md)")
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.fmu.plant import FmuPlant
+    from wmr.fmu.varmap import load_map
     from wmr.run import default_fmu, result_json, run_to_log
     from wmr.scenario import load_scenario, with_overrides
 
@@ -88,14 +92,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(spec.name)}.mcap"
     if out.suffix != ".mcap":
         raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
-    fmu_path = Path(args.fmu) if args.fmu else default_fmu(args.fmi)
+    fmu_path = Path(args.fmu) if args.fmu else scenario.fmu or default_fmu(args.fmi)
+    map_path = Path(args.map) if args.map else scenario.fmu_map
+    var_map = load_map(map_path) if map_path is not None else None
     progress, finish = _progress_bar(spec.name, args.json)
     live = None
     if args.view:
         from wmr.replay import live_view_sink
 
         live = live_view_sink(spec.name, spec.goal, out.with_suffix(".rrd"))
-    with FmuPlant(fmu_path) as plant:
+    with FmuPlant(fmu_path, var_map=var_map) as plant:
         try:
             record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress,
                                 also=live)
