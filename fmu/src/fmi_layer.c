@@ -617,7 +617,30 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
     }
 
     memcpy(x, d->x, sizeof(x));
+#if MODEL_SAMPLED
+    /* One sample per step: a master at another step size would silently run another
+     * (untuned) controller, so it gets an error instead (README.md). */
+    {
+        double period = model_sample_period(d->p);
+        if (fabs(h - period) > FL_TIME_TOL * (period > 1.0 ? period : 1.0)) {
+            fl_log(inst, FL_ERROR,
+                   "%s: communicationStepSize = %.17g s differs from the sample period %.17g s; "
+                   "step this sampled-data FMU at exactly its period (parameter %s)",
+                   fn, h, period, MODEL_SAMPLE_PERIOD_NAME);
+            return ret(inst, FL_ERROR);
+        }
+        if (!update_outputs(fn, inst)) return fail(inst); /* the sample's outputs come first */
+        memcpy(y, d->y, sizeof(y));
+        st = model_update(d->x, d->u, d->p, x) == 0 ? SOLVER_OK : SOLVER_MODEL_ERROR;
+        snprintf(msg, sizeof(msg), "model_update failed");
+        if (st == SOLVER_OK && find_nonfinite(x, MODEL_NX) >= 0) {
+            st = SOLVER_NONFINITE;
+            snprintf(msg, sizeof(msg), "model_update gave a non-finite discrete state");
+        }
+    }
+#else
     st = solver_integrate(&d->solver, tc, t_end, x, d->u, d->p, msg, sizeof(msg));
+#endif
     if (st != SOLVER_OK) {
         fl_log(inst, FL_ERROR,
                "%s: integration from t = %.17g to %.17g failed (%s): %s; the last good state at "
@@ -625,6 +648,12 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
                fn, tc, t_end, solver_status_name(st), msg, d->time);
         return fail(inst);
     }
+#if MODEL_SAMPLED
+    /* the outputs hold the sample just taken (zero-order hold) until an input is set */
+    memcpy(d->x, x, sizeof(x));
+    memcpy(d->y, y, sizeof(y));
+    d->outputs_dirty = 0;
+#else
     if (!compute_outputs(fn, inst, x, y)) {
         fl_log(inst, FL_ERROR, "%s: the last good state at t = %.17g is kept", fn, d->time);
         return fail(inst);
@@ -632,6 +661,7 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
     memcpy(d->x, x, sizeof(x));
     memcpy(d->y, y, sizeof(y));
     d->outputs_dirty = 0;
+#endif
     d->time = t_end; /* set, never accumulated over internal steps */
     d->n_comm_steps++;
     if (last_successful_time) *last_successful_time = d->time;

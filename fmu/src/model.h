@@ -15,6 +15,17 @@
 
 #include "model_sizes.h" /* MODEL_NX, MODEL_NP, MODEL_NU, MODEL_NY, MODEL_NV, MODEL_IDENTIFIER_STR */
 
+/* A sampled-data model (the controller FMU) defines MODEL_SAMPLED 1 in
+ * model_sizes.h.  Its x[] holds discrete states z, constant between samples
+ * (model_derivatives returns zeros and is never called by the layer); the
+ * outputs y = model_outputs(z, u, p) are those of the sample at the current
+ * communication point, with direct feedthrough from u, and doStep commits
+ * z := model_update(z, u, p) for a step of exactly model_sample_period(p)
+ * (any other step size is refused, see README.md). */
+#ifndef MODEL_SAMPLED
+#define MODEL_SAMPLED 0
+#endif
+
 typedef enum {
     MODEL_VAR_TIME = 0,  /* the independent variable, value reference 0 */
     MODEL_VAR_PARAMETER, /* index into p[] */
@@ -50,5 +61,15 @@ int model_derivatives(const double x[MODEL_NX], const double u[MODEL_NU],
 /* y = g(x, u, p).  Returns 0 on success. */
 int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU],
                   const double p[MODEL_NP], double y[MODEL_NY]);
+
+#if MODEL_SAMPLED
+/* The sample period h (s), the only communication step size doStep accepts. */
+double model_sample_period(const double p[MODEL_NP]);
+
+/* z_next: the discrete state after the sample at the current communication
+ * point with inputs u.  Returns 0 on success. */
+int model_update(const double z[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
+                 double z_next[MODEL_NX]);
+#endif
 
 #endif

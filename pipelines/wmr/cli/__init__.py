@@ -18,6 +18,8 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
     result = build_fmus(args.out, force=args.force)
     for version in sorted(result.fmus):
         print(result.fmus[version])
+    for version in sorted(result.controllers):
+        print(result.controllers[version])
     if args.verbose:
         state = "reused" if result.reused else "built"
         print(f"{state}: digest {result.digest[:16]}", file=sys.stderr)

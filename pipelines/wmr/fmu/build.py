@@ -19,7 +19,7 @@ import tempfile
 import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from wmr import __version__, paths
@@ -40,10 +40,23 @@ class BuildResult:
     fmus: dict[int, Path]
     digest: str
     reused: bool
+    #: The controller FMUs (:mod:`wmr.fmu.controller`) by FMI version.
+    controllers: dict[int, Path] = field(default_factory=dict)
 
 
 def fmu_name(fmi_version: int) -> str:
     return f"wmr_robot-fmi{fmi_version}.fmu"
+
+
+def controller_fmu_name(fmi_version: int) -> str:
+    return f"wmr_controller-fmi{fmi_version}.fmu"
+
+
+def _products(out_dir: Path) -> dict[str, Path]:
+    """Every FMU of a build by stamp key: the robot's ``"2"``, the controller's ``"c2"``."""
+    fmus = {str(v): out_dir / fmu_name(v) for v in FMI_VERSIONS}
+    fmus.update({f"c{v}": out_dir / controller_fmu_name(v) for v in FMI_VERSIONS})
+    return fmus
 
 
 def _compiler_version(cc: str) -> str:
@@ -85,6 +98,9 @@ def build_digest(cc: str = "gcc") -> str:
     for path in _hand_written_sources():
         h.update(path.name.encode())
         h.update(path.read_bytes())
+    for path in sorted((paths.fmu_src_dir() / "controller").iterdir()):
+        h.update(f"controller/{path.name}".encode())
+        h.update(path.read_bytes())
     for module in sorted(Path(__file__).parent.glob("*.py")):
         h.update(module.name.encode())
         h.update(module.read_bytes())
@@ -105,9 +121,9 @@ def _locked(out_dir: Path) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
-def _reusable(out_dir: Path, digest: str) -> dict[int, Path] | None:
+def _reusable(out_dir: Path, digest: str) -> dict[str, Path] | None:
     stamp = out_dir / _STAMP
-    fmus = {v: out_dir / fmu_name(v) for v in FMI_VERSIONS}
+    fmus = _products(out_dir)
     if not stamp.exists() or not all(p.exists() for p in fmus.values()):
         return None
     try:
@@ -116,8 +132,8 @@ def _reusable(out_dir: Path, digest: str) -> dict[int, Path] | None:
         return None
     if recorded.get("digest") != digest:
         return None
-    for v, p in fmus.items():
-        if recorded.get("sha256", {}).get(str(v)) != hashlib.sha256(p.read_bytes()).hexdigest():
+    for key, p in fmus.items():
+        if recorded.get("sha256", {}).get(key) != hashlib.sha256(p.read_bytes()).hexdigest():
             return None
     return fmus
 
@@ -192,19 +208,29 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
         if not force:
             reused = _reusable(out, digest)
             if reused is not None:
-                return BuildResult(reused, digest, reused=True)
+                return _result(reused, digest, reused=True)
         fmus = _build(out, digest, cc)
+        controllers = _build(out, digest, cc, "controller")
         if validate:
             _validate(fmus)
+            _validate(controllers)
+        products = _products(out)
         stamp = {"digest": digest, "sha256": {
-            str(v): hashlib.sha256(p.read_bytes()).hexdigest() for v, p in fmus.items()}}
+            key: hashlib.sha256(p.read_bytes()).hexdigest() for key, p in products.items()}}
         (out / _STAMP).write_text(json.dumps(stamp, indent=1) + "\n")
-    return BuildResult(fmus, digest, reused=False)
+    return _result(products, digest, reused=False)
 
 
-def _build(out: Path, digest: str, cc: str) -> dict[int, Path]:
+def _result(products: dict[str, Path], digest: str, reused: bool) -> BuildResult:
+    return BuildResult({v: products[str(v)] for v in FMI_VERSIONS}, digest, reused,
+                       controllers={v: products[f"c{v}"] for v in FMI_VERSIONS})
+
+
+def _build(out: Path, digest: str, cc: str, product: str = "robot") -> dict[int, Path]:
+    """Build one product, ``robot`` or ``controller``, for every FMI version."""
     from wmr.fmu.codegen import MODEL_IDENTIFIER, write_model_core
-    from wmr.fmu.flatten import flatten
+    from wmr.fmu.controller import ControllerModel
+    from wmr.fmu.flatten import FlatModel
     from wmr.fmu.modeldesc import (
         fmi2_model_description,
         fmi3_build_description,
@@ -212,35 +238,55 @@ def _build(out: Path, digest: str, cc: str) -> dict[int, Path]:
         token_from_digest,
     )
 
-    model = flatten(paths.modelica_dir())
-    token = token_from_digest(digest)
+    model: FlatModel | ControllerModel
+    extra: list[Path] = []  # hand-written C of the product's model core
+    if product == "robot":
+        from wmr.fmu.flatten import flatten
+
+        model = flatten(paths.modelica_dir())
+        identifier, name = MODEL_IDENTIFIER, fmu_name
+        token = token_from_digest(digest)
+    else:
+        from wmr.fmu.controller import controller_model, controller_sources
+
+        model = controller_model()
+        identifier, name, extra = model.model_identifier, controller_fmu_name, \
+            controller_sources()
+        # its own token: an importer must not pair the robot's description with this binary
+        token = token_from_digest(hashlib.sha256(f"{identifier}:{digest}".encode()).hexdigest())
     headers = _fmi_headers()
-    hand = _hand_written_sources()
+    hand = _hand_written_sources() + extra
     result: dict[int, Path] = {}
     with tempfile.TemporaryDirectory(prefix="wmr-fmu-") as tmp:
         gen_dir = Path(tmp) / "generated"
-        generated = write_model_core(model, token, gen_dir)
+        if isinstance(model, ControllerModel):
+            from wmr.fmu.controller import write_controller_core
+
+            generated = write_controller_core(model, token, gen_dir)
+        else:
+            generated = write_model_core(model, token, gen_dir)
         for version in FMI_VERSIONS:
             skip = "fmi3.c" if version == 2 else "fmi2.c"
             sources = [p for p in hand if p.name != skip] + generated
             c_files = [p for p in sources if p.suffix == ".c"]
-            library = Path(tmp) / f"fmi{version}" / f"{MODEL_IDENTIFIER}.so"
+            library = Path(tmp) / f"fmi{version}" / f"{identifier}.so"
             library.parent.mkdir()
             _compile(cc, c_files, [gen_dir, paths.fmu_src_dir(), headers], library)
             _check_exports(library)
             c_names = [p.name for p in c_files]
             members = {f"sources/{p.name}": p.read_bytes() for p in sources}
-            members[f"binaries/{_PLATFORM_DIR[version]}/{MODEL_IDENTIFIER}.so"] = \
+            members[f"binaries/{_PLATFORM_DIR[version]}/{identifier}.so"] = \
                 library.read_bytes()
             if version == 2:
                 members["modelDescription.xml"] = fmi2_model_description(model, token, c_names)
             else:
                 members["modelDescription.xml"] = fmi3_model_description(model, token)
-                members["sources/buildDescription.xml"] = fmi3_build_description(c_names)
+                members["sources/buildDescription.xml"] = fmi3_build_description(c_names,
+                                                                                  identifier)
             readme = paths.fmu_src_dir() / "README.md"
             if readme.exists():
                 members["documentation/README.md"] = readme.read_bytes()
-            target = out / fmu_name(version)
+            target = out / name(version)
             _write_zip(target, members)
             result[version] = target
     return result

@@ -10,13 +10,19 @@ import math
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from wmr import __version__
 from wmr.fmu.codegen import MODEL_IDENTIFIER
 from wmr.fmu.flatten import FlatModel, Variable
 
+if TYPE_CHECKING:
+    from wmr.fmu.controller import ControllerModel
+
+    Model = FlatModel | ControllerModel
+
 # SI base-unit exponents of every unit the Modelica source uses (FMI 2.0 section 2.2.2).
-_BASE_UNITS: dict[str, dict[str, int]] = {
+_BASE_UNITS: dict[str, dict[str, float]] = {
     "m": {"m": 1},
     "kg": {"kg": 1},
     "s": {"s": 1},
@@ -29,14 +35,28 @@ _BASE_UNITS: dict[str, dict[str, int]] = {
     "kg.m2": {"kg": 1, "m": 2},
     "N.m": {"kg": 1, "m": 2, "s": -2},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+    # the controller FMU's gains and its parameters in the scenario files' degrees
+    "1/s": {"s": -1},
+    "1/s2": {"s": -2},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "deg": {"rad": 1, "factor": math.pi / 180.0},
 }
+
+
+def _identifier(model: Model) -> str:
+    return getattr(model, "model_identifier", MODEL_IDENTIFIER)
+
+
+def _sampled(model: Model) -> bool:
+    """A sampled-data model (the controller): discrete outputs, one fixed step size."""
+    return getattr(model, "period_parameter", None) is not None
 
 
 def _fmt(value: float) -> str:
     return repr(float(value))
 
 
-def _units(model: FlatModel) -> ET.Element:
+def _units(model: Model) -> ET.Element:
     defs = ET.Element("UnitDefinitions")
     for unit in sorted({v.unit for v in model.variables if v.unit} | {"s"}):
         if unit not in _BASE_UNITS:
@@ -46,13 +66,13 @@ def _units(model: FlatModel) -> ET.Element:
     return defs
 
 
-def _causality(v: Variable) -> tuple[str, str, str | None]:
+def _causality(v: Variable, sampled: bool = False) -> tuple[str, str, str | None]:
     """(causality, variability, initial) of a variable."""
     if v.kind == "parameter":
         return "parameter", "tunable" if v.tunable else "fixed", "exact"
     if v.kind == "input":
         return "input", "continuous", None
-    return "output", "continuous", "calculated"
+    return "output", "discrete" if sampled else "continuous", "calculated"
 
 
 def _bounds(v: Variable) -> dict[str, str]:
@@ -79,19 +99,20 @@ def _log_categories() -> ET.Element:
     return cats
 
 
-def _experiment(model: FlatModel) -> ET.Element:
+def _experiment(model: Model) -> ET.Element:
     return ET.Element("DefaultExperiment", startTime=_fmt(model.start_time),
                       stopTime=_fmt(model.stop_time), stepSize=_fmt(model.step_size))
 
 
-def _root(fmi_version: str, model: FlatModel, token: str) -> ET.Element:
+def _root(fmi_version: str, model: Model, token: str) -> ET.Element:
     key = "guid" if fmi_version == "2.0" else "instantiationToken"
     attrs = {
         "fmiVersion": fmi_version,
         "modelName": model.name,
         key: token,
         "description": model.description,
-        "generationTool": f"wmr-cosim {__version__} (pymoca, CasADi)",
+        "generationTool": f"wmr-cosim {__version__} "
+                          f"({getattr(model, 'generated_by', 'pymoca, CasADi')})",
         "variableNamingConvention": "structured",
     }
     if fmi_version == "2.0":
@@ -104,12 +125,12 @@ def _to_bytes(root: ET.Element) -> bytes:
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
 
 
-def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str]) -> bytes:
+def fmi2_model_description(model: Model, token: str, sources: Sequence[str]) -> bytes:
     """``modelDescription.xml`` of the FMI 2.0 co-simulation FMU."""
     root = _root("2.0", model, token)
     cs = ET.SubElement(root, "CoSimulation", {
-        "modelIdentifier": MODEL_IDENTIFIER,
-        "canHandleVariableCommunicationStepSize": "true",
+        "modelIdentifier": _identifier(model),
+        "canHandleVariableCommunicationStepSize": "false" if _sampled(model) else "true",
         "canInterpolateInputs": "false",
         "canRunAsynchronuously": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false",
@@ -131,7 +152,7 @@ def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str])
     ET.SubElement(sv, "Real", unit="s")
     vrs = model.value_references
     for v in model.variables:
-        causality, variability, initial = _causality(v)
+        causality, variability, initial = _causality(v, _sampled(model))
         attrs = {"name": v.name, "valueReference": str(vrs[v.name]), "description": v.description,
                  "causality": causality, "variability": variability}
         if initial:
@@ -149,12 +170,12 @@ def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str])
     return _to_bytes(root)
 
 
-def fmi3_model_description(model: FlatModel, token: str) -> bytes:
+def fmi3_model_description(model: Model, token: str) -> bytes:
     """``modelDescription.xml`` of the FMI 3.0 co-simulation FMU."""
     root = _root("3.0", model, token)
-    ET.SubElement(root, "CoSimulation", {
-        "modelIdentifier": MODEL_IDENTIFIER,
-        "canHandleVariableCommunicationStepSize": "true",
+    cs = ET.SubElement(root, "CoSimulation", {
+        "modelIdentifier": _identifier(model),
+        "canHandleVariableCommunicationStepSize": "false" if _sampled(model) else "true",
         "canBeInstantiatedOnlyOncePerProcess": "false",
         "canGetAndSetFMUState": "true",
         "canSerializeFMUState": "true",
@@ -164,6 +185,8 @@ def fmi3_model_description(model: FlatModel, token: str) -> bytes:
         "providesIntermediateUpdate": "false",
         "canReturnEarlyAfterIntermediateUpdate": "false",
     })
+    if _sampled(model):
+        cs.set("fixedInternalStepSize", _fmt(model.step_size))
     root.append(_units(model))
     root.append(_log_categories())
     root.append(_experiment(model))
@@ -172,7 +195,7 @@ def fmi3_model_description(model: FlatModel, token: str) -> bytes:
                   variability="continuous", description="Simulation time", unit="s")
     vrs = model.value_references
     for v in model.variables:
-        causality, variability, initial = _causality(v)
+        causality, variability, initial = _causality(v, _sampled(model))
         attrs = {"name": v.name, "valueReference": str(vrs[v.name]), "description": v.description,
                  "causality": causality, "variability": variability}
         if initial:
@@ -186,10 +209,11 @@ def fmi3_model_description(model: FlatModel, token: str) -> bytes:
     return _to_bytes(root)
 
 
-def fmi3_build_description(sources: Sequence[str]) -> bytes:
+def fmi3_build_description(sources: Sequence[str],
+                           model_identifier: str = MODEL_IDENTIFIER) -> bytes:
     """``sources/buildDescription.xml`` of the FMI 3.0 FMU."""
     root = ET.Element("fmiBuildDescription", fmiVersion="3.0")
-    cfg = ET.SubElement(root, "BuildConfiguration", modelIdentifier=MODEL_IDENTIFIER)
+    cfg = ET.SubElement(root, "BuildConfiguration", modelIdentifier=model_identifier)
     fs = ET.SubElement(cfg, "SourceFileSet", language="C99")
     for name in sources:
         ET.SubElement(fs, "SourceFile", name=name)
