@@ -6,10 +6,13 @@ import argparse
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from wmr.errors import ConfigError
 from wmr.paths import safe_filename
+
+if TYPE_CHECKING:
+    from wmr.scenario import RunSpec, Scenario
 
 
 def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
@@ -63,18 +66,13 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
                              "units for ours (docs/fmu_map.md)")
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
-    from wmr.fmu.plant import FmuPlant
-    from wmr.fmu.varmap import load_map
-    from wmr.run import default_fmu, result_json, run_to_log
-    from wmr.scenario import load_scenario, with_overrides
-
-    scenario = load_scenario(args.scenario)
+def select_run(scenario: Scenario, name: str | None) -> RunSpec:
+    """The run ``name`` of ``scenario``, or its only run."""
     runs = list(scenario.runs)
-    if args.run is not None:
-        chosen = [r for r in runs if r.name == args.run]
+    if name is not None:
+        chosen = [r for r in runs if r.name == name]
         if not chosen:
-            raise ConfigError("--run", f"scenario {scenario.name} has no run {args.run!r}",
+            raise ConfigError("--run", f"scenario {scenario.name} has no run {name!r}",
                               "pick one of: " + ", ".join(r.name for r in runs))
         runs = chosen
     if len(runs) != 1:
@@ -83,12 +81,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
                           + ", ".join(r.name for r in runs[:6])
                           + (", ..." if len(runs) > 6 else "") + ") or run them all with "
                           "'wmr batch'")
+    return runs[0]
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from wmr.fmu.plant import FmuPlant
+    from wmr.fmu.varmap import load_map
+    from wmr.run import default_fmu, result_json, run_to_log
+    from wmr.scenario import load_scenario, with_overrides
+
+    scenario = load_scenario(args.scenario)
+    run = select_run(scenario, args.run)
     spec = with_overrides(
-        runs[0], start=args.start, goal=args.goal,
+        run, start=args.start, goal=args.goal,
         gains=_key_values(args.gain, "--gain"), limits=_key_values(args.limit, "--limit"),
         params=_key_values(args.param, "--param"), period_s=args.period,
         stop_radius_m=args.stop_radius, t_max_s=args.max_time,
-        name=_pose_name(runs[0].name, args.start, args.goal))
+        name=_pose_name(run.name, args.start, args.goal))
     out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(spec.name)}.mcap"
     if out.suffix != ".mcap":
         raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")

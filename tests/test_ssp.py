@@ -1,0 +1,229 @@
+"""``wmr ssp export`` / ``wmr ssp run``: the closed loop as an SSP 1.0 package, run by masters
+we did not write (libcosim through libcosimpy, fmpy's SSP simulator), against ``wmr run``.
+
+Every logged sample of the SSP runs must be within 5 mm and 0.2 deg of ``wmr run``'s path,
+after the master's measured lag (libcosim: 0 steps, fmpy: 1 step, see docs/ssp.md).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from wmr.cli import main
+from wmr.closedloop import run_closed_loop
+from wmr.fmu.build import BuildResult
+from wmr.fmu.plant import FmuPlant
+from wmr.mcaplog.reader import read_run
+from wmr.scenario import RunSpec, load_scenario
+from wmr.signals import COLUMN, SIGNALS
+from wmr.ssp.cosim import simulate_libcosim
+from wmr.ssp.export import controller_parameters, export_ssp, robot_parameters
+from wmr.ssp.package import fmpy_parameter_set, read_package
+
+POSITION_TOL_M = 5e-3
+HEADING_TOL_RAD = math.radians(0.2)
+CASES = [("fig11", None),
+         pytest.param("fig9", "fig9-thd-090", marks=pytest.mark.slow),
+         pytest.param("fig9", "fig9-thd+045", marks=pytest.mark.slow)]
+
+
+class _Rows:
+    def __init__(self) -> None:
+        self.blocks: list[npt.NDArray[np.float64]] = []
+
+    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
+        self.blocks.append(block.copy())
+
+
+def _spec(scenario: str, run: str | None) -> RunSpec:
+    return next(r for r in load_scenario(scenario).runs if run is None or r.name == run)
+
+
+def _wmr_run(spec: RunSpec, robot_fmu: Path) -> npt.NDArray[np.float64]:
+    """``wmr run``'s rows (the Python stabiliser on the robot FMU, our master)."""
+    rows = _Rows()
+    with FmuPlant(robot_fmu) as plant:
+        result = run_closed_loop(spec, plant, sink=rows)
+    assert result.status == "converged"
+    return np.vstack(rows.blocks)
+
+
+def _deviation(xy_th: npt.NDArray[np.float64], ref: npt.NDArray[np.float64], lag: int
+               ) -> tuple[float, float]:
+    """Worst position (m) and heading (rad) deviation of ``xy_th[k + lag]`` from ``ref[k]``."""
+    n = min(len(xy_th) - lag, len(ref))
+    a, b = xy_th[lag:lag + n], ref[:n]
+    return (float(np.hypot(a[:, 0] - b[:, 0], a[:, 1] - b[:, 1]).max()),
+            float(np.abs(a[:, 2] - b[:, 2]).max()))
+
+
+def _measured_lag(xy_th: npt.NDArray[np.float64], ref: npt.NDArray[np.float64]) -> int:
+    """The shift in steps (0, 1 or 2) that brings the path closest to ``wmr run``'s."""
+    return min(range(3), key=lambda lag: _deviation(xy_th, ref, lag)[0])
+
+
+@pytest.fixture(scope="session")
+def ssp_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("ssp")
+
+
+def _export(built: BuildResult, spec: RunSpec, folder: Path, fmi: int = 2) -> Path:
+    out = folder / f"{spec.name}-fmi{fmi}.ssp"
+    if not out.exists():
+        export_ssp(spec, out, built.fmus[fmi], built.controllers[fmi])
+    return out
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_the_package_validates_against_the_ssp_schemas(built: BuildResult, ssp_dir: Path,
+                                                       fmi: int) -> None:
+    from fmpy.ssp.ssd import get_connections, read_ssd
+
+    spec = _spec("fig9", "fig9-thd+045")
+    path = _export(built, spec, ssp_dir, fmi)
+    ssd = read_ssd(str(path), validate=True)  # SSD and both SSVs against the SSP 1.0 XSDs
+    names = {c.name: c for c in ssd.system.elements}
+    assert set(names) == {"robot", "controller"}
+    assert names["robot"].source == f"resources/wmr_robot-fmi{fmi}.fmu"
+    pairs = {(a.parent.name, a.name, b.parent.name, b.name)
+             for a, b in get_connections(ssd.system)}
+    measured = ("x", "y", "theta", "v", "omega", "omega_r", "omega_l")
+    assert pairs == {("robot", n, "controller", n) for n in measured} | \
+        {("controller", n, "robot", n) for n in ("tau_r", "tau_l")}
+    package = read_package(path)
+    assert package.components["robot"].parameters == robot_parameters(spec)
+    ctrl = package.components["controller"].parameters
+    assert ctrl["goal.heading_deg"] == pytest.approx(45.0, abs=1e-12)
+    assert ctrl == {k: v for k, v in controller_parameters(spec).items() if k in ctrl}
+    assert package.stop_time_s == spec.t_max_s and package.step_size_s == spec.period_s
+    with zipfile.ZipFile(path) as zf:
+        assert zf.read(f"resources/wmr_controller-fmi{fmi}.fmu") == \
+            built.controllers[fmi].read_bytes()
+
+
+def test_the_schema_check_is_real(built: BuildResult, ssp_dir: Path, tmp_path: Path) -> None:
+    """A package whose SSD breaks the schema is refused by the same validation."""
+    from fmpy.ssp.ssd import read_ssd
+
+    good = _export(built, _spec("fig11", None), ssp_dir)
+    bad = tmp_path / "bad.ssp"
+    with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "SystemStructure.ssd":
+                data = data.replace(b'kind="input"', b'kind="sideways"', 1)
+            dst.writestr(item, data)
+    with pytest.raises(Exception, match="kind"):
+        read_ssd(str(bad), validate=True)
+
+
+@pytest.mark.parametrize(("scenario", "run"), CASES)
+def test_libcosim_traces_wmr_run(built: BuildResult, ssp_dir: Path, scenario: str,
+                                 run: str | None) -> None:
+    spec = _spec(scenario, run)
+    ref = _wmr_run(spec, built.fmus[2])
+    result = simulate_libcosim(_export(built, spec, ssp_dir))
+    assert result.status == "converged"
+    path = result.block[:, [COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]]]
+    assert _measured_lag(path, ref) == 0
+    pos, head = _deviation(path, ref, 0)
+    assert pos <= POSITION_TOL_M and head <= HEADING_TOL_RAD, (pos, math.degrees(head))
+    assert abs(len(result.block) - len(ref)) <= 2  # converges within a step or two of wmr run
+    goal = spec.goal
+    assert math.hypot(path[-1, 0] - goal.x_m, path[-1, 1] - goal.y_m) <= spec.stop_radius_m
+
+
+@pytest.mark.parametrize(("scenario", "run"), CASES)
+def test_fmpy_simulate_ssp_traces_wmr_run_one_step_late(built: BuildResult, ssp_dir: Path,
+                                                         scenario: str, run: str | None) -> None:
+    """fmpy starts every connection at 0 and passes values after each step (Jacobi): the
+    robot gets each torque one step late, so its path is ``wmr run``'s one step later."""
+    from fmpy.ssp.simulation import simulate_ssp
+
+    spec = _spec(scenario, run)
+    ref = _wmr_run(spec, built.fmus[2])
+    path_ssp = _export(built, spec, ssp_dir)
+    t_end = len(ref) * spec.period_s + 0.1
+    out = simulate_ssp(str(path_ssp), stop_time=t_end, step_size=spec.period_s,
+                       parameter_set=fmpy_parameter_set(read_package(path_ssp)))
+    # fmpy's row k holds the values after its step from t_k: the robot at t_{k+1}
+    start = ref[:1, [0, 1, 2]]
+    path = np.vstack([start, np.column_stack([out["robot.x"], out["robot.y"],
+                                              out["robot.theta"]])])
+    assert _measured_lag(path, ref) == 1
+    pos, head = _deviation(path, ref, 1)
+    assert pos <= POSITION_TOL_M and head <= HEADING_TOL_RAD, (pos, math.degrees(head))
+    assert np.flatnonzero(out["controller.converged"] >= 0.5).size  # it reached the goal
+
+
+def test_wmr_ssp_run_logs_the_layout_of_wmr_run(built: BuildResult, ssp_dir: Path,
+                                                tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    spec = _spec("fig11", None)
+    package = _export(built, spec, ssp_dir)
+    log_path = tmp_path / "ssp.mcap"
+    code = main(["ssp", "run", str(package), "--out", str(log_path), "--json"])
+    record = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert code == 0 and record["status"] == "converged"
+    log = read_run(log_path)
+    assert not log.truncated and log.n_steps == record["steps"]
+    assert set(log.signals) == set(SIGNALS)
+    assert all(np.isfinite(log.signals[name]).all() for name in SIGNALS)
+    direct = simulate_libcosim(package)
+    assert np.array_equal(log.block(), direct.block)  # the log holds the run bit for bit
+    assert log.goal is not None and (log.goal.x_m, log.goal.y_m) == (20.0, 10.0)
+    run_meta = log.metadata["run"]
+    assert run_meta["master"].startswith("libcosimpy")
+    assert json.loads(run_meta["gains"]) == {k: v for k, v in spec.gains.as_dict().items()}
+    assert "SystemStructure.ssd" in log.attachments
+    assert record["final_position_error_m"] <= spec.stop_radius_m
+
+
+def test_wmr_ssp_export_writes_what_it_prints(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "f11.ssp"
+    assert main(["ssp", "export", "fig11", "--out", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    assert read_package(out).components["robot"].fmi_version == "2.0"
+
+
+@pytest.mark.parametrize(("damage", "expected"), [
+    ("drop-fmu", "its FMU resources/wmr_controller-fmi2.fmu is missing from the package"),
+    ("drop-ssv", "parameter set resources/robot.ssv is missing"),
+    ("no-file", "no such file"),
+    ("not-zip", "is not an SSP package"),
+])
+def test_a_broken_package_is_one_line(built: BuildResult, ssp_dir: Path, tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str], damage: str,
+                                      expected: str) -> None:
+    good = _export(built, _spec("fig11", None), ssp_dir)
+    bad = tmp_path / "bad.ssp"
+    drop = {"drop-fmu": "resources/wmr_controller-fmi2.fmu",
+            "drop-ssv": "resources/robot.ssv"}.get(damage)
+    if damage == "not-zip":
+        bad.write_text("not a zip")
+    elif drop is not None:
+        with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+            for item in src.infolist():
+                if item.filename != drop:
+                    dst.writestr(item, src.read(item))
+    out = tmp_path / "x.mcap"
+    code = main(["ssp", "run", str(bad), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and len(err.splitlines()) == 1 and expected in err, err
+    assert not out.exists()
+
+
+def test_libcosim_refuses_fmi3_with_one_line(built: BuildResult, ssp_dir: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    package = _export(built, _spec("fig11", None), ssp_dir, fmi=3)
+    assert main(["ssp", "run", str(package), "--out", str(ssp_dir / "x.mcap")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "runs FMI 2.0 FMUs only" in err and "--fmi 2" in err
