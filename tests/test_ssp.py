@@ -17,15 +17,14 @@ import numpy.typing as npt
 import pytest
 
 from wmr.cli import main
-from wmr.closedloop import run_closed_loop
 from wmr.fmu.build import BuildResult
-from wmr.fmu.plant import FmuPlant
 from wmr.mcaplog.reader import read_run
 from wmr.scenario import RunSpec, load_scenario
-from wmr.signals import COLUMN, SIGNALS
+from wmr.signals import SIGNALS
+from wmr.ssp.agreement import deviation, fmpy_path, libcosim_path, measured_lag, wmr_run_path
 from wmr.ssp.cosim import simulate_libcosim
 from wmr.ssp.export import controller_parameters, export_ssp, robot_parameters
-from wmr.ssp.package import fmpy_parameter_set, read_package
+from wmr.ssp.package import read_package
 
 POSITION_TOL_M = 5e-3
 HEADING_TOL_RAD = math.radians(0.2)
@@ -34,39 +33,15 @@ CASES = [("fig11", None),
          pytest.param("fig9", "fig9-thd+045", marks=pytest.mark.slow)]
 
 
-class _Rows:
-    def __init__(self) -> None:
-        self.blocks: list[npt.NDArray[np.float64]] = []
-
-    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
-        self.blocks.append(block.copy())
-
-
 def _spec(scenario: str, run: str | None) -> RunSpec:
     return next(r for r in load_scenario(scenario).runs if run is None or r.name == run)
 
 
 def _wmr_run(spec: RunSpec, robot_fmu: Path) -> npt.NDArray[np.float64]:
-    """``wmr run``'s rows (the Python stabiliser on the robot FMU, our master)."""
-    rows = _Rows()
-    with FmuPlant(robot_fmu) as plant:
-        result = run_closed_loop(spec, plant, sink=rows)
-    assert result.status == "converged"
-    return np.vstack(rows.blocks)
-
-
-def _deviation(xy_th: npt.NDArray[np.float64], ref: npt.NDArray[np.float64], lag: int
-               ) -> tuple[float, float]:
-    """Worst position (m) and heading (rad) deviation of ``xy_th[k + lag]`` from ``ref[k]``."""
-    n = min(len(xy_th) - lag, len(ref))
-    a, b = xy_th[lag:lag + n], ref[:n]
-    return (float(np.hypot(a[:, 0] - b[:, 0], a[:, 1] - b[:, 1]).max()),
-            float(np.abs(a[:, 2] - b[:, 2]).max()))
-
-
-def _measured_lag(xy_th: npt.NDArray[np.float64], ref: npt.NDArray[np.float64]) -> int:
-    """The shift in steps (0, 1 or 2) that brings the path closest to ``wmr run``'s."""
-    return min(range(3), key=lambda lag: _deviation(xy_th, ref, lag)[0])
+    """``wmr run``'s ``(x, y, theta)`` rows (the Python stabiliser on the robot FMU)."""
+    status, path = wmr_run_path(spec, robot_fmu)
+    assert status == "converged"
+    return path
 
 
 @pytest.fixture(scope="session")
@@ -129,13 +104,12 @@ def test_libcosim_traces_wmr_run(built: BuildResult, ssp_dir: Path, scenario: st
                                  run: str | None) -> None:
     spec = _spec(scenario, run)
     ref = _wmr_run(spec, built.fmus[2])
-    result = simulate_libcosim(_export(built, spec, ssp_dir))
-    assert result.status == "converged"
-    path = result.block[:, [COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]]]
-    assert _measured_lag(path, ref) == 0
-    pos, head = _deviation(path, ref, 0)
+    status, path = libcosim_path(_export(built, spec, ssp_dir))
+    assert status == "converged"
+    assert measured_lag(path, ref) == 0
+    pos, head = deviation(path, ref, 0)
     assert pos <= POSITION_TOL_M and head <= HEADING_TOL_RAD, (pos, math.degrees(head))
-    assert abs(len(result.block) - len(ref)) <= 2  # converges within a step or two of wmr run
+    assert abs(len(path) - len(ref)) <= 2  # converges within a step or two of wmr run
     goal = spec.goal
     assert math.hypot(path[-1, 0] - goal.x_m, path[-1, 1] - goal.y_m) <= spec.stop_radius_m
 
@@ -145,22 +119,13 @@ def test_fmpy_simulate_ssp_traces_wmr_run_one_step_late(built: BuildResult, ssp_
                                                          scenario: str, run: str | None) -> None:
     """fmpy starts every connection at 0 and passes values after each step (Jacobi): the
     robot gets each torque one step late, so its path is ``wmr run``'s one step later."""
-    from fmpy.ssp.simulation import simulate_ssp
-
     spec = _spec(scenario, run)
     ref = _wmr_run(spec, built.fmus[2])
-    path_ssp = _export(built, spec, ssp_dir)
-    t_end = len(ref) * spec.period_s + 0.1
-    out = simulate_ssp(str(path_ssp), stop_time=t_end, step_size=spec.period_s,
-                       parameter_set=fmpy_parameter_set(read_package(path_ssp)))
-    # fmpy's row k holds the values after its step from t_k: the robot at t_{k+1}
-    start = ref[:1, [0, 1, 2]]
-    path = np.vstack([start, np.column_stack([out["robot.x"], out["robot.y"],
-                                              out["robot.theta"]])])
-    assert _measured_lag(path, ref) == 1
-    pos, head = _deviation(path, ref, 1)
+    converged, path = fmpy_path(_export(built, spec, ssp_dir), len(ref) * spec.period_s + 0.1)
+    assert converged  # the controller's flag rose: it reached the goal
+    assert measured_lag(path, ref) == 1
+    pos, head = deviation(path, ref, 1)
     assert pos <= POSITION_TOL_M and head <= HEADING_TOL_RAD, (pos, math.degrees(head))
-    assert np.flatnonzero(out["controller.converged"] >= 0.5).size  # it reached the goal
 
 
 def test_wmr_ssp_run_logs_the_layout_of_wmr_run(built: BuildResult, ssp_dir: Path,
@@ -227,3 +192,19 @@ def test_libcosim_refuses_fmi3_with_one_line(built: BuildResult, ssp_dir: Path,
     assert main(["ssp", "run", str(package), "--out", str(ssp_dir / "x.mcap")]) == 1
     err = capsys.readouterr().err.strip()
     assert "runs FMI 2.0 FMUs only" in err and "--fmi 2" in err
+
+
+def test_the_docs_list_what_the_package_holds(built: BuildResult, ssp_dir: Path) -> None:
+    """docs/ssp.md names every member of an exported package and every parameter set entry."""
+    doc = (Path(__file__).parents[1] / "docs" / "ssp.md").read_text()
+    spec = _spec("fig11", None)
+    package = ssp_dir / "doc.ssp"
+    export_ssp(spec, package, built.fmus[2], built.controllers[2],
+               scenario_file=load_scenario("fig11").path)
+    with zipfile.ZipFile(package) as zf:
+        for name in zf.namelist():
+            assert f"`{name}`" in doc, name
+    ctrl = read_package(package).components["controller"].parameters
+    for name in ctrl:
+        section = name.split(".")[0]
+        assert f"`{name}`" in doc or f"`{section}.*`" in doc, name
