@@ -45,6 +45,7 @@ def test_rebuild_is_skipped_when_nothing_changed(built: BuildResult, fmu_dir: Pa
     assert again.reused
     assert again.digest == built.digest
     assert again.fmus == built.fmus
+    assert again.controllers == built.controllers
 
 
 def test_cli_prints_one_path_per_line(fmu_dir: Path, built: BuildResult,

@@ -649,10 +649,11 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
         return fail(inst);
     }
 #if MODEL_SAMPLED
-    /* the outputs hold the sample just taken (zero-order hold) until an input is set */
+    /* y stays the last good sample; the outputs at the new time are g(z_next, u), evaluated
+     * on the next get with whatever inputs the master has set by then (direct feedthrough) */
     memcpy(d->x, x, sizeof(x));
     memcpy(d->y, y, sizeof(y));
-    d->outputs_dirty = 0;
+    d->outputs_dirty = 1;
 #else
     if (!compute_outputs(fn, inst, x, y)) {
         fl_log(inst, FL_ERROR, "%s: the last good state at t = %.17g is kept", fn, d->time);

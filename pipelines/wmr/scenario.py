@@ -13,6 +13,7 @@ A scenario file::
     controller = "pi"                # pi (default), astolfi or graceful (wmr.control.peers)
     fmu = "other_robot.fmu"          # optional: drive this robot FMU (path relative to here)
     fmu_map = "other_robot.toml"     # optional: its variable map (docs/fmu_map.md)
+    controller_fmu = true            # run the PI law in the controller FMU (or a path to one)
 
     [controller_gains]               # a peer's own gains (astolfi: k_rho, k_alpha, ...)
     k_rho = 3.0
@@ -56,7 +57,7 @@ MAX_STEPS = 10_000_000
 
 TOP_FIELDS = ("name", "description", "start", "goal", "runs", "gains", "limits", "params",
               "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s",
-              "controller", "controller_gains", "fmu", "fmu_map")
+              "controller", "controller_gains", "controller_fmu", "fmu", "fmu_map")
 RUN_FIELDS = ("name", "start", "goal", "max_time_s")
 
 
@@ -79,6 +80,8 @@ class RunSpec:
     controller: str = "pi"
     #: A peer's own gains as ``(name, value)`` pairs; empty: its published defaults.
     controller_gains: tuple[tuple[str, float], ...] = ()
+    #: ``None``: the Python controller; ``""``: the built controller FMU; else its path.
+    controller_fmu: str | None = None
 
     def __post_init__(self) -> None:
         controller_gains(self.controller, dict(self.controller_gains))
@@ -179,6 +182,20 @@ def _peer_gains(controller: str, values: Mapping[str, Any]) -> tuple[tuple[str, 
     return tuple(out)
 
 
+def _controller_fmu(value: object, path: Path | None) -> str | None:
+    """``controller_fmu``: true (the built FMU, ``""``), false (``None``) or a path; a relative
+    path is read from the scenario file's folder."""
+    if isinstance(value, bool):
+        return "" if value else None
+    if not isinstance(value, str) or not value:
+        raise ConfigError("controller_fmu", f"must be true, false or a path, got {value!r}",
+                          'write controller_fmu = true or controller_fmu = "FILE.fmu"')
+    fmu = Path(value)
+    if not fmu.is_absolute() and path is not None:
+        fmu = path.parent / fmu
+    return str(fmu)
+
+
 def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                    path: Path | None = None) -> Scenario:
     """Validate a scenario's parsed TOML ``data`` and expand it into runs."""
@@ -204,6 +221,10 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
         raise ConfigError("controller", f"must be a string, got {controller!r}",
                           'write e.g. controller = "astolfi"')
     peer_gains = _peer_gains(controller, _table(data, "controller_gains"))
+    controller_fmu = _controller_fmu(data.get("controller_fmu", False), path)
+    if controller_fmu is not None and controller != "pi":
+        raise ConfigError("controller_fmu", f"the controller FMU is the PI stabiliser, but "
+                          f"controller = {controller!r}", "drop controller_fmu or use pi")
     start = _pose(data["start"], "start") if "start" in data else None
     goal = _pose(data["goal"], "goal") if "goal" in data else None
 
@@ -236,7 +257,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                             gains=gains, limits=limits, period_s=period, stop_radius_m=eps,
                             t_max_s=run_t_max, heading_tolerance_rad=math.radians(tol),
                             scenario=name, controller=controller,
-                            controller_gains=peer_gains))
+                            controller_gains=peer_gains, controller_fmu=controller_fmu))
     return Scenario(name=name, description=description, runs=tuple(runs), path=path,
                     fmu=_file_field(data, "fmu", path), fmu_map=_file_field(data, "fmu_map", path))
 

@@ -15,6 +15,7 @@ import shutil
 import tempfile
 import threading
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -116,8 +117,17 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
                 raised.append(True)
                 raise WallClockLimit(wall_limit_message(limit))
 
-    record = run_to_log(task.spec, mcap_path, plant, scenario_file=attachment,
-                        progress=progress)
+    with ExitStack() as stack:
+        ctrl = None
+        if task.spec.controller_fmu is not None:  # the scenario key controller_fmu
+            from wmr.fmu.fmu_controller import FmuController
+            from wmr.run import default_controller_fmu
+
+            ctrl_path = task.spec.controller_fmu or default_controller_fmu(
+                int(plant.fmi_version[0]))
+            ctrl = stack.enter_context(FmuController(ctrl_path))
+        record = run_to_log(task.spec, mcap_path, plant, scenario_file=attachment,
+                            progress=progress, controller_fmu=ctrl)
     if limit is not None and record["status"] == "failed" \
             and str(record["message"]).startswith(WallClockLimit.__name__):
         record["status"] = "timeout"

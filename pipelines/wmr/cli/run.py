@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -87,7 +88,7 @@ def select_run(scenario: Scenario, name: str | None) -> RunSpec:
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.fmu.plant import FmuPlant
     from wmr.fmu.varmap import load_map
-    from wmr.run import default_fmu, result_json, run_to_log
+    from wmr.run import default_controller_fmu, default_fmu, result_json, run_to_log
     from wmr.scenario import load_scenario, with_overrides
 
     scenario = load_scenario(args.scenario)
@@ -104,16 +105,32 @@ def _cmd_run(args: argparse.Namespace) -> int:
     fmu_path = Path(args.fmu) if args.fmu else scenario.fmu or default_fmu(args.fmi)
     map_path = Path(args.map) if args.map else scenario.fmu_map
     var_map = load_map(map_path) if map_path is not None else None
+    ctrl_choice = args.controller_fmu if args.controller_fmu is not None else spec.controller_fmu
+    ctrl_path = None
+    if ctrl_choice is not None:
+        if spec.controller != "pi":
+            raise ConfigError("--controller-fmu", f"the controller FMU is the PI stabiliser, "
+                              f"but the run uses controller = {spec.controller!r}",
+                              "drop --controller-fmu or run the pi controller")
+        ctrl_path = Path(ctrl_choice) if ctrl_choice else default_controller_fmu(args.fmi)
+        if not ctrl_path.is_file():
+            raise ConfigError("--controller-fmu", f"no such file: {ctrl_path}",
+                              "give a controller .fmu, or no FILE for the built one")
     progress, finish = _progress_bar(spec.name, args.json)
     live = None
     if args.view:
         from wmr.replay import live_view_sink
 
         live = live_view_sink(spec.name, spec.goal, out.with_suffix(".rrd"))
-    with FmuPlant(fmu_path, var_map=var_map) as plant:
+    with FmuPlant(fmu_path, var_map=var_map) as plant, ExitStack() as stack:
+        ctrl = None
+        if ctrl_path is not None:
+            from wmr.fmu.fmu_controller import FmuController
+
+            ctrl = stack.enter_context(FmuController(ctrl_path))
         try:
             record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress,
-                                also=live)
+                                also=live, controller_fmu=ctrl)
         finally:
             finish()
             if live is not None:
@@ -160,6 +177,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="scenario name (fig9, fig10, fig11) or TOML file (default fig11)")
     p.add_argument("--run", metavar="NAME", help="the run of a multi-run scenario to simulate")
     add_run_overrides(p)
+    p.add_argument("--controller-fmu", nargs="?", const="", default=None, metavar="FILE.fmu",
+                   help="run the stabiliser in the controller FMU (C, FMI --fmi) instead of "
+                        "Python: the built one, or FILE.fmu (scenario key controller_fmu)")
     p.add_argument("--out", metavar="FILE.mcap", help="log file (default runs/NAME.mcap)")
     p.add_argument("--json", action="store_true",
                    help="print the result as one JSON object on the last line")

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Final
 
 from wmr.control.stabiliser import Gains, Limits
+from wmr.errors import BuildError
 from wmr.fmu.codegen import sizes_header, variables_source
 from wmr.fmu.flatten import Variable
 from wmr.plant import RobotParams
@@ -79,10 +80,20 @@ _INPUT_TEXT: Final = {
     "omega": ("rad/s", "measured turn rate"), "omega_r": ("rad/s", "measured right wheel speed"),
     "omega_l": ("rad/s", "measured left wheel speed"),
 }
-_GAIN_UNITS: Final = {"K_ps": "1/s", "K_is": "1/s2", "K_ptheta": "1/s", "K_itheta": "1/s2",
-                      "K_pw": "N.m.s/rad", "K_iw": "N.m/rad"}
-_LIMIT_UNITS: Final = {"v_max_mps": "m/s", "omega_max_radps": "rad/s",
-                       "wheel_speed_max_radps": "rad/s", "torque_max_nm": "N.m"}
+_GAIN_TEXT: Final = {  # (unit, description)
+    "K_ps": ("1/s", "distance loop, proportional (eq. 29)"),
+    "K_is": ("1/s2", "distance loop, integral (eq. 29)"),
+    "K_ptheta": ("1/s", "angle loop, proportional (eq. 29)"),
+    "K_itheta": ("1/s2", "angle loop, integral (eq. 29)"),
+    "K_pw": ("N.m.s/rad", "wheel speed servo, proportional"),
+    "K_iw": ("N.m/rad", "wheel speed servo, integral"),
+}
+_LIMIT_TEXT: Final = {
+    "v_max_mps": ("m/s", "limit of u_s (forward only: 0 <= u_s <= v_max)"),
+    "omega_max_radps": ("rad/s", "limit of the magnitude of u_theta"),
+    "wheel_speed_max_radps": ("rad/s", "limit of the wheel speed references (curvature kept)"),
+    "torque_max_nm": ("N.m", "motor torque saturation (servo back-calculation)"),
+}
 #: Robot parameters the controller knows: eq. 28 and the servos' friction feed-forward.
 ROBOT_PARAMETERS: Final = {"r": ("m", 1e-3, "wheel radius (eq. 28)"),
                            "L": ("m", 1e-3, "half the track (eq. 28)"),
@@ -139,11 +150,9 @@ def controller_model() -> ControllerModel:
     ]
     gains, limits, robot = Gains(), Limits(), RobotParams()
     for f in fields(gains):
-        params.append((f"gains.{f.name}", _GAIN_UNITS[f.name], f"gain {f.name}",
-                       getattr(gains, f.name), 0.0))
+        params.append((f"gains.{f.name}", *_GAIN_TEXT[f.name], getattr(gains, f.name), 0.0))
     for f in fields(limits):
-        params.append((f"limits.{f.name}", _LIMIT_UNITS[f.name], f"limit {f.name}",
-                       getattr(limits, f.name), 0.0))
+        params.append((f"limits.{f.name}", *_LIMIT_TEXT[f.name], getattr(limits, f.name), 0.0))
     for name, (unit, lo, text) in ROBOT_PARAMETERS.items():
         params.append((f"params.{name}", unit, text, getattr(robot, name), lo))
     params += [
@@ -188,7 +197,11 @@ def controller_sources() -> list[Path]:
     """The hand-written C of the controller core."""
     from wmr import paths
 
-    return sorted((paths.fmu_src_dir() / "controller").glob("*.c"))
+    sources = sorted((paths.fmu_src_dir() / "controller").glob("*.c"))
+    if not sources:
+        raise BuildError(f"{paths.fmu_src_dir() / 'controller'} has no C sources of the "
+                         "controller; restore fmu/src/controller/controller.c")
+    return sources
 
 
 def write_controller_core(model: ControllerModel, token: str, out_dir: Path) -> list[Path]:

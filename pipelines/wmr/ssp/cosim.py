@@ -6,13 +6,15 @@ applies its parameter sets and steps both FMUs with its fixed-step algorithm at 
 every step; the run stops at the controller's ``converged`` flag (as ``wmr run`` does) or at
 the default experiment's stop time.
 
-Timing.  libcosim steps its components side by side (Jacobi) and passes the values over the
-connections after each step.  The controller FMU's outputs after the step from ``t_k`` are
-its sample at ``t_k`` (taken from the measurement ``y_k``); the robot receives them for its
-next step.  So the robot holds the torques of the sample before: one control period of lag
-(only the first step, after libcosim's initialisation passed ``u_0``, is on time).  A log row
-``k`` is the robot's outputs at ``t_k`` and the controller's sample at ``t_k`` (observed after
-step ``k``), the same pairing as a ``wmr run`` row.
+Timing.  libcosim steps its components side by side (Jacobi): before the step from ``t_k`` it
+sets every input from the outputs read after the step before, and reads the outputs after the
+step.  Its initialisation passes the controller's first sample ``u_0`` to the robot, so the
+robot's first step is on time.  After its step from ``t_k`` (on the measurement ``y_k``) the
+controller's outputs are ``g(z_{k+1}, y_k)``: its new discrete state on the measurement it was
+given (docs/control.md); the robot holds those torques over ``[t_{k+1}, t_{k+2})``, so the
+measurement reaches the robot's torques one period late.  A log row ``k`` is the robot's
+outputs at ``t_k`` and the controller's outputs observed after its step from ``t_k`` (computed
+from ``y_k``, the torques the robot holds next).
 """
 
 from __future__ import annotations
@@ -29,12 +31,13 @@ import numpy as np
 import numpy.typing as npt
 
 from wmr.errors import ConfigError, FmuError
+from wmr.fmu.controller import SIGNAL_OUTPUTS
 from wmr.plant import OUTPUT_NAMES
 from wmr.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
 from wmr.ssp.package import CONTROLLER, ROBOT, SspPackage, read_package
 
 #: The controller FMU's output of each :data:`wmr.signals.CONTROL_SIGNALS` column.
-CONTROL_OUTPUTS = tuple(name.rsplit("_", 1)[0] for name in CONTROL_SIGNALS)
+CONTROL_OUTPUTS = SIGNAL_OUTPUTS
 _STEPS_PER_CHECK = 100
 
 
@@ -44,7 +47,7 @@ class SspRunData:
 
     ``variables[component][name]`` holds the variable at every communication point
     ``0 .. steps`` (index ``s`` is ``t_s``); ``block`` row ``k`` pairs the robot at ``t_k``
-    with the controller's sample at ``t_k``.
+    with the controller's outputs after its step from ``t_k``.
     """
 
     package: SspPackage
@@ -174,7 +177,7 @@ def _rows(package: SspPackage, variables: dict[str, dict[str, npt.NDArray[np.flo
         [n for n in (*CONTROL_OUTPUTS, "converged") if n not in ctrl]
     if missing:
         raise FmuError(f"{package.path}: the components lack the outputs {', '.join(missing)}")
-    # row k: robot at t_k (index k), the controller's sample at t_k (observed after step k)
+    # row k: robot at t_k (index k), the controller after its step from t_k (index k + 1)
     n_rows = steps
     flags = ctrl["converged"][1:steps + 1]
     hit = np.flatnonzero(flags >= 0.5)

@@ -23,17 +23,16 @@ step ``control_period_s``, the only step the controller FMU accepts.
 
 from __future__ import annotations
 
-import math
 import os
 import tempfile
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Mapping
-from dataclasses import fields
 from pathlib import Path
 from typing import Any, Final
 
 from wmr.errors import ConfigError, FmuError
+from wmr.fmu.fmu_controller import controller_parameters
 from wmr.scenario import RunSpec
 
 ROBOT: Final = "robot"
@@ -66,23 +65,6 @@ def robot_parameters(spec: RunSpec) -> dict[str, float]:
     values = spec.params.as_dict()
     values.update(x0=spec.start.x_m, y0=spec.start.y_m, theta0=spec.start.heading_rad,
                   v0=0.0, omega0=0.0)
-    return values
-
-
-def controller_parameters(spec: RunSpec) -> dict[str, float]:
-    """The controller FMU's parameter values of a run, under the scenario files' names.
-
-    Angles are in degrees, as in the scenario files (``goal.heading_deg``,
-    ``heading_tolerance_deg``).
-    """
-    values = {"goal.x_m": spec.goal.x_m, "goal.y_m": spec.goal.y_m,
-              "goal.heading_deg": math.degrees(spec.goal.heading_rad)}
-    for section, obj in (("gains", spec.gains), ("limits", spec.limits),
-                         ("params", spec.params)):
-        for f in fields(obj):
-            values[f"{section}.{f.name}"] = float(getattr(obj, f.name))
-    values.update(control_period_s=spec.period_s, stop_radius_m=spec.stop_radius_m,
-                  heading_tolerance_deg=math.degrees(spec.heading_tolerance_rad))
     return values
 
 
