@@ -187,3 +187,33 @@ def test_a_batch_spec_names_the_fmu_and_its_map(tmp_path: Path, unicycle_fmu: Pa
         meta = read_run(log).metadata["run"]
         assert meta["fmu_file"] == "robot.fmu"
         assert json.loads(meta["fmu_map"])["variables"]["x"]["name"] == "east_mm"
+
+
+def test_an_ssp_of_the_other_fmu_runs_in_libcosim_with_its_units(
+        tmp_path: Path, unicycle_fmu: Path, built: BuildResult) -> None:
+    """``wmr ssp export --map``: the map's conversions become SSP linear transformations on
+    the connections and its parameters the robot's parameter set in its units; libcosim runs
+    our controller FMU on the pythonfmu unicycle and traces ``wmr run --map``."""
+    from fmpy.ssp.ssd import get_connections, read_ssd
+
+    from wmr.scenario import load_scenario
+    from wmr.ssp.agreement import deviation, libcosim_path, wmr_run_path
+    from wmr.ssp.export import export_ssp
+    from wmr.ssp.package import read_package
+
+    spec = next(iter(load_scenario("fig11").runs))
+    var_map = load_map(MAP)
+    package = export_ssp(spec, tmp_path / "uni.ssp", unicycle_fmu, built.controllers[2],
+                         var_map=var_map)
+    ssd = read_ssd(str(package), validate=True)
+    theta = next(b for a, b in get_connections(ssd.system) if b.name == "theta")
+    assert theta.parent.name == "controller"
+    robot = read_package(package).components["robot"].parameters
+    assert robot["wheel_radius_mm"] == pytest.approx(150.0)
+    assert robot["heading0_deg"] == pytest.approx(90.0)  # theta0 = 0: east is 90 deg
+    status, ref = wmr_run_path(spec, unicycle_fmu, var_map)
+    assert status == "converged"
+    ssp_status, path = libcosim_path(package)
+    assert ssp_status == "converged"
+    pos, head = deviation(path, ref, 0)
+    assert pos <= 5e-3 and head <= math.radians(0.2), (pos, math.degrees(head))

@@ -13,6 +13,7 @@ from wmr.paths import safe_filename
 def _cmd_export(args: argparse.Namespace) -> int:
     from wmr.cli.run import select_run
     from wmr.fmu.build import build_fmus
+    from wmr.fmu.varmap import load_map
     from wmr.scenario import load_scenario, with_overrides
     from wmr.ssp.export import export_ssp
 
@@ -22,12 +23,15 @@ def _cmd_export(args: argparse.Namespace) -> int:
     if out.suffix != ".ssp":
         raise ConfigError("--out", f"{out} does not end in .ssp", "give FILE.ssp")
     built = None
-    if args.robot_fmu is None or args.controller_fmu is None:
+    robot_choice = args.robot_fmu or scenario.fmu
+    if robot_choice is None or args.controller_fmu is None:
         built = build_fmus()
-    robot = Path(args.robot_fmu) if args.robot_fmu else built.fmus[args.fmi]  # type: ignore[union-attr]
+    robot = Path(robot_choice) if robot_choice else built.fmus[args.fmi]  # type: ignore[union-attr]
+    map_path = Path(args.map) if args.map else scenario.fmu_map
     ctrl = (Path(args.controller_fmu) if args.controller_fmu
             else built.controllers[args.fmi])  # type: ignore[union-attr]
-    print(export_ssp(spec, out, robot, ctrl, scenario_file=scenario.path))
+    print(export_ssp(spec, out, robot, ctrl, scenario_file=scenario.path,
+                     var_map=load_map(map_path) if map_path is not None else None))
     return 0
 
 
@@ -72,9 +76,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     help="goal pose: x and y in m, heading in degrees")
     ex.add_argument("--fmi", type=int, choices=(2, 3), default=2,
                     help="FMI version of the FMUs (default 2, what SSP masters take today)")
-    ex.add_argument("--robot-fmu", metavar="FILE.fmu", help="robot FMU (default: our build)")
+    ex.add_argument("--robot-fmu", metavar="FILE.fmu",
+                    help="robot FMU (default: the scenario's fmu, else our build)")
     ex.add_argument("--controller-fmu", metavar="FILE.fmu",
                     help="controller FMU (default: our build)")
+    ex.add_argument("--map", metavar="FILE.toml",
+                    help="variable map of a robot FMU made by another tool (docs/fmu_map.md; "
+                         "default: the scenario's fmu_map)")
     ex.add_argument("--out", metavar="FILE.ssp", help="package file (default NAME.ssp)")
     ex.set_defaults(handler=_cmd_export)
     run = ssp_sub.add_parser(

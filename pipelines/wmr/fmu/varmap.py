@@ -20,6 +20,7 @@ it (an output is then NaN in the log, a parameter keeps the FMU's own value).
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from collections.abc import Mapping
@@ -75,6 +76,16 @@ class VariableMap:
     entries: Mapping[str, MapEntry] = field(default_factory=dict)
     unmapped: frozenset[str] = frozenset()
     source: str = "map"
+
+    def to_toml(self) -> str:
+        """The map as a map file (:func:`parse_map` reads it back to an equal map)."""
+        lines = [f"# variable map ({self.source}): ours = scale * theirs + offset"]
+        lines.append("unmapped = [" + ", ".join(f'"{u}"' for u in sorted(self.unmapped)) + "]")
+        lines.append("\n[variables]")
+        for ours, e in self.entries.items():
+            lines.append(f"{ours} = {{ name = {json.dumps(e.name)}, scale = {e.scale!r}, "
+                         f"offset = {e.offset!r} }}")
+        return "\n".join(lines) + "\n"
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form (the ``run`` metadata of a log records it)."""

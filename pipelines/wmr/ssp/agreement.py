@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from wmr.closedloop import run_closed_loop
 from wmr.fmu.plant import FmuPlant
+from wmr.fmu.varmap import VariableMap
 from wmr.scenario import RunSpec
 from wmr.signals import COLUMN
 from wmr.ssp.cosim import simulate_libcosim
@@ -34,11 +35,12 @@ class _Rows:
         self.blocks.append(block[:, _POSE].copy())
 
 
-def wmr_run_path(spec: RunSpec, robot_fmu: str | os.PathLike[str]
-                 ) -> tuple[str, npt.NDArray[np.float64]]:
-    """``wmr run``'s status and ``(x, y, theta)`` rows of ``spec`` on ``robot_fmu``."""
+def wmr_run_path(spec: RunSpec, robot_fmu: str | os.PathLike[str],
+                 var_map: VariableMap | None = None) -> tuple[str, npt.NDArray[np.float64]]:
+    """``wmr run``'s status and ``(x, y, theta)`` rows of ``spec`` on ``robot_fmu`` (through
+    ``var_map`` for a robot FMU of another tool)."""
     rows = _Rows()
-    with FmuPlant(Path(robot_fmu)) as plant:
+    with FmuPlant(Path(robot_fmu), var_map=var_map) as plant:
         result = run_closed_loop(spec, plant, sink=rows)
     return result.status, np.vstack(rows.blocks)
 

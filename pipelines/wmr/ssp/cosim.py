@@ -32,6 +32,7 @@ import numpy.typing as npt
 
 from wmr.errors import ConfigError, FmuError
 from wmr.fmu.controller import SIGNAL_OUTPUTS
+from wmr.fmu.varmap import PARAMETER_NAMES, MapEntry
 from wmr.plant import OUTPUT_NAMES
 from wmr.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
 from wmr.ssp.package import CONTROLLER, ROBOT, SspPackage, read_package
@@ -170,9 +171,27 @@ def _samples(series: Any, slave: int, ref: int, steps: int) -> npt.NDArray[np.fl
     return np.array([first[0], *rest], dtype=np.float64)
 
 
+def _in_our_names(package: SspPackage, values: dict[str, Any],
+                  names: tuple[str, ...]) -> dict[str, Any]:
+    """The robot's ``values`` (by its names, in its units) under our ``names`` and units,
+    through the package's variable map; an unmapped name is NaN, an absent one left out."""
+    vm = package.robot_map
+    if vm is None:
+        return {n: values[n] for n in names if n in values}
+    out: dict[str, Any] = {}
+    for n in names:
+        entry = vm.entries.get(n, MapEntry(n))
+        if n in vm.unmapped:
+            out[n] = math.nan
+        elif entry.name in values:
+            out[n] = entry.scale * values[entry.name] + entry.offset
+    return out
+
+
 def _rows(package: SspPackage, variables: dict[str, dict[str, npt.NDArray[np.float64]]],
           steps: int, h: float, stop_at_convergence: bool) -> SspRunData:
-    robot, ctrl = variables[ROBOT], variables[CONTROLLER]
+    robot = _in_our_names(package, variables[ROBOT], OUTPUT_NAMES)
+    ctrl = variables[CONTROLLER]
     missing = [n for n in OUTPUT_NAMES if n not in robot] + \
         [n for n in (*CONTROL_OUTPUTS, "converged") if n not in ctrl]
     if missing:
@@ -188,7 +207,8 @@ def _rows(package: SspPackage, variables: dict[str, dict[str, npt.NDArray[np.flo
         status, message = "converged", f"converged at t = {time_to_goal:.2f} s"
     block = np.empty((n_rows, len(SIGNALS)), dtype=np.float64)
     for i, name in enumerate(OUTPUT_NAMES):
-        block[:, COLUMN[PLANT_SIGNALS[i]]] = robot[name][:n_rows]
+        values = robot[name]  # NaN (a float) where the map leaves the output unmapped
+        block[:, COLUMN[PLANT_SIGNALS[i]]] = values[:n_rows] if np.ndim(values) else values
     for col, name in zip(CONTROL_SIGNALS, CONTROL_OUTPUTS, strict=True):
         block[:, COLUMN[col]] = ctrl[name][1:n_rows + 1]
     if status == "converged":
@@ -210,7 +230,7 @@ def run_record(run: SspRunData) -> dict[str, object]:
     """The ``run`` metadata record of the log: the package's parameters under the names of
     ``wmr run``'s record, and the master."""
     package = run.package
-    rp = package.component(ROBOT).parameters
+    rp = _in_our_names(package, package.component(ROBOT).parameters, PARAMETER_NAMES)
     cp = package.component(CONTROLLER).parameters
     goal = _goal(package)
 
@@ -222,8 +242,8 @@ def run_record(run: SspRunData) -> dict[str, object]:
         "scenario": package.name,
         "start": {"x_m": rp.get("x0"), "y_m": rp.get("y0"), "heading_rad": rp.get("theta0")},
         "goal": {"x_m": goal[0], "y_m": goal[1], "heading_rad": goal[2]},
-        "params": {k: v for k, v in rp.items() if k not in ("x0", "y0", "theta0", "v0",
-                                                             "omega0")},
+        "params": {k: v for k, v in rp.items() if math.isfinite(v) and k not in (
+            "x0", "y0", "theta0", "v0", "omega0")},
         "gains": section("gains"),
         "controller": "pi",
         "limits": section("limits"),

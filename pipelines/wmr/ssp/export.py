@@ -12,6 +12,8 @@ The package (a zip, ``FILE.ssp``) holds::
     resources/controller.ssv       the controller's: goal, gains, limits, params.r/L/...,
                                    control_period_s, stop_radius_m, heading_tolerance_deg
     resources/SCENARIO.toml        the scenario file it came from (provenance, if any)
+    resources/fmu_map.toml         the robot's variable map, for a robot FMU of another tool
+                                   (its unit conversions are also on the connections)
 
 Connections: every robot output the controller has an input of the same name for (the
 measured pose, speeds and wheel speeds), and the controller's ``tau_r``, ``tau_l`` to the
@@ -33,11 +35,15 @@ from typing import Any, Final
 
 from wmr.errors import ConfigError, FmuError
 from wmr.fmu.fmu_controller import controller_parameters
+from wmr.fmu.varmap import INPUT_NAMES, ResolvedMap, VariableMap, resolve
+from wmr.plant import OUTPUT_NAMES
 from wmr.scenario import RunSpec
 
 ROBOT: Final = "robot"
 CONTROLLER: Final = "controller"
 SSD_NAME: Final = "SystemStructure.ssd"
+#: The robot's variable map in a package of a robot FMU made by another tool.
+MAP_NAME: Final = "resources/fmu_map.toml"
 
 NS: Final = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -126,8 +132,37 @@ def parameter_set_xml(name: str, values: Mapping[str, float]) -> bytes:
     return ET.tostring(root, encoding="utf-8", xml_declaration=True)
 
 
+#: A connection: start element and connector, end element and connector, and the linear
+#: transformation ``end = factor * start + offset`` (SSP's ``ssc:LinearTransformation``).
+Link = tuple[str, str, str, str, float, float]
+
+
+def closed_loop_links(ctrl_md: Any, robot_map: ResolvedMap) -> list[Link]:
+    """The connections: each controller input from the robot output that ``robot_map`` gives
+    for it (our names: the measured pose and speeds), and the controller's torques to the
+    robot's inputs, each with the map's unit conversion."""
+    links: list[Link] = []
+    for v in _float_variables(ctrl_md, "input"):
+        if v.name not in OUTPUT_NAMES:
+            raise FmuError(f"controller input {v.name} is none of the robot's outputs "
+                           f"({', '.join(OUTPUT_NAMES)})")
+        found = robot_map.outputs[OUTPUT_NAMES.index(v.name)]
+        if found is None:
+            raise FmuError(f"controller input {v.name} has no robot output: the map leaves "
+                           "it unmapped")
+        entry = found[1]
+        links.append((ROBOT, entry.name, CONTROLLER, v.name, entry.scale, entry.offset))
+    ctrl_out = {v.name for v in _float_variables(ctrl_md, "output")}
+    for ours, (_, entry) in zip(INPUT_NAMES, robot_map.inputs, strict=True):
+        if ours not in ctrl_out:
+            raise FmuError(f"the controller FMU has no output {ours} for the robot's input")
+        links.append((CONTROLLER, ours, ROBOT, entry.name, 1.0 / entry.scale,
+                      -entry.offset / entry.scale))
+    return links
+
+
 def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tuple[str, Any],
-                         ssv: Mapping[str, str]) -> bytes:
+                         ssv: Mapping[str, str], links: list[Link]) -> bytes:
     """The SSD of the closed loop: ``robot`` and ``controller`` are ``(source, model
     description)``; ``ssv`` names each component's parameter set file."""
     robot_md, ctrl_md = robot[1], controller[1]
@@ -138,19 +173,12 @@ def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tupl
     _component(elements, ROBOT, robot[0], robot_md, ssv[ROBOT])
     _component(elements, CONTROLLER, controller[0], ctrl_md, ssv[CONTROLLER])
     connections = ET.SubElement(system, _q("ssd:Connections"))
-    robot_out = {v.name for v in _float_variables(robot_md, "output")}
-    robot_in = {v.name for v in _float_variables(robot_md, "input")}
-    ctrl_out = {v.name for v in _float_variables(ctrl_md, "output")}
-    for v in _float_variables(ctrl_md, "input"):
-        if v.name not in robot_out:
-            raise FmuError(f"controller input {v.name} has no robot output of that name")
-        ET.SubElement(connections, _q("ssd:Connection"), startElement=ROBOT,
-                      startConnector=v.name, endElement=CONTROLLER, endConnector=v.name)
-    for name in sorted(robot_in):
-        if name not in ctrl_out:
-            raise FmuError(f"robot input {name} has no controller output of that name")
-        ET.SubElement(connections, _q("ssd:Connection"), startElement=CONTROLLER,
-                      startConnector=name, endElement=ROBOT, endConnector=name)
+    for start_el, start, end_el, end, factor, offset in links:
+        c = ET.SubElement(connections, _q("ssd:Connection"), startElement=start_el,
+                          startConnector=start, endElement=end_el, endConnector=end)
+        if factor != 1.0 or offset != 0.0:
+            ET.SubElement(c, _q("ssc:LinearTransformation"), factor=_num(factor),
+                          offset=_num(offset))
     experiment = ET.SubElement(root, _q("ssd:DefaultExperiment"), startTime="0.0",
                                stopTime=_num(spec.t_max_s))
     annotations = ET.SubElement(experiment, _q("ssd:Annotations"))
@@ -163,8 +191,13 @@ def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tupl
 
 def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.PathLike[str],
                controller_fmu: str | os.PathLike[str], *,
-               scenario_file: Path | None = None) -> Path:
+               scenario_file: Path | None = None, var_map: VariableMap | None = None) -> Path:
     """Write the SSP package of run ``spec`` to ``out``; return its path.
+
+    ``var_map`` maps our names to those of a robot FMU made by another tool
+    (:mod:`wmr.fmu.varmap`): the connections then carry its unit conversions as SSP linear
+    transformations, and its parameter set holds the mapped parameters in its units (the
+    others keep the FMU's values).
 
     The file is written beside ``out`` and renamed into place, so an interrupted export
     never leaves a half-written package.
@@ -187,16 +220,26 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     if robot_md.fmiVersion != ctrl_md.fmiVersion:
         raise FmuError(f"{robot_path.name} is FMI {robot_md.fmiVersion} but "
                        f"{ctrl_path.name} is FMI {ctrl_md.fmiVersion}: give one version")
+    robot_map = resolve(var_map, robot_md, robot_path.name)
+    if var_map is None:
+        robot_values = _bound(robot_md, robot_parameters(spec), robot_path)
+    else:
+        ours = robot_parameters(spec)
+        robot_values = {e.name: e.to_theirs(ours[n]) for n, (_, e) in
+                        robot_map.parameters.items()}
     robot_src = f"resources/{robot_path.name}"
     ctrl_src = f"resources/{ctrl_path.name}"
     ssv = {ROBOT: "resources/robot.ssv", CONTROLLER: "resources/controller.ssv"}
+    links = closed_loop_links(ctrl_md, robot_map)
     members: dict[str, bytes] = {
-        SSD_NAME: system_structure_xml(spec, (robot_src, robot_md), (ctrl_src, ctrl_md), ssv),
-        ssv[ROBOT]: parameter_set_xml(
-            spec.name, _bound(robot_md, robot_parameters(spec), robot_path)),
+        SSD_NAME: system_structure_xml(spec, (robot_src, robot_md), (ctrl_src, ctrl_md), ssv,
+                                       links),
+        ssv[ROBOT]: parameter_set_xml(spec.name, robot_values),
         ssv[CONTROLLER]: parameter_set_xml(
             spec.name, _bound(ctrl_md, controller_parameters(spec), ctrl_path)),
     }
+    if var_map is not None:
+        members[MAP_NAME] = var_map.to_toml().encode()
     files = {robot_src: robot_path, ctrl_src: ctrl_path}
     if scenario_file is not None:
         files[f"resources/{scenario_file.name}"] = scenario_file

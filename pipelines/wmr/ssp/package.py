@@ -9,6 +9,7 @@ parameter bindings itself).
 from __future__ import annotations
 
 import math
+import tomllib
 import xml.etree.ElementTree as ET
 import zipfile
 from dataclasses import dataclass, field
@@ -16,7 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from wmr.errors import ConfigError, FmuError
-from wmr.ssp.export import CONTROLLER, NS, ROBOT, SSD_NAME
+from wmr.fmu.varmap import VariableMap, parse_map
+from wmr.ssp.export import CONTROLLER, MAP_NAME, NS, ROBOT, SSD_NAME
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,8 @@ class SspPackage:
     start_time_s: float
     stop_time_s: float | None
     step_size_s: float | None
+    #: The robot's variable map (a robot FMU of another tool), or ``None``: our names.
+    robot_map: VariableMap | None = None
 
     def component(self, name: str) -> SspComponent:
         if name not in self.components:
@@ -125,6 +129,13 @@ def read_package(path: str | Path) -> SspPackage:
                     params.update(_parameter_set(zf, str(b.get("source")), where))
             components[name] = SspComponent(name, source, _fmi_version(zf, source, where),
                                             params)
+        robot_map = None
+        if MAP_NAME in zf.namelist():
+            try:
+                robot_map = parse_map(tomllib.loads(zf.read(MAP_NAME).decode()),
+                                      source=f"{p}: {MAP_NAME}")
+            except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+                raise FmuError(f"{p}: {MAP_NAME} is not a map file: {exc}") from None
     experiment = root.find("ssd:DefaultExperiment", NS)
     start = stop = step = None
     if experiment is not None:
@@ -136,7 +147,8 @@ def read_package(path: str | Path) -> SspPackage:
         path=p, name=root.get("name", p.stem), components=components,
         start_time_s=_float(start, f"{p}: startTime") if start is not None else 0.0,
         stop_time_s=_float(stop, f"{p}: stopTime") if stop is not None else None,
-        step_size_s=_float(step, f"{p}: baseStepSize") if step is not None else None)
+        step_size_s=_float(step, f"{p}: baseStepSize") if step is not None else None,
+        robot_map=robot_map)
 
 
 def fmpy_parameter_set(package: SspPackage) -> Any:
