@@ -208,6 +208,9 @@ def test_an_ssp_of_the_other_fmu_runs_in_libcosim_with_its_units(
     ssd = read_ssd(str(package), validate=True)
     theta = next(b for a, b in get_connections(ssd.system) if b.name == "theta")
     assert theta.parent.name == "controller"
+    carried = read_package(package).robot_map  # the map travels in the package, unchanged
+    assert carried is not None
+    assert (carried.entries, carried.unmapped) == (var_map.entries, var_map.unmapped)
     robot = read_package(package).components["robot"].parameters
     assert robot["wheel_radius_mm"] == pytest.approx(150.0)
     assert robot["heading0_deg"] == pytest.approx(90.0)  # theta0 = 0: east is 90 deg
@@ -217,3 +220,48 @@ def test_an_ssp_of_the_other_fmu_runs_in_libcosim_with_its_units(
     assert ssp_status == "converged"
     pos, head = deviation(path, ref, 0)
     assert pos <= 5e-3 and head <= math.radians(0.2), (pos, math.degrees(head))
+
+
+class _Blocks:
+    def __init__(self) -> None:
+        self.rows: list[np.ndarray] = []
+
+    def write_block(self, t_ns: np.ndarray, block: np.ndarray) -> None:
+        self.rows.append(block.copy())
+
+
+#: Our robot's names as another tool's export might spell them (fmu-manipulation-toolbox
+#: renames the model description's variables without touching the binary).
+_RENAMED = {"tau_r": "drive.torque_right", "tau_l": "drive.torque_left", "x": "body.pos_x",
+            "y": "body.pos_y", "theta": "body.yaw", "v": "body.speed", "omega": "body.yaw_rate",
+            "omega_r": "wheel_right.w", "omega_l": "wheel_left.w", "r": "wheel.radius",
+            "L": "axle.half_track", "x0": "init.x", "y0": "init.y", "theta0": "init.yaw"}
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_our_robot_renamed_by_fmu_manipulation_toolbox_gives_the_same_path(
+        tmp_path: Path, built: BuildResult, fmi: int) -> None:
+    """A robot FMU re-exported by another tool (fmu-manipulation-toolbox, renamed
+    variables), driven through a map, gives our robot's path bit for bit."""
+    from fmu_manipulation_toolbox.operations import FMU, OperationRenameFromCSV
+
+    from wmr.closedloop import run_closed_loop
+    from wmr.scenario import load_scenario
+
+    csv_file = tmp_path / "rename.csv"
+    csv_file.write_text("".join(f"{a};{b}\n" for a, b in _RENAMED.items()))
+    renamed = tmp_path / f"renamed-fmi{fmi}.fmu"
+    with FMU(str(built.fmus[fmi])) as fmu:
+        fmu.apply_operation(OperationRenameFromCSV(str(csv_file)))
+        fmu.repack(str(renamed))
+    var_map = parse_map({"variables": dict(_RENAMED)}, source="renamed")
+    spec = next(iter(load_scenario("fig11").runs))
+    logs = []
+    for path, vm in ((built.fmus[fmi], None), (renamed, var_map)):
+        sink = _Blocks()
+        with FmuPlant(path, var_map=vm) as plant:
+            assert run_closed_loop(spec, plant, sink=sink).status == "converged"
+        logs.append(np.vstack(sink.rows))
+    assert np.array_equal(logs[0], logs[1])  # every signal of every row
+    with pytest.raises(ConfigError, match=r"no input named 'tau_r'.*drive\.torque_right"):
+        FmuPlant(renamed)  # without the map: one line naming the variable and the candidates
