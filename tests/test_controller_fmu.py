@@ -523,3 +523,49 @@ def test_outputs_are_the_sample_of_the_current_state_and_inputs(built: BuildResu
         assert ctrl.step(x, yy, theta, w_r, w_l) == pytest.approx(y, abs=1e-12)
     assert y1_again == y1
     assert y1 != y0  # the integrals moved: the second sample differs from the first
+
+
+def test_run_ids_of_python_runs_do_not_move_and_fmu_runs_get_their_own() -> None:
+    """A batch folder written before the controller_fmu key resumes without rerunning."""
+    import hashlib
+    import json
+    from dataclasses import asdict, replace
+
+    from wmr.batch.spec import spec_digest
+
+    spec = load_scenario("fig11").runs[0]
+    fields_before = asdict(spec)
+    del fields_before["controller_fmu"]
+    text = json.dumps({k: repr(v) if isinstance(v, float) else
+                       ({kk: repr(vv) if isinstance(vv, float) else vv for kk, vv in v.items()}
+                        if isinstance(v, dict) else v) for k, v in fields_before.items()},
+                      sort_keys=True, separators=(",", ":"))
+    assert spec_digest(spec) == hashlib.sha256(text.encode()).hexdigest()
+    assert spec_digest(replace(spec, controller_fmu="")) != spec_digest(spec)
+
+
+def test_the_convergence_test_refuses_a_tolerance_the_fmu_was_not_given(
+        built: BuildResult) -> None:
+    spec = load_scenario("fig11").runs[0]
+    with FmuController(built.controllers[2]) as ctrl:
+        ctrl.configure(spec)
+        assert ctrl.stabiliser.converged(0.0, 0.0, 0.0, 0.0, 0.0,
+                                         spec.heading_tolerance_rad) is False
+        with pytest.raises(ConfigError, match="heading_tolerance_deg"):
+            ctrl.stabiliser.converged(0.0, 0.0, 0.0, 0.0, 0.0, 2 * spec.heading_tolerance_rad)
+
+
+def test_a_robot_fmu_or_a_peer_controller_is_refused_in_one_line(
+        tmp_path: Path, built: BuildResult, capsys: pytest.CaptureFixture[str]) -> None:
+    from dataclasses import replace
+
+    with pytest.raises(FmuError, match=r"not a controller FMU .*wrong: x \(output\)"):
+        FmuController(built.fmus[3])
+    code = main(["run", "--controller-fmu", str(built.fmus[3]),
+                 "--out", str(tmp_path / "x.mcap")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "not a controller FMU" in err[0]
+    spec = replace(load_scenario("fig11").runs[0], controller="astolfi")
+    with FmuController(built.controllers[3]) as ctrl, \
+            pytest.raises(ConfigError, match=r"controller_fmu.*astolfi"):
+        ctrl.configure(spec)

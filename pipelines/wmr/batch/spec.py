@@ -415,7 +415,10 @@ def _canonical(value: Any) -> Any:
 
 def spec_digest(spec: RunSpec) -> str:
     """SHA-256 of a run's complete inputs (floats by ``repr``: bit-exact)."""
-    text = json.dumps(_canonical(asdict(spec)), sort_keys=True, separators=(",", ":"))
+    fields = asdict(spec)
+    if fields["controller_fmu"] is None:  # the Python controller: run ids as before the key
+        del fields["controller_fmu"]
+    text = json.dumps(_canonical(fields), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
 

@@ -57,8 +57,18 @@ class _Stabiliser:
 
     def converged(self, x: float, y: float, theta: float, v: float, omega: float,
                   heading_tolerance_rad: float) -> bool:
-        """The FMU's ``converged`` output for this measurement (its own tolerance parameter)."""
-        return self._ctrl._converged(x, y, theta, v, omega)
+        """The FMU's ``converged`` output for this measurement.
+
+        The FMU tests against its parameter ``heading_tolerance_deg`` (set from the run by
+        :meth:`FmuController.configure`); another tolerance here is an error, not ignored.
+        """
+        ctrl = self._ctrl
+        if abs(heading_tolerance_rad - ctrl.heading_tolerance_rad) > 1e-12:
+            raise ConfigError("heading_tolerance_deg", f"the controller FMU was configured with "
+                              f"{math.degrees(ctrl.heading_tolerance_rad):g} deg, asked with "
+                              f"{math.degrees(heading_tolerance_rad):g} deg",
+                              "configure the FMU with the run it drives")
+        return ctrl._converged(x, y, theta, v, omega)
 
     def heading_error(self, theta: float) -> float:
         """Heading minus the desired heading, wrapped, rad."""
@@ -96,18 +106,24 @@ class FmuController:
         self.fmi_version: str = md.fmiVersion
         self.sha256 = file_sha256(self.fmu_path)
         self._vr = {v.name: v.valueReference for v in md.modelVariables}
-        missing = [n for n in (*INPUTS, *_OUTPUTS) if n not in self._vr]
-        if md.coSimulation is None or missing:
+        causality = {v.name: v.causality for v in md.modelVariables}
+        wrong = [f"{n} ({causality.get(n, 'missing')})" for n in INPUTS
+                 if causality.get(n) != "input"]
+        wrong += [f"{n} ({causality.get(n, 'missing')})" for n in _OUTPUTS
+                  if causality.get(n) != "output"]
+        if md.coSimulation is None or wrong:
             shutil.rmtree(self._tmp, ignore_errors=True)
             raise FmuError(f"{self.fmu_path}: not a controller FMU (a co-simulation FMU with "
-                           f"the inputs {', '.join(INPUTS)} and outputs tau_r, tau_l, ...); "
-                           f"lacks {', '.join(missing) or 'co-simulation'}")
+                           f"the inputs {', '.join(INPUTS)} and the outputs tau_r, tau_l, ...); "
+                           f"wrong: {', '.join(wrong[:6]) or 'no co-simulation'}"
+                           + (f" and {len(wrong) - 6} more" if len(wrong) > 6 else ""))
         self._instance_name = instance_name
         self._fmu: Any = None
         self._t = 0.0
         self._n = 0
         self._h = 0.0
         self.goal_heading_rad = 0.0
+        self.heading_tolerance_rad = math.nan
         self.stabiliser = _Stabiliser(self)
         vr_t = ctypes.c_uint32
         self._in_vr = (vr_t * len(INPUTS))(*(self._vr[n] for n in INPUTS))
@@ -173,6 +189,7 @@ class FmuController:
         if unknown:
             raise FmuError(f"{self.fmu_path}: lacks the parameters {', '.join(unknown)}")
         self.goal_heading_rad = spec.goal.heading_rad
+        self.heading_tolerance_rad = spec.heading_tolerance_rad
         self._t, self._n, self._h = 0.0, 0, spec.period_s
         if self.fmi_version.startswith("2"):
             self._call("setupExperiment", fmu.setupExperiment, None, 0.0)
