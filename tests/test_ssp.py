@@ -179,6 +179,7 @@ def test_wmr_ssp_export_writes_what_it_prints(tmp_path: Path,
 
 @pytest.mark.parametrize(("damage", "expected"), [
     ("drop-fmu", "its FMU resources/wmr_controller-fmi2.fmu is missing from the package"),
+    ("period", "control_period_s = 0.02 s but the package steps at 0.01 s"),
     ("drop-ssv", "parameter set resources/robot.ssv is missing"),
     ("no-file", "no such file"),
     ("not-zip", "is not an SSP package"),
@@ -192,6 +193,15 @@ def test_a_broken_package_is_one_line(built: BuildResult, ssp_dir: Path, tmp_pat
             "drop-ssv": "resources/robot.ssv"}.get(damage)
     if damage == "not-zip":
         bad.write_text("not a zip")
+    elif damage == "period":
+        with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+            for item in src.infolist():
+                data = src.read(item)
+                if item.filename == "resources/controller.ssv":
+                    data = data.replace(b'"control_period_s">\n      <ssv:Real value="0.01"',
+                                        b'"control_period_s">\n      <ssv:Real value="0.02"')
+                    assert b'value="0.02"' in data
+                dst.writestr(item, data)
     elif drop is not None:
         with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
             for item in src.infolist():

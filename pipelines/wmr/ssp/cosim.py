@@ -118,6 +118,11 @@ def simulate_libcosim(ssp_path: str | os.PathLike[str], *, stop_time_s: float | 
     if h is None or not h > 0:
         raise FmuError(f"{package.path}: no step size (no OSP FixedStepAlgorithm and no "
                        "control_period_s): export it again with 'wmr ssp export'")
+    period = ctrl.parameters.get("control_period_s", h)
+    if abs(period - h) > 1e-12 * max(1.0, h):
+        raise FmuError(f"{package.path}: the controller's control_period_s = {period:g} s but "
+                       f"the package steps at {h:g} s, and the controller FMU refuses any other "
+                       "step: export the package again with 'wmr ssp export'")
     stop = stop_time_s if stop_time_s is not None else package.stop_time_s
     if stop is None:
         raise FmuError(f"{package.path}: no stop time: give one")
