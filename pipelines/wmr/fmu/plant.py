@@ -83,6 +83,7 @@ class FmuPlant:
         self._in_val = (ctypes.c_double * 2)()
         # theirs = ours * gain + bias for the two torques
         (_, e_r), (_, e_l) = rm.inputs
+        self._in_names = (e_r.name, e_l.name)  # the FMU's names of tau_r and tau_l
         self._in_gain_r, self._in_bias_r = 1.0 / e_r.scale, -e_r.offset / e_r.scale
         self._in_gain_l, self._in_bias_l = 1.0 / e_l.scale, -e_l.offset / e_l.scale
         present = [(i, o) for i, o in enumerate(rm.outputs) if o is not None]
@@ -162,7 +163,8 @@ class FmuPlant:
             return
         name = ("OK", "Warning", "Discard", "Error", "Fatal")[status] if status < 5 else status
         raise FmuError(f"{self._names[which]} returned {name} at t = {self._t:g} s "
-                       f"(inputs {self._in_val[0]!r}, {self._in_val[1]!r}); "
+                       f"({self._in_names[0]} = {self._in_val[0]!r}, "
+                       f"{self._in_names[1]} = {self._in_val[1]!r}); "
                        "the FMU's log says why")
 
     def _call(self, what: str, fun: Any, *args: Any) -> Any:
