@@ -13,7 +13,7 @@ import ctypes
 import math
 import shutil
 import subprocess
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +28,7 @@ from wmr.cli import main
 from wmr.closedloop import run_closed_loop
 from wmr.control import ALIGN, Controller, Gains, Limits
 from wmr.errors import ConfigError, FmuError
-from wmr.fmu.build import CFLAGS, BuildResult
+from wmr.fmu.build import BuildResult
 from wmr.fmu.controller import (
     INPUTS,
     SIGNAL_OUTPUTS,
@@ -39,6 +39,7 @@ from wmr.fmu.controller import (
 )
 from wmr.fmu.fmu_controller import FmuController
 from wmr.fmu.plant import FmuPlant
+from wmr.fmu.platforms import CFLAGS
 from wmr.mcaplog import read_run
 from wmr.plant import Pose, RobotParams
 from wmr.scenario import RunSpec, load_scenario
@@ -72,7 +73,7 @@ def harness(tmp_path_factory: pytest.TempPathFactory) -> ctypes.CDLL:
     write_controller_core(controller_model(), "{test}", tmp)
     (tmp / "harness.c").write_text(_HARNESS)
     lib = tmp / "harness.so"
-    cmd = ["gcc", *CFLAGS, f"-I{tmp}", f"-I{paths.fmu_src_dir()}",
+    cmd = ["gcc", "-fPIC", "-shared", *CFLAGS, f"-I{tmp}", f"-I{paths.fmu_src_dir()}",
            *map(str, controller_sources()), str(tmp / "harness.c"), "-o", str(lib), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     assert proc.returncode == 0 and not proc.stderr.strip(), proc.stderr
@@ -179,8 +180,29 @@ def _c_core(dll: ctypes.CDLL, z: F64, u: F64, p: F64) -> tuple[F64, F64]:
     return y, zn
 
 
-def test_c_core_equals_the_python_controller_on_100000_random_samples(
-        harness: ctypes.CDLL) -> None:
+@dataclass(frozen=True)
+class Samples:
+    """Random controller samples (z, u, p by row) and the Python reference's answers."""
+
+    z: F64
+    u: F64
+    p: F64
+    y: F64
+    z_next: F64
+
+    def assert_equal(self, y: F64, z_next: F64, what: str) -> None:
+        """``y`` and ``z_next`` of another implementation agree with the Python's to 1e-12."""
+        for col, name in enumerate((*SIGNAL_OUTPUTS, "phase", "converged")):
+            np.testing.assert_allclose(y[:, col], self.y[:, col], rtol=1e-12, atol=1e-12,
+                                       err_msg=f"{what}: {name}")
+        for col, name in enumerate(STATES):
+            np.testing.assert_allclose(z_next[:, col], self.z_next[:, col], rtol=1e-12,
+                                       atol=1e-12, err_msg=f"{what}: next {name}")
+
+
+@pytest.fixture(scope="module")
+def samples() -> Samples:
+    """100,000 random samples over 200 parameter sets, answered by the Python controller."""
     rng = np.random.default_rng(20260610)
     names = [v.name for v in controller_model().parameters]
     zs, us, ps, y_py, zn_py = [], [], [], [], []
@@ -193,17 +215,18 @@ def test_c_core_equals_the_python_controller_on_100000_random_samples(
         ps.append(np.tile([p[n] for n in names], (N_PER_SET, 1)))
         y_py.append(y)
         zn_py.append(zn)
-    z_all, u_all, p_all = np.vstack(zs), np.vstack(us), np.vstack(ps)
-    y_ref, zn_ref = np.vstack(y_py), np.vstack(zn_py)
+    return Samples(np.vstack(zs), np.vstack(us), np.vstack(ps), np.vstack(y_py),
+                   np.vstack(zn_py))
+
+
+def test_c_core_equals_the_python_controller_on_100000_random_samples(
+        harness: ctypes.CDLL, samples: Samples) -> None:
+    z_all, u_all, p_all, y_ref = samples.z, samples.u, samples.p, samples.y
+    names = [v.name for v in controller_model().parameters]
     y_c, zn_c = _c_core(harness, z_all, u_all, p_all)
+    samples.assert_equal(y_c, zn_c, "C on the host")
 
     assert len(z_all) >= 100_000
-    for col, name in enumerate((*SIGNAL_OUTPUTS, "phase", "converged")):
-        np.testing.assert_allclose(y_c[:, col], y_ref[:, col], rtol=1e-12, atol=1e-12,
-                                   err_msg=name)
-    for col, name in enumerate(STATES):
-        np.testing.assert_allclose(zn_c[:, col], zn_ref[:, col], rtol=1e-12, atol=1e-12,
-                                   err_msg=f"next {name}")
 
     # the samples reach every branch of the law (else the comparison proves little)
     out = {n: y_ref[:, i] for i, n in enumerate((*SIGNAL_OUTPUTS, "phase", "converged"))}
@@ -227,6 +250,67 @@ def test_c_core_equals_the_python_controller_on_100000_random_samples(
     }
     thin = {k: int(v) for k, v in coverage.items() if v < 200}
     assert not thin, f"branches reached by fewer than 200 samples: {thin}"
+
+
+_CROSS_MAIN = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "model.h"
+/* test-only: read n and the rows of z, u, p from argv[1], write y and z_next to argv[2] */
+int main(int argc, char **argv) {
+    FILE *in, *out;
+    int n, i;
+    double *z, *u, *p, *y, *zn;
+    if (argc != 3 || !(in = fopen(argv[1], "rb")) || fread(&n, sizeof n, 1, in) != 1) return 2;
+    z = malloc(sizeof(double) * n * MODEL_NX); u = malloc(sizeof(double) * n * MODEL_NU);
+    p = malloc(sizeof(double) * n * MODEL_NP); y = malloc(sizeof(double) * n * MODEL_NY);
+    zn = malloc(sizeof(double) * n * MODEL_NX);
+    if (fread(z, sizeof(double), (size_t)n * MODEL_NX, in) != (size_t)n * MODEL_NX ||
+        fread(u, sizeof(double), (size_t)n * MODEL_NU, in) != (size_t)n * MODEL_NU ||
+        fread(p, sizeof(double), (size_t)n * MODEL_NP, in) != (size_t)n * MODEL_NP) return 3;
+    fclose(in);
+    for (i = 0; i < n; i++) {
+        model_outputs(z + i * MODEL_NX, u + i * MODEL_NU, p + i * MODEL_NP, y + i * MODEL_NY);
+        model_update(z + i * MODEL_NX, u + i * MODEL_NU, p + i * MODEL_NP, zn + i * MODEL_NX);
+    }
+    if (!(out = fopen(argv[2], "wb"))) return 4;
+    fwrite(y, sizeof(double), (size_t)n * MODEL_NY, out);
+    fwrite(zn, sizeof(double), (size_t)n * MODEL_NX, out);
+    return fclose(out) != 0;
+}
+"""
+
+
+@pytest.mark.slow
+def test_the_aarch64_binary_computes_the_same_law(tmp_path: Path, samples: Samples) -> None:
+    """The controller core cross-compiled by the build's compiler (zig: clang, which fuses
+    multiply-adds unless told not to) for aarch64 and run under qemu agrees with Python."""
+    import sys
+
+    pytest.importorskip("ziglang", reason="zig cross-compiles the non-host platforms")
+    if shutil.which("qemu-aarch64") is None:
+        pytest.skip("qemu-aarch64 (Debian qemu-user) runs the aarch64 binary")
+    write_controller_core(controller_model(), "{test}", tmp_path)
+    (tmp_path / "main.c").write_text(_CROSS_MAIN)
+    exe = tmp_path / "harness-aarch64"
+    cmd = [sys.executable, "-m", "ziglang", "cc", "-target", "aarch64-linux-musl", "-static",
+           *CFLAGS, f"-I{tmp_path}", f"-I{paths.fmu_src_dir()}",
+           *map(str, controller_sources()), str(tmp_path / "main.c"), "-o", str(exe), "-lm"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    assert proc.returncode == 0 and not proc.stderr.strip(), proc.stderr
+    n = len(samples.z)
+    data = tmp_path / "in.bin"
+    data.write_bytes(np.int32(n).tobytes() + b"".join(
+        np.ascontiguousarray(a).tobytes() for a in (samples.z, samples.u, samples.p)))
+    result = tmp_path / "out.bin"
+    run = subprocess.run(["qemu-aarch64", str(exe), str(data), str(result)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    raw = np.fromfile(result, dtype=np.float64)
+    n_y = samples.y.shape[1]
+    y = raw[:n * n_y].reshape(n, n_y)
+    z_next = raw[n * n_y:].reshape(n, -1)
+    samples.assert_equal(y, z_next, "C on aarch64")
 
 
 def test_output_order_follows_the_log_columns() -> None:
@@ -531,15 +615,12 @@ def test_run_ids_of_python_runs_do_not_move_and_fmu_runs_get_their_own() -> None
     import json
     from dataclasses import asdict, replace
 
-    from wmr.batch.spec import spec_digest
+    from wmr.batch.spec import _canonical, spec_digest
 
     spec = load_scenario("fig11").runs[0]
-    fields_before = asdict(spec)
-    del fields_before["controller_fmu"]
-    text = json.dumps({k: repr(v) if isinstance(v, float) else
-                       ({kk: repr(vv) if isinstance(vv, float) else vv for kk, vv in v.items()}
-                        if isinstance(v, dict) else v) for k, v in fields_before.items()},
-                      sort_keys=True, separators=(",", ":"))
+    before = asdict(spec)
+    del before["controller_fmu"], before["sensors"]  # the fields of a run before either key
+    text = json.dumps(_canonical(before), sort_keys=True, separators=(",", ":"))
     assert spec_digest(spec) == hashlib.sha256(text.encode()).hexdigest()
     assert spec_digest(replace(spec, controller_fmu="")) != spec_digest(spec)
 
@@ -569,3 +650,16 @@ def test_a_robot_fmu_or_a_peer_controller_is_refused_in_one_line(
     with FmuController(built.controllers[3]) as ctrl, \
             pytest.raises(ConfigError, match=r"controller_fmu.*astolfi"):
         ctrl.configure(spec)
+
+
+def test_with_sensors_the_controller_fmu_gets_the_estimate_and_logs_the_same(
+        tmp_path: Path, built: BuildResult, capsys: pytest.CaptureFixture[str]) -> None:
+    """The master feeds either controller the EKF's estimate: same rows with sensors on."""
+    py, fmu = tmp_path / "py.mcap", tmp_path / "fmu.mcap"
+    assert main(["run", "--sensors", "gps", "--out", str(py)]) == 0
+    assert main(["run", "--sensors", "gps", "--controller-fmu", "--out", str(fmu)]) == 0
+    ref, got = read_run(py), read_run(fmu)
+    assert ref.n_steps == got.n_steps
+    for name in SIGNALS:
+        np.testing.assert_allclose(got.signals[name], ref.signals[name], rtol=0, atol=1e-9,
+                                   err_msg=name)

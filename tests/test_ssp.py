@@ -236,3 +236,16 @@ def test_the_docs_list_what_the_package_holds(built: BuildResult, ssp_dir: Path)
     for name in ctrl:
         section = name.split(".")[0]
         assert f"`{name}`" in doc or f"`{section}.*`" in doc, name
+
+
+def test_a_run_with_sensors_is_not_exported(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """The package wires true outputs to the controller: a sensed run would be another run."""
+    scenario = tmp_path / "sensed.toml"
+    scenario.write_text('start = [0.0, 0.0, 0.0]\ngoal = [5.0, 2.0, 0.0]\n'
+                        '[sensors]\nestimator = "ekf"\ngps_sigma_m = 0.02\n')
+    out = tmp_path / "s.ssp"
+    assert main(["ssp", "export", str(scenario), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "sensors" in err and "perfect measurements" in err
+    assert not out.exists()

@@ -45,7 +45,8 @@ def _jsonable(value: float | None) -> float | None:
 
 def run_metadata(spec: RunSpec, plant: FmuPlant,
                  controller_fmu: FmuController | None = None) -> dict[str, object]:
-    """The ``run`` metadata record of a log (interface.md); ``fmu_map`` for a mapped FMU."""
+    """The ``run`` metadata record of a log (interface.md); ``sensors`` only when on, the
+    controller FMU only when it ran the law, ``fmu_map`` for a mapped robot FMU."""
     extra: dict[str, object] = {} if controller_fmu is None else {
         "controller_fmu_file": controller_fmu.fmu_path.name,
         "controller_fmu_sha256": controller_fmu.sha256}
@@ -69,6 +70,8 @@ def run_metadata(spec: RunSpec, plant: FmuPlant,
         "software_version": f"wmr-cosim {__version__}",
         **extra,
     }
+    if spec.sensors is not None:
+        meta["sensors"] = spec.sensors.as_dict()
     var_map = getattr(plant, "var_map", None)  # test doubles of a plant have none
     if var_map is not None:
         meta["fmu_map"] = var_map.as_dict()
@@ -102,7 +105,10 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     dict
         The fields of ``wmr run --json``: ``status`` (``converged``, ``timeout``, ``failed``),
         ``message``, ``final_position_error_m``, ``final_heading_error_rad``,
-        ``time_to_goal_s``, ``path_length_m``, ``mcap``, and the energy and torque figures.
+        ``time_to_goal_s``, ``path_length_m``, ``mcap``, the energy and torque figures, and
+        ``estimated_final_position_error_m``, ``estimated_final_heading_error_rad``: the errors
+        the stabiliser believed (the ``final_*`` ones are the true errors; the two agree
+        without sensors).
     """
     path = Path(mcap_path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -128,8 +134,16 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
             "torque_sq_integral_n2m2s": _jsonable(result.torque_sq_integral),
             "peak_torque_nm": _jsonable(result.peak_torque_nm),
             "steps": result.steps,
+            "estimated_final_position_error_m":
+                _jsonable(result.estimated_final_position_error_m),
+            "estimated_final_heading_error_rad":
+                _jsonable(result.estimated_final_heading_error_rad),
             "mcap": str(path),
         }
+        if result.sensing is not None:
+            from wmr.sensing.log import write_sensing
+
+            write_sensing(log, result.sensing)
         log.close(record)
     return record
 

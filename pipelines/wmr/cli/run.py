@@ -99,6 +99,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         params=_key_values(args.param, "--param"), period_s=args.period,
         stop_radius_m=args.stop_radius, t_max_s=args.max_time,
         name=_pose_name(run.name, args.start, args.goal))
+    if args.sensors is not None or args.sensor:
+        from dataclasses import replace
+
+        from wmr.sensing.config import command_line_sensors
+
+        spec = replace(spec, sensors=command_line_sensors(spec.sensors, args.sensors,
+                                                          args.sensor))
     out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(spec.name)}.mcap"
     if out.suffix != ".mcap":
         raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
@@ -142,6 +149,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 f"{record['final_position_error_m']:.4f} m, heading error "
                 f"{record['final_heading_error_rad']:.5f} rad, path "
                 f"{record['path_length_m']:.2f} m; log {record['mcap']}")
+        if spec.sensors is not None:
+            line += (f"; as estimated: {record['estimated_final_position_error_m']:.4f} m, "
+                     f"{record['estimated_final_heading_error_rad']:.5f} rad")
         print(line)
     return 0 if record["status"] == "converged" else 3 if record["status"] == "timeout" else 1
 
@@ -180,6 +190,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--controller-fmu", nargs="?", const="", default=None, metavar="FILE.fmu",
                    help="run the stabiliser in the controller FMU (C, FMI --fmi) instead of "
                         "Python: the built one, or FILE.fmu (scenario key controller_fmu)")
+    p.add_argument("--sensors", metavar="PRESET", choices=("gps", "raw", "off"),
+                   help="measure instead of knowing: gps (2 cm fixes at 10 Hz, 50 ms late, "
+                        "encoders, EKF), raw (the same fixes and a compass fed raw), off "
+                        "(perfect state feedback); see docs/sensing.md")
+    p.add_argument("--sensor", action="append", metavar="NAME=VALUE",
+                   help="set one field of the [sensors] table (gps_sigma_m=0.05, "
+                        "estimator=ekf, ...)")
     p.add_argument("--out", metavar="FILE.mcap", help="log file (default runs/NAME.mcap)")
     p.add_argument("--json", action="store_true",
                    help="print the result as one JSON object on the last line")

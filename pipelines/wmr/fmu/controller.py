@@ -207,14 +207,8 @@ def controller_sources() -> list[Path]:
 def write_controller_core(model: ControllerModel, token: str, out_dir: Path) -> list[Path]:
     """Write the generated files (sizes, indices, variable table) into ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    period_vr = model.value_references[model.period_parameter]
-    sizes = sizes_header(model).replace(
-        "#endif\n",
-        "#define MODEL_SAMPLED 1\n"
-        f'#define MODEL_SAMPLE_PERIOD_NAME "{model.period_parameter}"\n'
-        f"#define MODEL_SAMPLE_PERIOD_VR {period_vr}\n#endif\n")
     files = {
-        "model_sizes.h": sizes,
+        "model_sizes.h": sizes_header(model),
         "model_indices.h": indices_header(model),
         "model_variables.c": variables_source(model, token),
     }
@@ -226,6 +220,48 @@ def write_controller_core(model: ControllerModel, token: str, out_dir: Path) -> 
     return written
 
 
+def index_html(model: ControllerModel) -> str:
+    """``documentation/index.html`` of the controller FMUs."""
+    from html import escape
+
+    from wmr import __version__
+    from wmr.fmu.documentation import PAPER, _table
+
+    return f"""<!DOCTYPE html>
+<html lang="en">
+<head><meta charset="utf-8"><title>{escape(model.name)}: {escape(model.description)}</title>
+<style>body{{font-family:sans-serif;max-width:60em;margin:auto}}
+table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:left}}
+</style></head>
+<body>
+<h1>{escape(model.name)}</h1>
+<p>{escape(model.description)}. The point stabiliser of the paper below (reference point and
+reference orientation control, eqs. 25 to 27; two PI controllers with conditional-integration
+anti-windup, eq. 29; the inverse kinematics eq. 28 read as rates) with a PI speed servo per
+wheel (back-calculation anti-windup, friction feed-forward), and the extensions of wmr-cosim:
+final alignment inside the stop radius, forward motion only, |beta| clamped to 60 degrees,
+hysteresis of the angles near +-pi. Hand-written C, built by wmr-cosim {escape(__version__)}
+on the FMI layer of the robot FMU; equal to the Python controller of wmr-cosim to rounding.</p>
+<p><b>Sampling.</b> The FMU samples once per communication step, which must equal the
+parameter <code>control_period_s</code> (any other step size is refused with an error). At a
+communication point the outputs are the sample computed from the inputs set there (direct
+feedthrough); <code>fmiDoStep</code> commits the controller's discrete state. Connect the
+robot's outputs <code>x, y, theta, v, omega, omega_r, omega_l</code> to the inputs of the same
+names and <code>tau_r, tau_l</code> back to the robot. <code>converged</code> turns 1 when the
+robot is at the goal, aligned and at rest. Non-finite inputs are refused with an error.</p>
+
+<h2>Variables</h2>
+{_table("Inputs", model.inputs, "start")}
+{_table("Outputs", model.outputs, "start")}
+{_table("Parameters", model.parameters, "default")}
+
+<h2>Paper</h2>
+<p>{escape(PAPER)}</p>
+</body>
+</html>
+"""
+
+
 __all__ = [
     "CONTROLLER_IDENTIFIER",
     "INPUTS",
@@ -234,6 +270,7 @@ __all__ = [
     "ControllerModel",
     "controller_model",
     "controller_sources",
+    "index_html",
     "indices_header",
     "write_controller_core",
 ]

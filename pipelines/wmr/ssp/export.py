@@ -215,6 +215,10 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     if spec.controller != "pi":
         raise ConfigError("controller", f"the controller FMU is the paper's PI stabiliser, "
                           f"not {spec.controller!r}", 'export a scenario with controller = "pi"')
+    if spec.sensors is not None:
+        raise ConfigError("sensors", "the package connects the robot's outputs to the "
+                          "controller directly (perfect measurements): it has no sensor models",
+                          "export the run without sensors (--sensors off or no [sensors])")
     robot_path, ctrl_path = Path(robot_fmu), Path(controller_fmu)
     robot_md, ctrl_md = _model_description(robot_path), _model_description(ctrl_path)
     if robot_md.fmiVersion != ctrl_md.fmiVersion:
