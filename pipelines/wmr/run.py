@@ -46,7 +46,7 @@ def _jsonable(value: float | None) -> float | None:
 def run_metadata(spec: RunSpec, plant: FmuPlant,
                  controller_fmu: FmuController | None = None) -> dict[str, object]:
     """The ``run`` metadata record of a log (interface.md); ``sensors`` only when on, the
-    controller FMU only when it ran the law."""
+    controller FMU only when it ran the law, ``fmu_map`` for a mapped robot FMU."""
     extra: dict[str, object] = {} if controller_fmu is None else {
         "controller_fmu_file": controller_fmu.fmu_path.name,
         "controller_fmu_sha256": controller_fmu.sha256}
@@ -72,6 +72,9 @@ def run_metadata(spec: RunSpec, plant: FmuPlant,
     }
     if spec.sensors is not None:
         meta["sensors"] = spec.sensors.as_dict()
+    var_map = getattr(plant, "var_map", None)  # test doubles of a plant have none
+    if var_map is not None:
+        meta["fmu_map"] = var_map.as_dict()
     return meta
 
 

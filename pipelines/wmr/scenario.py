@@ -11,6 +11,8 @@ A scenario file::
     heading_tolerance_deg = 0.5      # final alignment tolerance, default 0.5
     max_time_s = 120.0               # default 120
     controller = "pi"                # pi (default), astolfi or graceful (wmr.control.peers)
+    fmu = "other_robot.fmu"          # optional: drive this robot FMU (path relative to here)
+    fmu_map = "other_robot.toml"     # optional: its variable map (docs/fmu_map.md)
     controller_fmu = true            # run the PI law in the controller FMU (or a path to one)
 
     [controller_gains]               # a peer's own gains (astolfi: k_rho, k_alpha, ...)
@@ -60,7 +62,7 @@ MAX_STEPS = 10_000_000
 
 TOP_FIELDS = ("name", "description", "start", "goal", "runs", "gains", "limits", "params",
               "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s",
-              "controller", "controller_gains", "controller_fmu", "sensors")
+              "controller", "controller_gains", "controller_fmu", "sensors", "fmu", "fmu_map")
 RUN_FIELDS = ("name", "start", "goal", "max_time_s")
 
 
@@ -121,6 +123,10 @@ class Scenario:
     description: str
     runs: tuple[RunSpec, ...]
     path: Path | None = None
+    #: The robot FMU to drive and its variable map (:mod:`wmr.fmu.varmap`); ``None``: the
+    #: project's own FMU, our names.
+    fmu: Path | None = None
+    fmu_map: Path | None = None
 
 
 def _finite(field: str, value: object) -> float:
@@ -263,7 +269,20 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                             scenario=name, controller=controller,
                             controller_gains=peer_gains, controller_fmu=controller_fmu,
                             sensors=sensors))
-    return Scenario(name=name, description=description, runs=tuple(runs), path=path)
+    return Scenario(name=name, description=description, runs=tuple(runs), path=path,
+                    fmu=_file_field(data, "fmu", path), fmu_map=_file_field(data, "fmu_map", path))
+
+
+def _file_field(data: Mapping[str, Any], key: str, path: Path | None) -> Path | None:
+    """A file named by the scenario, relative to the scenario file's folder."""
+    value = data.get(key)
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value:
+        raise ConfigError(key, f"must be a file path, got {value!r}",
+                          f'write e.g. {key} = "robot.{"fmu" if key == "fmu" else "toml"}"')
+    p = Path(value).expanduser()
+    return p if p.is_absolute() or path is None else path.parent / p
 
 
 def resolve_scenario_path(name_or_path: str | Path | None = None) -> Path:

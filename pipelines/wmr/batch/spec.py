@@ -163,6 +163,9 @@ class BatchSpec:
     input_columns: tuple[str, ...]
     path: Path | None = None
     source: bytes = b""
+    #: The scenario part's ``fmu`` and ``fmu_map`` (:mod:`wmr.fmu.varmap`), if given.
+    fmu: Path | None = None
+    fmu_map: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -543,7 +546,8 @@ def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | N
                                          inputs=_inputs(spec, values, columns)))
                     index += 1
     return BatchSpec(name=scenario.name, description=scenario.description, runs=tuple(runs),
-                     input_columns=tuple(columns), path=path, source=raw)
+                     input_columns=tuple(columns), path=path, source=raw,
+                     fmu=scenario.fmu, fmu_map=scenario.fmu_map)
 
 
 def load_batch(name_or_path: str | Path) -> BatchSpec:

@@ -61,9 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
                                         None]]:
     """The ``register`` functions of the other sub-commands, in ``--help`` order."""
-    from wmr.cli import batch, optimal, replay, run
+    from wmr.cli import batch, optimal, replay, run, ssp
 
-    return [run.register, replay.register, batch.register, optimal.register]
+    return [run.register, replay.register, batch.register, optimal.register, ssp.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
