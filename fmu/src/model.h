@@ -31,6 +31,17 @@
 #define WMR_INTERNAL
 #endif
 
+/* A sampled-data model (the controller FMU) defines MODEL_SAMPLED 1 in
+ * model_sizes.h.  Its x[] holds discrete states z, constant between samples
+ * (model_derivatives returns zeros and is never called by the layer); the
+ * outputs y = model_outputs(z, u, p) are the sample at the current
+ * communication point, with direct feedthrough from u, and doStep commits
+ * z := model_update(z, u, p) for a step of exactly model_sample_period(p)
+ * (any other step size is refused; no Model Exchange; see README.md). */
+#ifndef MODEL_SAMPLED
+#define MODEL_SAMPLED 0
+#endif
+
 /* 1 if the model core defines model_jacobian (directional derivatives). */
 #ifndef MODEL_PROVIDES_JACOBIAN
 #define MODEL_PROVIDES_JACOBIAN 0
@@ -65,16 +76,19 @@ extern const char MODEL_INSTANTIATION_TOKEN[];
 
 /* Continuous state at the start time from the parameters (the Modelica
  * start values, x(start = x0, fixed = true)).  Returns 0 on success. */
-WMR_INTERNAL int model_initial_state(const double p[MODEL_NP], double x[MODEL_NX]);
+WMR_INTERNAL
+int model_initial_state(const double p[MODEL_NP], double x[MODEL_NX]);
 
 /* dx/dt = f(x, u, p): the explicit form of the Modelica equations.  Returns 0
  * on success; the caller checks the result for non-finite values. */
-WMR_INTERNAL int model_derivatives(const double x[MODEL_NX], const double u[MODEL_NU],
+WMR_INTERNAL
+int model_derivatives(const double x[MODEL_NX], const double u[MODEL_NU],
                       const double p[MODEL_NP], double dx[MODEL_NX]);
 
 /* y = g(x, u, p).  Returns 0 on success. */
-WMR_INTERNAL int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU],
-                               const double p[MODEL_NP], double y[MODEL_NY]);
+WMR_INTERNAL
+int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU],
+                  const double p[MODEL_NP], double y[MODEL_NY]);
 
 #if MODEL_PROVIDES_JACOBIAN
 /* Rows of the Jacobian: dx/dt (MODEL_NX) then y (MODEL_NY); columns: x then u. */
@@ -83,9 +97,22 @@ WMR_INTERNAL int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU
 /* The exact Jacobian d(f, g)/d(x, u) at (x, u, p) (CasADi's algorithmic differentiation of
  * the same expressions), dense and column-major: J[col * MODEL_JAC_ROWS + row].  Returns 0
  * on success. */
-WMR_INTERNAL int model_jacobian(const double x[MODEL_NX], const double u[MODEL_NU],
-                                const double p[MODEL_NP],
-                                double jac[MODEL_JAC_ROWS * MODEL_JAC_COLS]);
+WMR_INTERNAL
+int model_jacobian(const double x[MODEL_NX], const double u[MODEL_NU],
+                   const double p[MODEL_NP],
+                   double jac[MODEL_JAC_ROWS * MODEL_JAC_COLS]);
+#endif
+
+#if MODEL_SAMPLED
+/* The sample period h (s), the only communication step size doStep accepts. */
+WMR_INTERNAL
+double model_sample_period(const double p[MODEL_NP]);
+
+/* z_next: the discrete state after the sample at the current communication
+ * point with inputs u.  Returns 0 on success. */
+WMR_INTERNAL
+int model_update(const double z[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
+                 double z_next[MODEL_NX]);
 #endif
 
 #endif
