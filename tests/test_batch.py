@@ -391,3 +391,15 @@ def test_ctrl_c_stops_cleanly_and_the_rerun_finishes(spec20: Path, fmu3: Path,
 
 def _rows(out: Path) -> list[dict[str, Any]]:
     return pq.read_table(out / "summary.parquet").to_pylist()
+
+
+def test_each_batch_log_attaches_its_own_run_not_the_spec(reference: Path, spec20: Path) -> None:
+    from wmr.scenario import parse_scenario
+
+    runs = load_batch(spec20).runs
+    for r in (runs[0], runs[7]):
+        log = read_run(reference / "runs" / f"{r.run_id}.mcap")
+        tomls = [n for n in log.attachments if n.endswith(".toml")]
+        assert tomls == [f"{r.spec.name}.toml"]
+        back = parse_scenario(tomllib.loads(log.attachments[tomls[0]].decode())).runs
+        assert back == (r.spec,)

@@ -19,7 +19,9 @@ from wmr import __version__
 from wmr.closedloop import BlockSink, Progress, run_closed_loop
 from wmr.fmu.plant import FmuPlant
 from wmr.mcaplog import RunLogWriter
+from wmr.paths import safe_filename
 from wmr.scenario import RunSpec
+from wmr.scenario_file import run_spec_toml
 
 
 def default_fmu(fmi_version: int = 3) -> Path:
@@ -56,13 +58,20 @@ def run_metadata(spec: RunSpec, plant: FmuPlant) -> dict[str, object]:
     }
 
 
-def _attachments(plant: FmuPlant, scenario_file: Path | None) -> dict[str, tuple[str, bytes]]:
+def scenario_attachment_name(spec: RunSpec) -> str:
+    """Name of the effective scenario a run's log attaches: ``NAME.toml``."""
+    return f"{safe_filename(spec.name)}.toml"
+
+
+def _attachments(spec: RunSpec, plant: FmuPlant) -> dict[str, tuple[str, bytes]]:
+    """The FMU's ``modelDescription.xml`` and the run's effective scenario: the scenario file
+    with every override of this run applied, one run only (a batch run's log holds its own
+    run, not the whole spec), which ``wmr run`` reads back into the same run."""
     with zipfile.ZipFile(plant.fmu_path) as zf:
         md = zf.read("modelDescription.xml")
-    att = {"modelDescription.xml": ("application/xml", md)}
-    if scenario_file is not None:
-        att[scenario_file.name] = ("application/toml", scenario_file.read_bytes())
-    return att
+    return {"modelDescription.xml": ("application/xml", md),
+            scenario_attachment_name(spec): ("application/toml",
+                                             run_spec_toml(spec).encode("utf-8"))}
 
 
 def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant, *,
@@ -70,6 +79,9 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
                progress: Progress | None = None,
                also: BlockSink | None = None) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
+
+    The log attaches the run's effective scenario (:func:`scenario_attachment_name`), not
+    ``scenario_file``, whose name only is recorded in the ``run`` metadata (``source_file``).
 
     The log is written as the run goes: a run killed midway leaves a log readable up to its
     last chunk (without a ``result`` record).  A run that fails is logged with status
@@ -86,8 +98,10 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     path = Path(mcap_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
-    with RunLogWriter(path, run=run_metadata(spec, plant), goal=goal,
-                      attachments=_attachments(plant, scenario_file)) as log:
+    run = run_metadata(spec, plant)
+    if scenario_file is not None:
+        run["source_file"] = Path(scenario_file).name
+    with RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant)) as log:
         sink: BlockSink = log
         if also is not None:
             from wmr.replay import TeeSink

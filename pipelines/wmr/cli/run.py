@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from wmr.errors import ConfigError
-from wmr.paths import safe_filename
 
 
 def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
@@ -24,18 +24,6 @@ def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
         except ValueError:
             raise ConfigError(f"{option} {name}", f"{value!r} is not a number") from None
     return out
-
-
-def _pose_name(name: str, start: list[float] | None, goal: list[float] | None) -> str | None:
-    """A run whose start or goal is typed in is named after them, so that its log and its
-    ``run`` record do not pass for the scenario's own run (``fig11`` to (20, 10, 0))."""
-    if start is None and goal is None:
-        return None
-    parts = [name]
-    for label, pose in (("from", start), ("to", goal)):
-        if pose is not None:
-            parts.append(f"{label}_{pose[0]:g}_{pose[1]:g}_{pose[2]:g}deg")
-    return "-".join(parts)
 
 
 def add_run_overrides(parser: argparse.ArgumentParser) -> None:
@@ -62,6 +50,7 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.fmu.plant import FmuPlant
+    from wmr.naming import default_log_path, fmu_tokens, run_name
     from wmr.run import default_fmu, result_json, run_to_log
     from wmr.scenario import load_scenario, with_overrides
 
@@ -83,9 +72,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         runs[0], start=args.start, goal=args.goal,
         gains=_key_values(args.gain, "--gain"), limits=_key_values(args.limit, "--limit"),
         params=_key_values(args.param, "--param"), period_s=args.period,
-        stop_radius_m=args.stop_radius, t_max_s=args.max_time,
-        name=_pose_name(runs[0].name, args.start, args.goal))
-    out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(spec.name)}.mcap"
+        stop_radius_m=args.stop_radius, t_max_s=args.max_time)
+    # a variant is named after what it changes, so that its log never overwrites the
+    # scenario's own run (runs/fig11.mcap) nor passes for it
+    spec = replace(spec, name=run_name(runs[0], spec, fmu_tokens(args.fmi, args.fmu)))
+    out = Path(args.out) if args.out else default_log_path(spec.name)
     if out.suffix != ".mcap":
         raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
     fmu_path = Path(args.fmu) if args.fmu else default_fmu(args.fmi)
