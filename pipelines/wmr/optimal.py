@@ -27,6 +27,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
+from wmr.energy import wheel_work
 from wmr.errors import ConfigError
 from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
 
@@ -538,10 +539,9 @@ class OptimalResult:
         Duration T of the manoeuvre, s (NaN unless solved).
     path_length_m
         Length of the path of B, :math:`\\int |v| dt`, m.
-    energy_J
-        Positive mechanical work of the motors, J,
-        :math:`\\int \\sum_i \\max(\\tau_i \\omega_i, 0) dt`
-        (the net work is zero without friction: the robot starts and ends at rest).
+    energy_positive_j
+        Work the motors deliver, J (:mod:`wmr.energy`: none recovered when braking; the net
+        work is zero without friction, the robot starts and ends at rest).
     effort_N2m2s
         Control effort :math:`\\int (\\tau_r^2 + \\tau_l^2) dt`, N^2 m^2 s (the energy objective).
     max_wheel_speed_radps
@@ -567,7 +567,7 @@ class OptimalResult:
     torques: FloatArray
     final_time_s: float
     path_length_m: float
-    energy_J: float
+    energy_positive_j: float
     effort_N2m2s: float
     solve_time_s: float
     iterations: int
@@ -598,7 +598,7 @@ class OptimalResult:
             "objective": self.objective,
             "final_time_s": num(self.final_time_s),
             "path_length_m": num(self.path_length_m),
-            "energy_J": num(self.energy_J),
+            "energy_positive_j": num(self.energy_positive_j),
             "effort_N2m2s": num(self.effort_N2m2s),
             "solve_time_s": self.solve_time_s,
             "iterations": self.iterations,
@@ -622,7 +622,7 @@ def _empty_result(status: Status, message: str, objective: Objective, start: Pos
         states={n: (np.array([x0[i]]) if solved else np.zeros(0))
                 for i, n in enumerate(m.state_names)},
         torques=np.zeros((0, 2)), final_time_s=final_time_s,
-        path_length_m=0.0 if solved else math.nan, energy_J=0.0 if solved else math.nan,
+        path_length_m=0.0 if solved else math.nan, energy_positive_j=0.0 if solved else math.nan,
         effort_N2m2s=0.0 if solved else math.nan, solve_time_s=0.0, iterations=0,
         max_wheel_speed_radps=0.0 if solved else math.nan,
         rollout_error_m=0.0 if solved else math.nan)
@@ -660,12 +660,9 @@ def _integrals(start: Pose, goal: Pose, params: RobotParams, torques: FloatArray
     wr, wl = ya[:, m.oy("omega_r")], ya[:, m.oy("omega_l")]
     fine = (len(t) - 1) // max(len(torques), 1)
     u = np.repeat(torques, fine, axis=0)
-    # power at the left and right end of each fine step, the torque of that step
-    pw_a = np.maximum(u[:, 0] * wr[:-1], 0) + np.maximum(u[:, 1] * wl[:-1], 0)
-    pw_b = np.maximum(u[:, 0] * wr[1:], 0) + np.maximum(u[:, 1] * wl[1:], 0)
     dt = np.diff(t)
     length = float(np.sum(0.5 * dt * (speed[1:] + speed[:-1])))
-    work = float(np.sum(0.5 * dt * (pw_a + pw_b)))
+    work = wheel_work(u, np.column_stack([wr, wl]), dt)["energy_positive_j"]
     miss = math.hypot(xa[-1, m.sx("x")] - goal.x_m, xa[-1, m.sx("y")] - goal.y_m)
     return length, work, float(max(np.max(np.abs(wr)), np.max(np.abs(wl)))), miss
 
@@ -805,8 +802,9 @@ def solve_optimal(
             status="solved", message="start equals goal: staying at rest is optimal",
             objective=objective, start=start, goal=goal, params=params, limits=limits, t_s=t,
             states={nm: np.full(n + 1, x0[i]) for i, nm in enumerate(m.state_names)},
-            torques=np.zeros((n, 2)), final_time_s=T_fixed, path_length_m=0.0, energy_J=0.0,
-            effort_N2m2s=0.0, solve_time_s=0.0, iterations=0, rk_substeps=rk_substeps,
+            torques=np.zeros((n, 2)), final_time_s=T_fixed, path_length_m=0.0,
+            energy_positive_j=0.0, effort_N2m2s=0.0, solve_time_s=0.0, iterations=0,
+            rk_substeps=rk_substeps,
             max_wheel_speed_radps=0.0, rollout_error_m=0.0)
     zero = limits.zero_limit()
     if zero is not None:
@@ -907,7 +905,7 @@ def _solve_nlp(nlp: _Nlp, guess: _Guess, lbx: FloatArray, ubx: FloatArray, lbg: 
         params=params, limits=limits, t_s=np.linspace(0.0, T, n + 1),
         states={nm: xs[i].copy() for i, nm in enumerate(m.state_names)}, torques=us,
         final_time_s=T if status == "solved" else math.nan,
-        path_length_m=length, energy_J=work, effort_N2m2s=effort, solve_time_s=solve_time,
+        path_length_m=length, energy_positive_j=work, effort_N2m2s=effort, solve_time_s=solve_time,
         iterations=iters, rk_substeps=rk_substeps, return_status=ret,
         max_wheel_speed_radps=wmax, rollout_error_m=miss, extra={"constraint_violation": viol,
                                            "guess_final_time_s": guess.final_time_s})

@@ -93,7 +93,8 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
         "objective": res.objective,
         "final_time_s": res.final_time_s if res.status == "solved" else None,
         "path_length_m": None, "mcap": None,
-        "ocp_path_length_m": res.path_length_m, "energy_J": res.energy_J,
+        "ocp_path_length_m": res.path_length_m,
+        "ocp_energy_positive_j": res.energy_positive_j,
         "effort_N2m2s": res.effort_N2m2s, "solve_time_s": res.solve_time_s,
         "iterations": res.iterations, "limits": res.summary()["limits"],
     }
