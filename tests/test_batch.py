@@ -282,8 +282,9 @@ max_time_s = 15.0
 [[list]]
 name = "ok"
 [[list]]
-name = "singular"                     # valid fields, but the FMU cannot initialise
-params = { m = 0.0, Ig = 0.0, Iwm = 0.0 }
+name = "singular"                     # valid fields, but the FMU cannot integrate them
+params = { m = 1e-300, Ig = 0.0, Iwm = 0.0 }
+gains = { K_pw = 0.0 }                # (no servo gain that the period check would refuse)
 [[list]]
 name = "weak"                         # 0.01 N m cannot move the robot in 2 s
 limits = { torque_max_nm = 0.01 }
@@ -313,7 +314,7 @@ def test_failures_timeouts_hangs_and_crashes_are_rows(fmu3: Path, tmp_path: Path
     rows = {row["variant"]: row for row in table}
     assert rows["ok"]["status"] == rows["ok2"]["status"] == "converged"
     assert rows["singular"]["status"] == "failed"
-    assert "exitInitializationMode" in rows["singular"]["message"]
+    assert "DoStep returned Error" in rows["singular"]["message"]
     assert rows["weak"]["status"] == "timeout"
     assert "max_time_s" in rows["weak"]["message"]
     assert rows["slow"]["status"] == "timeout"

@@ -24,7 +24,7 @@ def _run_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict
 
 
 @pytest.mark.parametrize(("override", "token"), [
-    ({"params": {"m": 0.5}}, "m=0.5"),
+    ({"params": {"m": 40.0}}, "m=40"),
     ({"gains": {"K_ps": 0.3}}, "K_ps=0.3"),
     ({"limits": {"torque_max_nm": 6.0}}, "torque_max_nm=6"),
     ({"period_s": 0.02}, "period=0.02"),

@@ -85,5 +85,10 @@ def default_log_path(name: str, folder: str | Path = "runs") -> Path:
     return Path(folder) / f"{safe_filename(name)}.mcap"
 
 
-__all__ = ["default_log_path", "fmu_tokens", "pose_token", "run_name", "spec_tokens",
+def plural(n: int, noun: str) -> str:
+    """``1 run``, ``2 runs``, ``0 runs``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+__all__ = ["default_log_path", "fmu_tokens", "plural", "pose_token", "run_name", "spec_tokens",
            "variant_name"]

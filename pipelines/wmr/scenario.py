@@ -94,6 +94,7 @@ class RunSpec:
         for label, pose in (("start", self.start), ("goal", self.goal)):
             for f in fields(pose):
                 _finite(f"{label}.{f.name}", getattr(pose, f.name))
+        _check_sanity(self)
 
     @property
     def n_steps_max(self) -> int:
@@ -109,6 +110,42 @@ class Scenario:
     description: str
     runs: tuple[RunSpec, ...]
     path: Path | None = None
+
+
+def _check_sanity(spec: RunSpec) -> None:
+    """Refuse settings that are valid numbers but cannot give a meaningful run.
+
+    * The period against the wheel servos: seen from a wheel the robot is an inertia J
+      (``docs/control.md``: the smaller of the common mode r^2 M11 / 2 and the differential
+      mode r^2 M22 / (2 L^2)); the sampled P loop of gain K_pw on it is stable only for
+      K_pw h / J < 2.
+    * The stop radius against the trip: a radius that reaches the start makes the run
+      "converge" where it stands.
+    """
+    from wmr.physics import mass_matrix_diag
+
+    p = spec.params
+    m11, m22 = mass_matrix_diag(p)
+    if m22 <= 0.0:
+        raise ConfigError("params.Ig", "the platform has no inertia about its vertical axis "
+                          "(Ig + m l^2 + 2 L^2 Iwm / r^2 = 0): the mass matrix of eq. 24 is "
+                          "singular", "give Ig > 0")
+    j_min = min(p.r**2 * m11 / 2.0, p.r**2 * m22 / (2.0 * p.L**2))
+    loop = spec.gains.K_pw * spec.period_s / j_min
+    if loop >= 2.0:
+        raise ConfigError("control_period_s",
+                          f"{spec.period_s:g} s is too long for the wheel servos: K_pw h / J = "
+                          f"{loop:.3g} >= 2 (K_pw = {spec.gains.K_pw:g} N m s/rad, wheel "
+                          f"inertia J = {j_min:.3g} kg m^2) makes the sampled servo unstable",
+                          f"give a period below {2.0 * j_min / spec.gains.K_pw:.3g} s, or a "
+                          "smaller K_pw")
+    distance = math.hypot(spec.goal.x_m - spec.start.x_m, spec.goal.y_m - spec.start.y_m)
+    if spec.stop_radius_m > DEFAULT_STOP_RADIUS_M and spec.stop_radius_m >= distance > 0.0:
+        raise ConfigError("stop_radius_m",
+                          f"{spec.stop_radius_m:g} m reaches the start, {distance:.3g} m from "
+                          "the goal: the run would count as converged where it stands",
+                          f"give a stop radius below {distance:.3g} m (default "
+                          f"{DEFAULT_STOP_RADIUS_M:g})")
 
 
 def _finite(field: str, value: object) -> float:

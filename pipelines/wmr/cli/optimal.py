@@ -49,6 +49,7 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
     from wmr.control import Limits
     from wmr.fmu.plant import FmuPlant
     from wmr.optimal import OptimalLimits, replay_open_loop, solve_optimal
+    from wmr.outputs import check_output
     from wmr.plant import Pose, RobotParams
 
     def pose(v: list[float] | None, default: tuple[float, float, float], name: str) -> Pose:
@@ -83,11 +84,10 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
     if args.objective == "time" and final_time is not None:
         raise ConfigError("--final-time", "the time objective leaves the final time free",
                           "drop --final-time or use --objective energy")
+    out = check_output(args.out if args.out else Path("runs") / f"optimal-{args.objective}.mcap",
+                       "--out", suffix=".mcap")
     res = solve_optimal(start, goal, params, objective=args.objective, limits=limits,
                         final_time_s=final_time)
-    out = Path(args.out) if args.out else Path("runs") / f"optimal-{args.objective}.mcap"
-    if out.suffix != ".mcap":
-        raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
     record: dict[str, Any] = {
         "status": res.status, "message": res.message + (f"; {note}" if note else ""),
         "objective": res.objective,
@@ -139,14 +139,15 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         write_tables,
     )
     from wmr.fmu.plant import FmuPlant
+    from wmr.outputs import check_output
 
+    out = check_output(args.out if args.out else Path("runs") / "benchmark", "--out", "dir")
     specs = benchmark_specs(args.scenarios or list(DEFAULT_SCENARIOS))
     if args.limit_cases is not None:
         specs = specs[: args.limit_cases]
     labels = (list(CONTROLLERS) if not args.controllers
               else [c.strip() for c in args.controllers.split(",") if c.strip()])
     tuned = load_tuned(args.tuned)
-    out = Path(args.out) if args.out else Path("runs") / "benchmark"
 
     def progress(case: str, label: str) -> None:
         if not args.json:
@@ -170,9 +171,16 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
 def _cmd_tune(args: argparse.Namespace) -> int:
     from wmr.benchmark import run_optimal
     from wmr.fmu.plant import FmuPlant
+    from wmr.outputs import check_output
     from wmr.scenario import RunSpec, load_scenario
     from wmr.tune import DEFAULT_BUDGET, default_cases, tune
 
+    budget = DEFAULT_BUDGET if args.budget is None else args.budget
+    if budget < 1:
+        raise ConfigError("--budget", f"must be an integer >= 1, got {budget}",
+                          f"give e.g. --budget {DEFAULT_BUDGET}")
+    if args.save:
+        check_output(args.save, "--save")
     specs: list[RunSpec] = []
     if args.scenarios:
         for s in args.scenarios:
@@ -190,8 +198,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
                 o = run_optimal(s, plant, None)
                 opt_times.append(o.final_time_s)
         for c in controllers:
-            res = tune(c, specs, plant,
-                       budget=DEFAULT_BUDGET if args.budget is None else args.budget)
+            res = tune(c, specs, plant, budget=budget)
             saved[c] = res.gains
             gains = ", ".join(f"{k} = {v:.4g}" for k, v in res.gains.items())
             start = ", ".join(f"{k} = {v:.4g}" for k, v in res.start_gains.items())
@@ -206,10 +213,13 @@ def _cmd_tune(args: argparse.Namespace) -> int:
                 ratio = t / t_opt if t is not None and t_opt else None
                 if ratio is not None:
                     ratios.append(ratio)
-                print(f"    {s.name:22s} {r.status if r else 'rejected':9s} "
-                      f"t = {t if t is not None else float('nan'):7.2f} s  optimal "
-                      f"{t_opt if t_opt is not None else float('nan'):7.2f} s  ratio "
-                      f"{ratio if ratio is not None else float('nan'):.3f}")
+                line = (f"    {s.name:22s} {r.status if r else 'rejected':9s} t = "
+                        + (f"{t:7.2f} s" if t is not None else "      - s"))
+                if not args.no_optimal:  # without the optimum there is nothing to compare
+                    line += ("  optimal " + (f"{t_opt:7.2f} s" if t_opt is not None
+                                             else "      - s")
+                             + "  ratio " + (f"{ratio:.3f}" if ratio is not None else "-"))
+                print(line)
             if ratios:
                 print(f"  time / optimal time: mean {sum(ratios) / len(ratios):.3f}, "
                       f"max {max(ratios):.3f}")

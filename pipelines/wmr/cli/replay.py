@@ -12,8 +12,11 @@ def _warn(line: str) -> None:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from wmr.outputs import check_output
     from wmr.replay import replay
 
+    if args.rrd is not None:
+        check_output(args.rrd, "--rrd", suffix=".rrd")
     spawn = False if args.no_viewer else None
     result = replay(args.logs, rrd=args.rrd, spawn=spawn)
     for line in result.warnings:
@@ -31,10 +34,13 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 def _cmd_figures(args: argparse.Namespace) -> int:
     from wmr.errors import ConfigError
     from wmr.figures import make_figures
+    from wmr.outputs import check_output
 
     if args.roa_grid < 0 or args.roa_headings < 1:
         raise ConfigError("--roa-grid", "needs N >= 0 and --roa-headings K >= 1",
                           "e.g. --roa-grid 9 --roa-headings 4, or --roa-grid 0 to skip it")
+
+    check_output(args.out, "--out", "dir")
 
     def progress(line: str) -> None:
         print(line, file=sys.stderr, flush=True)

@@ -51,6 +51,7 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.fmu.plant import FmuPlant
     from wmr.naming import default_log_path, fmu_tokens, run_name
+    from wmr.outputs import check_output
     from wmr.run import default_fmu, result_json, run_to_log
     from wmr.scenario import load_scenario, with_overrides
 
@@ -76,9 +77,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     # a variant is named after what it changes, so that its log never overwrites the
     # scenario's own run (runs/fig11.mcap) nor passes for it
     spec = replace(spec, name=run_name(runs[0], spec, fmu_tokens(args.fmi, args.fmu)))
-    out = Path(args.out) if args.out else default_log_path(spec.name)
-    if out.suffix != ".mcap":
-        raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
+    out = check_output(args.out if args.out else default_log_path(spec.name), "--out",
+                       suffix=".mcap")
+    if args.view:
+        check_output(out.with_suffix(".rrd"), "--view")
     fmu_path = Path(args.fmu) if args.fmu else default_fmu(args.fmi)
     progress, finish = _progress_bar(spec.name, args.json)
     live = None
@@ -94,6 +96,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             finish()
             if live is not None:
                 live.close()
+                print(f"live view recorded in {out.with_suffix('.rrd')}", file=sys.stderr)
     if args.json:
         print(result_json(record))
     else:
