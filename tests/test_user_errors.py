@@ -146,3 +146,27 @@ def test_default_outputs_are_ignored_by_git() -> None:
     if done.returncode == 128:
         pytest.skip("not a git checkout")
     assert done.stdout.split() == paths
+
+
+@pytest.mark.parametrize(("text", "field", "words"), [
+    ('name = "d"\nstart = [0.0, 0.0, 0.0]\n[[runs]]\nname = "a"\ngoal = [1.0, 0.0, 0.0]\n'
+     '[[runs]]\nname = "a"\ngoal = [2.0, 0.0, 0.0]\n', "runs[1].name", "already the name"),
+    ('name = "g"\nstart = [0.0, 0.0, 0.0]\ngoal = [1.0, 0.0, 0.0]\n[grid]\n"gains.K_ps" = '
+     '[0.4, 0.5]\n', "grid", "wmr batch"),
+])
+def test_scenario_mistakes_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                     text: str, field: str, words: str) -> None:
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    assert main(["run", str(path), "--out", str(tmp_path / "x.mcap")]) == 1
+    line = _one_error_line(capsys)
+    assert f"error: {field}:" in line and words in line
+
+
+def test_a_missing_random_seed_is_missing() -> None:
+    from wmr.batch import parse_batch
+
+    with pytest.raises(ConfigError, match=r"random\.seed: missing"):
+        parse_batch({"name": "r", "start": [0.0, 0.0, 0.0], "goal": [1.0, 0.0, 0.0],
+                     "random": {"n": 2, "gains": {"K_ps": {"dist": "uniform", "low": 0.4,
+                                                           "high": 0.6}}}})

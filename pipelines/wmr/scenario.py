@@ -210,9 +210,17 @@ def _peer_gains(controller: str, values: Mapping[str, Any]) -> tuple[tuple[str, 
     return tuple(out)
 
 
+#: Tables of a batch spec (docs/batch.md) that a scenario file does not have.
+BATCH_TABLES = ("grid", "list", "random", "sweep")
+
+
 def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                    path: Path | None = None) -> Scenario:
     """Validate a scenario's parsed TOML ``data`` and expand it into runs."""
+    for key in BATCH_TABLES:
+        if key in data:
+            raise ConfigError(key, f"{source} is a batch spec (it has [{key}]), not a scenario",
+                              f"run it with 'wmr batch {source}'")
     _check_keys(data, TOP_FIELDS, "")
     name = data.get("name", Path(source).stem)
     if not isinstance(name, str) or not name:
@@ -262,6 +270,11 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
         if not isinstance(run_name, str) or not run_name:
             raise ConfigError(f"{where}.name", f"must be a non-empty string, got {run_name!r}",
                               "quote the name")
+        earlier = [j for j, r in enumerate(runs) if r.name == run_name]
+        if earlier:
+            raise ConfigError(f"{where}.name", f"{run_name!r} is already the name of "
+                              f"runs[{earlier[0]}]: the second could not be picked with --run",
+                              "give each run its own name")
         run_t_max = _positive(f"{where}.max_time_s", run.get("max_time_s", t_max))
         runs.append(RunSpec(name=run_name, start=run_start, goal=run_goal, params=params,
                             gains=gains, limits=limits, period_s=period, stop_radius_m=eps,
