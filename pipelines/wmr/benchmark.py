@@ -46,12 +46,14 @@ import numpy.typing as npt
 
 from wmr import __version__
 from wmr.closedloop import RunResult, run_closed_loop
+from wmr.control import Limits
 from wmr.energy import ENERGY_KEYS, wheel_work
 from wmr.fmu.plant import FmuPlant
-from wmr.mcaplog import RunLogWriter
+from wmr.mcaplog import OPEN_LOOP_TOPICS, RunLogWriter
 from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
-from wmr.run import run_metadata
+from wmr.run import run_metadata, scenario_attachment_name
 from wmr.scenario import RunSpec, load_scenario
+from wmr.scenario_file import run_spec_toml
 from wmr.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 from wmr.tune import TUNED_GAINS, with_gains
 
@@ -76,7 +78,6 @@ FIELDS: Final = (
 _X, _Y = COLUMN["x_m"], COLUMN["y_m"]
 _N_PLANT = len(PLANT_SIGNALS)
 _C_TAU_R, _C_TAU_L = COLUMN["tau_r_nm"], COLUMN["tau_l_nm"]
-_C_DR = COLUMN["dr_m"]
 
 
 def _num(v: float | None) -> float | None:
@@ -189,14 +190,39 @@ def replay_figures(replay: Any, goal: Pose, stop_radius_m: float) -> dict[str, A
     }
 
 
+def replay_step_s(replay: Any) -> float:
+    """The (equal) FMU step of an open-loop replay, s: each torque interval T / N is split in
+    the same number of steps (:func:`wmr.optimal.replay_open_loop`)."""
+    t = np.asarray(replay.t_s, dtype=float)
+    return float((t[-1] - t[0]) / (len(t) - 1)) if len(t) > 1 else 0.0
+
+
+def optimal_scenario(name: str, scenario: str, start: Pose, goal: Pose, params: RobotParams,
+                     limits: Any, period_s: float) -> RunSpec:
+    """The case of an optimal manoeuvre as a run of the PI (attached to the optimal's log).
+
+    Limits the optimum did not have (``wmr optimal --torque-only``) are the PI's defaults.
+    """
+    pi = Limits()
+    return RunSpec(name=name, start=start, goal=goal, params=params, period_s=period_s,
+                   scenario=scenario or name, limits=Limits(**{
+                       k: getattr(pi, k) if getattr(limits, k) is None else getattr(limits, k)
+                       for k in ("torque_max_nm", "wheel_speed_max_radps", "v_max_mps",
+                                 "omega_max_radps")}))
+
+
 def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
-                      run: Mapping[str, object], record: Mapping[str, object]) -> None:
+                      run: Mapping[str, object], record: Mapping[str, object],
+                      scenario: RunSpec | None = None) -> None:
     """Log an optimal manoeuvre's open-loop FMU replay as a run log.
 
     ``/robot/pose`` and every plant column are the FMU's outputs (driven open-loop by the
-    optimal torques, not the optimiser's states); ``tau_r_nm``/``tau_l_nm`` are the torques
-    applied over the step that starts at the row (0 on the last row); ``dr_m`` is the distance
-    to the goal; the other control columns are NaN (no controller).
+    optimal torques, not the optimiser's states); ``/robot/torques`` holds the torques applied
+    over the step that starts at the row (0 on the last row).  The controller topics are not
+    written (:data:`wmr.mcaplog.OPEN_LOOP_TOPICS`): there is no controller.  Row ``n`` is at
+    ``round(n h 1e9)`` ns, ``h`` the replay's (equal) FMU step, the ``control_period_s`` of
+    the ``run`` record.  Attached: ``modelDescription.xml`` and the case as a scenario
+    (:func:`optimal_scenario`), which ``wmr run`` runs with the PI.
 
     Parameters
     ----------
@@ -208,9 +234,12 @@ def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
         The FMU replayed (for the attachment).
     run, record
         The ``run`` and ``result`` metadata records.
+    scenario
+        The case as a run (:func:`optimal_scenario`), attached as a scenario file.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     n = len(replay.t_s)
+    h_s = replay_step_s(replay)
     block = np.full((n, len(SIGNALS)), np.nan)
     for i, name in enumerate(OUTPUT_NAMES):
         block[:, i] = replay.outputs[name]
@@ -220,10 +249,15 @@ def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
     block[: tau.shape[0], _C_TAU_R] = tau[:, 0]
     block[: tau.shape[0], _C_TAU_L] = tau[:, 1]
     goal = result.goal
-    block[:, _C_DR] = np.hypot(block[:, _X] - goal.x_m, block[:, _Y] - goal.y_m)
-    t_ns = np.round(np.asarray(replay.t_s, dtype=float) * 1e9).astype(np.int64)
-    with RunLogWriter(path, run=run, goal=(goal.x_m, goal.y_m, goal.heading_rad),
-                      attachments=fmu_attachments(plant)) as log:
+    # exact multiples of the step, never accumulated
+    t_ns = np.round(np.arange(n) * (h_s * 1e9)).astype(np.int64)
+    attachments = fmu_attachments(plant)
+    if scenario is not None:
+        attachments[scenario_attachment_name(scenario)] = (
+            "application/toml", run_spec_toml(scenario).encode("utf-8"))
+    with RunLogWriter(path, run={**run, "control_period_s": h_s}, attachments=attachments,
+                      goal=(goal.x_m, goal.y_m, goal.heading_rad),
+                      topics=OPEN_LOOP_TOPICS) as log:
         log.write_block(t_ns, block)
         log.close({k: v for k, v in record.items() if v is not None})
 
@@ -275,7 +309,7 @@ def run_optimal(spec: RunSpec, plant: FmuPlant, mcap: Path | None) -> OptimalRun
         write_optimal_log(mcap, res, replay, plant,
                           optimal_metadata(spec.name, spec.scenario, spec.start, spec.goal,
                                            spec.params, limits, "time", plant, spec.period_s),
-                          record)
+                          record, scenario=spec)
         figs["mcap"] = str(mcap)
     return OptimalRun(res.status, res.message, res.final_time_s, figs)
 

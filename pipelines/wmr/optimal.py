@@ -44,6 +44,13 @@ SAME_POSE_TOL: Final = 1e-9
 #: Bounds on the free final time (s).
 MIN_FINAL_TIME_S: Final = 1e-2
 MAX_FINAL_TIME_S: Final = 600.0
+#: Longest torque interval T / N, s.  Measured on (0, 0, 0) to (d, d/2, 0) with the PI's limits
+#: and N = 60: intervals of 0.95 s (d = 50 m) replay 1.2 cm from the goal, 1.9 s (100 m)
+#: 9 cm, 3.8 s (200 m) 2.7 m; at 400 m IPOPT no longer converges.
+MAX_INTERVAL_S: Final = 1.0
+#: What the message of a failed solve advises (the command line replaces it: these are
+#: arguments of the Python function, not options of ``wmr optimal``).
+FAILED_ADVICE: Final = "try more n_intervals, warm_start=True or a larger max_iter/max_cpu_time_s"
 
 #: Desired headings of the Fig. 9 runs, (0, 0, 0 deg) to (20, 10, theta_d), in deg.
 FIG9_HEADINGS_DEG: Final = (-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0)
@@ -329,6 +336,9 @@ def _nlp(n: int, substeps: int, max_iter: int, max_cpu_time_s: float) -> _Nlp:
     opts: dict[str, Any] = {
         "expand": True,
         "print_time": False,
+        # IPOPT recovers from a NaN in a trial step by itself; CasADi's warning per NaN
+        # (dozens for a far goal) only buries the one line of the result
+        "show_eval_warnings": False,
         "error_on_fail": False,
         "ipopt": {"print_level": 0, "sb": "yes", "max_iter": max_iter,
                   "max_cpu_time": max_cpu_time_s, "tol": 1e-8,
@@ -672,6 +682,45 @@ def _integrals(start: Pose, goal: Pose, params: RobotParams, torques: FloatArray
 # ----------------------------------------------------------------------------------------------
 
 
+def min_time_bound_s(start: Pose, goal: Pose, params: RobotParams,
+                     limits: OptimalLimits) -> float:
+    """A lower bound on the time from rest at ``start`` to rest at ``goal``, s.
+
+    The larger of the distance at the top speed (``v_max_mps``, or the wheel speed limit at the
+    rim) and the bang-bang time :math:`2\\sqrt{d / a}` at the largest acceleration
+    :math:`a = 2 \tau_{max} / (r M_{11})`.
+    """
+    d = math.hypot(goal.x_m - start.x_m, goal.y_m - start.y_m)
+    caps = [c for c in (limits.v_max_mps, None if limits.wheel_speed_max_radps is None
+                        else limits.wheel_speed_max_radps * params.r) if c is not None]
+    t_speed = d / min(caps) if caps and min(caps) > 0.0 else 0.0
+    m11 = params.m + 2.0 * params.Iwm / params.r**2
+    a_max = 2.0 * limits.torque_max_nm / (params.r * m11)
+    t_accel = 2.0 * math.sqrt(d / a_max) if a_max > 0.0 else 0.0
+    return max(t_speed, t_accel)
+
+
+def _check_resolvable(start: Pose, goal: Pose, params: RobotParams, limits: OptimalLimits,
+                      n_intervals: int, final_time_s: float | None) -> None:
+    """Refuse at once a manoeuvre too long for ``n_intervals`` intervals of at most
+    :data:`MAX_INTERVAL_S` (IPOPT would grind for a minute, then fail or miss by metres)."""
+    longest = n_intervals * MAX_INTERVAL_S
+    if final_time_s is not None:
+        if final_time_s > longest:
+            raise ConfigError("final_time_s", f"{final_time_s:g} s needs intervals longer than "
+                              f"{MAX_INTERVAL_S:g} s with {n_intervals} intervals",
+                              f"give at most {longest:g} s, or more n_intervals")
+        return
+    t_min = min_time_bound_s(start, goal, params, limits)
+    if t_min > longest:
+        d = math.hypot(goal.x_m - start.x_m, goal.y_m - start.y_m)
+        raise ConfigError("goal", f"{d:.4g} m from the start takes at least {t_min:.4g} s "
+                          f"under the limits, more than {n_intervals} intervals of "
+                          f"{MAX_INTERVAL_S:g} s resolve ({longest:g} s)",
+                          f"bring the goal within about {d * longest / t_min:.0f} m of the "
+                          "start, or give more n_intervals")
+
+
 def solve_optimal(
     start: Pose,
     goal: Pose,
@@ -786,8 +835,9 @@ def solve_optimal(
         raise ConfigError("limits", f"must be an OptimalLimits, got {type(limits).__name__}",
                           "use OptimalLimits.like(other_limits)")
 
-    m = _model()
     T_fixed = float(final_time_s) if final_time_s is not None else None
+    _check_resolvable(start, goal, params, limits, n_intervals, T_fixed)
+    m = _model()
     d_pos = math.hypot(goal.x_m - start.x_m, goal.y_m - start.y_m)
     d_head = abs(_wrap(goal.heading_rad - start.heading_rad))
     if d_pos <= SAME_POSE_TOL and d_head <= SAME_POSE_TOL:
@@ -897,7 +947,7 @@ def _solve_nlp(nlp: _Nlp, guess: _Guess, lbx: FloatArray, ubx: FloatArray, lbg: 
     else:
         status = "failed"
         message = (f"IPOPT: {ret} after {iters} iterations (constraint violation {viol:.3g}); "
-                   "try more n_intervals, warm_start=True or a larger max_iter/max_cpu_time_s")
+                   + FAILED_ADVICE)
     length, work, wmax, miss = _integrals(start, goal, params, us, T / n, rk_substeps)
     effort = float(T / n * np.sum(us**2))
     return OptimalResult(

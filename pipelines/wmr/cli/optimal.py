@@ -43,12 +43,52 @@ def _json_line(obj: Any) -> str:
 
 # ---------------------------------------------------------------------------------- optimal
 
+#: Arguments of wmr.optimal.solve_optimal -> the options of wmr optimal that give them.
+_FLAGS = {"final_time_s": "--final-time", "torque_limit_nm": "--torque-limit",
+          "goal": "--goal", "start": "--start", "control_period_s": "--period"}
+
+
+def _as_flag(exc: ConfigError) -> ConfigError:
+    """The same error naming the command-line option instead of the function's argument."""
+    flag = _FLAGS.get(exc.field) or _FLAGS.get(exc.field.split(".")[0])
+    if flag is None:
+        return exc
+    fix = exc.fix.replace("n_intervals", "the Python API's n_intervals")
+    return ConfigError(flag, exc.problem, fix)
+
+
+def _optimal_name(args: argparse.Namespace, default_start: tuple[float, float, float],
+                  default_goal: tuple[float, float, float]) -> str:
+    """``optimal-time`` and a token per option that changes the manoeuvre (wmr.naming)."""
+    from wmr.naming import fmu_tokens, variant_name
+
+    tokens = []
+    for label, given, default in (("from", args.start, default_start),
+                                  ("to", args.goal, default_goal)):
+        if given is not None and tuple(given) != default:
+            tokens.append(f"{label}_{given[0]:.10g}_{given[1]:.10g}_{given[2]:.10g}deg")
+    if args.torque_limit is not None:
+        tokens.append(f"torque_max_nm={args.torque_limit:.10g}")
+    if args.torque_only:
+        tokens.append("torque_only")
+    if args.final_time is not None:
+        tokens.append(f"T={args.final_time:.10g}")
+    if args.period != 0.01:
+        tokens.append(f"period={args.period:.10g}")
+    return variant_name(f"optimal-{args.objective}", [*tokens, *fmu_tokens(args.fmi, args.fmu)])
+
 
 def _cmd_optimal(args: argparse.Namespace) -> int:
-    from wmr.benchmark import optimal_metadata, replay_figures, write_optimal_log
+    from wmr.benchmark import (
+        optimal_metadata,
+        optimal_scenario,
+        replay_figures,
+        write_optimal_log,
+    )
     from wmr.control import Limits
     from wmr.fmu.plant import FmuPlant
-    from wmr.optimal import OptimalLimits, replay_open_loop, solve_optimal
+    from wmr.naming import default_log_path
+    from wmr.optimal import FAILED_ADVICE, OptimalLimits, replay_open_loop, solve_optimal
     from wmr.outputs import check_output
     from wmr.plant import Pose, RobotParams
 
@@ -59,8 +99,14 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
                 raise ConfigError(f"--{name} {label}", f"must be finite, got {val!r}")
         return Pose(float(x), float(y), math.radians(h))
 
-    start = pose(args.start, (0.0, 0.0, 0.0), "start")
-    goal = pose(args.goal, (20.0, 10.0, 0.0), "goal")
+    default_start, default_goal = (0.0, 0.0, 0.0), (20.0, 10.0, 0.0)
+    start = pose(args.start, default_start, "start")
+    goal = pose(args.goal, default_goal, "goal")
+    if not math.isfinite(args.period) or args.period <= 0.0:
+        raise ConfigError("--period", f"must be > 0, got {args.period!r}")
+    name = _optimal_name(args, default_start, default_goal)
+    out = check_output(args.out if args.out else default_log_path(name), "--out",
+                       suffix=".mcap")
     pi = Limits()
     torque = pi.torque_max_nm if args.torque_limit is None else args.torque_limit
     if not math.isfinite(torque) or torque <= 0.0:
@@ -73,9 +119,16 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
                                v_max_mps=pi.v_max_mps, omega_max_radps=pi.omega_max_radps)
     params = RobotParams()
     final_time = args.final_time
+
+    def solve(*a: Any, **kw: Any) -> Any:
+        try:
+            return solve_optimal(*a, **kw)
+        except ConfigError as exc:
+            raise _as_flag(exc) from None
+
     note = ""
     if args.objective == "energy" and final_time is None:
-        t_min = solve_optimal(start, goal, params, objective="time", limits=limits)
+        t_min = solve(start, goal, params, objective="time", limits=limits)
         if t_min.status != "solved":
             raise ConfigError("--final-time", "no minimum time to base the energy run on "
                               f"({t_min.status}: {t_min.message})", "give --final-time S")
@@ -84,10 +137,10 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
     if args.objective == "time" and final_time is not None:
         raise ConfigError("--final-time", "the time objective leaves the final time free",
                           "drop --final-time or use --objective energy")
-    out = check_output(args.out if args.out else Path("runs") / f"optimal-{args.objective}.mcap",
-                       "--out", suffix=".mcap")
-    res = solve_optimal(start, goal, params, objective=args.objective, limits=limits,
-                        final_time_s=final_time)
+    res = solve(start, goal, params, objective=args.objective, limits=limits,
+                final_time_s=final_time)
+    res.message = res.message.replace(
+        FAILED_ADVICE, "the goal may be too far or the limits too tight for the solver")
     record: dict[str, Any] = {
         "status": res.status, "message": res.message + (f"; {note}" if note else ""),
         "objective": res.objective,
@@ -108,10 +161,12 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
             record["final_heading_error_rad"] = float(replay.final_heading_error_rad)
             record["final_speed_mps"] = replay.final_speed_mps
             write_optimal_log(out, res, replay, plant,
-                              optimal_metadata("optimal", "", start, goal, params, limits,
+                              optimal_metadata(name, "", start, goal, params, limits,
                                                args.objective, plant, args.period),
                               {k: v for k, v in record.items()
-                               if not isinstance(v, dict)})
+                               if not isinstance(v, dict)},
+                              scenario=optimal_scenario(name, "", start, goal, params, limits,
+                                                        args.period))
     if args.json:
         print(_json_line(record))
     else:
@@ -260,7 +315,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--period", type=float, default=0.01, metavar="S",
                    help="longest FMU step of the replay, s (default 0.01)")
     p.add_argument("--out", metavar="FILE.mcap",
-                   help="log file (default runs/optimal-OBJECTIVE.mcap)")
+                   help="log file (default runs/optimal-OBJECTIVE[-CHANGES].mcap, named after "
+                        "the options that change the manoeuvre)")
     p.add_argument("--json", action="store_true", help="the result as JSON on the last line")
     _fmu_options(p)
     p.set_defaults(handler=_cmd_optimal)

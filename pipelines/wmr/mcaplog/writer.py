@@ -56,6 +56,7 @@ from wmr.mcaplog.schemas import (
     STEP_TOPICS,
     WORLD_FRAME,
     RowEncoder,
+    TopicLayout,
     file_descriptor_set,
     message_class,
 )
@@ -377,6 +378,8 @@ class RunLogWriter:
         Chunk compression, ``"lz4"`` (default, fastest), ``"zstd"`` or ``""``.
     chunk_period_ns
         Simulation time per chunk, ns (default 1 s).
+    topics
+        The per-step topics: ``STEP_TOPICS`` (default) or ``OPEN_LOOP_TOPICS`` (no controller).
 
     Raises
     ------
@@ -393,6 +396,7 @@ class RunLogWriter:
         attachments: Mapping[str, tuple[str, bytes]] | None = None,
         compression: Compression = "lz4",
         chunk_period_ns: int = 1_000_000_000,
+        topics: tuple[TopicLayout, ...] = STEP_TOPICS,
     ) -> None:
         self.path = os.fspath(path)
         if chunk_period_ns <= 0:
@@ -413,16 +417,16 @@ class RunLogWriter:
         try:
             self._file = McapFile(stream, compression)
             schema_ids: dict[str, int] = {}
-            for name in dict.fromkeys([GOAL_SCHEMA, *(t.schema_name for t in STEP_TOPICS)]):
+            for name in dict.fromkeys([GOAL_SCHEMA, *(t.schema_name for t in topics)]):
                 schema_ids[name] = self._file.add_schema(name, file_descriptor_set(name))
             channel_ids = tuple(
-                self._file.add_channel(t.topic, schema_ids[t.schema_name]) for t in STEP_TOPICS
+                self._file.add_channel(t.topic, schema_ids[t.schema_name]) for t in topics
             )
             goal_channel = self._file.add_channel(GOAL_TOPIC, schema_ids[GOAL_SCHEMA])
             self._file.add_metadata("run", run_record)
             for name, (media_type, data) in (attachments or {}).items():
                 self._file.add_attachment(name, media_type, bytes(data))
-            self._encoder = RowEncoder(channel_ids)
+            self._encoder = RowEncoder(channel_ids, topics)
             self._channel_ids = channel_ids
             self._write_goal(goal_channel, goal)
         except BaseException:
