@@ -107,6 +107,9 @@ def test_sources_in_the_fmu_compile_on_their_own(built: BuildResult, version: in
     if version == 2:
         root = ET.parse(tmp_path / "modelDescription.xml").getroot()
         names = [f.get("name") for f in root.iter("File")]
+        # Model Exchange and Co-Simulation list the same sources
+        assert names[: len(names) // 2] == names[len(names) // 2:]
+        names = names[: len(names) // 2]
     else:
         root = ET.parse(src / "buildDescription.xml").getroot()
         names = [f.get("name") for f in root.iter("SourceFile")]

@@ -1,15 +1,28 @@
 /*
- * fmi2.c: FMI 2.0 co-simulation entry points, thin shells over fmi_layer.c.
+ * fmi2.c: FMI 2.0 Co-Simulation and Model Exchange entry points, thin shells over
+ * fmi_layer.c.
  *
  * Binary FMU: the functions are exported without a prefix.  With
  * -fvisibility=hidden only the fmi2* functions (declared FMI2_Export by
- * fmi2Functions.h) are visible outside the shared library.
+ * fmi2Functions.h) are visible outside the shared library; compiled through the
+ * unity translation unit everything else is static anyway, and FMI2_FUNCTION_PREFIX
+ * renames the fmi2* functions for static linking.
  */
 #include <stddef.h>
 #include <string.h>
 
 #include "fmi2Functions.h"
 #include "fmi_layer.h"
+
+#if defined(FMI2_FUNCTION_PREFIX)
+/* The standard's fmi2Functions.h prefixes the names through fmi2FullName; some copies of it
+ * (fmpy's) define fmi2FullName(name) as name.  The function-name macros expand fmi2FullName
+ * where they are used, so redefining it here prefixes the definitions below either way. */
+#undef fmi2FullName
+#define WMR_PASTE(a, b) a##b
+#define WMR_PASTE2(a, b) WMR_PASTE(a, b)
+#define fmi2FullName(name) WMR_PASTE2(FMI2_FUNCTION_PREFIX, name)
+#endif
 
 #define INST ((FlInstance *)c)
 
@@ -53,14 +66,15 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     if (!functions) return NULL;
     logger = (void (*)(void))functions->logger;
     env = functions->componentEnvironment;
-    if (fmuType != fmi2CoSimulation) {
+    if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
         fl_log_no_instance(instanceName, log_adapter, logger, env, FL_ERROR,
-                           "fmi2Instantiate: fmuType must be fmi2CoSimulation; this FMU does not "
-                           "support Model Exchange");
+                           "fmi2Instantiate: fmuType = %d is neither fmi2ModelExchange nor "
+                           "fmi2CoSimulation", (int)fmuType);
         return NULL;
     }
-    return (fmi2Component)fl_instantiate("fmi2Instantiate", instanceName, fmuGUID, loggingOn,
-                                         log_adapter, logger, env);
+    return (fmi2Component)fl_instantiate("fmi2Instantiate", instanceName, fmuGUID,
+                                         fmuType == fmi2ModelExchange, loggingOn, log_adapter,
+                                         logger, env);
 }
 
 void fmi2FreeInstance(fmi2Component c) { fl_free(INST); }
@@ -88,9 +102,6 @@ fmi2Status fmi2Reset(fmi2Component c) { return (fmi2Status)fl_reset("fmi2Reset",
 
 /* ---- getting and setting variable values ---- */
 
-#define GET_MASK (FL_INITIALIZATION_MODE | FL_STEP_MODE | FL_TERMINATED | FL_ERROR_STATE)
-#define SET_MASK (FL_INSTANTIATED | FL_INITIALIZATION_MODE | FL_STEP_MODE)
-
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                        fmi2Real value[]) {
     return (fmi2Status)fl_get_real("fmi2GetReal", INST, vr, nvr, value);
@@ -99,21 +110,21 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Integer value[]) {
     (void)value;
-    return (fmi2Status)fl_no_variables_of_type("fmi2GetInteger", INST, GET_MASK, vr, nvr,
+    return (fmi2Status)fl_no_variables_of_type("fmi2GetInteger", INST, FL_GET_MASK, vr, nvr,
                                                "Integer");
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Boolean value[]) {
     (void)value;
-    return (fmi2Status)fl_no_variables_of_type("fmi2GetBoolean", INST, GET_MASK, vr, nvr,
+    return (fmi2Status)fl_no_variables_of_type("fmi2GetBoolean", INST, FL_GET_MASK, vr, nvr,
                                                "Boolean");
 }
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                          fmi2String value[]) {
     (void)value;
-    return (fmi2Status)fl_no_variables_of_type("fmi2GetString", INST, GET_MASK, vr, nvr,
+    return (fmi2Status)fl_no_variables_of_type("fmi2GetString", INST, FL_GET_MASK, vr, nvr,
                                                "String");
 }
 
@@ -125,21 +136,21 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Integer value[]) {
     (void)value;
-    return (fmi2Status)fl_no_variables_of_type("fmi2SetInteger", INST, SET_MASK, vr, nvr,
+    return (fmi2Status)fl_no_variables_of_type("fmi2SetInteger", INST, FL_SET_MASK, vr, nvr,
                                                "Integer");
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Boolean value[]) {
     (void)value;
-    return (fmi2Status)fl_no_variables_of_type("fmi2SetBoolean", INST, SET_MASK, vr, nvr,
+    return (fmi2Status)fl_no_variables_of_type("fmi2SetBoolean", INST, FL_SET_MASK, vr, nvr,
                                                "Boolean");
 }
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                          const fmi2String value[]) {
     (void)value;
-    return (fmi2Status)fl_no_variables_of_type("fmi2SetString", INST, SET_MASK, vr, nvr,
+    return (fmi2Status)fl_no_variables_of_type("fmi2SetString", INST, FL_SET_MASK, vr, nvr,
                                                "String");
 }
 
@@ -179,10 +190,74 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
                                         size_t nUnknown, const fmi2ValueReference vKnown_ref[],
                                         size_t nKnown, const fmi2Real dvKnown[],
                                         fmi2Real dvUnknown[]) {
-    (void)vUnknown_ref; (void)nUnknown; (void)vKnown_ref; (void)nKnown; (void)dvKnown;
-    (void)dvUnknown;
-    return (fmi2Status)fl_unsupported("fmi2GetDirectionalDerivative", INST,
-                                      "directional derivatives are not provided");
+    return (fmi2Status)fl_partial_derivative("fmi2GetDirectionalDerivative", INST, vUnknown_ref,
+                                             nUnknown, vKnown_ref, nKnown, dvKnown, dvUnknown,
+                                             0);
+}
+
+/* ---- Model Exchange ---- */
+
+fmi2Status fmi2EnterEventMode(fmi2Component c) {
+    return (fmi2Status)fl_enter_event_mode("fmi2EnterEventMode", INST);
+}
+
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo) {
+    const char *fn = "fmi2NewDiscreteStates";
+    FlStatus st = fl_update_discrete_states(fn, INST);
+    if (st != FL_OK) return (fmi2Status)st;
+    if (!eventInfo) return (fmi2Status)fl_unsupported(fn, INST, "eventInfo is NULL");
+    /* no events: the iteration has converged, nothing changed, no time event ahead */
+    eventInfo->newDiscreteStatesNeeded = fmi2False;
+    eventInfo->terminateSimulation = fmi2False;
+    eventInfo->nominalsOfContinuousStatesChanged = fmi2False;
+    eventInfo->valuesOfContinuousStatesChanged = fmi2False;
+    eventInfo->nextEventTimeDefined = fmi2False;
+    eventInfo->nextEventTime = 0.0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
+    return (fmi2Status)fl_enter_continuous_time_mode("fmi2EnterContinuousTimeMode", INST);
+}
+
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi2Boolean *enterEventMode,
+                                       fmi2Boolean *terminateSimulation) {
+    const char *fn = "fmi2CompletedIntegratorStep";
+    FlStatus st;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    st = fl_completed_integrator_step(fn, INST);
+    if (st != FL_OK) return (fmi2Status)st;
+    if (!enterEventMode || !terminateSimulation)
+        return (fmi2Status)fl_unsupported(fn, INST, "an output argument pointer is NULL");
+    *enterEventMode = fmi2False;
+    *terminateSimulation = fmi2False;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
+    return (fmi2Status)fl_set_time("fmi2SetTime", INST, time);
+}
+
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
+    return (fmi2Status)fl_set_continuous_states("fmi2SetContinuousStates", INST, x, nx);
+}
+
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx) {
+    return (fmi2Status)fl_get_derivatives("fmi2GetDerivatives", INST, derivatives, nx);
+}
+
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni) {
+    return (fmi2Status)fl_get_event_indicators("fmi2GetEventIndicators", INST, eventIndicators,
+                                               ni);
+}
+
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+    return (fmi2Status)fl_get_continuous_states("fmi2GetContinuousStates", INST, x, nx);
+}
+
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx) {
+    return (fmi2Status)fl_get_nominals("fmi2GetNominalsOfContinuousStates", INST, x_nominal, nx);
 }
 
 /* ---- co-simulation ---- */

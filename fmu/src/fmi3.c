@@ -1,11 +1,12 @@
 /*
- * fmi3.c: FMI 3.0 co-simulation entry points, thin shells over fmi_layer.c.
+ * fmi3.c: FMI 3.0 Co-Simulation and Model Exchange entry points, thin shells over
+ * fmi_layer.c.
  *
  * Every function the standard requires an FMU binary to export is defined;
- * those of Model Exchange, Scheduled Execution, event mode, clocks and
- * partial derivatives log why and return fmi3Error (or NULL for the
- * instantiate functions).  With -fvisibility=hidden only the fmi3* functions
- * (declared FMI3_Export by fmi3Functions.h) are visible.
+ * those of Scheduled Execution, clocks and configuration mode log why and
+ * return fmi3Error (or NULL for the instantiate function).  With
+ * -fvisibility=hidden only the fmi3* functions (declared FMI3_Export by
+ * fmi3Functions.h) are visible; FMI3_FUNCTION_PREFIX renames them.
  */
 #include <stddef.h>
 #include <string.h>
@@ -14,9 +15,6 @@
 #include "fmi_layer.h"
 
 #define INST ((FlInstance *)instance)
-
-#define GET_MASK (FL_INITIALIZATION_MODE | FL_STEP_MODE | FL_TERMINATED | FL_ERROR_STATE)
-#define SET_MASK (FL_INSTANTIATED | FL_INITIALIZATION_MODE | FL_STEP_MODE)
 
 #define UNSUPPORTED(name, why) ((fmi3Status)fl_unsupported(#name, INST, why))
 
@@ -55,11 +53,10 @@ fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String in
                                           fmi3Boolean loggingOn,
                                           fmi3InstanceEnvironment instanceEnvironment,
                                           fmi3LogMessageCallback logMessage) {
-    (void)instantiationToken; (void)resourcePath; (void)visible; (void)loggingOn;
-    fl_log_no_instance(instanceName, log_adapter, (void (*)(void))logMessage, instanceEnvironment,
-                       FL_ERROR,
-                       "fmi3InstantiateModelExchange: this FMU supports Co-Simulation only");
-    return NULL;
+    (void)resourcePath; (void)visible;
+    return (fmi3Instance)fl_instantiate("fmi3InstantiateModelExchange", instanceName,
+                                        instantiationToken, 1, loggingOn, log_adapter,
+                                        (void (*)(void))logMessage, instanceEnvironment);
 }
 
 fmi3Instance fmi3InstantiateCoSimulation(
@@ -81,7 +78,7 @@ fmi3Instance fmi3InstantiateCoSimulation(
         return NULL;
     }
     return (fmi3Instance)fl_instantiate("fmi3InstantiateCoSimulation", instanceName,
-                                        instantiationToken, loggingOn, log_adapter,
+                                        instantiationToken, 0, loggingOn, log_adapter,
                                         (void (*)(void))logMessage, instanceEnvironment);
 }
 
@@ -94,7 +91,8 @@ fmi3Instance fmi3InstantiateScheduledExecution(
     (void)clockUpdate; (void)lockPreemption; (void)unlockPreemption;
     fl_log_no_instance(instanceName, log_adapter, (void (*)(void))logMessage, instanceEnvironment,
                        FL_ERROR,
-                       "fmi3InstantiateScheduledExecution: this FMU supports Co-Simulation only");
+                       "fmi3InstantiateScheduledExecution: this FMU supports Co-Simulation and "
+                       "Model Exchange only");
     return NULL;
 }
 
@@ -117,7 +115,8 @@ fmi3Status fmi3ExitInitializationMode(fmi3Instance instance) {
 }
 
 fmi3Status fmi3EnterEventMode(fmi3Instance instance) {
-    return UNSUPPORTED(fmi3EnterEventMode, "event mode is not supported (hasEventMode is false)");
+    /* Model Exchange only: a Co-Simulation instance has hasEventMode = false */
+    return (fmi3Status)fl_enter_event_mode("fmi3EnterEventMode", INST);
 }
 
 fmi3Status fmi3Terminate(fmi3Instance instance) {
@@ -131,7 +130,7 @@ fmi3Status fmi3Reset(fmi3Instance instance) { return (fmi3Status)fl_reset("fmi3R
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                           size_t nValueReferences, fmi3Float64 values[], size_t nValues) {
     const char *fn = "fmi3GetFloat64";
-    if (!fl_check_state(fn, INST, GET_MASK)) return fmi3Error;
+    if (!fl_check_state(fn, INST, FL_GET_MASK)) return fmi3Error;
     if (!check_n_values(fn, INST, nValueReferences, nValues)) return fmi3Error;
     return (fmi3Status)fl_get_real(fn, INST, valueReferences, nValueReferences, values);
 }
@@ -139,7 +138,7 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
 fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                           size_t nValueReferences, const fmi3Float64 values[], size_t nValues) {
     const char *fn = "fmi3SetFloat64";
-    if (!fl_check_state(fn, INST, SET_MASK)) return fmi3Error;
+    if (!fl_check_state(fn, INST, FL_SET_MASK)) return fmi3Error;
     if (!check_n_values(fn, INST, nValueReferences, nValues)) return fmi3Error;
     return (fmi3Status)fl_set_real(fn, INST, valueReferences, nValueReferences, values);
 }
@@ -149,14 +148,14 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
     fmi3Status fmi3Get##T(fmi3Instance instance, const fmi3ValueReference valueReferences[],   \
                           size_t nValueReferences, fmi3##T values[], size_t nValues) {        \
         (void)values; (void)nValues;                                                          \
-        return (fmi3Status)fl_no_variables_of_type("fmi3Get" #T, INST, GET_MASK,              \
+        return (fmi3Status)fl_no_variables_of_type("fmi3Get" #T, INST, FL_GET_MASK,              \
                                                    valueReferences, nValueReferences, #T);   \
     }
 #define NO_VARIABLES_SET(T)                                                                   \
     fmi3Status fmi3Set##T(fmi3Instance instance, const fmi3ValueReference valueReferences[],   \
                           size_t nValueReferences, const fmi3##T values[], size_t nValues) {  \
         (void)values; (void)nValues;                                                          \
-        return (fmi3Status)fl_no_variables_of_type("fmi3Set" #T, INST, SET_MASK,              \
+        return (fmi3Status)fl_no_variables_of_type("fmi3Set" #T, INST, FL_SET_MASK,              \
                                                    valueReferences, nValueReferences, #T);   \
     }
 
@@ -188,7 +187,7 @@ fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference valueRe
                          size_t nValueReferences, size_t valueSizes[], fmi3Binary values[],
                          size_t nValues) {
     (void)valueSizes; (void)values; (void)nValues;
-    return (fmi3Status)fl_no_variables_of_type("fmi3GetBinary", INST, GET_MASK, valueReferences,
+    return (fmi3Status)fl_no_variables_of_type("fmi3GetBinary", INST, FL_GET_MASK, valueReferences,
                                                nValueReferences, "Binary");
 }
 
@@ -196,7 +195,7 @@ fmi3Status fmi3SetBinary(fmi3Instance instance, const fmi3ValueReference valueRe
                          size_t nValueReferences, const size_t valueSizes[],
                          const fmi3Binary values[], size_t nValues) {
     (void)valueSizes; (void)values; (void)nValues;
-    return (fmi3Status)fl_no_variables_of_type("fmi3SetBinary", INST, SET_MASK, valueReferences,
+    return (fmi3Status)fl_no_variables_of_type("fmi3SetBinary", INST, FL_SET_MASK, valueReferences,
                                                nValueReferences, "Binary");
 }
 
@@ -269,22 +268,41 @@ fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte seriali
 
 /* ---- partial derivatives ---- */
 
+/* all variables are scalars: nSeed and nSensitivity follow from the numbers of
+ * unknowns and knowns */
+static fmi3Status partial_derivative(const char *fn, FlInstance *inst,
+                                     const fmi3ValueReference unknowns[], size_t nUnknowns,
+                                     const fmi3ValueReference knowns[], size_t nKnowns,
+                                     const fmi3Float64 seed[], size_t nSeed,
+                                     fmi3Float64 sensitivity[], size_t nSensitivity,
+                                     int adjoint) {
+    size_t n_seed = adjoint ? nUnknowns : nKnowns, n_sens = adjoint ? nKnowns : nUnknowns;
+    if (!fl_check_state(fn, inst, FL_ANY_STATE)) return fmi3Error;
+    if (nSeed != n_seed || nSensitivity != n_sens) {
+        fl_log(inst, FL_ERROR, "%s: nSeed = %lu and nSensitivity = %lu, expected %lu and %lu "
+                               "(all variables are scalars)",
+               fn, (unsigned long)nSeed, (unsigned long)nSensitivity, (unsigned long)n_seed,
+               (unsigned long)n_sens);
+        return fmi3Error;
+    }
+    return (fmi3Status)fl_partial_derivative(fn, inst, unknowns, nUnknowns, knowns, nKnowns, seed,
+                                             sensitivity, adjoint);
+}
+
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[],
                                         size_t nUnknowns, const fmi3ValueReference knowns[],
                                         size_t nKnowns, const fmi3Float64 seed[], size_t nSeed,
                                         fmi3Float64 sensitivity[], size_t nSensitivity) {
-    (void)unknowns; (void)nUnknowns; (void)knowns; (void)nKnowns; (void)seed; (void)nSeed;
-    (void)sensitivity; (void)nSensitivity;
-    return UNSUPPORTED(fmi3GetDirectionalDerivative, "directional derivatives are not provided");
+    return partial_derivative("fmi3GetDirectionalDerivative", INST, unknowns, nUnknowns, knowns,
+                              nKnowns, seed, nSeed, sensitivity, nSensitivity, 0);
 }
 
 fmi3Status fmi3GetAdjointDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[],
                                     size_t nUnknowns, const fmi3ValueReference knowns[],
                                     size_t nKnowns, const fmi3Float64 seed[], size_t nSeed,
                                     fmi3Float64 sensitivity[], size_t nSensitivity) {
-    (void)unknowns; (void)nUnknowns; (void)knowns; (void)nKnowns; (void)seed; (void)nSeed;
-    (void)sensitivity; (void)nSensitivity;
-    return UNSUPPORTED(fmi3GetAdjointDerivative, "adjoint derivatives are not provided");
+    return partial_derivative("fmi3GetAdjointDerivative", INST, unknowns, nUnknowns, knowns,
+                              nKnowns, seed, nSeed, sensitivity, nSensitivity, 1);
 }
 
 /* ---- configuration mode, clocks ---- */
@@ -363,71 +381,91 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discrete
                                     fmi3Boolean *valuesOfContinuousStatesChanged,
                                     fmi3Boolean *nextEventTimeDefined,
                                     fmi3Float64 *nextEventTime) {
-    (void)discreteStatesNeedUpdate; (void)terminateSimulation;
-    (void)nominalsOfContinuousStatesChanged; (void)valuesOfContinuousStatesChanged;
-    (void)nextEventTimeDefined; (void)nextEventTime;
-    return UNSUPPORTED(fmi3UpdateDiscreteStates, "event mode is not supported");
+    const char *fn = "fmi3UpdateDiscreteStates";
+    FlStatus st = fl_update_discrete_states(fn, INST);
+    if (st != FL_OK) return (fmi3Status)st;
+    if (!discreteStatesNeedUpdate || !terminateSimulation || !nominalsOfContinuousStatesChanged ||
+        !valuesOfContinuousStatesChanged || !nextEventTimeDefined || !nextEventTime)
+        return UNSUPPORTED(fmi3UpdateDiscreteStates, "an output argument pointer is NULL");
+    /* no events: the iteration has converged, nothing changed, no time event ahead */
+    *discreteStatesNeedUpdate = fmi3False;
+    *terminateSimulation = fmi3False;
+    *nominalsOfContinuousStatesChanged = fmi3False;
+    *valuesOfContinuousStatesChanged = fmi3False;
+    *nextEventTimeDefined = fmi3False;
+    *nextEventTime = 0.0;
+    return fmi3OK;
 }
 
-/* ---- Model Exchange (not supported) ---- */
-
-#define ME_ONLY "Model Exchange is not supported"
+/* ---- Model Exchange ---- */
 
 fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance instance) {
-    return UNSUPPORTED(fmi3EnterContinuousTimeMode, ME_ONLY);
+    return (fmi3Status)fl_enter_continuous_time_mode("fmi3EnterContinuousTimeMode", INST);
 }
 
 fmi3Status fmi3CompletedIntegratorStep(fmi3Instance instance,
                                        fmi3Boolean noSetFMUStatePriorToCurrentPoint,
                                        fmi3Boolean *enterEventMode,
                                        fmi3Boolean *terminateSimulation) {
-    (void)noSetFMUStatePriorToCurrentPoint; (void)enterEventMode; (void)terminateSimulation;
-    return UNSUPPORTED(fmi3CompletedIntegratorStep, ME_ONLY);
+    FlStatus st;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    st = fl_completed_integrator_step("fmi3CompletedIntegratorStep", INST);
+    if (st != FL_OK) return (fmi3Status)st;
+    if (!enterEventMode || !terminateSimulation)
+        return UNSUPPORTED(fmi3CompletedIntegratorStep, "an output argument pointer is NULL");
+    *enterEventMode = fmi3False;
+    *terminateSimulation = fmi3False;
+    return fmi3OK;
 }
 
 fmi3Status fmi3SetTime(fmi3Instance instance, fmi3Float64 time) {
-    (void)time;
-    return UNSUPPORTED(fmi3SetTime, ME_ONLY);
+    return (fmi3Status)fl_set_time("fmi3SetTime", INST, time);
 }
 
 fmi3Status fmi3SetContinuousStates(fmi3Instance instance, const fmi3Float64 continuousStates[],
                                    size_t nContinuousStates) {
-    (void)continuousStates; (void)nContinuousStates;
-    return UNSUPPORTED(fmi3SetContinuousStates, ME_ONLY);
+    return (fmi3Status)fl_set_continuous_states("fmi3SetContinuousStates", INST, continuousStates,
+                                                nContinuousStates);
 }
 
 fmi3Status fmi3GetContinuousStateDerivatives(fmi3Instance instance, fmi3Float64 derivatives[],
                                              size_t nContinuousStates) {
-    (void)derivatives; (void)nContinuousStates;
-    return UNSUPPORTED(fmi3GetContinuousStateDerivatives, ME_ONLY);
+    return (fmi3Status)fl_get_derivatives("fmi3GetContinuousStateDerivatives", INST, derivatives,
+                                          nContinuousStates);
 }
 
 fmi3Status fmi3GetEventIndicators(fmi3Instance instance, fmi3Float64 eventIndicators[],
                                   size_t nEventIndicators) {
-    (void)eventIndicators; (void)nEventIndicators;
-    return UNSUPPORTED(fmi3GetEventIndicators, ME_ONLY);
+    return (fmi3Status)fl_get_event_indicators("fmi3GetEventIndicators", INST, eventIndicators,
+                                               nEventIndicators);
 }
 
 fmi3Status fmi3GetContinuousStates(fmi3Instance instance, fmi3Float64 continuousStates[],
                                    size_t nContinuousStates) {
-    (void)continuousStates; (void)nContinuousStates;
-    return UNSUPPORTED(fmi3GetContinuousStates, ME_ONLY);
+    return (fmi3Status)fl_get_continuous_states("fmi3GetContinuousStates", INST, continuousStates,
+                                                nContinuousStates);
 }
 
 fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance instance, fmi3Float64 nominals[],
                                              size_t nContinuousStates) {
-    (void)nominals; (void)nContinuousStates;
-    return UNSUPPORTED(fmi3GetNominalsOfContinuousStates, ME_ONLY);
+    return (fmi3Status)fl_get_nominals("fmi3GetNominalsOfContinuousStates", INST, nominals,
+                                       nContinuousStates);
 }
 
 fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance instance, size_t *nEventIndicators) {
-    (void)nEventIndicators;
-    return UNSUPPORTED(fmi3GetNumberOfEventIndicators, ME_ONLY);
+    if (!fl_check_state("fmi3GetNumberOfEventIndicators", INST, FL_ANY_STATE)) return fmi3Error;
+    if (!nEventIndicators)
+        return UNSUPPORTED(fmi3GetNumberOfEventIndicators, "nEventIndicators is NULL");
+    *nEventIndicators = 0;
+    return fmi3OK;
 }
 
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance instance, size_t *nContinuousStates) {
-    (void)nContinuousStates;
-    return UNSUPPORTED(fmi3GetNumberOfContinuousStates, ME_ONLY);
+    if (!fl_check_state("fmi3GetNumberOfContinuousStates", INST, FL_ANY_STATE)) return fmi3Error;
+    if (!nContinuousStates)
+        return UNSUPPORTED(fmi3GetNumberOfContinuousStates, "nContinuousStates is NULL");
+    *nContinuousStates = MODEL_NX;
+    return fmi3OK;
 }
 
 /* ---- Co-Simulation ---- */

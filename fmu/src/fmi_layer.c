@@ -1,5 +1,6 @@
 /*
- * fmi_layer.c: FMI-version-independent co-simulation layer (see fmi_layer.h).
+ * fmi_layer.c: FMI-version-independent layer, Co-Simulation and Model Exchange (see
+ * fmi_layer.h).
  *
  * Habits borrowed from modelica/Reference-FMUs: every entry point first
  * checks that the call is allowed in the current state, null pointers and
@@ -46,14 +47,14 @@ static void vlog(FlInstance *inst, FlStatus status, const char *fmt, va_list ap)
     inst->log_adapter(inst, status, category, buf);
 }
 
-void fl_log(FlInstance *inst, FlStatus status, const char *fmt, ...) {
+WMR_INTERNAL void fl_log(FlInstance *inst, FlStatus status, const char *fmt, ...) {
     va_list ap;
     va_start(ap, fmt);
     vlog(inst, status, fmt, ap);
     va_end(ap);
 }
 
-void fl_log_no_instance(const char *instance_name, FlLogAdapter adapter,
+WMR_INTERNAL void fl_log_no_instance(const char *instance_name, FlLogAdapter adapter,
                         void (*importer_logger)(void), void *importer_env,
                         FlStatus status, const char *fmt, ...) {
     FlInstance tmp;
@@ -82,20 +83,23 @@ static FlStatus fail(FlInstance *inst) {
     return ret(inst, FL_ERROR);
 }
 
-const char *fl_mode_name(int mode) {
+WMR_INTERNAL const char *fl_mode_name(int mode) {
     switch (mode) {
     case FL_INSTANTIATED: return "Instantiated";
     case FL_INITIALIZATION_MODE: return "InitializationMode";
     case FL_STEP_MODE: return "StepMode";
     case FL_TERMINATED: return "Terminated";
     case FL_ERROR_STATE: return "Error";
+    case FL_EVENT_MODE: return "EventMode";
+    case FL_CONTINUOUS_TIME_MODE: return "ContinuousTimeMode";
     }
     return "Unknown";
 }
 
 static void mask_names(int mask, char *buf, size_t size) {
     static const int modes[] = {FL_INSTANTIATED, FL_INITIALIZATION_MODE, FL_STEP_MODE,
-                                FL_TERMINATED, FL_ERROR_STATE};
+                                FL_EVENT_MODE, FL_CONTINUOUS_TIME_MODE, FL_TERMINATED,
+                                FL_ERROR_STATE};
     size_t i, len = 0;
     int first = 1;
     buf[0] = '\0';
@@ -110,8 +114,8 @@ static void mask_names(int mask, char *buf, size_t size) {
     }
 }
 
-int fl_check_state(const char *fn, FlInstance *inst, int mask) {
-    char expected[128];
+WMR_INTERNAL int fl_check_state(const char *fn, FlInstance *inst, int mask) {
+    char expected[192];
     if (!inst) return 0;
     if (inst->d.mode & mask) return 1;
     mask_names(mask, expected, sizeof(expected));
@@ -121,13 +125,13 @@ int fl_check_state(const char *fn, FlInstance *inst, int mask) {
     return 0;
 }
 
-FlStatus fl_unsupported(const char *fn, FlInstance *inst, const char *why) {
+WMR_INTERNAL FlStatus fl_unsupported(const char *fn, FlInstance *inst, const char *why) {
     if (!inst) return FL_ERROR;
     fl_log(inst, FL_ERROR, "%s: not supported: %s", fn, why);
     return ret(inst, FL_ERROR);
 }
 
-FlStatus fl_no_variables_of_type(const char *fn, FlInstance *inst, int mask,
+WMR_INTERNAL FlStatus fl_no_variables_of_type(const char *fn, FlInstance *inst, int mask,
                                  const unsigned int vr[], size_t nvr, const char *type_name) {
     if (!fl_check_state(fn, inst, mask)) return FL_ERROR;
     if (nvr == 0) return FL_OK;
@@ -144,7 +148,7 @@ FlStatus fl_no_variables_of_type(const char *fn, FlInstance *inst, int mask,
     return ret(inst, FL_ERROR);
 }
 
-FlStatus fl_set_debug_logging(const char *fn, FlInstance *inst, int logging_on,
+WMR_INTERNAL FlStatus fl_set_debug_logging(const char *fn, FlInstance *inst, int logging_on,
                               size_t n_categories, const char *const categories[]) {
     size_t i;
     FlStatus status = FL_OK;
@@ -186,6 +190,7 @@ static const char *kind_name(ModelVarKind kind) {
     case MODEL_VAR_PARAMETER: return "parameter";
     case MODEL_VAR_INPUT: return "input";
     case MODEL_VAR_OUTPUT: return "output";
+    case MODEL_VAR_DERIVATIVE: return "state derivative";
     }
     return "variable";
 }
@@ -199,7 +204,7 @@ static const char *output_name(int index) {
 }
 
 static int check_table(char *msg, size_t size) {
-    int v, n_p = 0, n_u = 0, n_y = 0;
+    int v, n_p = 0, n_u = 0, n_y = 0, n_d = 0;
     if (MODEL_VARIABLES[0].kind != MODEL_VAR_TIME) {
         snprintf(msg, size, "variable table: entry 0 is not time");
         return 0;
@@ -211,6 +216,7 @@ static int check_table(char *msg, size_t size) {
         case MODEL_VAR_PARAMETER: limit = MODEL_NP; n_p++; break;
         case MODEL_VAR_INPUT: limit = MODEL_NU; n_u++; break;
         case MODEL_VAR_OUTPUT: limit = MODEL_NY; n_y++; break;
+        case MODEL_VAR_DERIVATIVE: limit = MODEL_NX; n_d++; break;
         default:
             snprintf(msg, size, "variable table: entry %d (%s) has an invalid kind", v, mv->name);
             return 0;
@@ -220,6 +226,15 @@ static int check_table(char *msg, size_t size) {
                      mv->name, mv->index);
             return 0;
         }
+        if (mv->state >= MODEL_NX || (mv->state >= 0 && mv->kind != MODEL_VAR_OUTPUT)) {
+            snprintf(msg, size, "variable table: entry %d (%s) has state %d out of range", v,
+                     mv->name, mv->state);
+            return 0;
+        }
+    }
+    if (n_d != 0 && n_d != MODEL_NX) {
+        snprintf(msg, size, "variable table: %d state derivatives for %d states", n_d, MODEL_NX);
+        return 0;
     }
     if (n_p != MODEL_NP || n_u != MODEL_NU || n_y != MODEL_NY) {
         snprintf(msg, size, "variable table: %d parameters, %d inputs, %d outputs; expected %d, %d, %d",
@@ -296,7 +311,7 @@ static int update_outputs(const char *fn, FlInstance *inst) {
     FlData *d = &inst->d;
     double x[MODEL_NX], y[MODEL_NY];
     if (!d->outputs_dirty) return 1;
-    if (!(d->mode & (FL_INITIALIZATION_MODE | FL_STEP_MODE))) return 1;
+    if (!(d->mode & (FL_INITIALIZATION_MODE | FL_SIMULATING))) return 1;
     memcpy(x, d->x, sizeof(x));
     if (d->mode == FL_INITIALIZATION_MODE && !compute_initial_state(fn, inst, x)) return 0;
     if (!compute_outputs(fn, inst, x, y)) return 0;
@@ -306,12 +321,30 @@ static int update_outputs(const char *fn, FlInstance *inst) {
     return 1;
 }
 
+/* dx/dt at the current state (in InitializationMode the initial state from p); logs and
+ * returns 0 on failure. */
+static int compute_derivatives(const char *fn, FlInstance *inst, double dx[]) {
+    FlData *d = &inst->d;
+    int i;
+    if (!update_outputs(fn, inst)) return 0;
+    if (model_derivatives(d->x, d->u, d->p, dx) != 0) {
+        fl_log(inst, FL_ERROR, "%s: model_derivatives failed at t = %.17g", fn, d->time);
+        return 0;
+    }
+    if ((i = find_nonfinite(dx, MODEL_NX)) >= 0) {
+        fl_log(inst, FL_ERROR, "%s: derivative of state %d = %g is not a finite number at t = %.17g",
+               fn, i, dx[i], d->time);
+        return 0;
+    }
+    return 1;
+}
+
 /* ------------------------------------------------------------------------ */
 /* creation and destruction                                                 */
 /* ------------------------------------------------------------------------ */
 
-FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char *token,
-                           int logging_on, FlLogAdapter adapter,
+WMR_INTERNAL FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char *token,
+                           int model_exchange, int logging_on, FlLogAdapter adapter,
                            void (*importer_logger)(void), void *importer_env) {
     FlInstance *inst;
     char msg[FL_MSG_SIZE];
@@ -329,6 +362,12 @@ FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char
                            fn, MODEL_INSTANTIATION_TOKEN, token ? token : "(null)");
         return NULL;
     }
+    if (model_exchange && MODEL_NX == 0) {
+        fl_log_no_instance(instance_name, adapter, importer_logger, importer_env, FL_ERROR,
+                           "%s: this model has no continuous states: Model Exchange is not "
+                           "provided, instantiate it for Co-Simulation", fn);
+        return NULL;
+    }
     if (!check_table(msg, sizeof(msg))) {
         fl_log_no_instance(instance_name, adapter, importer_logger, importer_env, FL_ERROR,
                            "%s: %s", fn, msg);
@@ -344,6 +383,7 @@ FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char
         return NULL;
     }
     memcpy(inst->name, instance_name, len + 1);
+    inst->model_exchange = model_exchange ? 1 : 0;
     inst->log_adapter = adapter;
     inst->importer_logger = importer_logger;
     inst->importer_env = importer_env;
@@ -351,11 +391,12 @@ FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char
     inst->log_events = 1;
     inst->worst_status = FL_OK;
     set_start_values(inst);
-    fl_log(inst, FL_OK, "%s: instance \"%s\" of %s created", fn, inst->name, MODEL_IDENTIFIER_STR);
+    fl_log(inst, FL_OK, "%s: instance \"%s\" of %s created for %s", fn, inst->name,
+           MODEL_IDENTIFIER_STR, model_exchange ? "Model Exchange" : "Co-Simulation");
     return inst;
 }
 
-void fl_free(FlInstance *inst) {
+WMR_INTERNAL void fl_free(FlInstance *inst) {
     if (!inst) return;
     free(inst->name);
     free(inst);
@@ -365,7 +406,7 @@ void fl_free(FlInstance *inst) {
 /* life cycle                                                               */
 /* ------------------------------------------------------------------------ */
 
-FlStatus fl_setup_experiment(const char *fn, FlInstance *inst, int tolerance_defined,
+WMR_INTERNAL FlStatus fl_setup_experiment(const char *fn, FlInstance *inst, int tolerance_defined,
                              double tolerance, double start_time, int stop_time_defined,
                              double stop_time) {
     FlData *d;
@@ -409,7 +450,7 @@ FlStatus fl_setup_experiment(const char *fn, FlInstance *inst, int tolerance_def
     return FL_OK;
 }
 
-FlStatus fl_enter_initialization_mode(const char *fn, FlInstance *inst) {
+WMR_INTERNAL FlStatus fl_enter_initialization_mode(const char *fn, FlInstance *inst) {
     if (!fl_check_state(fn, inst, FL_INSTANTIATED)) return FL_ERROR;
     inst->d.mode = FL_INITIALIZATION_MODE;
     inst->d.time = inst->d.start_time;
@@ -417,7 +458,7 @@ FlStatus fl_enter_initialization_mode(const char *fn, FlInstance *inst) {
     return FL_OK;
 }
 
-FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst) {
+WMR_INTERNAL FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst) {
     FlData *d;
     double x[MODEL_NX], dx[MODEL_NX], y[MODEL_NY];
     int i;
@@ -442,14 +483,14 @@ FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst) {
     d->time = d->start_time;
     d->n_comm_steps = 0;
     solver_reset_hint(&d->solver);
-    d->mode = FL_STEP_MODE;
+    d->mode = inst->model_exchange ? FL_EVENT_MODE : FL_STEP_MODE;
     fl_log(inst, FL_OK, "%s: initialised at t = %g", fn, d->time);
     return FL_OK;
 }
 
-FlStatus fl_terminate(const char *fn, FlInstance *inst) {
+WMR_INTERNAL FlStatus fl_terminate(const char *fn, FlInstance *inst) {
     FlData *d;
-    if (!fl_check_state(fn, inst, FL_STEP_MODE)) return FL_ERROR;
+    if (!fl_check_state(fn, inst, FL_SIMULATING)) return FL_ERROR;
     d = &inst->d;
     d->mode = FL_TERMINATED;
     fl_log(inst, FL_OK,
@@ -460,7 +501,7 @@ FlStatus fl_terminate(const char *fn, FlInstance *inst) {
     return FL_OK;
 }
 
-FlStatus fl_reset(const char *fn, FlInstance *inst) {
+WMR_INTERNAL FlStatus fl_reset(const char *fn, FlInstance *inst) {
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     set_start_values(inst);
     inst->worst_status = FL_OK;
@@ -471,9 +512,6 @@ FlStatus fl_reset(const char *fn, FlInstance *inst) {
 /* ------------------------------------------------------------------------ */
 /* variables                                                                */
 /* ------------------------------------------------------------------------ */
-
-#define GET_MASK (FL_INITIALIZATION_MODE | FL_STEP_MODE | FL_TERMINATED | FL_ERROR_STATE)
-#define SET_MASK (FL_INSTANTIATED | FL_INITIALIZATION_MODE | FL_STEP_MODE)
 
 static int check_vrs(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
                      const void *values) {
@@ -498,14 +536,26 @@ static int check_vrs(const char *fn, FlInstance *inst, const unsigned int vr[], 
     return ok;
 }
 
-FlStatus fl_get_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
+WMR_INTERNAL FlStatus fl_get_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
                      double values[]) {
     FlStatus status = FL_OK;
     size_t k;
-    if (!fl_check_state(fn, inst, GET_MASK)) return FL_ERROR;
+    double dx[MODEL_NX + 1];
+    int have_dx = 0;
+    if (!fl_check_state(fn, inst, FL_GET_MASK)) return FL_ERROR;
     if (!check_vrs(fn, inst, vr, nvr, values)) return ret(inst, FL_ERROR);
     if (nvr == 0) return FL_OK;
     if (!update_outputs(fn, inst)) status = FL_ERROR; /* last good values are returned */
+    for (k = 0; k < nvr; k++) {
+        if (MODEL_VARIABLES[vr[k]].kind == MODEL_VAR_DERIVATIVE && !have_dx) {
+            /* only asked for by Model Exchange importers: computed here, not on every step */
+            if (!compute_derivatives(fn, inst, dx)) {
+                memset(dx, 0, sizeof(dx));
+                status = FL_ERROR;
+            }
+            have_dx = 1;
+        }
+    }
     for (k = 0; k < nvr; k++) {
         const ModelVariable *mv = &MODEL_VARIABLES[vr[k]];
         switch (mv->kind) {
@@ -513,17 +563,18 @@ FlStatus fl_get_real(const char *fn, FlInstance *inst, const unsigned int vr[], 
         case MODEL_VAR_PARAMETER: values[k] = inst->d.p[mv->index]; break;
         case MODEL_VAR_INPUT: values[k] = inst->d.u[mv->index]; break;
         case MODEL_VAR_OUTPUT: values[k] = inst->d.y[mv->index]; break;
+        case MODEL_VAR_DERIVATIVE: values[k] = dx[mv->index]; break;
         }
     }
     return ret(inst, status);
 }
 
-FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
+WMR_INTERNAL FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
                      const double values[]) {
     FlData *d;
     size_t k;
     int ok;
-    if (!fl_check_state(fn, inst, SET_MASK)) return FL_ERROR;
+    if (!fl_check_state(fn, inst, FL_SET_MASK)) return FL_ERROR;
     if (!check_vrs(fn, inst, vr, nvr, values)) return ret(inst, FL_ERROR);
     d = &inst->d;
     /* validate everything first: all or nothing */
@@ -531,13 +582,23 @@ FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsigned int vr[], 
     for (k = 0; k < nvr; k++) {
         const ModelVariable *mv = &MODEL_VARIABLES[vr[k]];
         double v = values[k];
-        if (mv->kind == MODEL_VAR_TIME || mv->kind == MODEL_VAR_OUTPUT) {
-            fl_log(inst, FL_ERROR, "%s: %s (value reference %u) is an %s and cannot be set", fn,
-                   mv->name, vr[k], kind_name(mv->kind));
+        if (mv->kind != MODEL_VAR_PARAMETER && mv->kind != MODEL_VAR_INPUT) {
+            fl_log(inst, FL_ERROR, "%s: %s (value reference %u) is a%s %s and cannot be set%s",
+                   fn, mv->name, vr[k], mv->kind != MODEL_VAR_DERIVATIVE ? "n" : "",
+                   kind_name(mv->kind),
+                   mv->state >= 0 ? " (it is a continuous state: use SetContinuousStates)" : "");
             ok = 0;
             continue;
         }
-        if (mv->kind == MODEL_VAR_PARAMETER && d->mode == FL_STEP_MODE && !mv->tunable) {
+        if (mv->kind == MODEL_VAR_PARAMETER && d->mode == FL_CONTINUOUS_TIME_MODE) {
+            fl_log(inst, FL_ERROR,
+                   "%s: %s (value reference %u) is a parameter; in ContinuousTimeMode only "
+                   "inputs can be set (enter EventMode first)",
+                   fn, mv->name, vr[k]);
+            ok = 0;
+            continue;
+        }
+        if (mv->kind == MODEL_VAR_PARAMETER && (d->mode & FL_SIMULATING) && !mv->tunable) {
             fl_log(inst, FL_ERROR,
                    "%s: %s (value reference %u) is not a tunable parameter; it can only be set "
                    "before the end of initialisation",
@@ -574,7 +635,7 @@ FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsigned int vr[], 
 /* stepping                                                                 */
 /* ------------------------------------------------------------------------ */
 
-FlStatus fl_get_time(const char *fn, FlInstance *inst, double *time) {
+WMR_INTERNAL FlStatus fl_get_time(const char *fn, FlInstance *inst, double *time) {
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!time) {
         fl_log(inst, FL_ERROR, "%s: value pointer is NULL", fn);
@@ -584,7 +645,7 @@ FlStatus fl_get_time(const char *fn, FlInstance *inst, double *time) {
     return FL_OK;
 }
 
-FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
+WMR_INTERNAL FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
                     double *last_successful_time) {
     FlData *d;
     double x[MODEL_NX], y[MODEL_NY], t_end, tol;
@@ -639,12 +700,216 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
 }
 
 /* ------------------------------------------------------------------------ */
+/* Model Exchange                                                           */
+/* ------------------------------------------------------------------------ */
+
+/* The model has no events: the event iteration is empty and every mode switch is trivial. */
+
+WMR_INTERNAL FlStatus fl_enter_event_mode(const char *fn, FlInstance *inst) {
+    if (!fl_check_state(fn, inst, FL_CONTINUOUS_TIME_MODE)) return FL_ERROR;
+    inst->d.mode = FL_EVENT_MODE;
+    return FL_OK;
+}
+
+WMR_INTERNAL FlStatus fl_update_discrete_states(const char *fn, FlInstance *inst) {
+    return fl_check_state(fn, inst, FL_EVENT_MODE) ? FL_OK : FL_ERROR;
+}
+
+WMR_INTERNAL FlStatus fl_enter_continuous_time_mode(const char *fn, FlInstance *inst) {
+    if (!fl_check_state(fn, inst, FL_EVENT_MODE)) return FL_ERROR;
+    inst->d.mode = FL_CONTINUOUS_TIME_MODE;
+    return FL_OK;
+}
+
+WMR_INTERNAL FlStatus fl_completed_integrator_step(const char *fn, FlInstance *inst) {
+    if (!fl_check_state(fn, inst, FL_CONTINUOUS_TIME_MODE)) return FL_ERROR;
+    inst->d.n_comm_steps++; /* accepted integrator steps, reported by terminate */
+    return FL_OK;
+}
+
+WMR_INTERNAL FlStatus fl_set_time(const char *fn, FlInstance *inst, double time) {
+    if (!fl_check_state(fn, inst, FL_EVENT_MODE | FL_CONTINUOUS_TIME_MODE)) return FL_ERROR;
+    if (!isfinite(time)) {
+        fl_log(inst, FL_ERROR, "%s: time = %g is not a finite number", fn, time);
+        return ret(inst, FL_ERROR);
+    }
+    inst->d.time = time;
+    inst->d.outputs_dirty = 1;
+    return FL_OK;
+}
+
+/* The length of a state vector argument must be MODEL_NX. */
+static int check_nx(const char *fn, FlInstance *inst, const void *values, size_t n) {
+    if (n != (size_t)MODEL_NX) {
+        fl_log(inst, FL_ERROR, "%s: nContinuousStates = %lu, the model has %d", fn,
+               (unsigned long)n, MODEL_NX);
+        return 0;
+    }
+    if (n > 0 && !values) {
+        fl_log(inst, FL_ERROR, "%s: the value array is NULL", fn);
+        return 0;
+    }
+    return 1;
+}
+
+#define FL_STATES_GET_MASK (FL_INITIALIZATION_MODE | FL_EVENT_MODE | FL_CONTINUOUS_TIME_MODE | \
+                            FL_TERMINATED | FL_ERROR_STATE)
+
+WMR_INTERNAL FlStatus fl_set_continuous_states(const char *fn, FlInstance *inst, const double x[],
+                                               size_t n) {
+    int i;
+    if (!fl_check_state(fn, inst, FL_EVENT_MODE | FL_CONTINUOUS_TIME_MODE)) return FL_ERROR;
+    if (!check_nx(fn, inst, x, n)) return ret(inst, FL_ERROR);
+    if ((i = find_nonfinite(x, MODEL_NX)) >= 0) {
+        fl_log(inst, FL_ERROR, "%s: state %d = %g is not a finite number", fn, i, x[i]);
+        return ret(inst, FL_ERROR);
+    }
+    memcpy(inst->d.x, x, n * sizeof(double));
+    inst->d.outputs_dirty = 1;
+    return FL_OK;
+}
+
+WMR_INTERNAL FlStatus fl_get_continuous_states(const char *fn, FlInstance *inst, double x[], size_t n) {
+    FlStatus status = FL_OK;
+    if (!fl_check_state(fn, inst, FL_STATES_GET_MASK)) return FL_ERROR;
+    if (!check_nx(fn, inst, x, n)) return ret(inst, FL_ERROR);
+    if (!update_outputs(fn, inst)) status = FL_ERROR; /* the initial state from p */
+    memcpy(x, inst->d.x, n * sizeof(double));
+    return ret(inst, status);
+}
+
+WMR_INTERNAL FlStatus fl_get_derivatives(const char *fn, FlInstance *inst, double dx[], size_t n) {
+    if (!fl_check_state(fn, inst, FL_STATES_GET_MASK)) return FL_ERROR;
+    if (!check_nx(fn, inst, dx, n)) return ret(inst, FL_ERROR);
+    return compute_derivatives(fn, inst, dx) ? FL_OK : ret(inst, FL_ERROR);
+}
+
+WMR_INTERNAL FlStatus fl_get_nominals(const char *fn, FlInstance *inst, double nominals[], size_t n) {
+    size_t i;
+    if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
+    if (!check_nx(fn, inst, nominals, n)) return ret(inst, FL_ERROR);
+    for (i = 0; i < n; i++) nominals[i] = 1.0; /* the states are O(1) in SI units */
+    return FL_OK;
+}
+
+WMR_INTERNAL FlStatus fl_get_event_indicators(const char *fn, FlInstance *inst, double indicators[],
+                                              size_t n) {
+    (void)indicators;
+    if (!fl_check_state(fn, inst, FL_STATES_GET_MASK)) return FL_ERROR;
+    if (n != 0) {
+        fl_log(inst, FL_ERROR, "%s: nEventIndicators = %lu, the model has none", fn,
+               (unsigned long)n);
+        return ret(inst, FL_ERROR);
+    }
+    return FL_OK;
+}
+
+/* ------------------------------------------------------------------------ */
+/* partial derivatives                                                      */
+/* ------------------------------------------------------------------------ */
+
+#if MODEL_PROVIDES_JACOBIAN
+/* Row of the Jacobian for an unknown (state derivative or output), -1 if it is none. */
+static int jac_row(unsigned int vr) {
+    const ModelVariable *mv = &MODEL_VARIABLES[vr];
+    if (mv->kind == MODEL_VAR_DERIVATIVE) return mv->index;
+    if (mv->kind == MODEL_VAR_OUTPUT) return MODEL_NX + mv->index;
+    return -1;
+}
+
+/* Column of the Jacobian for a known (continuous state or input), -1 if it is none. */
+static int jac_col(unsigned int vr) {
+    const ModelVariable *mv = &MODEL_VARIABLES[vr];
+    if (mv->kind == MODEL_VAR_OUTPUT && mv->state >= 0) return mv->state;
+    if (mv->kind == MODEL_VAR_INPUT) return MODEL_NX + mv->index;
+    return -1;
+}
+
+static int check_partial_vrs(const char *fn, FlInstance *inst, const unsigned int vr[], size_t n,
+                             int unknown) {
+    size_t k;
+    for (k = 0; k < n; k++) {
+        if (vr[k] >= (unsigned int)MODEL_NV) {
+            fl_log(inst, FL_ERROR, "%s: value reference %u does not exist (valid: 0 to %d)", fn,
+                   vr[k], MODEL_NV - 1);
+            return 0;
+        }
+        if ((unknown ? jac_row(vr[k]) : jac_col(vr[k])) < 0) {
+            fl_log(inst, FL_ERROR,
+                   unknown ? "%s: %s (value reference %u) is not an unknown: give outputs or "
+                             "state derivatives"
+                           : "%s: %s (value reference %u) is not a known: give continuous "
+                             "states or inputs",
+                   fn, MODEL_VARIABLES[vr[k]].name, vr[k]);
+            return 0;
+        }
+    }
+    return 1;
+}
+#endif
+
+WMR_INTERNAL FlStatus fl_partial_derivative(const char *fn, FlInstance *inst,
+                                            const unsigned int unknowns[], size_t n_unknowns,
+                                            const unsigned int knowns[], size_t n_knowns,
+                                            const double seed[], double sensitivity[],
+                                            int adjoint) {
+#if MODEL_PROVIDES_JACOBIAN
+    FlData *d;
+    double jac[MODEL_JAC_ROWS * MODEL_JAC_COLS + 1];
+    size_t i, j;
+    if (!fl_check_state(fn, inst, FL_SIMULATING | FL_TERMINATED | FL_ERROR_STATE)) {
+        if (inst && inst->d.mode == FL_INITIALIZATION_MODE)
+            fl_log(inst, FL_ERROR, "%s: partial derivatives are provided after "
+                                   "initialisation (the knowns are the states and inputs)", fn);
+        return FL_ERROR;
+    }
+    d = &inst->d;
+    if ((n_unknowns > 0 && !unknowns) || (n_knowns > 0 && !knowns) ||
+        ((adjoint ? n_unknowns : n_knowns) > 0 && !seed) ||
+        ((adjoint ? n_knowns : n_unknowns) > 0 && !sensitivity)) {
+        fl_log(inst, FL_ERROR, "%s: an array argument is NULL", fn);
+        return ret(inst, FL_ERROR);
+    }
+    if (!check_partial_vrs(fn, inst, unknowns, n_unknowns, 1) ||
+        !check_partial_vrs(fn, inst, knowns, n_knowns, 0))
+        return ret(inst, FL_ERROR);
+    if (model_jacobian(d->x, d->u, d->p, jac) != 0 ||
+        find_nonfinite(jac, MODEL_JAC_ROWS * MODEL_JAC_COLS) >= 0) {
+        fl_log(inst, FL_ERROR, "%s: the Jacobian is not finite at t = %.17g", fn, d->time);
+        return ret(inst, FL_ERROR);
+    }
+    if (adjoint) {
+        for (j = 0; j < n_knowns; j++) {
+            double sum = 0.0;
+            int col = jac_col(knowns[j]);
+            for (i = 0; i < n_unknowns; i++)
+                sum += seed[i] * jac[col * MODEL_JAC_ROWS + jac_row(unknowns[i])];
+            sensitivity[j] = sum;
+        }
+    } else {
+        for (i = 0; i < n_unknowns; i++) {
+            double sum = 0.0;
+            int row = jac_row(unknowns[i]);
+            for (j = 0; j < n_knowns; j++)
+                sum += jac[jac_col(knowns[j]) * MODEL_JAC_ROWS + row] * seed[j];
+            sensitivity[i] = sum;
+        }
+    }
+    return FL_OK;
+#else
+    (void)unknowns; (void)n_unknowns; (void)knowns; (void)n_knowns; (void)seed;
+    (void)sensitivity; (void)adjoint;
+    return fl_unsupported(fn, inst, "the model core provides no Jacobian");
+#endif
+}
+
+/* ------------------------------------------------------------------------ */
 /* FMU state                                                                */
 /* ------------------------------------------------------------------------ */
 
 static const char STATE_MAGIC[8] = {'W', 'M', 'R', 'S', 'T', 'A', 'T', 'E'};
 static const char BLOB_MAGIC[8] = {'W', 'M', 'R', 'F', 'M', 'U', 'S', 'T'};
-#define BLOB_FORMAT_VERSION 1u
+#define BLOB_FORMAT_VERSION 2u /* 2: Model Exchange modes */
 
 typedef struct {
     char magic[8];
@@ -658,7 +923,8 @@ typedef struct {
 static int valid_saved_data(const FlData *d) {
     switch (d->mode) {
     case FL_INSTANTIATED: case FL_INITIALIZATION_MODE: case FL_STEP_MODE:
-    case FL_TERMINATED: case FL_ERROR_STATE: break;
+    case FL_TERMINATED: case FL_ERROR_STATE: case FL_EVENT_MODE: case FL_CONTINUOUS_TIME_MODE:
+        break;
     default: return 0;
     }
     if (!isfinite(d->time)) return 0;
@@ -696,7 +962,7 @@ static FlSavedState *state_slot(const char *fn, FlInstance *inst, void *previous
     return s;
 }
 
-FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state) {
+WMR_INTERNAL FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state) {
     FlSavedState *s;
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!state) {
@@ -710,16 +976,22 @@ FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state) {
     return FL_OK;
 }
 
-FlStatus fl_set_fmu_state(const char *fn, FlInstance *inst, const void *state) {
+WMR_INTERNAL FlStatus fl_set_fmu_state(const char *fn, FlInstance *inst, const void *state) {
     const FlSavedState *s;
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!check_saved(fn, inst, state)) return ret(inst, FL_ERROR);
     s = (const FlSavedState *)state;
+    if ((s->d.mode & (inst->model_exchange ? FL_STEP_MODE
+                                           : FL_EVENT_MODE | FL_CONTINUOUS_TIME_MODE))) {
+        fl_log(inst, FL_ERROR, "%s: the FMU state (%s) belongs to a %s instance", fn,
+               fl_mode_name(s->d.mode), inst->model_exchange ? "Co-Simulation" : "Model Exchange");
+        return ret(inst, FL_ERROR);
+    }
     memcpy(&inst->d, &s->d, sizeof(FlData));
     return FL_OK;
 }
 
-FlStatus fl_free_fmu_state(const char *fn, FlInstance *inst, void **state) {
+WMR_INTERNAL FlStatus fl_free_fmu_state(const char *fn, FlInstance *inst, void **state) {
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!state || !*state) return FL_OK;
     if (!check_saved(fn, inst, *state)) return ret(inst, FL_ERROR);
@@ -733,7 +1005,7 @@ static size_t blob_size(void) {
     return BLOB_HEADER_SIZE + strlen(MODEL_INSTANTIATION_TOKEN) + sizeof(FlData);
 }
 
-FlStatus fl_serialized_size(const char *fn, FlInstance *inst, const void *state, size_t *size) {
+WMR_INTERNAL FlStatus fl_serialized_size(const char *fn, FlInstance *inst, const void *state, size_t *size) {
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!check_saved(fn, inst, state)) return ret(inst, FL_ERROR);
     if (!size) {
@@ -761,7 +1033,7 @@ static void header_fields(uint32_t f[BLOB_N_FIELDS]) {
     f[6] = (uint32_t)strlen(MODEL_INSTANTIATION_TOKEN);
 }
 
-FlStatus fl_serialize(const char *fn, FlInstance *inst, const void *state,
+WMR_INTERNAL FlStatus fl_serialize(const char *fn, FlInstance *inst, const void *state,
                       unsigned char *buffer, size_t size) {
     const FlSavedState *s;
     uint32_t f[BLOB_N_FIELDS];
@@ -785,7 +1057,7 @@ FlStatus fl_serialize(const char *fn, FlInstance *inst, const void *state,
     return FL_OK;
 }
 
-FlStatus fl_deserialize(const char *fn, FlInstance *inst, const unsigned char *buffer,
+WMR_INTERNAL FlStatus fl_deserialize(const char *fn, FlInstance *inst, const unsigned char *buffer,
                         size_t size, void **state) {
     static const char *const field_names[BLOB_N_FIELDS] = {
         "format version", "MODEL_NX", "MODEL_NP", "MODEL_NU", "MODEL_NY", "state size",

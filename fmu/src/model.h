@@ -15,11 +15,33 @@
 
 #include "model_sizes.h" /* MODEL_NX, MODEL_NP, MODEL_NU, MODEL_NY, MODEL_NV, MODEL_IDENTIFIER_STR */
 
+/* Linkage of everything that is not an fmi* entry point.  The binary is compiled from one
+ * generated translation unit (<modelIdentifier>.c) that defines WMR_UNITY and #includes the
+ * model core, the solver, the layer and the FMI shell: there WMR_INTERNAL is `static`, so the
+ * only symbols with external linkage are the fmi* functions, which FMI2_FUNCTION_PREFIX /
+ * FMI3_FUNCTION_PREFIX rename.  Two of these FMUs then link statically into one program.
+ * Compiled file by file (no WMR_UNITY), the internal functions are ordinary externs. */
+#ifdef WMR_UNITY
+#if defined(__GNUC__)
+#define WMR_INTERNAL static __attribute__((unused)) /* one shell uses fewer layer functions */
+#else
+#define WMR_INTERNAL static
+#endif
+#else
+#define WMR_INTERNAL
+#endif
+
+/* 1 if the model core defines model_jacobian (directional derivatives). */
+#ifndef MODEL_PROVIDES_JACOBIAN
+#define MODEL_PROVIDES_JACOBIAN 0
+#endif
+
 typedef enum {
     MODEL_VAR_TIME = 0,  /* the independent variable, value reference 0 */
     MODEL_VAR_PARAMETER, /* index into p[] */
     MODEL_VAR_INPUT,     /* index into u[] */
-    MODEL_VAR_OUTPUT     /* index into y[] */
+    MODEL_VAR_OUTPUT,    /* index into y[] */
+    MODEL_VAR_DERIVATIVE /* index into dx[] (= the state index): der(state) */
 } ModelVarKind;
 
 typedef struct {
@@ -30,25 +52,40 @@ typedef struct {
     double min;            /* inclusive lower bound, -INFINITY if none */
     double max;            /* inclusive upper bound, +INFINITY if none */
     int tunable;           /* 1: a parameter that may change after initialisation */
+    int state;             /* index into x[] if this output is a continuous state, else -1 */
 } ModelVariable;
 
+#ifndef WMR_UNITY /* in the unity build the definitions come first, with internal linkage */
 /* The value reference of a variable is its position in this table. */
 extern const ModelVariable MODEL_VARIABLES[MODEL_NV];
 
 /* Derived from the content of the model and of the C sources (a hash). */
 extern const char MODEL_INSTANTIATION_TOKEN[];
+#endif
 
 /* Continuous state at the start time from the parameters (the Modelica
  * start values, x(start = x0, fixed = true)).  Returns 0 on success. */
-int model_initial_state(const double p[MODEL_NP], double x[MODEL_NX]);
+WMR_INTERNAL int model_initial_state(const double p[MODEL_NP], double x[MODEL_NX]);
 
 /* dx/dt = f(x, u, p): the explicit form of the Modelica equations.  Returns 0
  * on success; the caller checks the result for non-finite values. */
-int model_derivatives(const double x[MODEL_NX], const double u[MODEL_NU],
+WMR_INTERNAL int model_derivatives(const double x[MODEL_NX], const double u[MODEL_NU],
                       const double p[MODEL_NP], double dx[MODEL_NX]);
 
 /* y = g(x, u, p).  Returns 0 on success. */
-int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU],
-                  const double p[MODEL_NP], double y[MODEL_NY]);
+WMR_INTERNAL int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU],
+                               const double p[MODEL_NP], double y[MODEL_NY]);
+
+#if MODEL_PROVIDES_JACOBIAN
+/* Rows of the Jacobian: dx/dt (MODEL_NX) then y (MODEL_NY); columns: x then u. */
+#define MODEL_JAC_ROWS (MODEL_NX + MODEL_NY)
+#define MODEL_JAC_COLS (MODEL_NX + MODEL_NU)
+/* The exact Jacobian d(f, g)/d(x, u) at (x, u, p) (CasADi's algorithmic differentiation of
+ * the same expressions), dense and column-major: J[col * MODEL_JAC_ROWS + row].  Returns 0
+ * on success. */
+WMR_INTERNAL int model_jacobian(const double x[MODEL_NX], const double u[MODEL_NU],
+                                const double p[MODEL_NP],
+                                double jac[MODEL_JAC_ROWS * MODEL_JAC_COLS]);
+#endif
 
 #endif

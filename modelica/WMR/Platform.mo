@@ -8,20 +8,20 @@ partial model Platform "Rigid platform on two rolling wheels: kinematics (eqs. 1
   parameter Real Ig(unit = "kg.m2", min = 0) = 0.25 "Moment of inertia of the platform about G";
   parameter Real x0(unit = "m") = 0 "Initial x of B";
   parameter Real y0(unit = "m") = 0 "Initial y of B";
-  parameter Real theta0(unit = "rad") = 0 "Initial heading";
+  parameter Real theta0(unit = "rad", displayUnit = "deg") = 0 "Initial heading";
   parameter Real v0(unit = "m/s") = 0 "Initial linear velocity of B";
   parameter Real omega0(unit = "rad/s") = 0 "Initial angular velocity";
   Real tau_dr(unit = "N.m") "Torque of the right wheel on the platform";
   Real tau_dl(unit = "N.m") "Torque of the left wheel on the platform";
   output Real x(unit = "m", start = x0, fixed = true) "x of B, the centre of the wheel axle, in the world frame";
   output Real y(unit = "m", start = y0, fixed = true) "y of B, the centre of the wheel axle, in the world frame";
-  output Real theta(unit = "rad", start = theta0, fixed = true) "Heading, continuous (not wrapped)";
+  output Real theta(unit = "rad", displayUnit = "deg", start = theta0, fixed = true) "Heading, continuous (not wrapped)";
   output Real v(unit = "m/s", start = v0, fixed = true) "Linear velocity of B";
   output Real omega(unit = "rad/s", start = omega0, fixed = true) "Angular velocity of the platform";
   Real F_d(unit = "N") "Driving force F_d";
   Real tau_d(unit = "N.m") "Driving torque tau_d about B";
-  output Real omega_r(unit = "rad/s") "Right wheel angular velocity";
-  output Real omega_l(unit = "rad/s") "Left wheel angular velocity";
+  output Real omega_r(unit = "rad/s", displayUnit = "rpm") "Right wheel angular velocity";
+  output Real omega_l(unit = "rad/s", displayUnit = "rpm") "Left wheel angular velocity";
   output Real x_G(unit = "m") "x of G, the centre of gravity";
   output Real y_G(unit = "m") "y of G, the centre of gravity";
 equation

@@ -10,8 +10,8 @@ model Robot "Two-wheeled differential robot with wheel and motor dynamics (eq. 2
   parameter Real w_c(unit = "rad/s", min = 1e-6) = 0.01 "Smoothing speed of the Coulomb friction (tanh)";
   input Real tau_r(unit = "N.m") "Right motor torque";
   input Real tau_l(unit = "N.m") "Left motor torque";
-  output Real phi_r(unit = "rad") "Right wheel angle";
-  output Real phi_l(unit = "rad") "Left wheel angle";
+  output Real phi_r(unit = "rad", displayUnit = "deg") "Right wheel angle";
+  output Real phi_l(unit = "rad", displayUnit = "deg") "Left wheel angle";
   output Real E_kin(unit = "J") "Kinetic energy of platform, wheels and rotors";
   WheelMotor wheelR(I = Iwm, b = b_f, tauC = tau_c, wC = w_c) "Right wheel and motor, eq. 22";
   WheelMotor wheelL(I = Iwm, b = b_f, tauC = tau_c, wC = w_c) "Left wheel and motor, eq. 22";

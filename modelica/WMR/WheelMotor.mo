@@ -11,7 +11,7 @@ model WheelMotor "Driving wheel with its motor: inertia and friction (eq. 22)"
   input Real alpha(unit = "rad/s2") "Wheel angular acceleration";
   output Real tau_d(unit = "N.m") "Torque the wheel passes on to the platform, tau_d";
   Real tau_f(unit = "N.m") "Friction torque tau_f";
-  Real phi(unit = "rad", start = 0, fixed = true) "Wheel angle";
+  Real phi(unit = "rad", displayUnit = "deg", start = 0, fixed = true) "Wheel angle";
 equation
   // Coulomb friction is smoothed with tanh: the sign function has no solution at rest
   // for an explicit ODE (stiction would need a mode switch the FMU does not model).

@@ -28,6 +28,11 @@ def fmu_src_dir() -> Path:
     return _resource("fmu/src")
 
 
+def license_file() -> Path:
+    """The project's licence (BSD-2-Clause), shipped inside every FMU."""
+    return _resource("LICENSE")
+
+
 def scenarios_dir() -> Path:
     """Folder of the scenario files shipped with the project (the paper's Section 5)."""
     return _resource("scenarios")

@@ -14,14 +14,17 @@ Handler = Callable[[argparse.Namespace], int]
 
 
 def _cmd_fmu_build(args: argparse.Namespace) -> int:
-    from wmr.fmu.build import build_fmus
+    from wmr.fmu.build import build_fmus, summarize
     from wmr.outputs import check_output
 
     if args.out is not None:
         check_output(args.out, "--out", "dir")
     result = build_fmus(args.out, force=args.force)
+    # Standard output stays one path a line (scripts read it); what each FMU offers goes to
+    # standard error.
     for version in sorted(result.fmus):
         print(result.fmus[version])
+        print(summarize(result.fmus[version]).line(), file=sys.stderr)
     if args.verbose:
         state = "reused" if result.reused else "built"
         print(f"{state}: digest {result.digest[:16]}", file=sys.stderr)
@@ -40,7 +43,10 @@ def build_parser() -> argparse.ArgumentParser:
     fmu_sub = fmu.add_subparsers(dest="fmu_command", metavar="ACTION", required=True)
     build = fmu_sub.add_parser(
         "build", help="build (or reuse, if nothing changed) the FMI 2.0 and 3.0 FMUs",
-        description="Build the FMI 2.0 and FMI 3.0 co-simulation FMUs and print their paths.")
+        description="Build the FMI 2.0 and FMI 3.0 FMUs and print their paths, one a line "
+                    "(standard error says what each offers: FMI version, interfaces, platforms). "
+                    "With the ziglang package the binaries cover x86_64-linux, aarch64-linux, "
+                    "x86_64-windows, x86_64-darwin and aarch64-darwin; with gcc, the host only.")
     build.add_argument("--out", metavar="DIR", default=None,
                        help="output folder (default: ~/.cache/wmr-cosim/fmu)")
     build.add_argument("--force", action="store_true", help="rebuild even if nothing changed")

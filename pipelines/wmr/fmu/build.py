@@ -1,9 +1,12 @@
-"""``wmr fmu build``: Modelica source -> pymoca -> explicit ODE -> CasADi C -> gcc -> .fmu.
+"""``wmr fmu build``: Modelica source -> pymoca -> explicit ODE -> CasADi C -> zig/gcc -> .fmu.
 
-One FMI 2.0 and one FMI 3.0 co-simulation FMU are built from the same generated model core and
-the same FMI layer (``fmu/src``); only ``fmi2.c`` or ``fmi3.c`` and the model description differ.
-A build is skipped when a digest over every input (Modelica sources, C sources, this build
-code, the tool versions and the compiler flags) matches the digest of the FMUs already there.
+One FMI 2.0 and one FMI 3.0 FMU are built from the same generated model core and the same FMI
+layer (``fmu/src``); only ``fmi2.c`` or ``fmi3.c`` and the model description differ.  With Zig's
+C compiler (the ``ziglang`` package) each FMU carries binaries for every platform the FMI
+standard names (:mod:`wmr.fmu.platforms`); with the host's gcc, for the host only.  The
+compiles run concurrently.  A build is skipped when a digest over every input (Modelica
+sources, C sources, this build code, the tool and compiler versions, the flags and the target
+platforms) matches the digest of the FMUs already there.
 """
 
 from __future__ import annotations
@@ -12,23 +15,21 @@ import fcntl
 import hashlib
 import json
 import os
-import platform
 import shutil
 import subprocess
 import tempfile
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 from wmr import __version__, paths
 from wmr.errors import BuildError
+from wmr.fmu.platforms import CFLAGS, PLATFORMS, Compiler, Platform, check_binary, find_compiler
 
-CFLAGS = ("-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-std=c99", "-Wall", "-Wextra")
 FMI_VERSIONS = (2, 3)
-#: Where each FMI version puts the Linux x86_64 binary.
-_PLATFORM_DIR = {2: "linux64", 3: "x86_64-linux"}
 _STAMP = ".wmr-build.json"
 _ZIP_DATE = (2020, 1, 1, 0, 0, 0)  # fixed, so that identical inputs give identical archives
 
@@ -40,18 +41,12 @@ class BuildResult:
     fmus: dict[int, Path]
     digest: str
     reused: bool
+    #: FMI 3 names of the platforms the binaries were built for, in :data:`PLATFORMS` order.
+    platforms: tuple[str, ...] = ()
 
 
 def fmu_name(fmi_version: int) -> str:
     return f"wmr_robot-fmi{fmi_version}.fmu"
-
-
-def _compiler_version(cc: str) -> str:
-    try:
-        out = subprocess.run([cc, "--version"], capture_output=True, text=True, check=True)
-    except (OSError, subprocess.CalledProcessError) as exc:
-        raise BuildError(f"no C compiler: '{cc} --version' failed ({exc}); install gcc") from exc
-    return out.stdout.splitlines()[0] if out.stdout else cc
 
 
 def _fmi_headers() -> Path:
@@ -73,8 +68,11 @@ def _hand_written_sources() -> list[Path]:
     return files
 
 
-def build_digest(cc: str = "gcc") -> str:
+def build_digest(compiler: Compiler | None = None,
+                 platforms: Sequence[Platform] | None = None) -> str:
     """SHA-256 over everything that goes into an FMU."""
+    compiler = compiler if compiler is not None else find_compiler()
+    platforms = platforms if platforms is not None else compiler.platforms()
     import casadi
     import pymoca
 
@@ -88,8 +86,10 @@ def build_digest(cc: str = "gcc") -> str:
     for module in sorted(Path(__file__).parent.glob("*.py")):
         h.update(module.name.encode())
         h.update(module.read_bytes())
-    h.update(" ".join([casadi.__version__, pymoca.__version__, __version__,
-                       _compiler_version(cc), *CFLAGS]).encode())
+    h.update(" ".join([casadi.__version__, pymoca.__version__, __version__, compiler.version,
+                       *CFLAGS]).encode())
+    h.update(" ".join(f"{p.name}={p.zig_target if compiler.cross else 'host'}"
+                      for p in platforms).encode())
     return h.hexdigest()
 
 
@@ -122,27 +122,21 @@ def _reusable(out_dir: Path, digest: str) -> dict[int, Path] | None:
     return fmus
 
 
-def _compile(cc: str, sources: list[Path], include_dirs: list[Path], output: Path) -> None:
-    cmd = [cc, *CFLAGS, *(f"-I{d}" for d in include_dirs), *map(str, sources),
-           "-o", str(output), "-lm"]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+def _compile(compiler: Compiler, target: Platform, sources: list[Path],
+             include_dirs: list[Path], output: Path) -> None:
+    """Compile one shared library; its own folder, since zig puts a ``.lib`` beside a DLL."""
+    output.parent.mkdir(parents=True, exist_ok=True)
+    cmd = compiler.argv(target, sources, include_dirs, output)
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=output.parent)
     if proc.returncode != 0:
-        raise BuildError(f"the C compiler failed:\n{' '.join(cmd)}\n{proc.stderr.strip()}")
+        raise BuildError(f"the C compiler failed for {target.name}:\n{' '.join(cmd)}\n"
+                         f"{proc.stderr.strip()}")
     if proc.stderr.strip():
-        raise BuildError(f"the C sources must compile without warnings:\n{proc.stderr.strip()}")
-
-
-def _check_exports(library: Path) -> None:
-    """Only the fmi* entry points may leave the shared library."""
-    try:
-        proc = subprocess.run(["nm", "-D", "--defined-only", str(library)],
-                              capture_output=True, text=True, check=True)
-    except (OSError, subprocess.CalledProcessError):
-        return  # binutils missing: nothing to check with, the FMU is still valid
-    names = [line.split()[-1] for line in proc.stdout.splitlines() if line.strip()]
-    stray = [n for n in names if not n.startswith("fmi") and n[:1] != "_"]
-    if stray:
-        raise BuildError(f"{library.name} exports non-FMI symbols: {', '.join(stray)}")
+        raise BuildError(f"the C sources must compile without warnings ({target.name}):\n"
+                         f"{proc.stderr.strip()}")
+    problems = check_binary(output, target)
+    if problems:
+        raise BuildError("; ".join(problems))
 
 
 def _write_zip(target: Path, members: dict[str, bytes]) -> None:
@@ -150,6 +144,7 @@ def _write_zip(target: Path, members: dict[str, bytes]) -> None:
     fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".", suffix=".fmu.part")
     os.close(fd)
     try:
+        os.chmod(tmp, 0o644)  # mkstemp's 0600 would keep the FMU from other users
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
             for name in sorted(members):
                 info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
@@ -163,8 +158,8 @@ def _write_zip(target: Path, members: dict[str, bytes]) -> None:
 
 
 def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = False,
-               cc: str = "gcc", validate: bool = True) -> BuildResult:
-    """Build (or reuse) the FMI 2.0 and FMI 3.0 co-simulation FMUs into ``out_dir``.
+               cc: str | None = None, validate: bool = True) -> BuildResult:
+    """Build (or reuse) the FMI 2.0 and FMI 3.0 FMUs into ``out_dir``.
 
     Parameters
     ----------
@@ -173,7 +168,8 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
     force
         Rebuild even when the digest of the inputs matches the existing FMUs.
     cc
-        The C compiler.
+        The C compiler: ``"zig"`` (every platform), a host compiler such as ``"gcc"`` (the host
+        platform only), or None for zig when the ``ziglang`` package is installed, else gcc.
     validate
         Run fmpy's ``validate_fmu`` on each new FMU and fail on any problem.
 
@@ -182,28 +178,30 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
     BuildError
         With the failing step and what to do.
     """
-    if platform.system() != "Linux" or platform.machine() not in {"x86_64", "AMD64"}:
-        raise BuildError(
-            f"binaries are built for Linux x86_64 only, this is {platform.system()} "
-            f"{platform.machine()}: compile the FMU's sources/ folder with your C compiler")
+    compiler = find_compiler(cc)
+    targets = compiler.platforms()
     out = Path(out_dir) if out_dir is not None else paths.default_fmu_dir()
-    digest = build_digest(cc)
+    digest = build_digest(compiler, targets)
+    names = tuple(t.name for t in targets)
     with _locked(out):
         if not force:
             reused = _reusable(out, digest)
             if reused is not None:
-                return BuildResult(reused, digest, reused=True)
-        fmus = _build(out, digest, cc)
+                return BuildResult(reused, digest, reused=True, platforms=names)
+        fmus = _build(out, digest, compiler, targets)
         if validate:
             _validate(fmus)
-        stamp = {"digest": digest, "sha256": {
-            str(v): hashlib.sha256(p.read_bytes()).hexdigest() for v, p in fmus.items()}}
+        stamp = {"digest": digest, "compiler": compiler.version, "platforms": list(names),
+                 "sha256": {str(v): hashlib.sha256(p.read_bytes()).hexdigest()
+                            for v, p in fmus.items()}}
         (out / _STAMP).write_text(json.dumps(stamp, indent=1) + "\n")
-    return BuildResult(fmus, digest, reused=False)
+    return BuildResult(fmus, digest, reused=False, platforms=names)
 
 
-def _build(out: Path, digest: str, cc: str) -> dict[int, Path]:
-    from wmr.fmu.codegen import MODEL_IDENTIFIER, write_model_core
+def _build(out: Path, digest: str, compiler: Compiler,
+           targets: Sequence[Platform]) -> dict[int, Path]:
+    from wmr.fmu.codegen import MODEL_IDENTIFIER, unity_source, write_model_core
+    from wmr.fmu.documentation import index_html, license_files
     from wmr.fmu.flatten import flatten
     from wmr.fmu.modeldesc import (
         fmi2_model_description,
@@ -220,26 +218,40 @@ def _build(out: Path, digest: str, cc: str) -> dict[int, Path]:
     with tempfile.TemporaryDirectory(prefix="wmr-fmu-") as tmp:
         gen_dir = Path(tmp) / "generated"
         generated = write_model_core(model, token, gen_dir)
+        # One translation unit per FMI version includes all the others, so that only the fmi*
+        # entry points are global symbols (fmu/src/README.md).
+        unity: dict[int, Path] = {}
+        for v in FMI_VERSIONS:
+            unity[v] = Path(tmp) / f"fmi{v}" / f"{MODEL_IDENTIFIER}.c"
+            unity[v].parent.mkdir()
+            unity[v].write_text(unity_source(model, v))
+        sources = {v: [p for p in hand if p.name != ("fmi3.c" if v == 2 else "fmi2.c")]
+                   + generated + [unity[v]] for v in FMI_VERSIONS}
+        # One job per FMI version and platform; FMI 2 has no folder name for aarch64.
+        jobs = [(v, t, Path(tmp) / f"fmi{v}" / t.name / f"{MODEL_IDENTIFIER}{t.extension}")
+                for v in FMI_VERSIONS for t in targets if t.folder(v) is not None]
+        include = [gen_dir, paths.fmu_src_dir(), headers]
+        with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
+            futures = [pool.submit(_compile, compiler, t, [unity[v]], include, lib)
+                       for v, t, lib in jobs]
+            for future in futures:
+                future.result()
+        docs = {"documentation/index.html": index_html(model).encode(), **license_files()}
+        readme = paths.fmu_src_dir() / "README.md"
+        if readme.exists():
+            docs["documentation/README.md"] = readme.read_bytes()
         for version in FMI_VERSIONS:
-            skip = "fmi3.c" if version == 2 else "fmi2.c"
-            sources = [p for p in hand if p.name != skip] + generated
-            c_files = [p for p in sources if p.suffix == ".c"]
-            library = Path(tmp) / f"fmi{version}" / f"{MODEL_IDENTIFIER}.so"
-            library.parent.mkdir()
-            _compile(cc, c_files, [gen_dir, paths.fmu_src_dir(), headers], library)
-            _check_exports(library)
-            c_names = [p.name for p in c_files]
-            members = {f"sources/{p.name}": p.read_bytes() for p in sources}
-            members[f"binaries/{_PLATFORM_DIR[version]}/{MODEL_IDENTIFIER}.so"] = \
-                library.read_bytes()
+            c_names = [unity[version].name]
+            members = {f"sources/{p.name}": p.read_bytes() for p in sources[version]}
+            members.update(docs)
+            for v, t, lib in jobs:
+                if v == version:
+                    members[f"binaries/{t.folder(v)}/{lib.name}"] = lib.read_bytes()
             if version == 2:
                 members["modelDescription.xml"] = fmi2_model_description(model, token, c_names)
             else:
                 members["modelDescription.xml"] = fmi3_model_description(model, token)
                 members["sources/buildDescription.xml"] = fmi3_build_description(c_names)
-            readme = paths.fmu_src_dir() / "README.md"
-            if readme.exists():
-                members["documentation/README.md"] = readme.read_bytes()
             target = out / fmu_name(version)
             _write_zip(target, members)
             result[version] = target
@@ -253,6 +265,42 @@ def _validate(fmus: dict[int, Path]) -> None:
         problems = validate_fmu(str(path))
         if problems:
             raise BuildError(f"fmpy rejects the FMI {version} FMU {path}: " + "; ".join(problems))
+
+
+@dataclass(frozen=True)
+class FmuSummary:
+    """What one FMU file offers, read back from the archive itself."""
+
+    path: Path
+    fmi_version: str
+    interfaces: tuple[str, ...]  # "co-simulation", "model exchange", "scheduled execution"
+    platforms: tuple[str, ...]  # folder names under binaries/, in PLATFORMS order
+
+    def line(self) -> str:
+        """``<file name>: FMI 3.0, co-simulation, x86_64-linux aarch64-linux ...``; for FMI 2
+        also what it cannot carry."""
+        text = (f"{self.path.name}: FMI {self.fmi_version}, {' + '.join(self.interfaces)}, "
+                f"binaries for {' '.join(self.platforms) or 'no platform'}")
+        if self.fmi_version.startswith("2"):
+            missing = [p.name for p in PLATFORMS if p.fmi2 is None]
+            text += f" (FMI 2.0 names no platform for {', '.join(missing)})"
+        return text
+
+
+def summarize(path: Path) -> FmuSummary:
+    """Read the FMI version, interfaces and binary platforms of the FMU at ``path``."""
+    from fmpy import read_model_description
+
+    md = read_model_description(str(path))
+    interfaces = tuple(name for name, present in (
+        ("co-simulation", md.coSimulation), ("model exchange", md.modelExchange),
+        ("scheduled execution", getattr(md, "scheduledExecution", None))) if present)
+    with zipfile.ZipFile(path) as zf:
+        folders = {n.split("/")[1] for n in zf.namelist()
+                   if n.startswith("binaries/") and n.count("/") == 2 and not n.endswith("/")}
+    order = [f for p in PLATFORMS for f in (p.name, p.fmi2) if f]
+    platforms = tuple(sorted(folders, key=lambda f: order.index(f) if f in order else len(order)))
+    return FmuSummary(path, md.fmiVersion, interfaces, platforms)
 
 
 def copy_fmus(result: BuildResult, dest: Path) -> dict[int, Path]:

@@ -24,15 +24,17 @@ import numpy as np
 
 from wmr.errors import BuildError
 
-Kind = Literal["parameter", "input", "output"]
+Kind = Literal["parameter", "input", "output", "derivative"]
 
 
 @dataclass(frozen=True)
 class Variable:
     """One variable of the FMU interface.
 
-    ``index`` is the position in the parameter, input or output vector of the generated code;
-    the value reference is assigned by :attr:`FlatModel.variables` order (time is 0).
+    ``index`` is the position in the parameter, input, output or state-derivative vector of
+    the generated code; the value reference is assigned by :attr:`FlatModel.variables` order
+    (time is 0).  ``state`` is the position in the state vector of an output that is a
+    continuous state (-1 otherwise); ``display_unit`` is Modelica's ``displayUnit``.
     """
 
     name: str
@@ -44,11 +46,17 @@ class Variable:
     min: float = -math.inf
     max: float = math.inf
     tunable: bool = False
+    state: int = -1
+    display_unit: str = ""
 
 
 @dataclass
 class FlatModel:
-    """The explicit form ``xdot = f(x, u, p)``, ``y = h(x, u, p)``, ``x(0) = x0(p)``."""
+    """The explicit form ``xdot = f(x, u, p)``, ``y = h(x, u, p)``, ``x(0) = x0(p)``.
+
+    Every continuous state is also an output (``Variable.state``); ``derivatives`` holds one
+    ``der(<output>)`` variable per state, in state order (the FMI state vector order).
+    """
 
     name: str
     description: str
@@ -62,12 +70,16 @@ class FlatModel:
     start_time: float = 0.0
     stop_time: float = 60.0
     step_size: float = 0.01
+    #: The relative tolerance the FMU's own solver uses by default (SOLVER_DEFAULT_RTOL).
+    tolerance: float = 1e-9
     source_digest: str = field(default="")
+    derivatives: list[Variable] = field(default_factory=list)
 
     @property
     def variables(self) -> list[Variable]:
-        """Parameters, inputs then outputs: value reference = position + 1 (0 is time)."""
-        return [*self.parameters, *self.inputs, *self.outputs]
+        """Parameters, inputs, outputs then state derivatives: value reference = position + 1
+        (0 is time), so that the references of the first three never move."""
+        return [*self.parameters, *self.inputs, *self.outputs, *self.derivatives]
 
     @property
     def value_references(self) -> dict[str, int]:
@@ -232,28 +244,32 @@ def flatten(modelica_dir: Path, model_name: str = "WMR.Robot") -> FlatModel:
 
     # Parameters that set a start value only act at initialisation: not tunable.
     start_deps = ca.vcat(starts)
-    def describe(name: str) -> tuple[str, str, float, float]:
+    def describe(name: str) -> tuple[str, str, float, float, str]:
         sym = symbols.get(name)
         unit = str(_value(sym, "unit") or "") if sym is not None else ""
         comment = str(getattr(sym, "comment", "") or "") if sym is not None else ""
         lo = _float(_value(sym, "min"), -math.inf) if sym is not None else -math.inf
         hi = _float(_value(sym, "max"), math.inf) if sym is not None else math.inf
-        return unit, comment, lo, hi
+        display = str(_value(sym, "displayUnit") or "") if sym is not None else ""
+        return unit, comment, lo, hi, display
 
     parameters = []
     for i, (sym, val) in enumerate(zip(free, free_values, strict=True)):
-        unit, comment, lo, hi = describe(str(sym))
+        unit, comment, lo, hi, display = describe(str(sym))
         parameters.append(Variable(str(sym), "parameter", i, unit, comment, val, lo, hi,
-                                   tunable=not ca.depends_on(start_deps, sym)))
+                                   tunable=not ca.depends_on(start_deps, sym),
+                                   display_unit=display))
     inputs = []
     for i, var in enumerate(model.inputs):
-        unit, comment, lo, hi = describe(str(var.symbol))
+        unit, comment, lo, hi, display = describe(str(var.symbol))
         start = _float(var.start if not isinstance(var.start, ca.MX) else None, 0.0)
-        inputs.append(Variable(str(var.symbol), "input", i, unit, comment, start, lo, hi))
+        inputs.append(Variable(str(var.symbol), "input", i, unit, comment, start, lo, hi,
+                               display_unit=display))
     outputs = []
     for i, name in enumerate(model.outputs):
-        unit, comment, lo, hi = describe(name)
-        outputs.append(Variable(name, "output", i, unit, comment, math.nan, lo, hi))
+        unit, comment, lo, hi, display = describe(name)
+        outputs.append(Variable(name, "output", i, unit, comment, math.nan, lo, hi,
+                                display_unit=display))
 
     # Declaration order of the Modelica source (pymoca's flattened tree keeps it) fixes the
     # value references, so that they only move when the model's interface moves.
@@ -270,6 +286,7 @@ def flatten(modelica_dir: Path, model_name: str = "WMR.Robot") -> FlatModel:
     init = ca.Function("wmr_init", [p_new], [init(p_old)], ["p"], ["x0"])
     parameters = [replace(v, index=i) for i, v in enumerate(parameters)]
     outputs = [replace(v, index=i) for i, v in enumerate(outputs)]
+    outputs, derivatives = _states_as_outputs(outputs, out, [str(s) for s in x])
 
     return FlatModel(
         name=model_name,
@@ -282,7 +299,38 @@ def flatten(modelica_dir: Path, model_name: str = "WMR.Robot") -> FlatModel:
         out=out,
         init=init,
         source_digest=source_digest(modelica_dir),
+        derivatives=derivatives,
     )
+
+
+def _per_second(unit: str) -> str:
+    """The unit of the time derivative of a quantity in ``unit`` (m -> m/s, m/s -> m/s2)."""
+    if not unit:
+        return "1/s"
+    return unit + "2" if unit.endswith("/s") else unit + "/s"
+
+
+def _states_as_outputs(outputs: list[Variable], out: ca.Function,
+                       state_names: list[str]) -> tuple[list[Variable], list[Variable]]:
+    """Mark the output that is each continuous state, and make its ``der()`` variable.
+
+    An output is the state ``x_i`` when CasADi's expression for it is the symbol ``x_i``
+    itself (``phi_r = wheelR.phi``).  FMI needs every state to be a variable; exposing it
+    through its output keeps the interface's names and value references.
+    """
+    xs = ca.SX.sym("x", out.numel_in(0))
+    y = out(xs, ca.SX.sym("u", out.numel_in(1)), ca.SX.sym("p", out.numel_in(2)))
+    outputs = list(outputs)
+    derivatives = []
+    for i, name in enumerate(state_names):
+        match = [j for j, v in enumerate(outputs) if ca.is_equal(y[v.index], xs[i])]
+        if not match:
+            raise BuildError(f"the continuous state {name} is no output of the model; declare an "
+                             f"output equal to it (e.g. output Real ... = {name})")
+        v = outputs[match[0]] = replace(outputs[match[0]], state=i)
+        derivatives.append(Variable(f"der({v.name})", "derivative", i, _per_second(v.unit),
+                                    f"Time derivative of {v.name}", math.nan))
+    return outputs, derivatives
 
 
 def _solve_blocks(g: ca.SX, z: ca.SX, names: list[str]) -> ca.SX:

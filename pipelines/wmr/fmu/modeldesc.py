@@ -1,7 +1,9 @@
 """Both model descriptions (FMI 2.0 and FMI 3.0) and the FMI 3 build description.
 
 They are written from the one :class:`~wmr.fmu.flatten.FlatModel` that also writes the C
-variable table, so value references, start values, bounds and units cannot drift apart.
+variable table, so value references, start values, bounds and units cannot drift apart.  The
+model structure (``dependencies``, ``dependenciesKind``) is read off CasADi's Jacobians of the
+generated functions (:func:`model_structure`), never written by hand.
 """
 
 from __future__ import annotations
@@ -10,6 +12,9 @@ import math
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
+from dataclasses import dataclass
+
+import casadi as ca
 
 from wmr import __version__
 from wmr.fmu.codegen import MODEL_IDENTIFIER
@@ -24,11 +29,19 @@ _BASE_UNITS: dict[str, dict[str, int]] = {
     "J": {"kg": 1, "m": 2, "s": -2},
     "N": {"kg": 1, "m": 1, "s": -2},
     "m/s": {"m": 1, "s": -1},
+    "m/s2": {"m": 1, "s": -2},
     "rad/s": {"rad": 1, "s": -1},
     "rad/s2": {"rad": 1, "s": -2},
     "kg.m2": {"kg": 1, "m": 2},
     "N.m": {"kg": 1, "m": 2, "s": -2},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+}
+
+
+# Display units (Modelica's displayUnit): (unit, factor); value in display unit = factor * value.
+_DISPLAY_UNITS: dict[str, tuple[str, float]] = {
+    "deg": ("rad", 180.0 / math.pi),
+    "rpm": ("rad/s", 30.0 / math.pi),
 }
 
 
@@ -38,12 +51,100 @@ def _fmt(value: float) -> str:
 
 def _units(model: FlatModel) -> ET.Element:
     defs = ET.Element("UnitDefinitions")
+    displays: dict[str, set[str]] = {}
+    for v in model.variables:
+        if v.display_unit:
+            unit, _ = _DISPLAY_UNITS.get(v.display_unit, ("", 0.0))
+            if unit != v.unit:
+                raise ValueError(f"{v.name}: display unit {v.display_unit!r} is not defined for "
+                                 f"unit {v.unit!r} in modeldesc.py")
+            displays.setdefault(v.unit, set()).add(v.display_unit)
     for unit in sorted({v.unit for v in model.variables if v.unit} | {"s"}):
         if unit not in _BASE_UNITS:
             raise ValueError(f"unit {unit!r} has no base-unit definition in modeldesc.py")
         el = ET.SubElement(defs, "Unit", name=unit)
         ET.SubElement(el, "BaseUnit", {k: str(e) for k, e in _BASE_UNITS[unit].items()})
+        for display in sorted(displays.get(unit, ())):
+            ET.SubElement(el, "DisplayUnit", name=display,
+                          factor=_fmt(_DISPLAY_UNITS[display][1]))
     return defs
+
+
+@dataclass(frozen=True)
+class Unknown:
+    """One unknown of the model structure and the knowns it depends on (names, sorted by value
+    reference), with the FMI ``dependenciesKind`` of each."""
+
+    name: str
+    dependencies: tuple[str, ...]
+    kinds: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ModelStructure:
+    """Outputs and state derivatives (knowns: states and inputs) and the initial unknowns
+    (knowns: inputs and parameters), in FMI order."""
+
+    outputs: list[Unknown]
+    derivatives: list[Unknown]
+    initial_unknowns: list[Unknown]
+
+
+def _kind(entry: ca.SX, varying: ca.SX, params: ca.SX, tunable: list[bool]) -> str:
+    """FMI dependenciesKind of one Jacobian entry: how the known enters the unknown."""
+    if entry.is_constant():
+        return "constant"
+    if ca.depends_on(entry, varying):
+        return "dependent"
+    uses = [tunable[k] for k in range(params.numel()) if ca.depends_on(entry, params[k])]
+    return "tunable" if any(uses) else "fixed"
+
+
+def model_structure(model: FlatModel) -> ModelStructure:
+    """Dependencies of every output, state derivative and initial unknown, from the sparsity
+    (and the entries) of CasADi's Jacobians of the generated functions.
+
+    At communication points and in continuous-time mode, ``xdot = f(x, u, p)`` and
+    ``y = g(x, u, p)`` are differentiated w.r.t. ``(x, u)``; in initialisation mode the state
+    is ``x0(p)``, so ``f(x0(p), u, p)`` and ``g(x0(p), u, p)`` are differentiated w.r.t.
+    ``(u, p)``.  FMI allows only ``constant`` and ``dependent`` for initial unknowns.
+    """
+    x = ca.SX.sym("x", model.ode.numel_in(0))
+    u = ca.SX.sym("u", model.ode.numel_in(1))
+    p = ca.SX.sym("p", model.ode.numel_in(2))
+    vrs = model.value_references
+    by_state = {v.state: v.name for v in model.outputs if v.state >= 0}
+    tunable = [v.tunable for v in model.parameters]
+    unknowns = [*model.derivatives, *model.outputs]
+
+    def rows(fx: ca.SX, known: ca.SX, known_names: list[str], varying: ca.SX,
+             initial: bool) -> dict[str, Unknown]:
+        jac = ca.jacobian(fx, known)
+        result = {}
+        for r, var in enumerate(unknowns):
+            deps = []
+            for c in range(known.numel()):
+                if jac.sparsity().has_nz(r, c):
+                    kind = _kind(jac[r, c], varying, p, tunable)
+                    deps.append((known_names[c], "dependent" if initial and kind != "constant"
+                                 else kind))
+            deps.sort(key=lambda d: vrs[d[0]])
+            result[var.name] = Unknown(var.name, tuple(d[0] for d in deps),
+                                       tuple(d[1] for d in deps))
+        return result
+
+    state_names = [by_state[i] for i in range(x.numel())]
+    running = rows(ca.vertcat(model.ode(x, u, p), model.out(x, u, p)), ca.vertcat(x, u),
+                   state_names + [v.name for v in model.inputs], ca.vertcat(x, u), False)
+    x0 = model.init(p)
+    initial = rows(ca.vertcat(model.ode(x0, u, p), model.out(x0, u, p)), ca.vertcat(u, p),
+                   [v.name for v in model.inputs] + [v.name for v in model.parameters],
+                   ca.vertcat(x, u), True)
+    return ModelStructure(
+        outputs=[running[v.name] for v in model.outputs],
+        derivatives=[running[v.name] for v in model.derivatives],
+        initial_unknowns=sorted((initial[v.name] for v in unknowns), key=lambda k: vrs[k.name]),
+    )
 
 
 def _causality(v: Variable) -> tuple[str, str, str | None]:
@@ -52,6 +153,8 @@ def _causality(v: Variable) -> tuple[str, str, str | None]:
         return "parameter", "tunable" if v.tunable else "fixed", "exact"
     if v.kind == "input":
         return "input", "continuous", None
+    if v.kind == "derivative":
+        return "local", "continuous", "calculated"
     return "output", "continuous", "calculated"
 
 
@@ -59,11 +162,13 @@ def _bounds(v: Variable) -> dict[str, str]:
     attrs = {}
     if v.unit:
         attrs["unit"] = v.unit
+    if v.display_unit:
+        attrs["displayUnit"] = v.display_unit
     if math.isfinite(v.min):
         attrs["min"] = _fmt(v.min)
     if math.isfinite(v.max):
         attrs["max"] = _fmt(v.max)
-    if v.kind != "output":
+    if v.kind in ("parameter", "input"):
         attrs["start"] = _fmt(v.start)
     return attrs
 
@@ -81,7 +186,8 @@ def _log_categories() -> ET.Element:
 
 def _experiment(model: FlatModel) -> ET.Element:
     return ET.Element("DefaultExperiment", startTime=_fmt(model.start_time),
-                      stopTime=_fmt(model.stop_time), stepSize=_fmt(model.step_size))
+                      stopTime=_fmt(model.stop_time), tolerance=_fmt(model.tolerance),
+                      stepSize=_fmt(model.step_size))
 
 
 def _root(fmi_version: str, model: FlatModel, token: str) -> ET.Element:
@@ -104,23 +210,37 @@ def _to_bytes(root: ET.Element) -> bytes:
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
 
 
+def _dependency_attrs(unknown: Unknown, ref: dict[str, int]) -> dict[str, str]:
+    return {"dependencies": " ".join(str(ref[n]) for n in unknown.dependencies),
+            "dependenciesKind": " ".join(unknown.kinds)}
+
+
 def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str]) -> bytes:
-    """``modelDescription.xml`` of the FMI 2.0 co-simulation FMU."""
+    """``modelDescription.xml`` of the FMI 2.0 FMU: Model Exchange (if the model has continuous
+    states) and Co-Simulation."""
     root = _root("2.0", model, token)
+    common = {"modelIdentifier": MODEL_IDENTIFIER,
+              "canNotUseMemoryManagementFunctions": "true",
+              "canGetAndSetFMUstate": "true",
+              "canSerializeFMUstate": "true",
+              "providesDirectionalDerivative": "true"}
+    interfaces = []
+    if model.derivatives:
+        interfaces.append(ET.SubElement(root, "ModelExchange", {
+            **common, "completedIntegratorStepNotNeeded": "true"}))
     cs = ET.SubElement(root, "CoSimulation", {
         "modelIdentifier": MODEL_IDENTIFIER,
         "canHandleVariableCommunicationStepSize": "true",
         "canInterpolateInputs": "false",
         "canRunAsynchronuously": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false",
-        "canNotUseMemoryManagementFunctions": "true",
-        "canGetAndSetFMUstate": "true",
-        "canSerializeFMUstate": "true",
-        "providesDirectionalDerivative": "false",
+        **common,
     })
-    files = ET.SubElement(cs, "SourceFiles")
-    for name in sources:
-        ET.SubElement(files, "File", name=name)
+    interfaces.append(cs)
+    for element in interfaces:
+        files = ET.SubElement(element, "SourceFiles")
+        for name in sources:
+            ET.SubElement(files, "File", name=name)
     root.append(_units(model))
     root.append(_log_categories())
     root.append(_experiment(model))
@@ -130,6 +250,10 @@ def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str])
                        description="Simulation time")
     ET.SubElement(sv, "Real", unit="s")
     vrs = model.value_references
+    # ScalarVariable indices are 1-based positions in ModelVariables: time is 1, then the
+    # variables in value-reference order, so index = value reference + 1.
+    index = {name: vr + 1 for name, vr in vrs.items()}
+    state_of = {v.state: v.name for v in model.outputs if v.state >= 0}
     for v in model.variables:
         causality, variability, initial = _causality(v)
         attrs = {"name": v.name, "valueReference": str(vrs[v.name]), "description": v.description,
@@ -137,29 +261,37 @@ def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str])
         if initial:
             attrs["initial"] = initial
         sv = ET.SubElement(mv, "ScalarVariable", attrs)
-        ET.SubElement(sv, "Real", _bounds(v))
+        real = _bounds(v)
+        if v.kind == "derivative":
+            real["derivative"] = str(index[state_of[v.index]])
+        ET.SubElement(sv, "Real", real)
+    structure = model_structure(model)
     ms = ET.SubElement(root, "ModelStructure")
-    outs = ET.SubElement(ms, "Outputs")
-    init = ET.SubElement(ms, "InitialUnknowns")
-    # ScalarVariable indices are 1-based positions in ModelVariables; time is index 1.
-    for i, v in enumerate(model.variables, start=2):
-        if v.kind == "output":
-            ET.SubElement(outs, "Unknown", index=str(i))
-            ET.SubElement(init, "Unknown", index=str(i))
+    for tag, unknowns in (("Outputs", structure.outputs), ("Derivatives", structure.derivatives),
+                          ("InitialUnknowns", structure.initial_unknowns)):
+        if unknowns:
+            group = ET.SubElement(ms, tag)
+            for unknown in unknowns:
+                ET.SubElement(group, "Unknown", {"index": str(index[unknown.name]),
+                                                 **_dependency_attrs(unknown, index)})
     return _to_bytes(root)
 
 
 def fmi3_model_description(model: FlatModel, token: str) -> bytes:
-    """``modelDescription.xml`` of the FMI 3.0 co-simulation FMU."""
+    """``modelDescription.xml`` of the FMI 3.0 FMU: Model Exchange (if the model has continuous
+    states) and Co-Simulation."""
     root = _root("3.0", model, token)
+    common = {"modelIdentifier": MODEL_IDENTIFIER,
+              "canBeInstantiatedOnlyOncePerProcess": "false",
+              "canGetAndSetFMUState": "true",
+              "canSerializeFMUState": "true",
+              "providesDirectionalDerivatives": "true",
+              "providesAdjointDerivatives": "true"}
+    if model.derivatives:
+        ET.SubElement(root, "ModelExchange", {**common, "needsCompletedIntegratorStep": "false"})
     ET.SubElement(root, "CoSimulation", {
-        "modelIdentifier": MODEL_IDENTIFIER,
+        **common,
         "canHandleVariableCommunicationStepSize": "true",
-        "canBeInstantiatedOnlyOncePerProcess": "false",
-        "canGetAndSetFMUState": "true",
-        "canSerializeFMUState": "true",
-        "providesDirectionalDerivatives": "false",
-        "providesAdjointDerivatives": "false",
         "hasEventMode": "false",
         "providesIntermediateUpdate": "false",
         "canReturnEarlyAfterIntermediateUpdate": "false",
@@ -171,6 +303,7 @@ def fmi3_model_description(model: FlatModel, token: str) -> bytes:
     ET.SubElement(mv, "Float64", name="time", valueReference="0", causality="independent",
                   variability="continuous", description="Simulation time", unit="s")
     vrs = model.value_references
+    state_of = {v.state: v.name for v in model.outputs if v.state >= 0}
     for v in model.variables:
         causality, variability, initial = _causality(v)
         attrs = {"name": v.name, "valueReference": str(vrs[v.name]), "description": v.description,
@@ -178,11 +311,17 @@ def fmi3_model_description(model: FlatModel, token: str) -> bytes:
         if initial:
             attrs["initial"] = initial
         attrs.update(_bounds(v))
+        if v.kind == "derivative":
+            attrs["derivative"] = str(vrs[state_of[v.index]])
         ET.SubElement(mv, "Float64", attrs)
+    structure = model_structure(model)
     ms = ET.SubElement(root, "ModelStructure")
-    for tag in ("Output", "InitialUnknown"):
-        for v in model.outputs:
-            ET.SubElement(ms, tag, valueReference=str(vrs[v.name]))
+    for tag, unknowns in (("Output", structure.outputs),
+                          ("ContinuousStateDerivative", structure.derivatives),
+                          ("InitialUnknown", structure.initial_unknowns)):
+        for unknown in unknowns:
+            ET.SubElement(ms, tag, {"valueReference": str(vrs[unknown.name]),
+                                    **_dependency_attrs(unknown, vrs)})
     return _to_bytes(root)
 
 
