@@ -95,14 +95,15 @@ class McapFile:
     stream
         Binary stream opened for writing, positioned at 0; closed by :meth:`finish`.
     compression
-        Chunk compression: ``"lz4"`` (fastest: about 1 us per row of 6 messages), ``"zstd"``
-        (level 1: 15 % smaller, twice the time) or ``""``.
+        Chunk compression: ``"zstd"`` (default, level 1), ``"lz4"`` or ``""``.  On the Fig. 11
+        log zstd-1 takes 393 bytes per control step against lz4's 468 (16 % smaller) for
+        1.6 us of compression per step against 0.8 us; level 3 saves 1.5 % more for 10 us.
     library
         Header ``library`` field.
     """
 
     def __init__(
-        self, stream: IO[bytes], compression: Compression = "lz4", library: str = LIBRARY
+        self, stream: IO[bytes], compression: Compression = "zstd", library: str = LIBRARY
     ) -> None:
         self._stream = stream
         self._compression = compression
@@ -375,7 +376,8 @@ class RunLogWriter:
         Name -> ``(media_type, data)``, e.g. ``{"scenario.toml": ("application/toml", b"...")}``
         and ``{"modelDescription.xml": ("application/xml", b"...")}``.
     compression
-        Chunk compression, ``"lz4"`` (default, fastest), ``"zstd"`` or ``""``.
+        Chunk compression, ``"zstd"`` (default: 16 % smaller than ``"lz4"``), ``"lz4"``
+        (fastest) or ``""``.
     chunk_period_ns
         Simulation time per chunk, ns (default 1 s).
     topics
@@ -394,7 +396,7 @@ class RunLogWriter:
         run: Mapping[str, object],
         goal: tuple[float, float, float],
         attachments: Mapping[str, tuple[str, bytes]] | None = None,
-        compression: Compression = "lz4",
+        compression: Compression = "zstd",
         chunk_period_ns: int = 1_000_000_000,
         topics: tuple[TopicLayout, ...] = STEP_TOPICS,
     ) -> None:
