@@ -24,7 +24,8 @@ MAX_NAME_CHARS = 120
 
 def pose_token(label: str, pose: Pose) -> str:
     """``to_20_10_0deg``: a pose as typed on the command line (heading in degrees)."""
-    return f"{label}_{pose.x_m:g}_{pose.y_m:g}_{math.degrees(pose.heading_rad):.10g}deg"
+    return (f"{label}_{pose.x_m:.10g}_{pose.y_m:.10g}_"
+            f"{math.degrees(pose.heading_rad):.10g}deg")
 
 
 def _value_tokens(base: Mapping[str, float], new: Mapping[str, float]) -> list[str]:

@@ -27,6 +27,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
+from wmr._callable import make_callable
 from wmr.energy import wheel_work
 from wmr.errors import ConfigError
 from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
@@ -1061,3 +1062,7 @@ def replay_open_loop(result: OptimalResult, fmu_path: str | Path | Any,
                                           outputs["y"][-1] - goal.y_m),
         final_heading_error_rad=_wrap(float(outputs["theta"][-1]) - goal.heading_rad),
         final_speed_mps=float(outputs["v"][-1]), final_omega_radps=float(outputs["omega"][-1]))
+
+
+# ``wmr.optimal(...)`` is the API function (wmr.api); see wmr._callable.
+make_callable(__name__)

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from wmr import __version__
+from wmr._callable import make_callable
 from wmr.closedloop import BlockSink, Progress, run_closed_loop
 from wmr.fmu.plant import FmuPlant
 from wmr.mcaplog import RunLogWriter
@@ -131,3 +132,7 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
 def result_json(record: dict[str, Any]) -> str:
     """One line of JSON (NaN-free: non-finite figures are ``null``)."""
     return json.dumps(record, allow_nan=False, sort_keys=False)
+
+
+# ``wmr.run(...)`` is the API function (wmr.api); see wmr._callable.
+make_callable(__name__)

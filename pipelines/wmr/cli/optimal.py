@@ -60,13 +60,14 @@ def _as_flag(exc: ConfigError) -> ConfigError:
 def _optimal_name(args: argparse.Namespace, default_start: tuple[float, float, float],
                   default_goal: tuple[float, float, float]) -> str:
     """``optimal-time`` and a token per option that changes the manoeuvre (wmr.naming)."""
-    from wmr.naming import fmu_tokens, variant_name
+    from wmr.naming import fmu_tokens, pose_token, variant_name
+    from wmr.plant import Pose
 
     tokens = []
     for label, given, default in (("from", args.start, default_start),
                                   ("to", args.goal, default_goal)):
         if given is not None and tuple(given) != default:
-            tokens.append(f"{label}_{given[0]:.10g}_{given[1]:.10g}_{given[2]:.10g}deg")
+            tokens.append(pose_token(label, Pose(given[0], given[1], math.radians(given[2]))))
     if args.torque_limit is not None:
         tokens.append(f"torque_max_nm={args.torque_limit:.10g}")
     if args.torque_only:
@@ -79,18 +80,10 @@ def _optimal_name(args: argparse.Namespace, default_start: tuple[float, float, f
 
 
 def _cmd_optimal(args: argparse.Namespace) -> int:
-    from wmr.benchmark import (
-        optimal_metadata,
-        optimal_scenario,
-        replay_figures,
-        write_optimal_log,
-    )
-    from wmr.control import Limits
-    from wmr.fmu.plant import FmuPlant
     from wmr.naming import default_log_path
-    from wmr.optimal import FAILED_ADVICE, OptimalLimits, replay_open_loop, solve_optimal
+    from wmr.optimal_case import optimal_to_log
     from wmr.outputs import check_output
-    from wmr.plant import Pose, RobotParams
+    from wmr.plant import Pose
 
     def pose(v: list[float] | None, default: tuple[float, float, float], name: str) -> Pose:
         x, y, h = default if v is None else v
@@ -107,77 +100,28 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
     name = _optimal_name(args, default_start, default_goal)
     out = check_output(args.out if args.out else default_log_path(name), "--out",
                        suffix=".mcap")
-    pi = Limits()
-    torque = pi.torque_max_nm if args.torque_limit is None else args.torque_limit
-    if not math.isfinite(torque) or torque <= 0.0:
-        raise ConfigError("--torque-limit", f"must be > 0, got {torque!r}")
-    if args.torque_only:
-        limits = OptimalLimits(torque_max_nm=torque)
-    else:
-        limits = OptimalLimits(torque_max_nm=torque,
-                               wheel_speed_max_radps=pi.wheel_speed_max_radps,
-                               v_max_mps=pi.v_max_mps, omega_max_radps=pi.omega_max_radps)
-    params = RobotParams()
-    final_time = args.final_time
-
-    def solve(*a: Any, **kw: Any) -> Any:
-        try:
-            return solve_optimal(*a, **kw)
-        except ConfigError as exc:
-            raise _as_flag(exc) from None
-
-    note = ""
-    if args.objective == "energy" and final_time is None:
-        t_min = solve(start, goal, params, objective="time", limits=limits)
-        if t_min.status != "solved":
-            raise ConfigError("--final-time", "no minimum time to base the energy run on "
-                              f"({t_min.status}: {t_min.message})", "give --final-time S")
-        final_time = 1.5 * t_min.final_time_s
-        note = f"final time 1.5 x the minimum time {t_min.final_time_s:.3f} s"
-    if args.objective == "time" and final_time is not None:
+    if args.objective == "time" and args.final_time is not None:
         raise ConfigError("--final-time", "the time objective leaves the final time free",
                           "drop --final-time or use --objective energy")
-    res = solve(start, goal, params, objective=args.objective, limits=limits,
-                final_time_s=final_time)
-    res.message = res.message.replace(
-        FAILED_ADVICE, "the goal may be too far or the limits too tight for the solver")
-    record: dict[str, Any] = {
-        "status": res.status, "message": res.message + (f"; {note}" if note else ""),
-        "objective": res.objective,
-        "final_time_s": res.final_time_s if res.status == "solved" else None,
-        "path_length_m": None, "mcap": None,
-        "ocp_path_length_m": res.path_length_m,
-        "ocp_energy_positive_j": res.energy_positive_j,
-        "effort_N2m2s": res.effort_N2m2s, "solve_time_s": res.solve_time_s,
-        "iterations": res.iterations, "limits": res.summary()["limits"],
-    }
-    if res.status == "solved":
-        with FmuPlant(_fmu_path(args)) as plant:
-            replay = replay_open_loop(res, plant, params=params, start=start,
-                                      control_period_s=args.period)
-            figs = replay_figures(replay, goal, 0.05)
-            record.update(figs)
-            record["mcap"] = str(out)
-            record["final_heading_error_rad"] = float(replay.final_heading_error_rad)
-            record["final_speed_mps"] = replay.final_speed_mps
-            write_optimal_log(out, res, replay, plant,
-                              optimal_metadata(name, "", start, goal, params, limits,
-                                               args.objective, plant, args.period),
-                              {k: v for k, v in record.items()
-                               if not isinstance(v, dict)},
-                              scenario=optimal_scenario(name, "", start, goal, params, limits,
-                                                        args.period))
+    try:
+        record = optimal_to_log(start, goal, out, _fmu_path(args), name=name,
+                                objective=args.objective, torque_limit_nm=args.torque_limit,
+                                torque_only=args.torque_only, final_time_s=args.final_time,
+                                period_s=args.period)
+    except ConfigError as exc:
+        raise _as_flag(exc) from None
     if args.json:
         print(_json_line(record))
     else:
-        if res.status == "solved":
-            print(f"{res.status}: T = {res.final_time_s:.3f} s, path {record['path_length_m']:.2f}"
+        if record["status"] == "solved":
+            print(f"solved: T = {record['final_time_s']:.3f} s, path "
+                  f"{record['path_length_m']:.2f}"
                   f" m; FMU replay ends {record['final_position_error_m']:.4f} m and "
                   f"{math.degrees(abs(record['final_heading_error_rad'])):.3f} deg from the "
                   f"goal; log {out}")
         else:
-            print(f"{res.status}: {res.message}")
-    return {"solved": 0, "infeasible": 3}.get(res.status, 1)
+            print(f"{record['status']}: {record['message']}")
+    return {"solved": 0, "infeasible": 3}.get(record["status"], 1)
 
 
 # ---------------------------------------------------------------------------------- benchmark
