@@ -37,7 +37,7 @@ def _jsonable(value: float | None) -> float | None:
 
 
 def run_metadata(spec: RunSpec, plant: FmuPlant) -> dict[str, object]:
-    """The ``run`` metadata record of a log (interface.md)."""
+    """The ``run`` metadata record of a log (``docs/formats.md``)."""
     return {
         "name": spec.name,
         "scenario": spec.scenario,
