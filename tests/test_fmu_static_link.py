@@ -13,7 +13,9 @@ from pathlib import Path
 import pytest
 from fmpy import read_model_description
 
+from wmr.errors import BuildError
 from wmr.fmu.build import BuildResult
+from wmr.fmu.codegen import internal_linkage
 from wmr.fmu.plant import FmuPlant
 from wmr.plant import Pose, RobotParams
 
@@ -164,3 +166,11 @@ def test_two_fmi2_and_one_fmi3_fmu_link_into_one_program(built: BuildResult,
         expected = plant.outputs()["x"]
     assert expected > 0.1
     assert [float(x) for x in xs] == [expected] * 3
+
+
+def test_casadi_helpers_getinternal_linkage() -> None:
+    code = ("casadi_real casadi_sq(casadi_real x) { return x*x;}\n"
+            "CASADI_SYMBOL_EXPORT int wmr_ode(const casadi_real** arg) {\n")
+    assert internal_linkage(code).startswith("static casadi_real casadi_sq(")
+    with pytest.raises(BuildError, match="external linkage"):
+        internal_linkage(code + "double casadi_new_helper(double x) {\n")

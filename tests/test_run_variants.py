@@ -92,12 +92,15 @@ def test_the_log_attaches_the_effective_scenario_that_repeats_the_run_bit_for_bi
 def test_the_effective_scenario_reads_back_into_the_same_run_for_every_shipped_run() -> None:
     import tomllib
 
+    from wmr.batch import load_batch
     from wmr.scenario import parse_scenario
 
-    for name in ("fig9", "fig10", "fig11"):
-        for spec in load_scenario(name).runs:
-            peer = replace(with_overrides(spec, controller="graceful",
-                                          heading_tolerance_deg=0.3), name=spec.name + " \"q\"")
-            for s in (spec, peer):
-                back = parse_scenario(tomllib.loads(run_spec_toml(s))).runs
-                assert back == (s,)
+    specs = [s for name in ("fig9", "fig10", "fig11") for s in load_scenario(name).runs]
+    specs += [r.spec for r in load_batch("sensing_fig10").runs[:4]]  # runs with [sensors]
+    assert any(s.sensors is not None for s in specs)
+    for spec in specs:
+        peer = replace(with_overrides(spec, controller="graceful",
+                                      heading_tolerance_deg=0.3), name=spec.name + " \"q\"")
+        for s in (spec, peer):
+            back = parse_scenario(tomllib.loads(run_spec_toml(s))).runs
+            assert back == (s,)

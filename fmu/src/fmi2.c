@@ -220,7 +220,8 @@ fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
     return (fmi2Status)fl_enter_continuous_time_mode("fmi2EnterContinuousTimeMode", INST);
 }
 
-fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c,
+                                       fmi2Boolean noSetFMUStatePriorToCurrentPoint,
                                        fmi2Boolean *enterEventMode,
                                        fmi2Boolean *terminateSimulation) {
     const char *fn = "fmi2CompletedIntegratorStep";

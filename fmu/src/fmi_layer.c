@@ -47,14 +47,16 @@ static void vlog(FlInstance *inst, FlStatus status, const char *fmt, va_list ap)
     inst->log_adapter(inst, status, category, buf);
 }
 
-WMR_INTERNAL void fl_log(FlInstance *inst, FlStatus status, const char *fmt, ...) {
+WMR_INTERNAL
+void fl_log(FlInstance *inst, FlStatus status, const char *fmt, ...) {
     va_list ap;
     va_start(ap, fmt);
     vlog(inst, status, fmt, ap);
     va_end(ap);
 }
 
-WMR_INTERNAL void fl_log_no_instance(const char *instance_name, FlLogAdapter adapter,
+WMR_INTERNAL
+void fl_log_no_instance(const char *instance_name, FlLogAdapter adapter,
                         void (*importer_logger)(void), void *importer_env,
                         FlStatus status, const char *fmt, ...) {
     FlInstance tmp;
@@ -83,7 +85,8 @@ static FlStatus fail(FlInstance *inst) {
     return ret(inst, FL_ERROR);
 }
 
-WMR_INTERNAL const char *fl_mode_name(int mode) {
+WMR_INTERNAL
+const char *fl_mode_name(int mode) {
     switch (mode) {
     case FL_INSTANTIATED: return "Instantiated";
     case FL_INITIALIZATION_MODE: return "InitializationMode";
@@ -114,7 +117,8 @@ static void mask_names(int mask, char *buf, size_t size) {
     }
 }
 
-WMR_INTERNAL int fl_check_state(const char *fn, FlInstance *inst, int mask) {
+WMR_INTERNAL
+int fl_check_state(const char *fn, FlInstance *inst, int mask) {
     char expected[192];
     if (!inst) return 0;
     if (inst->d.mode & mask) return 1;
@@ -125,13 +129,15 @@ WMR_INTERNAL int fl_check_state(const char *fn, FlInstance *inst, int mask) {
     return 0;
 }
 
-WMR_INTERNAL FlStatus fl_unsupported(const char *fn, FlInstance *inst, const char *why) {
+WMR_INTERNAL
+FlStatus fl_unsupported(const char *fn, FlInstance *inst, const char *why) {
     if (!inst) return FL_ERROR;
     fl_log(inst, FL_ERROR, "%s: not supported: %s", fn, why);
     return ret(inst, FL_ERROR);
 }
 
-WMR_INTERNAL FlStatus fl_no_variables_of_type(const char *fn, FlInstance *inst, int mask,
+WMR_INTERNAL
+FlStatus fl_no_variables_of_type(const char *fn, FlInstance *inst, int mask,
                                  const unsigned int vr[], size_t nvr, const char *type_name) {
     if (!fl_check_state(fn, inst, mask)) return FL_ERROR;
     if (nvr == 0) return FL_OK;
@@ -148,7 +154,8 @@ WMR_INTERNAL FlStatus fl_no_variables_of_type(const char *fn, FlInstance *inst, 
     return ret(inst, FL_ERROR);
 }
 
-WMR_INTERNAL FlStatus fl_set_debug_logging(const char *fn, FlInstance *inst, int logging_on,
+WMR_INTERNAL
+FlStatus fl_set_debug_logging(const char *fn, FlInstance *inst, int logging_on,
                               size_t n_categories, const char *const categories[]) {
     size_t i;
     FlStatus status = FL_OK;
@@ -343,7 +350,8 @@ static int compute_derivatives(const char *fn, FlInstance *inst, double dx[]) {
 /* creation and destruction                                                 */
 /* ------------------------------------------------------------------------ */
 
-WMR_INTERNAL FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char *token,
+WMR_INTERNAL
+FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char *token,
                            int model_exchange, int logging_on, FlLogAdapter adapter,
                            void (*importer_logger)(void), void *importer_env) {
     FlInstance *inst;
@@ -396,7 +404,8 @@ WMR_INTERNAL FlInstance *fl_instantiate(const char *fn, const char *instance_nam
     return inst;
 }
 
-WMR_INTERNAL void fl_free(FlInstance *inst) {
+WMR_INTERNAL
+void fl_free(FlInstance *inst) {
     if (!inst) return;
     free(inst->name);
     free(inst);
@@ -406,7 +415,8 @@ WMR_INTERNAL void fl_free(FlInstance *inst) {
 /* life cycle                                                               */
 /* ------------------------------------------------------------------------ */
 
-WMR_INTERNAL FlStatus fl_setup_experiment(const char *fn, FlInstance *inst, int tolerance_defined,
+WMR_INTERNAL
+FlStatus fl_setup_experiment(const char *fn, FlInstance *inst, int tolerance_defined,
                              double tolerance, double start_time, int stop_time_defined,
                              double stop_time) {
     FlData *d;
@@ -450,7 +460,8 @@ WMR_INTERNAL FlStatus fl_setup_experiment(const char *fn, FlInstance *inst, int 
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_enter_initialization_mode(const char *fn, FlInstance *inst) {
+WMR_INTERNAL
+FlStatus fl_enter_initialization_mode(const char *fn, FlInstance *inst) {
     if (!fl_check_state(fn, inst, FL_INSTANTIATED)) return FL_ERROR;
     inst->d.mode = FL_INITIALIZATION_MODE;
     inst->d.time = inst->d.start_time;
@@ -458,7 +469,8 @@ WMR_INTERNAL FlStatus fl_enter_initialization_mode(const char *fn, FlInstance *i
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst) {
+WMR_INTERNAL
+FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst) {
     FlData *d;
     double x[MODEL_NX], dx[MODEL_NX], y[MODEL_NY];
     int i;
@@ -488,20 +500,26 @@ WMR_INTERNAL FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *in
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_terminate(const char *fn, FlInstance *inst) {
+WMR_INTERNAL
+FlStatus fl_terminate(const char *fn, FlInstance *inst) {
     FlData *d;
     if (!fl_check_state(fn, inst, FL_SIMULATING)) return FL_ERROR;
     d = &inst->d;
     d->mode = FL_TERMINATED;
-    fl_log(inst, FL_OK,
-           "%s: terminated at t = %.17g after %lu communication steps (%lu internal steps accepted, "
-           "%lu rejected, %lu derivative evaluations)",
-           fn, d->time, d->n_comm_steps, d->solver.n_accepted, d->solver.n_rejected,
-           d->solver.n_rhs);
+    if (inst->model_exchange)
+        fl_log(inst, FL_OK, "%s: terminated at t = %.17g after %lu completed integrator steps",
+               fn, d->time, d->n_comm_steps);
+    else
+        fl_log(inst, FL_OK,
+               "%s: terminated at t = %.17g after %lu communication steps (%lu internal steps "
+               "accepted, %lu rejected, %lu derivative evaluations)",
+               fn, d->time, d->n_comm_steps, d->solver.n_accepted, d->solver.n_rejected,
+               d->solver.n_rhs);
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_reset(const char *fn, FlInstance *inst) {
+WMR_INTERNAL
+FlStatus fl_reset(const char *fn, FlInstance *inst) {
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     set_start_values(inst);
     inst->worst_status = FL_OK;
@@ -536,7 +554,8 @@ static int check_vrs(const char *fn, FlInstance *inst, const unsigned int vr[], 
     return ok;
 }
 
-WMR_INTERNAL FlStatus fl_get_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
+WMR_INTERNAL
+FlStatus fl_get_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
                      double values[]) {
     FlStatus status = FL_OK;
     size_t k;
@@ -569,7 +588,8 @@ WMR_INTERNAL FlStatus fl_get_real(const char *fn, FlInstance *inst, const unsign
     return ret(inst, status);
 }
 
-WMR_INTERNAL FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
+WMR_INTERNAL
+FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
                      const double values[]) {
     FlData *d;
     size_t k;
@@ -635,7 +655,8 @@ WMR_INTERNAL FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsign
 /* stepping                                                                 */
 /* ------------------------------------------------------------------------ */
 
-WMR_INTERNAL FlStatus fl_get_time(const char *fn, FlInstance *inst, double *time) {
+WMR_INTERNAL
+FlStatus fl_get_time(const char *fn, FlInstance *inst, double *time) {
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!time) {
         fl_log(inst, FL_ERROR, "%s: value pointer is NULL", fn);
@@ -645,7 +666,8 @@ WMR_INTERNAL FlStatus fl_get_time(const char *fn, FlInstance *inst, double *time
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
+WMR_INTERNAL
+FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
                     double *last_successful_time) {
     FlData *d;
     double x[MODEL_NX], y[MODEL_NY], t_end, tol;
@@ -705,29 +727,34 @@ WMR_INTERNAL FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, do
 
 /* The model has no events: the event iteration is empty and every mode switch is trivial. */
 
-WMR_INTERNAL FlStatus fl_enter_event_mode(const char *fn, FlInstance *inst) {
+WMR_INTERNAL
+FlStatus fl_enter_event_mode(const char *fn, FlInstance *inst) {
     if (!fl_check_state(fn, inst, FL_CONTINUOUS_TIME_MODE)) return FL_ERROR;
     inst->d.mode = FL_EVENT_MODE;
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_update_discrete_states(const char *fn, FlInstance *inst) {
+WMR_INTERNAL
+FlStatus fl_update_discrete_states(const char *fn, FlInstance *inst) {
     return fl_check_state(fn, inst, FL_EVENT_MODE) ? FL_OK : FL_ERROR;
 }
 
-WMR_INTERNAL FlStatus fl_enter_continuous_time_mode(const char *fn, FlInstance *inst) {
+WMR_INTERNAL
+FlStatus fl_enter_continuous_time_mode(const char *fn, FlInstance *inst) {
     if (!fl_check_state(fn, inst, FL_EVENT_MODE)) return FL_ERROR;
     inst->d.mode = FL_CONTINUOUS_TIME_MODE;
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_completed_integrator_step(const char *fn, FlInstance *inst) {
+WMR_INTERNAL
+FlStatus fl_completed_integrator_step(const char *fn, FlInstance *inst) {
     if (!fl_check_state(fn, inst, FL_CONTINUOUS_TIME_MODE)) return FL_ERROR;
     inst->d.n_comm_steps++; /* accepted integrator steps, reported by terminate */
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_set_time(const char *fn, FlInstance *inst, double time) {
+WMR_INTERNAL
+FlStatus fl_set_time(const char *fn, FlInstance *inst, double time) {
     if (!fl_check_state(fn, inst, FL_EVENT_MODE | FL_CONTINUOUS_TIME_MODE)) return FL_ERROR;
     if (!isfinite(time)) {
         fl_log(inst, FL_ERROR, "%s: time = %g is not a finite number", fn, time);
@@ -755,8 +782,9 @@ static int check_nx(const char *fn, FlInstance *inst, const void *values, size_t
 #define FL_STATES_GET_MASK (FL_INITIALIZATION_MODE | FL_EVENT_MODE | FL_CONTINUOUS_TIME_MODE | \
                             FL_TERMINATED | FL_ERROR_STATE)
 
-WMR_INTERNAL FlStatus fl_set_continuous_states(const char *fn, FlInstance *inst, const double x[],
-                                               size_t n) {
+WMR_INTERNAL
+FlStatus fl_set_continuous_states(const char *fn, FlInstance *inst, const double x[],
+                                  size_t n) {
     int i;
     if (!fl_check_state(fn, inst, FL_EVENT_MODE | FL_CONTINUOUS_TIME_MODE)) return FL_ERROR;
     if (!check_nx(fn, inst, x, n)) return ret(inst, FL_ERROR);
@@ -769,7 +797,8 @@ WMR_INTERNAL FlStatus fl_set_continuous_states(const char *fn, FlInstance *inst,
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_get_continuous_states(const char *fn, FlInstance *inst, double x[], size_t n) {
+WMR_INTERNAL
+FlStatus fl_get_continuous_states(const char *fn, FlInstance *inst, double x[], size_t n) {
     FlStatus status = FL_OK;
     if (!fl_check_state(fn, inst, FL_STATES_GET_MASK)) return FL_ERROR;
     if (!check_nx(fn, inst, x, n)) return ret(inst, FL_ERROR);
@@ -778,13 +807,15 @@ WMR_INTERNAL FlStatus fl_get_continuous_states(const char *fn, FlInstance *inst,
     return ret(inst, status);
 }
 
-WMR_INTERNAL FlStatus fl_get_derivatives(const char *fn, FlInstance *inst, double dx[], size_t n) {
+WMR_INTERNAL
+FlStatus fl_get_derivatives(const char *fn, FlInstance *inst, double dx[], size_t n) {
     if (!fl_check_state(fn, inst, FL_STATES_GET_MASK)) return FL_ERROR;
     if (!check_nx(fn, inst, dx, n)) return ret(inst, FL_ERROR);
     return compute_derivatives(fn, inst, dx) ? FL_OK : ret(inst, FL_ERROR);
 }
 
-WMR_INTERNAL FlStatus fl_get_nominals(const char *fn, FlInstance *inst, double nominals[], size_t n) {
+WMR_INTERNAL
+FlStatus fl_get_nominals(const char *fn, FlInstance *inst, double nominals[], size_t n) {
     size_t i;
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!check_nx(fn, inst, nominals, n)) return ret(inst, FL_ERROR);
@@ -792,8 +823,9 @@ WMR_INTERNAL FlStatus fl_get_nominals(const char *fn, FlInstance *inst, double n
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_get_event_indicators(const char *fn, FlInstance *inst, double indicators[],
-                                              size_t n) {
+WMR_INTERNAL
+FlStatus fl_get_event_indicators(const char *fn, FlInstance *inst, double indicators[],
+                                 size_t n) {
     (void)indicators;
     if (!fl_check_state(fn, inst, FL_STATES_GET_MASK)) return FL_ERROR;
     if (n != 0) {
@@ -848,11 +880,12 @@ static int check_partial_vrs(const char *fn, FlInstance *inst, const unsigned in
 }
 #endif
 
-WMR_INTERNAL FlStatus fl_partial_derivative(const char *fn, FlInstance *inst,
-                                            const unsigned int unknowns[], size_t n_unknowns,
-                                            const unsigned int knowns[], size_t n_knowns,
-                                            const double seed[], double sensitivity[],
-                                            int adjoint) {
+WMR_INTERNAL
+FlStatus fl_partial_derivative(const char *fn, FlInstance *inst,
+                               const unsigned int unknowns[], size_t n_unknowns,
+                               const unsigned int knowns[], size_t n_knowns,
+                               const double seed[], double sensitivity[],
+                               int adjoint) {
 #if MODEL_PROVIDES_JACOBIAN
     FlData *d;
     double jac[MODEL_JAC_ROWS * MODEL_JAC_COLS + 1];
@@ -962,7 +995,8 @@ static FlSavedState *state_slot(const char *fn, FlInstance *inst, void *previous
     return s;
 }
 
-WMR_INTERNAL FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state) {
+WMR_INTERNAL
+FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state) {
     FlSavedState *s;
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!state) {
@@ -976,7 +1010,8 @@ WMR_INTERNAL FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_set_fmu_state(const char *fn, FlInstance *inst, const void *state) {
+WMR_INTERNAL
+FlStatus fl_set_fmu_state(const char *fn, FlInstance *inst, const void *state) {
     const FlSavedState *s;
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!check_saved(fn, inst, state)) return ret(inst, FL_ERROR);
@@ -991,7 +1026,8 @@ WMR_INTERNAL FlStatus fl_set_fmu_state(const char *fn, FlInstance *inst, const v
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_free_fmu_state(const char *fn, FlInstance *inst, void **state) {
+WMR_INTERNAL
+FlStatus fl_free_fmu_state(const char *fn, FlInstance *inst, void **state) {
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!state || !*state) return FL_OK;
     if (!check_saved(fn, inst, *state)) return ret(inst, FL_ERROR);
@@ -1005,7 +1041,8 @@ static size_t blob_size(void) {
     return BLOB_HEADER_SIZE + strlen(MODEL_INSTANTIATION_TOKEN) + sizeof(FlData);
 }
 
-WMR_INTERNAL FlStatus fl_serialized_size(const char *fn, FlInstance *inst, const void *state, size_t *size) {
+WMR_INTERNAL
+FlStatus fl_serialized_size(const char *fn, FlInstance *inst, const void *state, size_t *size) {
     if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
     if (!check_saved(fn, inst, state)) return ret(inst, FL_ERROR);
     if (!size) {
@@ -1033,7 +1070,8 @@ static void header_fields(uint32_t f[BLOB_N_FIELDS]) {
     f[6] = (uint32_t)strlen(MODEL_INSTANTIATION_TOKEN);
 }
 
-WMR_INTERNAL FlStatus fl_serialize(const char *fn, FlInstance *inst, const void *state,
+WMR_INTERNAL
+FlStatus fl_serialize(const char *fn, FlInstance *inst, const void *state,
                       unsigned char *buffer, size_t size) {
     const FlSavedState *s;
     uint32_t f[BLOB_N_FIELDS];
@@ -1057,7 +1095,8 @@ WMR_INTERNAL FlStatus fl_serialize(const char *fn, FlInstance *inst, const void 
     return FL_OK;
 }
 
-WMR_INTERNAL FlStatus fl_deserialize(const char *fn, FlInstance *inst, const unsigned char *buffer,
+WMR_INTERNAL
+FlStatus fl_deserialize(const char *fn, FlInstance *inst, const unsigned char *buffer,
                         size_t size, void **state) {
     static const char *const field_names[BLOB_N_FIELDS] = {
         "format version", "MODEL_NX", "MODEL_NP", "MODEL_NU", "MODEL_NY", "state size",

@@ -68,7 +68,7 @@ typedef struct {
     double y[MODEL_NY];       /* last good outputs */
     int outputs_dirty;        /* y must be re-evaluated before it is read */
     SolverState solver;
-    unsigned long n_comm_steps;
+    unsigned long n_comm_steps; /* doStep calls (CS) or completed integrator steps (ME) */
 } FlData;
 
 typedef struct FlInstance {
@@ -96,71 +96,99 @@ typedef struct FlInstance {
 /* Returns NULL (after logging the reason) if the token does not match
  * MODEL_INSTANTIATION_TOKEN, Model Exchange is asked of a model without continuous states, or
  * memory is exhausted. */
-WMR_INTERNAL FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char *token,
+WMR_INTERNAL
+FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char *token,
                            int model_exchange, int logging_on, FlLogAdapter adapter,
                            void (*importer_logger)(void), void *importer_env);
-WMR_INTERNAL void fl_free(FlInstance *inst);
+WMR_INTERNAL
+void fl_free(FlInstance *inst);
 
 /* Log without an instance (e.g. when instantiation is refused before any
  * instance exists); uses a temporary instance on the stack. */
-WMR_INTERNAL void fl_log_no_instance(const char *instance_name, FlLogAdapter adapter,
+WMR_INTERNAL
+void fl_log_no_instance(const char *instance_name, FlLogAdapter adapter,
                         void (*importer_logger)(void), void *importer_env,
                         FlStatus status, const char *fmt, ...);
 
 /* ---- logging and state checks (used by the shells too) ---- */
 
-WMR_INTERNAL void fl_log(FlInstance *inst, FlStatus status, const char *fmt, ...);
-WMR_INTERNAL FlStatus fl_set_debug_logging(const char *fn, FlInstance *inst, int logging_on,
+WMR_INTERNAL
+void fl_log(FlInstance *inst, FlStatus status, const char *fmt, ...);
+WMR_INTERNAL
+FlStatus fl_set_debug_logging(const char *fn, FlInstance *inst, int logging_on,
                               size_t n_categories, const char *const categories[]);
 /* 1 if inst is not NULL and in one of the states of mask, else logs and returns 0. */
-WMR_INTERNAL int fl_check_state(const char *fn, FlInstance *inst, int mask);
+WMR_INTERNAL
+int fl_check_state(const char *fn, FlInstance *inst, int mask);
 /* Log an error for an unsupported function and return FL_ERROR. */
-WMR_INTERNAL FlStatus fl_unsupported(const char *fn, FlInstance *inst, const char *why);
+WMR_INTERNAL
+FlStatus fl_unsupported(const char *fn, FlInstance *inst, const char *why);
 /* For the typed accessors of types the model does not have: OK if nvr == 0. */
-WMR_INTERNAL FlStatus fl_no_variables_of_type(const char *fn, FlInstance *inst, int mask,
+WMR_INTERNAL
+FlStatus fl_no_variables_of_type(const char *fn, FlInstance *inst, int mask,
                                  const unsigned int vr[], size_t nvr, const char *type_name);
-WMR_INTERNAL const char *fl_mode_name(int mode);
+WMR_INTERNAL
+const char *fl_mode_name(int mode);
 
 /* ---- life cycle ---- */
 
-WMR_INTERNAL FlStatus fl_setup_experiment(const char *fn, FlInstance *inst, int tolerance_defined,
+WMR_INTERNAL
+FlStatus fl_setup_experiment(const char *fn, FlInstance *inst, int tolerance_defined,
                              double tolerance, double start_time, int stop_time_defined,
                              double stop_time);
-WMR_INTERNAL FlStatus fl_enter_initialization_mode(const char *fn, FlInstance *inst);
-WMR_INTERNAL FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst);
-WMR_INTERNAL FlStatus fl_terminate(const char *fn, FlInstance *inst);
-WMR_INTERNAL FlStatus fl_reset(const char *fn, FlInstance *inst);
+WMR_INTERNAL
+FlStatus fl_enter_initialization_mode(const char *fn, FlInstance *inst);
+WMR_INTERNAL
+FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst);
+WMR_INTERNAL
+FlStatus fl_terminate(const char *fn, FlInstance *inst);
+WMR_INTERNAL
+FlStatus fl_reset(const char *fn, FlInstance *inst);
 
 /* ---- variables (value reference == index in MODEL_VARIABLES) ---- */
 
-WMR_INTERNAL FlStatus fl_get_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
+WMR_INTERNAL
+FlStatus fl_get_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
                      double values[]);
-WMR_INTERNAL FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
+WMR_INTERNAL
+FlStatus fl_set_real(const char *fn, FlInstance *inst, const unsigned int vr[], size_t nvr,
                      const double values[]);
 
 /* ---- stepping ---- */
 
 /* *last_successful_time (may be NULL) receives the instance time after the call. */
-WMR_INTERNAL FlStatus fl_do_step(const char *fn, FlInstance *inst, double current_communication_point,
+WMR_INTERNAL
+FlStatus fl_do_step(const char *fn, FlInstance *inst, double current_communication_point,
                     double step_size, double *last_successful_time);
-WMR_INTERNAL FlStatus fl_get_time(const char *fn, FlInstance *inst, double *time);
+WMR_INTERNAL
+FlStatus fl_get_time(const char *fn, FlInstance *inst, double *time);
 
 /* ---- Model Exchange (no events: event indicators, discrete states and time events are none) ---- */
 
-WMR_INTERNAL FlStatus fl_enter_event_mode(const char *fn, FlInstance *inst);
+WMR_INTERNAL
+FlStatus fl_enter_event_mode(const char *fn, FlInstance *inst);
 /* The discrete-state iteration converges at once: nothing changes. */
-WMR_INTERNAL FlStatus fl_update_discrete_states(const char *fn, FlInstance *inst);
-WMR_INTERNAL FlStatus fl_enter_continuous_time_mode(const char *fn, FlInstance *inst);
-WMR_INTERNAL FlStatus fl_completed_integrator_step(const char *fn, FlInstance *inst);
-WMR_INTERNAL FlStatus fl_set_time(const char *fn, FlInstance *inst, double time);
+WMR_INTERNAL
+FlStatus fl_update_discrete_states(const char *fn, FlInstance *inst);
+WMR_INTERNAL
+FlStatus fl_enter_continuous_time_mode(const char *fn, FlInstance *inst);
+WMR_INTERNAL
+FlStatus fl_completed_integrator_step(const char *fn, FlInstance *inst);
+WMR_INTERNAL
+FlStatus fl_set_time(const char *fn, FlInstance *inst, double time);
 /* The continuous state vector x[MODEL_NX]: n must equal MODEL_NX. */
-WMR_INTERNAL FlStatus fl_set_continuous_states(const char *fn, FlInstance *inst, const double x[],
-                                               size_t n);
-WMR_INTERNAL FlStatus fl_get_continuous_states(const char *fn, FlInstance *inst, double x[], size_t n);
-WMR_INTERNAL FlStatus fl_get_derivatives(const char *fn, FlInstance *inst, double dx[], size_t n);
-WMR_INTERNAL FlStatus fl_get_nominals(const char *fn, FlInstance *inst, double nominals[], size_t n);
-WMR_INTERNAL FlStatus fl_get_event_indicators(const char *fn, FlInstance *inst, double indicators[],
-                                              size_t n);
+WMR_INTERNAL
+FlStatus fl_set_continuous_states(const char *fn, FlInstance *inst, const double x[],
+                                  size_t n);
+WMR_INTERNAL
+FlStatus fl_get_continuous_states(const char *fn, FlInstance *inst, double x[], size_t n);
+WMR_INTERNAL
+FlStatus fl_get_derivatives(const char *fn, FlInstance *inst, double dx[], size_t n);
+WMR_INTERNAL
+FlStatus fl_get_nominals(const char *fn, FlInstance *inst, double nominals[], size_t n);
+WMR_INTERNAL
+FlStatus fl_get_event_indicators(const char *fn, FlInstance *inst, double indicators[],
+                                 size_t n);
 
 /* ---- partial derivatives ---- */
 
@@ -169,21 +197,28 @@ WMR_INTERNAL FlStatus fl_get_event_indicators(const char *fn, FlInstance *inst, 
  * model core's exact Jacobian at the current x, u, p:
  *   forward: sensitivity[i] = sum_j J[unknown i][known j] * seed[j]  (n_knowns seeds)
  *   adjoint: sensitivity[j] = sum_i seed[i] * J[unknown i][known j]  (n_unknowns seeds) */
-WMR_INTERNAL FlStatus fl_partial_derivative(const char *fn, FlInstance *inst,
-                                            const unsigned int unknowns[], size_t n_unknowns,
-                                            const unsigned int knowns[], size_t n_knowns,
-                                            const double seed[], double sensitivity[],
-                                            int adjoint);
+WMR_INTERNAL
+FlStatus fl_partial_derivative(const char *fn, FlInstance *inst,
+                               const unsigned int unknowns[], size_t n_unknowns,
+                               const unsigned int knowns[], size_t n_knowns,
+                               const double seed[], double sensitivity[],
+                               int adjoint);
 
 /* ---- FMU state ---- */
 
-WMR_INTERNAL FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state);
-WMR_INTERNAL FlStatus fl_set_fmu_state(const char *fn, FlInstance *inst, const void *state);
-WMR_INTERNAL FlStatus fl_free_fmu_state(const char *fn, FlInstance *inst, void **state);
-WMR_INTERNAL FlStatus fl_serialized_size(const char *fn, FlInstance *inst, const void *state, size_t *size);
-WMR_INTERNAL FlStatus fl_serialize(const char *fn, FlInstance *inst, const void *state,
+WMR_INTERNAL
+FlStatus fl_get_fmu_state(const char *fn, FlInstance *inst, void **state);
+WMR_INTERNAL
+FlStatus fl_set_fmu_state(const char *fn, FlInstance *inst, const void *state);
+WMR_INTERNAL
+FlStatus fl_free_fmu_state(const char *fn, FlInstance *inst, void **state);
+WMR_INTERNAL
+FlStatus fl_serialized_size(const char *fn, FlInstance *inst, const void *state, size_t *size);
+WMR_INTERNAL
+FlStatus fl_serialize(const char *fn, FlInstance *inst, const void *state,
                       unsigned char *buffer, size_t size);
-WMR_INTERNAL FlStatus fl_deserialize(const char *fn, FlInstance *inst, const unsigned char *buffer,
+WMR_INTERNAL
+FlStatus fl_deserialize(const char *fn, FlInstance *inst, const unsigned char *buffer,
                         size_t size, void **state);
 
 #endif

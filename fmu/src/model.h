@@ -65,16 +65,19 @@ extern const char MODEL_INSTANTIATION_TOKEN[];
 
 /* Continuous state at the start time from the parameters (the Modelica
  * start values, x(start = x0, fixed = true)).  Returns 0 on success. */
-WMR_INTERNAL int model_initial_state(const double p[MODEL_NP], double x[MODEL_NX]);
+WMR_INTERNAL
+int model_initial_state(const double p[MODEL_NP], double x[MODEL_NX]);
 
 /* dx/dt = f(x, u, p): the explicit form of the Modelica equations.  Returns 0
  * on success; the caller checks the result for non-finite values. */
-WMR_INTERNAL int model_derivatives(const double x[MODEL_NX], const double u[MODEL_NU],
+WMR_INTERNAL
+int model_derivatives(const double x[MODEL_NX], const double u[MODEL_NU],
                       const double p[MODEL_NP], double dx[MODEL_NX]);
 
 /* y = g(x, u, p).  Returns 0 on success. */
-WMR_INTERNAL int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU],
-                               const double p[MODEL_NP], double y[MODEL_NY]);
+WMR_INTERNAL
+int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU],
+                  const double p[MODEL_NP], double y[MODEL_NY]);
 
 #if MODEL_PROVIDES_JACOBIAN
 /* Rows of the Jacobian: dx/dt (MODEL_NX) then y (MODEL_NY); columns: x then u. */
@@ -83,9 +86,10 @@ WMR_INTERNAL int model_outputs(const double x[MODEL_NX], const double u[MODEL_NU
 /* The exact Jacobian d(f, g)/d(x, u) at (x, u, p) (CasADi's algorithmic differentiation of
  * the same expressions), dense and column-major: J[col * MODEL_JAC_ROWS + row].  Returns 0
  * on success. */
-WMR_INTERNAL int model_jacobian(const double x[MODEL_NX], const double u[MODEL_NU],
-                                const double p[MODEL_NP],
-                                double jac[MODEL_JAC_ROWS * MODEL_JAC_COLS]);
+WMR_INTERNAL
+int model_jacobian(const double x[MODEL_NX], const double u[MODEL_NU],
+                   const double p[MODEL_NP],
+                   double jac[MODEL_JAC_ROWS * MODEL_JAC_COLS]);
 #endif
 
 #endif

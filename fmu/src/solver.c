@@ -46,7 +46,8 @@ static void set_msg(char *msg, size_t size, const char *fmt, ...) {
     va_end(ap);
 }
 
-WMR_INTERNAL const char *solver_status_name(SolverStatus status) {
+WMR_INTERNAL
+const char *solver_status_name(SolverStatus status) {
     switch (status) {
     case SOLVER_OK: return "ok";
     case SOLVER_BAD_ARGUMENT: return "bad argument";
@@ -58,7 +59,8 @@ WMR_INTERNAL const char *solver_status_name(SolverStatus status) {
     return "unknown";
 }
 
-WMR_INTERNAL void solver_init(SolverState *s) {
+WMR_INTERNAL
+void solver_init(SolverState *s) {
     memset(s, 0, sizeof(*s));
     s->rtol = SOLVER_DEFAULT_RTOL;
     s->atol = SOLVER_DEFAULT_ATOL;
@@ -67,7 +69,8 @@ WMR_INTERNAL void solver_init(SolverState *s) {
     s->err_old = ERR_OLD_INIT;
 }
 
-WMR_INTERNAL void solver_reset_hint(SolverState *s) {
+WMR_INTERNAL
+void solver_reset_hint(SolverState *s) {
     s->h_hint = 0.0;
     s->err_old = ERR_OLD_INIT;
 }
@@ -134,7 +137,8 @@ static SolverStatus initial_step(SolverState *s, double t, const double x[NX],
     return SOLVER_OK;
 }
 
-WMR_INTERNAL SolverStatus solver_integrate(SolverState *s, double t0, double t1,
+WMR_INTERNAL
+SolverStatus solver_integrate(SolverState *s, double t0, double t1,
                               double x_io[MODEL_NX], const double u[MODEL_NU],
                               const double p[MODEL_NP],
                               char *msg, size_t msg_size) {

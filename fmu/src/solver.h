@@ -46,19 +46,23 @@ typedef struct {
 } SolverState;
 
 /* Default settings, no step size hint, statistics zeroed. */
-WMR_INTERNAL void solver_init(SolverState *s);
+WMR_INTERNAL
+void solver_init(SolverState *s);
 
 /* Forget the step-size memory (after a discontinuous change of x). */
-WMR_INTERNAL void solver_reset_hint(SolverState *s);
+WMR_INTERNAL
+void solver_reset_hint(SolverState *s);
 
 /* Integrate x from t0 to t1 (t1 > t0).  On SOLVER_OK, x holds the state at
  * exactly t1.  On failure x is left unchanged and a message (NUL-terminated,
  * at most msg_size bytes) explains the failure; msg may be NULL. */
-WMR_INTERNAL SolverStatus solver_integrate(SolverState *s, double t0, double t1,
+WMR_INTERNAL
+SolverStatus solver_integrate(SolverState *s, double t0, double t1,
                               double x[MODEL_NX], const double u[MODEL_NU],
                               const double p[MODEL_NP],
                               char *msg, size_t msg_size);
 
-WMR_INTERNAL const char *solver_status_name(SolverStatus status);
+WMR_INTERNAL
+const char *solver_status_name(SolverStatus status);
 
 #endif

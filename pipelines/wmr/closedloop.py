@@ -7,7 +7,10 @@ Plant-agnostic: it takes a :class:`wmr.plant.Plant` (the FMU or the reference ph
 code path serves every scenario.  Per control step ``n`` at ``t_n = n h`` (exact, never
 accumulated):
 
-1. the plant outputs at ``t_n`` go into the controller (perfect state feedback);
+1. the plant outputs at ``t_n`` go into the controller: the true state (perfect state
+   feedback), or, when the run has sensors (``spec.sensors``), what its estimator makes of
+   their measurements (:class:`wmr.sensing.Sensing`; convergence is then decided on the
+   estimate, as a real robot must);
 2. the controller's signals and the outputs fill row ``n`` of a preallocated block laid out as
    :data:`wmr.signals.SIGNALS`; a full block goes to the sink;
 3. the torques are held over ``[t_n, t_n + h)`` (``plant.step``).
@@ -21,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -32,6 +35,7 @@ from wmr.control.peers import make_controller
 from wmr.energy import step_work
 from wmr.plant import Plant, Pose
 from wmr.scenario import RunSpec
+from wmr.sensing import Sensing, SensingRecord
 from wmr.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 
 #: Rows per block handed to the sink.
@@ -76,6 +80,11 @@ class RunResult:
     steps: int
     final_pose: Pose
     name: str = ""
+    #: What the stabiliser believed at the end (equal to the true errors without sensors).
+    estimated_final_position_error_m: float = math.nan
+    estimated_final_heading_error_rad: float = math.nan
+    #: The fixes and estimates of a run with sensors, for its log.
+    sensing: SensingRecord | None = field(default=None, repr=False, compare=False)
     #: wmr.energy: work the motors deliver, none recovered, J (last, so that positional
     #: construction keeps its meaning)
     energy_positive_j: float = math.nan
@@ -83,6 +92,7 @@ class RunResult:
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready fields (the ``wmr run --json`` object without the log path)."""
         d = asdict(self)
+        d.pop("sensing")
         d["final_pose"] = {"x_m": self.final_pose.x_m, "y_m": self.final_pose.y_m,
                            "heading_rad": self.final_pose.heading_rad}
         return d
@@ -115,6 +125,7 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
     time_to_goal: float | None = None
     x = y = theta = math.nan
     n = 0
+    sensing: Sensing | None = None
 
     def flush(rows: int) -> None:
         if sink is not None and rows:
@@ -126,6 +137,8 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
                                      dict(spec.controller_gains))
         stab = controller.stabiliser
         out = plant.reset(spec.params, spec.start)
+        if spec.sensors is not None:
+            sensing = Sensing(spec.sensors, h, spec.params, spec.start, spec.name)
         x, y, theta = float(out[0]), float(out[1]), float(out[2])
         w_r_prev, w_l_prev = float(out[5]), float(out[6])
         tau_r_prev = tau_l_prev = 0.0
@@ -138,13 +151,18 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
                 energy_pos += pos
             if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
                 raise FloatingPointError(f"plant returned a non-finite pose at t={n * h:g} s")
-            converged = stab.converged(x, y, theta, v, omega, tol)
+            if sensing is None:
+                kx, ky, ktheta = x, y, theta
+                converged = stab.converged(x, y, theta, v, omega, tol)
+            else:
+                kx, ky, ktheta, kv, komega = sensing.step(n, out)
+                converged = stab.converged(kx, ky, ktheta, kv, komega, tol)
             if converged:
                 # the last row shows the robot at rest with zero torque
-                sig: tuple[float, ...] = controller.step(x, y, theta, w_r, w_l)
+                sig: tuple[float, ...] = controller.step(kx, ky, ktheta, w_r, w_l)
                 sig = (*sig[:14], 0.0, 0.0, *sig[16:])
             else:
-                sig = controller.step(x, y, theta, w_r, w_l)
+                sig = controller.step(kx, ky, ktheta, w_r, w_l)
             block[row, :_N_PLANT] = out
             block[row, _N_PLANT:] = sig
             t_ns[row] = round(n * h_ns)
@@ -194,13 +212,20 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
 
     pos_err = math.hypot(xd - x, yd - y) if math.isfinite(x) and math.isfinite(y) else math.nan
     head_err = abs(wrap_angle(theta - goal.heading_rad)) if math.isfinite(theta) else math.nan
+    est_pos_err, est_head_err = pos_err, head_err
+    if sensing is not None:
+        known = sensing.pose
+        est_pos_err = math.hypot(xd - known.x_m, yd - known.y_m)
+        est_head_err = abs(wrap_angle(known.heading_rad - goal.heading_rad))
     return RunResult(status=status, message=message, final_position_error_m=pos_err,
                      final_heading_error_rad=head_err, time_to_goal_s=time_to_goal,
                      path_length_m=path, energy_net_j=energy,
                      energy_positive_j=energy_pos, energy_abs_j=2.0 * energy_pos - energy,
                      torque_sq_integral=tau_sq,
                      peak_torque_nm=peak, steps=steps, final_pose=Pose(x, y, theta),
-                     name=spec.name)
+                     name=spec.name, estimated_final_position_error_m=est_pos_err,
+                     estimated_final_heading_error_rad=est_head_err,
+                     sensing=None if sensing is None else sensing.record())
 
 
 __all__ = ["BLOCK_ROWS", "BlockSink", "Progress", "RunResult", "run_closed_loop"]

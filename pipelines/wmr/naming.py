@@ -49,6 +49,18 @@ def spec_tokens(base: RunSpec, spec: RunSpec) -> list[str]:
             tokens.append(f"{label}={new:.10g}")
     if spec.heading_tolerance_rad != base.heading_tolerance_rad:
         tokens.append(f"htol={math.degrees(spec.heading_tolerance_rad):.10g}deg")
+    if spec.sensors != base.sensors:
+        if spec.sensors is None:
+            tokens.append("sensors_off")
+        else:
+            from dataclasses import asdict
+
+            from wmr.sensing.config import SensorConfig
+
+            before = asdict(base.sensors if base.sensors is not None else SensorConfig())
+            tokens.append("sensors")
+            tokens += [f"{k}={v:.10g}" if isinstance(v, float) else f"{k}={v}"
+                       for k, v in asdict(spec.sensors).items() if before.get(k) != v]
     if spec.start != base.start:
         tokens.append(pose_token("from", spec.start))
     if spec.goal != base.goal:

@@ -18,6 +18,8 @@ Entity layout, one subtree per run (``<run>`` is the log's file name without ``.
     runs/<run>/world/robot        Transform3D per step; static Boxes2D + Arrows2D body
     runs/<run>/world/D, .../R     Points2D per step (Figs. 4 and 6)
     runs/<run>/world/construction LineStrips2D per step: B -> D and B -> R
+    runs/<run>/world/gps          static Points2D: the position fixes (runs with sensors)
+    runs/<run>/world/estimate     static LineStrips2D: the estimated path (runs with sensors)
     runs/<run>/errors             Scalars [e_s, e_theta]
     runs/<run>/speeds             Scalars [omega, omega_r, omega_l]
     runs/<run>/torques            Scalars [tau_r, tau_l]
@@ -518,6 +520,10 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                        run_color=color if many else None, half_track_m=half_track,
                        wheel_radius_m=radius, info=_info_markdown(log.name, data))
         send_run_columns(rec, log.name, data.t_ns, data.block())
+        if "sensors" in data.metadata.get("run", {}):  # measured and estimated paths too
+            from wmr.sensing.log import replay_sensing
+
+            replay_sensing(rec, run_entity(log.name), log.path, color)
     rec.flush()
     if out is not None:
         rec.disconnect()

@@ -37,8 +37,8 @@ def _jsonable(value: float | None) -> float | None:
 
 
 def run_metadata(spec: RunSpec, plant: FmuPlant) -> dict[str, object]:
-    """The ``run`` metadata record of a log (``docs/formats.md``)."""
-    return {
+    """The ``run`` metadata record of a log (``docs/formats.md``); ``sensors`` only when on."""
+    meta: dict[str, object] = {
         "name": spec.name,
         "scenario": spec.scenario,
         "start": asdict(spec.start),
@@ -57,6 +57,9 @@ def run_metadata(spec: RunSpec, plant: FmuPlant) -> dict[str, object]:
         "fmi_version": plant.fmi_version,
         "software_version": f"wmr-cosim {__version__}",
     }
+    if spec.sensors is not None:
+        meta["sensors"] = spec.sensors.as_dict()
+    return meta
 
 
 def scenario_attachment_name(spec: RunSpec) -> str:
@@ -94,7 +97,10 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     dict
         The fields of ``wmr run --json``: ``status`` (``converged``, ``timeout``, ``failed``),
         ``message``, ``final_position_error_m``, ``final_heading_error_rad``,
-        ``time_to_goal_s``, ``path_length_m``, ``mcap``, and the energy and torque figures.
+        ``time_to_goal_s``, ``path_length_m``, ``mcap``, the energy and torque figures, and
+        ``estimated_final_position_error_m``, ``estimated_final_heading_error_rad``: the errors
+        the stabiliser believed (the ``final_*`` ones are the true errors; the two agree
+        without sensors).
     """
     path = Path(mcap_path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -123,8 +129,16 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
             "torque_sq_integral_n2m2s": _jsonable(result.torque_sq_integral),
             "peak_torque_nm": _jsonable(result.peak_torque_nm),
             "steps": result.steps,
+            "estimated_final_position_error_m":
+                _jsonable(result.estimated_final_position_error_m),
+            "estimated_final_heading_error_rad":
+                _jsonable(result.estimated_final_heading_error_rad),
             "mcap": str(path),
         }
+        if result.sensing is not None:
+            from wmr.sensing.log import write_sensing
+
+            write_sensing(log, result.sensing)
         log.close(record)
     return record
 

@@ -22,6 +22,10 @@ A scenario file::
     [params]                         # any of wmr.plant.RobotParams
     m = 25.0
 
+    [sensors]                        # optional: noisy, late fixes instead of the true state
+    estimator = "ekf"                # (wmr.sensing.config; absent: perfect state feedback)
+    gps_sigma_m = 0.02
+
     [[runs]]                         # optional: a set of runs (Figs. 9 and 10); each may
     name = "theta_d=+30"             # give name, start, goal, max_time_s, and inherits
     goal = [20.0, 10.0, 30.0]        # the top-level start and goal otherwise
@@ -43,6 +47,7 @@ from wmr.control.stabiliser import Gains, Limits
 from wmr.errors import ConfigError
 from wmr.paths import scenarios_dir
 from wmr.plant import Pose, RobotParams
+from wmr.sensing.config import SensorConfig, sensor_config
 
 DEFAULT_SCENARIO = "fig11"
 DEFAULT_PERIOD_S = 0.01
@@ -54,7 +59,7 @@ MAX_STEPS = 10_000_000
 
 TOP_FIELDS = ("name", "description", "start", "goal", "runs", "gains", "limits", "params",
               "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s",
-              "controller", "controller_gains")
+              "controller", "controller_gains", "sensors")
 RUN_FIELDS = ("name", "start", "goal", "max_time_s")
 
 
@@ -77,9 +82,13 @@ class RunSpec:
     controller: str = "pi"
     #: A peer's own gains as ``(name, value)`` pairs; empty: its published defaults.
     controller_gains: tuple[tuple[str, float], ...] = ()
+    #: The sensors and estimator (:mod:`wmr.sensing`); ``None``: perfect state feedback.
+    sensors: SensorConfig | None = None
 
     def __post_init__(self) -> None:
         controller_gains(self.controller, dict(self.controller_gains))
+        if self.sensors is not None:
+            self.sensors.check(self.period_s)
         _positive("control_period_s", self.period_s)
         _positive("stop_radius_m", self.stop_radius_m)
         _positive("max_time_s", self.t_max_s)
@@ -243,6 +252,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
         raise ConfigError("controller", f"must be a string, got {controller!r}",
                           'write e.g. controller = "astolfi"')
     peer_gains = _peer_gains(controller, _table(data, "controller_gains"))
+    sensors = sensor_config(_table(data, "sensors")) if "sensors" in data else None
     start = _pose(data["start"], "start") if "start" in data else None
     goal = _pose(data["goal"], "goal") if "goal" in data else None
 
@@ -280,7 +290,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                             gains=gains, limits=limits, period_s=period, stop_radius_m=eps,
                             t_max_s=run_t_max, heading_tolerance_rad=math.radians(tol),
                             scenario=name, controller=controller,
-                            controller_gains=peer_gains))
+                            controller_gains=peer_gains, sensors=sensors))
     return Scenario(name=name, description=description, runs=tuple(runs), path=path)
 
 
@@ -334,14 +344,17 @@ def with_overrides(spec: RunSpec, start: Pose | tuple[float, float, float] | lis
                    params: Mapping[str, float] | None = None, period_s: float | None = None,
                    stop_radius_m: float | None = None, t_max_s: float | None = None,
                    heading_tolerance_deg: float | None = None, controller: str | None = None,
-                   controller_gains: Mapping[str, float] | None = None) -> RunSpec:
+                   controller_gains: Mapping[str, float] | None = None,
+                   sensors: Mapping[str, Any] | SensorConfig | None = None) -> RunSpec:
     """Merge command-line overrides into a run.
 
     ``start`` and ``goal`` are a :class:`~wmr.plant.Pose` (heading in rad) or a sequence
     ``(x_m, y_m, heading_deg)`` as typed on the command line; ``gains``, ``limits`` and
     ``params`` replace the named fields only; ``controller`` selects another controller
     (its ``controller_gains`` then start from its defaults), ``controller_gains`` replace the
-    named gains of the (new) controller.  ``None`` keeps the run's value.
+    named gains of the (new) controller; ``sensors`` is a whole
+    :class:`~wmr.sensing.config.SensorConfig` or fields replacing the run's (or the defaults',
+    when the run has none).  ``None`` keeps the run's value.
     """
     changes: dict[str, Any] = {}
     new_start = _pose_override(start, "start")
@@ -375,6 +388,10 @@ def with_overrides(spec: RunSpec, start: Pose | tuple[float, float, float] | lis
         base.update(controller_gains)
         changes["controller_gains"] = _peer_gains(changes.get("controller", spec.controller),
                                                   base)
+    if isinstance(sensors, SensorConfig):
+        changes["sensors"] = sensors
+    elif sensors:
+        changes["sensors"] = sensor_config(sensors, spec.sensors)
     return replace(spec, **changes)
 
 

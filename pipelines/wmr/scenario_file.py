@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import fields
 
 from wmr import __version__
 from wmr.plant import Pose
@@ -59,6 +60,19 @@ def _table(name: str, values: Mapping[str, float]) -> list[str]:
     return ["", f"[{name}]", *(f"{k} = {_float(v)}" for k, v in values.items())]
 
 
+def _value(value: object) -> str:
+    """A TOML value of a sensors field: string, integer, float, or array of them."""
+    if isinstance(value, str):
+        return _basic_string(value)
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, tuple | list):
+        return "[" + ", ".join(_value(v) for v in value) + "]"
+    return _float(float(value))  # type: ignore[arg-type]
+
+
 def run_spec_toml(spec: RunSpec) -> str:
     """The one-run scenario file (TOML text) of ``spec``.
 
@@ -80,6 +94,9 @@ def run_spec_toml(spec: RunSpec) -> str:
     lines += _table("limits", spec.limits.as_dict())
     if spec.controller_gains:
         lines += _table("controller_gains", dict(spec.controller_gains))
+    if spec.sensors is not None:
+        lines += ["", "[sensors]", *(f"{f.name} = {_value(getattr(spec.sensors, f.name))}"
+                                     for f in fields(spec.sensors))]
     lines += ["", "[[runs]]", f"name = {_basic_string(spec.name)}",
               f"start = {_pose(spec.start)}", f"goal = {_pose(spec.goal)}", ""]
     return "\n".join(lines)

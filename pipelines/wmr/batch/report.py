@@ -2,7 +2,8 @@
 
 Plots: the runs per status; for each varied input (a column of the summary's inputs with more
 than one value), the success rate, the time to goal and the path length against it; and the
-spread of the metrics over the converged runs as histograms.
+spread of the metrics over the converged runs as histograms.  A batch that varies the GPS noise
+and the stop radius also gets the sensing study (:mod:`wmr.sensing.study`).
 """
 
 from __future__ import annotations
@@ -45,7 +46,8 @@ def varied_inputs(table: pa.Table) -> list[str]:
     result = set(RESULT_COLUMNS)
     out = []
     for name in table.column_names:
-        if name in ID_COLUMNS or name in result:
+        if name in ID_COLUMNS or name in result \
+                or pa.types.is_string(table.schema.field(name).type):  # a name, e.g. estimator
             continue
         x = _floats(table, name)
         if len(np.unique(x[np.isfinite(x)])) > 1:
@@ -226,6 +228,9 @@ def write_report(batch_dir: Path, max_plots: int = 8) -> Path:
                       "", f"![{name}]({png})", ""]
         if len(varied) > max_plots:
             lines += [f"Not plotted (over --max-plots): {', '.join(varied[max_plots:])}.", ""]
+    from wmr.sensing.study import sensing_section
+
+    lines += sensing_section(table, out)
     bad = [i for i, s in enumerate(status) if s != "converged"]
     if bad:
         ids = table.column("run_id").to_pylist()

@@ -33,9 +33,12 @@ A batch spec is a scenario file (:mod:`wmr.scenario`) with up to three more sect
     [random.goal]
     heading_deg = { dist = "along_x" }                      # the paper's Fig. 10 rule
 
-Fields that can vary: ``gains.*``, ``limits.*``, ``params.*`` (the fields of
-:class:`~wmr.control.stabiliser.Gains`, :class:`~wmr.control.stabiliser.Limits` and
-:class:`~wmr.plant.RobotParams`), ``start`` and ``goal`` (whole poses, or the components
+Fields that can vary: ``gains.*``, ``limits.*``, ``params.*``, ``sensors.*`` (the fields of
+:class:`~wmr.control.stabiliser.Gains`, :class:`~wmr.control.stabiliser.Limits`,
+:class:`~wmr.plant.RobotParams` and :class:`~wmr.sensing.config.SensorConfig` but its dropout
+windows; ``sensors.estimator`` and ``sensors.heading`` take names in ``[grid]`` and ``[[list]]``,
+and varying any sensor field of a run without ``[sensors]`` gives it the defaults for the rest),
+``start`` and ``goal`` (whole poses, or the components
 ``x_m``, ``y_m``, ``heading_deg``; the start also ``r_m`` and ``bearing_deg``, its distance from
 and bearing about the goal), ``max_time_s``, ``stop_radius_m``, ``control_period_s`` and
 ``heading_tolerance_deg``.
@@ -73,6 +76,7 @@ from wmr.control.stabiliser import Gains, Limits
 from wmr.errors import ConfigError
 from wmr.plant import Pose, RobotParams
 from wmr.scenario import RunSpec, parse_scenario, resolve_scenario_path, with_overrides
+from wmr.sensing.config import NAME_FIELDS, SensorConfig
 
 #: Sections a batch spec adds to a scenario file.
 BATCH_SECTIONS: Final = ("grid", "sweep", "list", "random")
@@ -85,7 +89,10 @@ _GROUPS: Final[dict[str, tuple[str, ...]]] = {
     "gains": tuple(f.name for f in fields(Gains)),
     "limits": tuple(f.name for f in fields(Limits)),
     "params": tuple(f.name for f in fields(RobotParams)),
+    "sensors": tuple(f.name for f in fields(SensorConfig) if f.name != "gps_dropout_windows"),
 }
+#: Summary columns that hold a name, not a number.
+NAME_COLUMNS: Final = tuple(f"sensors.{k}" for k in NAME_FIELDS)
 _POSE_PARTS: Final[dict[str, tuple[str, ...]]] = {
     "start": ("x_m", "y_m", "heading_deg", "r_m", "bearing_deg"),
     "goal": ("x_m", "y_m", "heading_deg"),
@@ -128,7 +135,7 @@ class BatchRun:
     spec: RunSpec
     base: str
     variant: str
-    inputs: dict[str, float]
+    inputs: dict[str, float | str]
 
 
 @dataclass(frozen=True)
@@ -203,6 +210,15 @@ def _unknown(where: str, allowed: Sequence[str]) -> ConfigError:
     return ConfigError(where, "unknown field", f"allowed fields: {', '.join(allowed)}")
 
 
+def _value(field: str, value: object, where: str) -> Value:
+    """A variant's value: a name for :data:`NAME_COLUMNS`, a number otherwise."""
+    if field in NAME_COLUMNS:
+        if not isinstance(value, str):
+            raise ConfigError(where, f"must be a name, got {value!r}", 'quote it, e.g. "ekf"')
+        return value
+    return _number(value, where)
+
+
 def _pose_values(value: object, where: str, part: str) -> dict[str, float]:
     if not isinstance(value, list | tuple) or len(value) != 3:
         raise ConfigError(where, f"must be a pose [x_m, y_m, heading_deg], got {value!r}",
@@ -251,14 +267,15 @@ def _grid(table: Mapping[str, Any], where: str
         if not isinstance(raw, list) or not raw:
             raise ConfigError(src, f"must be a non-empty list of values, got {raw!r}",
                               "write e.g. [0.3, 0.5, 0.8]")
+        axis: list[dict[str, Value]]
         if field in _POSE_PARTS:
             axis = [dict(_pose_values(v, f"{src}[{i}]", field)) for i, v in enumerate(raw)]
             for k in axis[0]:
                 sources[k] = src
         else:
-            axis = [{field: _number(v, f"{src}[{i}]")} for i, v in enumerate(raw)]
+            axis = [{field: _value(field, v, f"{src}[{i}]")} for i, v in enumerate(raw)]
             sources[field] = src
-        axes.append(axis)  # type: ignore[arg-type]
+        axes.append(axis)
     points = [dict(itertools.chain.from_iterable(d.items() for d in combo))
               for combo in itertools.product(*axes)]
     return points, sources
@@ -283,7 +300,7 @@ def _list(entries: object) -> tuple[list[tuple[str, dict[str, Value]]], dict[str
                 for k in ("x_m", "y_m", "heading_deg"):
                     sources.setdefault(f"{field}.{k}", f"{src}.{k}")
             else:
-                values[field] = _number(raw, src)
+                values[field] = _value(field, raw, src)
                 sources.setdefault(field, src)
         out.append((name, values))
     return out, sources
@@ -395,6 +412,8 @@ def _resolve(base: RunSpec, values: Mapping[str, Value], name: str) -> RunSpec:
         return {k[len(prefix) + 1:]: float(v) for k, v in values.items()
                 if k.startswith(prefix + ".")}
 
+    sensors = {k[len("sensors."):]: v for k, v in values.items() if k.startswith("sensors.")}
+
     def opt(key: str) -> float | None:
         return num(key) if key in values else None
 
@@ -402,7 +421,8 @@ def _resolve(base: RunSpec, values: Mapping[str, Value], name: str) -> RunSpec:
         base, start=Pose(sx, sy, sh), goal=Pose(gx, gy, gh), name=name,
         gains=group("gains"), limits=group("limits"), params=group("params"),
         period_s=opt("control_period_s"), stop_radius_m=opt("stop_radius_m"),
-        t_max_s=opt("max_time_s"), heading_tolerance_deg=opt("heading_tolerance_deg"))
+        t_max_s=opt("max_time_s"), heading_tolerance_deg=opt("heading_tolerance_deg"),
+        sensors=sensors)
 
 
 def _canonical(value: Any) -> Any:
@@ -415,33 +435,40 @@ def _canonical(value: Any) -> Any:
 
 def spec_digest(spec: RunSpec) -> str:
     """SHA-256 of a run's complete inputs (floats by ``repr``: bit-exact)."""
-    text = json.dumps(_canonical(asdict(spec)), sort_keys=True, separators=(",", ":"))
+    d = asdict(spec)
+    if d["sensors"] is None:  # runs without sensors keep the ids they had before sensors
+        del d["sensors"]
+    text = json.dumps(_canonical(d), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
 
 def _inputs(spec: RunSpec, values: Mapping[str, Value], columns: Sequence[str]
-            ) -> dict[str, float]:
-    row = {
+            ) -> dict[str, float | str]:
+    row: dict[str, float | str] = {
         "start.x_m": spec.start.x_m, "start.y_m": spec.start.y_m,
         "start.heading_deg": math.degrees(spec.start.heading_rad),
         "goal.x_m": spec.goal.x_m, "goal.y_m": spec.goal.y_m,
         "goal.heading_deg": math.degrees(spec.goal.heading_rad),
     }
-    actual: dict[str, float] = {
+    actual: dict[str, float | str] = {
         "max_time_s": spec.t_max_s, "stop_radius_m": spec.stop_radius_m,
         "control_period_s": spec.period_s,
         "heading_tolerance_deg": math.degrees(spec.heading_tolerance_rad),
     }
     for group, obj in (("gains", spec.gains), ("limits", spec.limits), ("params", spec.params)):
         actual.update({f"{group}.{k}": v for k, v in obj.as_dict().items()})
+    if spec.sensors is not None:
+        actual.update({f"sensors.{k}": v for k, v in spec.sensors.as_dict().items()
+                       if k in _GROUPS["sensors"]})
     for col in columns:
         if col in row:
             continue
         if col in actual:
-            row[col] = float(actual[col])
+            v = actual[col]
+            row[col] = v if isinstance(v, str) else float(v)
         else:  # start.r_m, start.bearing_deg: as drawn, NaN where not given
-            v = values.get(col)
-            row[col] = float(v) if isinstance(v, int | float) else math.nan
+            drawn = values.get(col)
+            row[col] = float(drawn) if isinstance(drawn, int | float) else math.nan
     return row
 
 

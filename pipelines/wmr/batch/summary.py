@@ -18,7 +18,7 @@ from typing import Any, Final
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from wmr.batch.spec import BatchRun
+from wmr.batch.spec import NAME_COLUMNS, BatchRun
 
 SUMMARY_PARQUET: Final = "summary.parquet"
 SUMMARY_CSV: Final = "summary.csv"
@@ -37,6 +37,8 @@ RESULT_COLUMNS: Final[dict[str, pa.DataType]] = {
     "torque_sq_integral_n2m2s": pa.float64(),
     "peak_torque_nm": pa.float64(),
     "steps": pa.int64(),
+    "estimated_final_position_error_m": pa.float64(),
+    "estimated_final_heading_error_rad": pa.float64(),
     "mcap": pa.string(),
 }
 STATUSES: Final = ("converged", "timeout", "failed")
@@ -78,7 +80,7 @@ def summary_table(runs: Sequence[BatchRun], input_columns: Sequence[str],
         cols["variant"].append(run.variant)
         for c in input_columns:
             v = run.inputs.get(c, math.nan)
-            cols[c].append(None if math.isnan(v) else v)
+            cols[c].append(v if isinstance(v, str) else None if math.isnan(v) else v)
         for c, kind in RESULT_COLUMNS.items():
             if c == "mcap":
                 cols[c].append(log_relpath(run.run_id))
@@ -90,7 +92,8 @@ def summary_table(runs: Sequence[BatchRun], input_columns: Sequence[str],
             else:
                 cols[c].append(_float(rec.get(c)))
     fields = [pa.field(c, pa.string(), nullable=False) for c in ID_COLUMNS]
-    fields += [pa.field(c, pa.float64()) for c in input_columns]
+    fields += [pa.field(c, pa.string() if c in NAME_COLUMNS else pa.float64())
+               for c in input_columns]
     fields += [pa.field(c, t) for c, t in RESULT_COLUMNS.items()]
     schema = pa.schema(fields)
     return pa.table({f.name: pa.array(cols[f.name], f.type) for f in fields}, schema=schema)

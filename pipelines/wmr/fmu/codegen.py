@@ -149,7 +149,7 @@ def jacobian_function(model: FlatModel) -> ca.Function:
     return ca.Function("wmr_jac", [x, u, p], [jac], ["x", "u", "p"], ["jac"])
 
 
-def _internal_linkage(casadi_code: str) -> str:
+def internal_linkage(casadi_code: str) -> str:
     """CasADi's C with every function and table given internal linkage.
 
     CASADI_SYMBOL_EXPORT (``__declspec(dllexport)`` on Windows) becomes ``static``, and so do
@@ -181,7 +181,7 @@ def model_source(model: FlatModel) -> str:
         for fun in funs:
             gen.add(fun)
         path = Path(gen.generate(tmp + "/"))
-        casadi_code = _internal_linkage(path.read_text())
+        casadi_code = internal_linkage(path.read_text())
     sizes = "".join(_work_sizes(f) for f in funs)
     # CasADi's unused entry points (wmr_ode_n_in, ...) are static now: silence -Wunused-function
     # for its part of the unit only (push/pop), as for its unused `mem` parameters.

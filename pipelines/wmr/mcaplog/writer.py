@@ -62,6 +62,7 @@ from wmr.mcaplog.schemas import (
 )
 from wmr.signals import SIGNALS
 
+_OP_MESSAGE: Final = int(Opcode.MESSAGE)
 MAGIC: Final = bytes([137, 77, 67, 65, 80, 48, 13, 10])
 Compression = Literal["zstd", "lz4", ""]
 
@@ -508,6 +509,41 @@ class RunLogWriter:
         self._pending_rows += n
         if self._last_t >= self._boundary:
             self._flush_chunks(final=False)
+
+    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                       t_ns: ArrayLike, messages: list[bytes]) -> None:
+        """Log serialised protobuf ``messages`` on a topic of their own, as one chunk.
+
+        For topics that are not one message per control step (sensor fixes, estimates: see
+        :mod:`wmr.sensing.log`).  Call before :meth:`close`.
+
+        Parameters
+        ----------
+        topic
+            The new channel's topic (one call per topic).
+        schema_name, schema_data
+            Protobuf message name and its serialised ``FileDescriptorSet``.
+        t_ns
+            Log time of each message, ns, non-decreasing, shape ``(len(messages),)``.
+        messages
+            The message bodies.
+        """
+        if self._closed:
+            raise LogError(f"{self.path}: write_messages after close")
+        t = np.asarray(t_ns, dtype=np.int64)
+        if t.shape != (len(messages),) or (len(t) > 1 and bool(np.any(t[1:] < t[:-1]))):
+            raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
+        schema_id = self._file.add_schema(schema_name, schema_data)
+        cid = self._file.add_channel(topic, schema_id)
+        head = struct.Struct("<BQHIQQ")
+        parts: list[bytes] = []
+        offsets = np.zeros(len(messages), np.int64)
+        pos = 0
+        for i, (ti, data) in enumerate(zip(t.tolist(), messages, strict=True)):
+            offsets[i] = pos
+            parts += [head.pack(_OP_MESSAGE, 2 + 4 + 8 + 8 + len(data), cid, i, ti, ti), data]
+            pos += head.size + len(data)
+        self._file.add_chunk(b"".join(parts), {cid: (t, offsets)})
 
     def _flush_chunks(self, final: bool) -> None:
         if not self._pending_rows:
