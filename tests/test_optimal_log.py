@@ -20,12 +20,12 @@ from wmr.scenario import parse_scenario
 
 def test_a_far_goal_fails_fast_in_one_line_naming_the_option(
         capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
-    import wmr.optimal
+    import wmr.optimal.solve
 
     def never(*_a: object) -> None:
         raise AssertionError("the NLP was built for a goal it cannot resolve (33 s of IPOPT)")
 
-    monkeypatch.setattr(wmr.optimal, "_nlp", never)
+    monkeypatch.setattr(wmr.optimal.solve, "_nlp", never)
     assert main(["optimal", "--goal", "1000", "500", "0", "--json"]) == 1
     out, err = capfd.readouterr()
     lines = err.strip().splitlines()
