@@ -1,7 +1,8 @@
 """The co-simulation master: one closed-loop run of a controller on any plant.
 
 The controller is the paper's PI stabiliser by default, or a peer (``spec.controller``, built
-by :func:`wmr.control.peers.make_controller`).
+by :func:`wmr.control.peers.make_controller`), or the controller FMU
+(:class:`wmr.fmu.fmu_controller.FmuController`, the same law in C) when one is given.
 
 Plant-agnostic: it takes a :class:`wmr.plant.Plant` (the FMU or the reference physics) and one
 code path serves every scenario.  Per control step ``n`` at ``t_n = n h`` (exact, never
@@ -25,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -37,6 +38,10 @@ from wmr.plant import Plant, Pose
 from wmr.scenario import RunSpec
 from wmr.sensing import Sensing, SensingRecord
 from wmr.signals import COLUMN, PLANT_SIGNALS, SIGNALS
+
+if TYPE_CHECKING:
+    from wmr.control import ServoedController
+    from wmr.fmu.fmu_controller import FmuController
 
 #: Rows per block handed to the sink.
 BLOCK_ROWS = 100
@@ -99,10 +104,12 @@ class RunResult:
 
 
 def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
-                    progress: Progress | None = None) -> RunResult:
+                    progress: Progress | None = None,
+                    controller_fmu: FmuController | None = None) -> RunResult:
     """Simulate one run of ``spec`` on ``plant``; write rows to ``sink`` if given.
 
-    The plant is reset here but not closed (the caller owns it).
+    The plant (and ``controller_fmu``, which replaces the Python controller when given) is
+    reset here but not closed (the caller owns it).
     """
     h = spec.period_s
     n_max = spec.n_steps_max
@@ -132,9 +139,14 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
             sink.write_block(t_ns[:rows], block[:rows])
 
     try:
-        controller = make_controller(spec.controller, goal, spec.gains, spec.limits,
-                                     spec.params, h, spec.stop_radius_m,
-                                     dict(spec.controller_gains))
+        controller: ServoedController | FmuController
+        if controller_fmu is not None:
+            controller_fmu.configure(spec)
+            controller = controller_fmu
+        else:
+            controller = make_controller(spec.controller, goal, spec.gains, spec.limits,
+                                         spec.params, h, spec.stop_radius_m,
+                                         dict(spec.controller_gains))
         stab = controller.stabiliser
         out = plant.reset(spec.params, spec.start)
         if spec.sensors is not None:

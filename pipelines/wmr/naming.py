@@ -49,6 +49,9 @@ def spec_tokens(base: RunSpec, spec: RunSpec) -> list[str]:
             tokens.append(f"{label}={new:.10g}")
     if spec.heading_tolerance_rad != base.heading_tolerance_rad:
         tokens.append(f"htol={math.degrees(spec.heading_tolerance_rad):.10g}deg")
+    if spec.controller_fmu != base.controller_fmu:
+        tokens.append("controller_fmu" if spec.controller_fmu is not None
+                      else "controller_python")
     if spec.sensors != base.sensors:
         if spec.sensors is None:
             tokens.append("sensors_off")

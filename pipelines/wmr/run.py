@@ -13,7 +13,7 @@ import os
 import zipfile
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from wmr import __version__
 from wmr._callable import make_callable
@@ -24,6 +24,9 @@ from wmr.paths import safe_filename
 from wmr.scenario import RunSpec
 from wmr.scenario_file import run_spec_toml
 
+if TYPE_CHECKING:
+    from wmr.fmu.fmu_controller import FmuController
+
 
 def default_fmu(fmi_version: int = 3) -> Path:
     """The FMU of the project's model, built (or reused) in the user's cache."""
@@ -32,12 +35,24 @@ def default_fmu(fmi_version: int = 3) -> Path:
     return build_fmus().fmus[fmi_version]
 
 
+def default_controller_fmu(fmi_version: int = 3) -> Path:
+    """The controller FMU (the PI stabiliser in C), built (or reused) in the user's cache."""
+    from wmr.fmu.build import build_fmus
+
+    return build_fmus().controllers[fmi_version]
+
+
 def _jsonable(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
-def run_metadata(spec: RunSpec, plant: FmuPlant) -> dict[str, object]:
-    """The ``run`` metadata record of a log (``docs/formats.md``); ``sensors`` only when on."""
+def run_metadata(spec: RunSpec, plant: FmuPlant,
+                 controller_fmu: FmuController | None = None) -> dict[str, object]:
+    """The ``run`` metadata record of a log (``docs/formats.md``); ``sensors`` only when on, the
+    controller FMU only when it ran the law, ``fmu_map`` for a mapped robot FMU."""
+    extra: dict[str, object] = {} if controller_fmu is None else {
+        "controller_fmu_file": controller_fmu.fmu_path.name,
+        "controller_fmu_sha256": controller_fmu.sha256}
     meta: dict[str, object] = {
         "name": spec.name,
         "scenario": spec.scenario,
@@ -56,9 +71,13 @@ def run_metadata(spec: RunSpec, plant: FmuPlant) -> dict[str, object]:
         "fmu_file": plant.fmu_path.name,
         "fmi_version": plant.fmi_version,
         "software_version": f"wmr-cosim {__version__}",
+        **extra,
     }
     if spec.sensors is not None:
         meta["sensors"] = spec.sensors.as_dict()
+    var_map = getattr(plant, "var_map", None)  # test doubles of a plant have none
+    if var_map is not None:
+        meta["fmu_map"] = var_map.as_dict()
     return meta
 
 
@@ -81,7 +100,8 @@ def _attachments(spec: RunSpec, plant: FmuPlant) -> dict[str, tuple[str, bytes]]
 def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant, *,
                scenario_file: Path | None = None,
                progress: Progress | None = None,
-               also: BlockSink | None = None) -> dict[str, Any]:
+               also: BlockSink | None = None,
+               controller_fmu: FmuController | None = None) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
 
     The log attaches the run's effective scenario (:func:`scenario_attachment_name`), not
@@ -90,7 +110,8 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     The log is written as the run goes: a run killed midway leaves a log readable up to its
     last chunk (without a ``result`` record).  A run that fails is logged with status
     ``failed`` and its error, and the file is closed and readable.  ``also`` receives the same
-    blocks as the log (the live Rerun view of ``wmr run --view``).
+    blocks as the log (the live Rerun view of ``wmr run --view``).  ``controller_fmu`` runs
+    the controller FMU in place of the Python controller (``wmr run --controller-fmu``).
 
     Returns
     -------
@@ -105,7 +126,7 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     path = Path(mcap_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
-    run = run_metadata(spec, plant)
+    run = run_metadata(spec, plant, controller_fmu)
     if scenario_file is not None:
         run["source_file"] = Path(scenario_file).name
     with RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant)) as log:
@@ -114,7 +135,8 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
             from wmr.replay import TeeSink
 
             sink = TeeSink(log, also)
-        result = run_closed_loop(spec, plant, sink=sink, progress=progress)
+        result = run_closed_loop(spec, plant, sink=sink, progress=progress,
+                                 controller_fmu=controller_fmu)
         record: dict[str, Any] = {
             "name": spec.name,
             "status": result.status,

@@ -11,6 +11,9 @@ A scenario file::
     heading_tolerance_deg = 0.5      # final alignment tolerance, default 0.5
     max_time_s = 120.0               # default 120
     controller = "pi"                # pi (default), astolfi or graceful (wmr.control.peers)
+    fmu = "other_robot.fmu"          # optional: drive this robot FMU (path relative to here)
+    fmu_map = "other_robot.toml"     # optional: its variable map (docs/fmu_map.md)
+    controller_fmu = true            # run the PI law in the controller FMU (or a path to one)
 
     [controller_gains]               # a peer's own gains (astolfi: k_rho, k_alpha, ...)
     k_rho = 3.0
@@ -59,7 +62,7 @@ MAX_STEPS = 10_000_000
 
 TOP_FIELDS = ("name", "description", "start", "goal", "runs", "gains", "limits", "params",
               "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s",
-              "controller", "controller_gains", "sensors")
+              "controller", "controller_gains", "controller_fmu", "sensors", "fmu", "fmu_map")
 RUN_FIELDS = ("name", "start", "goal", "max_time_s")
 
 
@@ -82,6 +85,8 @@ class RunSpec:
     controller: str = "pi"
     #: A peer's own gains as ``(name, value)`` pairs; empty: its published defaults.
     controller_gains: tuple[tuple[str, float], ...] = ()
+    #: ``None``: the Python controller; ``""``: the built controller FMU; else its path.
+    controller_fmu: str | None = None
     #: The sensors and estimator (:mod:`wmr.sensing`); ``None``: perfect state feedback.
     sensors: SensorConfig | None = None
 
@@ -119,6 +124,10 @@ class Scenario:
     description: str
     runs: tuple[RunSpec, ...]
     path: Path | None = None
+    #: The robot FMU to drive and its variable map (:mod:`wmr.fmu.varmap`); ``None``: the
+    #: project's own FMU, our names.
+    fmu: Path | None = None
+    fmu_map: Path | None = None
 
 
 def _check_sanity(spec: RunSpec) -> None:
@@ -223,6 +232,20 @@ def _peer_gains(controller: str, values: Mapping[str, Any]) -> tuple[tuple[str, 
 BATCH_TABLES = ("grid", "list", "random", "sweep")
 
 
+def _controller_fmu(value: object, path: Path | None) -> str | None:
+    """``controller_fmu``: true (the built FMU, ``""``), false (``None``) or a path; a relative
+    path is read from the scenario file's folder."""
+    if isinstance(value, bool):
+        return "" if value else None
+    if not isinstance(value, str) or not value:
+        raise ConfigError("controller_fmu", f"must be true, false or a path, got {value!r}",
+                          'write controller_fmu = true or controller_fmu = "FILE.fmu"')
+    fmu = Path(value)
+    if not fmu.is_absolute() and path is not None:
+        fmu = path.parent / fmu
+    return str(fmu)
+
+
 def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                    path: Path | None = None) -> Scenario:
     """Validate a scenario's parsed TOML ``data`` and expand it into runs."""
@@ -252,6 +275,10 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
         raise ConfigError("controller", f"must be a string, got {controller!r}",
                           'write e.g. controller = "astolfi"')
     peer_gains = _peer_gains(controller, _table(data, "controller_gains"))
+    controller_fmu = _controller_fmu(data.get("controller_fmu", False), path)
+    if controller_fmu is not None and controller != "pi":
+        raise ConfigError("controller_fmu", f"the controller FMU is the PI stabiliser, but "
+                          f"controller = {controller!r}", "drop controller_fmu or use pi")
     sensors = sensor_config(_table(data, "sensors")) if "sensors" in data else None
     start = _pose(data["start"], "start") if "start" in data else None
     goal = _pose(data["goal"], "goal") if "goal" in data else None
@@ -290,8 +317,22 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                             gains=gains, limits=limits, period_s=period, stop_radius_m=eps,
                             t_max_s=run_t_max, heading_tolerance_rad=math.radians(tol),
                             scenario=name, controller=controller,
-                            controller_gains=peer_gains, sensors=sensors))
-    return Scenario(name=name, description=description, runs=tuple(runs), path=path)
+                            controller_gains=peer_gains, controller_fmu=controller_fmu,
+                            sensors=sensors))
+    return Scenario(name=name, description=description, runs=tuple(runs), path=path,
+                    fmu=_file_field(data, "fmu", path), fmu_map=_file_field(data, "fmu_map", path))
+
+
+def _file_field(data: Mapping[str, Any], key: str, path: Path | None) -> Path | None:
+    """A file named by the scenario, relative to the scenario file's folder."""
+    value = data.get(key)
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value:
+        raise ConfigError(key, f"must be a file path, got {value!r}",
+                          f'write e.g. {key} = "robot.{"fmu" if key == "fmu" else "toml"}"')
+    p = Path(value).expanduser()
+    return p if p.is_absolute() or path is None else path.parent / p
 
 
 def resolve_scenario_path(name_or_path: str | Path | None = None) -> Path:

@@ -89,6 +89,9 @@ def run_spec_toml(spec: RunSpec) -> str:
         f"heading_tolerance_deg = {_float(exact_degrees(spec.heading_tolerance_rad))}",
         f"max_time_s = {_float(spec.t_max_s)}",
     ]
+    if spec.controller_fmu is not None:  # "": the built controller FMU
+        lines.append("controller_fmu = " + ("true" if spec.controller_fmu == ""
+                                            else _basic_string(spec.controller_fmu)))
     lines += _table("params", spec.params.as_dict())
     lines += _table("gains", spec.gains.as_dict())
     lines += _table("limits", spec.limits.as_dict())

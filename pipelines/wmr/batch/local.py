@@ -27,6 +27,7 @@ import wmr.run  # noqa: F401 - preloaded by the forkserver, so that workers star
 from wmr.batch.worker import PlantHolder, Task, wall_limit_message
 from wmr.energy import ENERGY_KEYS
 from wmr.errors import FmuError, WmrError
+from wmr.fmu.varmap import VariableMap
 
 #: Exit code of a worker that could not open the FMU.
 _INIT_FAILED = 3
@@ -72,7 +73,7 @@ def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
 
 
 def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str | None,
-                 log_file: str | None) -> None:
+                 log_file: str | None, var_map: VariableMap | None = None) -> None:
     """A worker process: open the FMU once, then run what the pipe brings until ``None``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if log_file is not None:  # the FMU's own messages go to a file, not over the progress bar
@@ -81,7 +82,7 @@ def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str
         os.dup2(fd, 2)
         os.close(fd)
     try:
-        holder = PlantHolder(Path(fmu_path))
+        holder = PlantHolder(Path(fmu_path), var_map)
     except Exception as exc:
         conn.send(("init_error", f"{type(exc).__name__}: {exc}"))
         conn.close()
@@ -137,8 +138,9 @@ class LocalPool:
 
     def __init__(self, fmu_path: Path, runs_dir: Path, workers: int, *,
                  hard_limit_s: float | None = None, attachment: Path | None = None,
-                 log_dir: Path | None = None) -> None:
+                 log_dir: Path | None = None, var_map: VariableMap | None = None) -> None:
         self.fmu_path = fmu_path
+        self.var_map = var_map
         self.runs_dir = runs_dir
         self.workers = max(1, int(workers))
         self.hard_limit_s = hard_limit_s
@@ -153,7 +155,7 @@ class LocalPool:
         proc = self._ctx.Process(
             target=_worker_main, name=f"wmr-batch-{number}", daemon=True,
             args=(child, str(self.fmu_path), str(self.runs_dir),
-                  str(self.attachment) if self.attachment else None, log_file))
+                  str(self.attachment) if self.attachment else None, log_file, self.var_map))
         proc.start()
         child.close()
         return _Slot(number, proc, parent)

@@ -163,6 +163,9 @@ class BatchSpec:
     input_columns: tuple[str, ...]
     path: Path | None = None
     source: bytes = b""
+    #: The scenario part's ``fmu`` and ``fmu_map`` (:mod:`wmr.fmu.varmap`), if given.
+    fmu: Path | None = None
+    fmu_map: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -436,8 +439,10 @@ def _canonical(value: Any) -> Any:
 def spec_digest(spec: RunSpec) -> str:
     """SHA-256 of a run's complete inputs (floats by ``repr``: bit-exact)."""
     d = asdict(spec)
-    if d["sensors"] is None:  # runs without sensors keep the ids they had before sensors
-        del d["sensors"]
+    # runs without sensors or a controller FMU keep the ids they had before those keys
+    for key in ("sensors", "controller_fmu"):
+        if d[key] is None:
+            del d[key]
     text = json.dumps(_canonical(d), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -544,7 +549,8 @@ def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | N
                                          inputs=_inputs(spec, values, columns)))
                     index += 1
     return BatchSpec(name=scenario.name, description=scenario.description, runs=tuple(runs),
-                     input_columns=tuple(columns), path=path, source=raw)
+                     input_columns=tuple(columns), path=path, source=raw,
+                     fmu=scenario.fmu, fmu_map=scenario.fmu_map)
 
 
 def load_batch(name_or_path: str | Path) -> BatchSpec:

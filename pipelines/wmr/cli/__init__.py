@@ -22,9 +22,10 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
     result = build_fmus(args.out, force=args.force)
     # Standard output stays one path a line (scripts read it); what each FMU offers goes to
     # standard error.
-    for version in sorted(result.fmus):
-        print(result.fmus[version])
-        print(summarize(result.fmus[version]).line(), file=sys.stderr)
+    for fmu in [result.fmus[v] for v in sorted(result.fmus)] + \
+            [result.controllers[v] for v in sorted(result.controllers)]:
+        print(fmu)
+        print(summarize(fmu).line(), file=sys.stderr)
     if args.verbose:
         state = "reused" if result.reused else "built"
         print(f"{state}: digest {result.digest[:16]}", file=sys.stderr)
@@ -32,6 +33,8 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from wmr.cli import crosscheck
+
     parser = argparse.ArgumentParser(
         prog="wmr",
         description="Co-simulation and log analysis of a two-wheeled differential-drive robot.")
@@ -52,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("--force", action="store_true", help="rebuild even if nothing changed")
     build.add_argument("-v", "--verbose", action="store_true", help="say whether it rebuilt")
     build.set_defaults(handler=_cmd_fmu_build)
+    crosscheck.register(fmu_sub)
 
     for register in _extra_commands():
         register(sub)
@@ -61,9 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
                                         None]]:
     """The ``register`` functions of the other sub-commands, in ``--help`` order."""
-    from wmr.cli import batch, optimal, replay, run
+    from wmr.cli import batch, optimal, replay, run, ssp
 
-    return [run.register, replay.register, batch.register, optimal.register]
+    return [run.register, replay.register, batch.register, optimal.register, ssp.register]
 
 
 def _json_error(args: argparse.Namespace, message: str, exc: BaseException) -> None:

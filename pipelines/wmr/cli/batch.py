@@ -50,6 +50,7 @@ def check_scheduler(address: str, timeout_s: float = 3.0) -> str:
 
 def _cmd_batch(args: argparse.Namespace) -> int:
     from wmr.batch import load_batch, run_batch
+    from wmr.fmu.varmap import load_map
     from wmr.naming import plural
     from wmr.outputs import check_output
 
@@ -73,7 +74,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     progress = None if args.progress is None else args.progress
     result = run_batch(batch, out, workers=args.workers, scheduler=scheduler,
                        run_timeout_s=args.run_timeout if args.run_timeout > 0 else None,
-                       fmu_path=args.fmu, fmi_version=args.fmi, progress=progress)
+                       fmu_path=args.fmu, fmi_version=args.fmi, progress=progress,
+                       var_map=load_map(args.map) if args.map else None)
     c = result.counts
     rate = len(result.executed) / result.wall_s * 60.0 if result.wall_s > 0 else 0.0
     state = "interrupted" if result.interrupted else "done"
@@ -124,6 +126,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="FMI version of the FMU to drive (default 3)")
     p.add_argument("--fmu", metavar="FILE.fmu",
                    help="drive this FMU instead of the project's own build")
+    p.add_argument("--map", metavar="FILE.toml",
+                   help="variable map of an FMU made by another tool (docs/fmu_map.md)")
     bar = p.add_mutually_exclusive_group()
     bar.add_argument("--progress", dest="progress", action="store_true", default=None,
                      help="show the progress bar even when stderr is not a terminal")
