@@ -4,6 +4,9 @@ Rows (median of repeated runs of the paper's Fig. 11 case on the FMI 3 FMU):
 
 - FMU exchange: ``FmuPlant.step`` alone (set inputs, doStep, get outputs),
 - controller: the stabiliser and wheel servos alone, on the states of a recorded run,
+- controller FMU: the same law in C (``FmuController``: set inputs, get outputs, doStep through
+  ctypes, with the convergence test the master asks first), on the same states,
+- loop with the controller FMU: ``run_closed_loop(..., controller_fmu=...)``,
 - loop without logging: ``run_closed_loop(..., sink=None)``,
 - loop with logging: ``run_to_log`` (the whole ``wmr run`` minus start-up),
 - logging: the time spent inside the log writer during that run (``write_block`` and
@@ -25,6 +28,7 @@ from _common import print_table
 from wmr.closedloop import run_closed_loop
 from wmr.control import Controller
 from wmr.fmu.build import build_fmus
+from wmr.fmu.fmu_controller import FmuController
 from wmr.fmu.plant import FmuPlant
 from wmr.mcaplog import RunLogWriter, read_run
 from wmr.run import run_to_log
@@ -39,8 +43,10 @@ def _median(samples: list[float]) -> float:
 
 def main() -> None:
     spec = load_scenario("fig11").runs[0]
-    fmu = build_fmus().fmus[3]
-    with FmuPlant(fmu) as plant, tempfile.TemporaryDirectory() as tmp:
+    built = build_fmus()
+    fmu = built.fmus[3]
+    with FmuPlant(fmu) as plant, FmuController(built.controllers[3]) as cfmu, \
+            tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "run.mcap"
         run_to_log(spec, log, plant)  # warm-up, and a recorded run for the controller row
         data = read_run(log)
@@ -48,9 +54,12 @@ def main() -> None:
         s = data.signals
         states = list(zip(s["x_m"], s["y_m"], s["theta_rad"], s["omega_r_radps"],
                           s["omega_l_radps"], strict=True))
+        speeds = list(zip(s["v_mps"], s["omega_radps"], strict=True))
+        tol = spec.heading_tolerance_rad
         torques = list(zip(s["tau_r_nm"], s["tau_l_nm"], strict=True))
 
         fmu_t, ctrl_t, loop_t, logged_t, log_t = [], [], [], [], []
+        cfmu_t, cloop_t = [], []
         in_writer = [0.0]
         write_block, close = RunLogWriter.write_block, RunLogWriter.close
 
@@ -77,6 +86,18 @@ def main() -> None:
                 ctrl.step(x, y, th, wr, wl)
             ctrl_t.append((time.perf_counter() - t0) / steps)
 
+            cfmu.configure(spec)
+            converged = cfmu.stabiliser.converged
+            t0 = time.perf_counter()
+            for (x, y, th, wr, wl), (v, om) in zip(states, speeds, strict=True):
+                converged(x, y, th, v, om, tol)
+                cfmu.step(x, y, th, wr, wl)
+            cfmu_t.append((time.perf_counter() - t0) / steps)
+
+            t0 = time.perf_counter()
+            result = run_closed_loop(spec, plant, controller_fmu=cfmu)
+            cloop_t.append((time.perf_counter() - t0) / result.steps)
+
             t0 = time.perf_counter()
             result = run_closed_loop(spec, plant)
             loop_t.append((time.perf_counter() - t0) / result.steps)
@@ -87,12 +108,14 @@ def main() -> None:
             logged_t.append((time.perf_counter() - t0) / int(record["steps"]))
             log_t.append(in_writer[0] / int(record["steps"]))
 
-    fmu_s, ctrl_s, loop_s, logged_s, log_s = map(_median, (fmu_t, ctrl_t, loop_t, logged_t,
-                                                           log_t))
+    fmu_s, ctrl_s, loop_s, logged_s, log_s, cfmu_s, cloop_s = map(
+        _median, (fmu_t, ctrl_t, loop_t, logged_t, log_t, cfmu_t, cloop_t))
     rows = [
         ("FMU exchange (FmuPlant.step)", fmu_s),
         ("controller (stabiliser + wheel servos)", ctrl_s),
+        ("controller FMU (same law in C, ctypes)", cfmu_s),
         ("loop without logging", loop_s),
+        ("loop without logging, controller FMU", cloop_s),
         ("loop with MCAP logging (wmr run)", logged_s),
         ("logging (inside the MCAP writer)", log_s),
         ("loop bookkeeping (loop - FMU - controller)", max(loop_s - fmu_s - ctrl_s, 0.0)),

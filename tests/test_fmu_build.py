@@ -45,13 +45,15 @@ def test_rebuild_is_skipped_when_nothing_changed(built: BuildResult, fmu_dir: Pa
     assert again.reused
     assert again.digest == built.digest
     assert again.fmus == built.fmus
+    assert again.controllers == built.controllers
 
 
 def test_cli_prints_one_path_per_line(fmu_dir: Path, built: BuildResult,
                                       capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["fmu", "build", "--out", str(fmu_dir)]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert [Path(p) for p in lines] == [built.fmus[2], built.fmus[3]]
+    assert [Path(p) for p in lines] == [built.fmus[2], built.fmus[3], built.controllers[2],
+                                        built.controllers[3]]
 
 
 @pytest.mark.parametrize("version", [2, 3])

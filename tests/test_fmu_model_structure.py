@@ -4,6 +4,7 @@ display units and the default tolerance are declared."""
 from __future__ import annotations
 
 import math
+import re
 import shutil
 import tempfile
 from typing import Any
@@ -103,7 +104,11 @@ def test_no_output_depends_directly_on_the_torques(built: BuildResult, version: 
 def test_display_units_and_tolerance(built: BuildResult, version: int) -> None:
     md = read_model_description(str(built.fmus[version]))
     assert md.defaultExperiment is not None
-    assert float(md.defaultExperiment.tolerance) == 1e-9
+    # the tolerance the FMU's own solver uses when the importer sets none
+    rtol = re.search(r"#define SOLVER_DEFAULT_RTOL (\S+)",
+                     (paths.fmu_src_dir() / "solver.h").read_text())
+    assert rtol is not None
+    assert float(md.defaultExperiment.tolerance) == float(rtol.group(1)) == 1e-9
     variables = {v.name: v for v in md.modelVariables}
     for name in ("theta", "phi_r", "phi_l", "theta0"):
         assert variables[name].displayUnit == "deg", name

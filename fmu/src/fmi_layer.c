@@ -370,7 +370,7 @@ FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char
                            fn, MODEL_INSTANTIATION_TOKEN, token ? token : "(null)");
         return NULL;
     }
-    if (model_exchange && MODEL_NX == 0) {
+    if (model_exchange && (MODEL_NX == 0 || MODEL_SAMPLED)) {
         fl_log_no_instance(instance_name, adapter, importer_logger, importer_env, FL_ERROR,
                            "%s: this model has no continuous states: Model Exchange is not "
                            "provided, instantiate it for Co-Simulation", fn);
@@ -700,7 +700,30 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
     }
 
     memcpy(x, d->x, sizeof(x));
+#if MODEL_SAMPLED
+    /* One sample per step: a master at another step size would silently run another
+     * (untuned) controller, so it gets an error instead (README.md). */
+    {
+        double period = model_sample_period(d->p);
+        if (fabs(h - period) > FL_TIME_TOL * (period > 1.0 ? period : 1.0)) {
+            fl_log(inst, FL_ERROR,
+                   "%s: communicationStepSize = %.17g s differs from the sample period %.17g s; "
+                   "step this sampled-data FMU at exactly its period (parameter %s)",
+                   fn, h, period, MODEL_SAMPLE_PERIOD_NAME);
+            return ret(inst, FL_ERROR);
+        }
+        if (!update_outputs(fn, inst)) return fail(inst); /* the sample's outputs come first */
+        memcpy(y, d->y, sizeof(y));
+        st = model_update(d->x, d->u, d->p, x) == 0 ? SOLVER_OK : SOLVER_MODEL_ERROR;
+        snprintf(msg, sizeof(msg), "model_update failed");
+        if (st == SOLVER_OK && find_nonfinite(x, MODEL_NX) >= 0) {
+            st = SOLVER_NONFINITE;
+            snprintf(msg, sizeof(msg), "model_update gave a non-finite discrete state");
+        }
+    }
+#else
     st = solver_integrate(&d->solver, tc, t_end, x, d->u, d->p, msg, sizeof(msg));
+#endif
     if (st != SOLVER_OK) {
         fl_log(inst, FL_ERROR,
                "%s: integration from t = %.17g to %.17g failed (%s): %s; the last good state at "
@@ -708,6 +731,13 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
                fn, tc, t_end, solver_status_name(st), msg, d->time);
         return fail(inst);
     }
+#if MODEL_SAMPLED
+    /* y stays the last good sample; the outputs at the new time are g(z_next, u), evaluated
+     * on the next get with whatever inputs the master has set by then (direct feedthrough) */
+    memcpy(d->x, x, sizeof(x));
+    memcpy(d->y, y, sizeof(y));
+    d->outputs_dirty = 1;
+#else
     if (!compute_outputs(fn, inst, x, y)) {
         fl_log(inst, FL_ERROR, "%s: the last good state at t = %.17g is kept", fn, d->time);
         return fail(inst);
@@ -715,6 +745,7 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
     memcpy(d->x, x, sizeof(x));
     memcpy(d->y, y, sizeof(y));
     d->outputs_dirty = 0;
+#endif
     d->time = t_end; /* set, never accumulated over internal steps */
     d->n_comm_steps++;
     if (last_successful_time) *last_successful_time = d->time;

@@ -31,6 +31,17 @@
 #define WMR_INTERNAL
 #endif
 
+/* A sampled-data model (the controller FMU) defines MODEL_SAMPLED 1 in
+ * model_sizes.h.  Its x[] holds discrete states z, constant between samples
+ * (model_derivatives returns zeros and is never called by the layer); the
+ * outputs y = model_outputs(z, u, p) are the sample at the current
+ * communication point, with direct feedthrough from u, and doStep commits
+ * z := model_update(z, u, p) for a step of exactly model_sample_period(p)
+ * (any other step size is refused; no Model Exchange; see README.md). */
+#ifndef MODEL_SAMPLED
+#define MODEL_SAMPLED 0
+#endif
+
 /* 1 if the model core defines model_jacobian (directional derivatives). */
 #ifndef MODEL_PROVIDES_JACOBIAN
 #define MODEL_PROVIDES_JACOBIAN 0
@@ -90,6 +101,18 @@ WMR_INTERNAL
 int model_jacobian(const double x[MODEL_NX], const double u[MODEL_NU],
                    const double p[MODEL_NP],
                    double jac[MODEL_JAC_ROWS * MODEL_JAC_COLS]);
+#endif
+
+#if MODEL_SAMPLED
+/* The sample period h (s), the only communication step size doStep accepts. */
+WMR_INTERNAL
+double model_sample_period(const double p[MODEL_NP]);
+
+/* z_next: the discrete state after the sample at the current communication
+ * point with inputs u.  Returns 0 on success. */
+WMR_INTERNAL
+int model_update(const double z[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
+                 double z_next[MODEL_NX]);
 #endif
 
 #endif

@@ -11,6 +11,9 @@ A scenario file::
     heading_tolerance_deg = 0.5      # final alignment tolerance, default 0.5
     max_time_s = 120.0               # default 120
     controller = "pi"                # pi (default), astolfi or graceful (wmr.control.peers)
+    fmu = "other_robot.fmu"          # optional: drive this robot FMU (path relative to here)
+    fmu_map = "other_robot.toml"     # optional: its variable map (docs/fmu_map.md)
+    controller_fmu = true            # run the PI law in the controller FMU (or a path to one)
 
     [controller_gains]               # a peer's own gains (astolfi: k_rho, k_alpha, ...)
     k_rho = 3.0
@@ -59,7 +62,7 @@ MAX_STEPS = 10_000_000
 
 TOP_FIELDS = ("name", "description", "start", "goal", "runs", "gains", "limits", "params",
               "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s",
-              "controller", "controller_gains", "sensors")
+              "controller", "controller_gains", "controller_fmu", "sensors", "fmu", "fmu_map")
 RUN_FIELDS = ("name", "start", "goal", "max_time_s")
 
 
@@ -82,6 +85,8 @@ class RunSpec:
     controller: str = "pi"
     #: A peer's own gains as ``(name, value)`` pairs; empty: its published defaults.
     controller_gains: tuple[tuple[str, float], ...] = ()
+    #: ``None``: the Python controller; ``""``: the built controller FMU; else its path.
+    controller_fmu: str | None = None
     #: The sensors and estimator (:mod:`wmr.sensing`); ``None``: perfect state feedback.
     sensors: SensorConfig | None = None
 
@@ -103,6 +108,7 @@ class RunSpec:
         for label, pose in (("start", self.start), ("goal", self.goal)):
             for f in fields(pose):
                 _finite(f"{label}.{f.name}", getattr(pose, f.name))
+        _check_sanity(self)
 
     @property
     def n_steps_max(self) -> int:
@@ -118,6 +124,46 @@ class Scenario:
     description: str
     runs: tuple[RunSpec, ...]
     path: Path | None = None
+    #: The robot FMU to drive and its variable map (:mod:`wmr.fmu.varmap`); ``None``: the
+    #: project's own FMU, our names.
+    fmu: Path | None = None
+    fmu_map: Path | None = None
+
+
+def _check_sanity(spec: RunSpec) -> None:
+    """Refuse settings that are valid numbers but cannot give a meaningful run.
+
+    * The period against the wheel servos: seen from a wheel the robot is an inertia J
+      (``docs/control.md``: the smaller of the common mode r^2 M11 / 2 and the differential
+      mode r^2 M22 / (2 L^2)); the sampled P loop of gain K_pw on it is stable only for
+      K_pw h / J < 2.
+    * The stop radius against the trip: a radius that reaches the start makes the run
+      "converge" where it stands.
+    """
+    from wmr.physics import mass_matrix_diag
+
+    p = spec.params
+    m11, m22 = mass_matrix_diag(p)
+    if m22 <= 0.0:
+        raise ConfigError("params.Ig", "the platform has no inertia about its vertical axis "
+                          "(Ig + m l^2 + 2 L^2 Iwm / r^2 = 0): the mass matrix of eq. 24 is "
+                          "singular", "give Ig > 0")
+    j_min = min(p.r**2 * m11 / 2.0, p.r**2 * m22 / (2.0 * p.L**2))
+    loop = spec.gains.K_pw * spec.period_s / j_min
+    if loop >= 2.0:
+        raise ConfigError("control_period_s",
+                          f"{spec.period_s:g} s is too long for the wheel servos: K_pw h / J = "
+                          f"{loop:.3g} >= 2 (K_pw = {spec.gains.K_pw:g} N m s/rad, wheel "
+                          f"inertia J = {j_min:.3g} kg m^2) makes the sampled servo unstable",
+                          f"give a period below {2.0 * j_min / spec.gains.K_pw:.3g} s, or a "
+                          "smaller K_pw")
+    distance = math.hypot(spec.goal.x_m - spec.start.x_m, spec.goal.y_m - spec.start.y_m)
+    if spec.stop_radius_m > DEFAULT_STOP_RADIUS_M and spec.stop_radius_m >= distance > 0.0:
+        raise ConfigError("stop_radius_m",
+                          f"{spec.stop_radius_m:g} m reaches the start, {distance:.3g} m from "
+                          "the goal: the run would count as converged where it stands",
+                          f"give a stop radius below {distance:.3g} m (default "
+                          f"{DEFAULT_STOP_RADIUS_M:g})")
 
 
 def _finite(field: str, value: object) -> float:
@@ -182,9 +228,31 @@ def _peer_gains(controller: str, values: Mapping[str, Any]) -> tuple[tuple[str, 
     return tuple(out)
 
 
+#: Tables of a batch spec (docs/batch.md) that a scenario file does not have.
+BATCH_TABLES = ("grid", "list", "random", "sweep")
+
+
+def _controller_fmu(value: object, path: Path | None) -> str | None:
+    """``controller_fmu``: true (the built FMU, ``""``), false (``None``) or a path; a relative
+    path is read from the scenario file's folder."""
+    if isinstance(value, bool):
+        return "" if value else None
+    if not isinstance(value, str) or not value:
+        raise ConfigError("controller_fmu", f"must be true, false or a path, got {value!r}",
+                          'write controller_fmu = true or controller_fmu = "FILE.fmu"')
+    fmu = Path(value)
+    if not fmu.is_absolute() and path is not None:
+        fmu = path.parent / fmu
+    return str(fmu)
+
+
 def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                    path: Path | None = None) -> Scenario:
     """Validate a scenario's parsed TOML ``data`` and expand it into runs."""
+    for key in BATCH_TABLES:
+        if key in data:
+            raise ConfigError(key, f"{source} is a batch spec (it has [{key}]), not a scenario",
+                              f"run it with 'wmr batch {source}'")
     _check_keys(data, TOP_FIELDS, "")
     name = data.get("name", Path(source).stem)
     if not isinstance(name, str) or not name:
@@ -207,6 +275,10 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
         raise ConfigError("controller", f"must be a string, got {controller!r}",
                           'write e.g. controller = "astolfi"')
     peer_gains = _peer_gains(controller, _table(data, "controller_gains"))
+    controller_fmu = _controller_fmu(data.get("controller_fmu", False), path)
+    if controller_fmu is not None and controller != "pi":
+        raise ConfigError("controller_fmu", f"the controller FMU is the PI stabiliser, but "
+                          f"controller = {controller!r}", "drop controller_fmu or use pi")
     sensors = sensor_config(_table(data, "sensors")) if "sensors" in data else None
     start = _pose(data["start"], "start") if "start" in data else None
     goal = _pose(data["goal"], "goal") if "goal" in data else None
@@ -235,13 +307,32 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
         if not isinstance(run_name, str) or not run_name:
             raise ConfigError(f"{where}.name", f"must be a non-empty string, got {run_name!r}",
                               "quote the name")
+        earlier = [j for j, r in enumerate(runs) if r.name == run_name]
+        if earlier:
+            raise ConfigError(f"{where}.name", f"{run_name!r} is already the name of "
+                              f"runs[{earlier[0]}]: the second could not be picked with --run",
+                              "give each run its own name")
         run_t_max = _positive(f"{where}.max_time_s", run.get("max_time_s", t_max))
         runs.append(RunSpec(name=run_name, start=run_start, goal=run_goal, params=params,
                             gains=gains, limits=limits, period_s=period, stop_radius_m=eps,
                             t_max_s=run_t_max, heading_tolerance_rad=math.radians(tol),
                             scenario=name, controller=controller,
-                            controller_gains=peer_gains, sensors=sensors))
-    return Scenario(name=name, description=description, runs=tuple(runs), path=path)
+                            controller_gains=peer_gains, controller_fmu=controller_fmu,
+                            sensors=sensors))
+    return Scenario(name=name, description=description, runs=tuple(runs), path=path,
+                    fmu=_file_field(data, "fmu", path), fmu_map=_file_field(data, "fmu_map", path))
+
+
+def _file_field(data: Mapping[str, Any], key: str, path: Path | None) -> Path | None:
+    """A file named by the scenario, relative to the scenario file's folder."""
+    value = data.get(key)
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value:
+        raise ConfigError(key, f"must be a file path, got {value!r}",
+                          f'write e.g. {key} = "robot.{"fmu" if key == "fmu" else "toml"}"')
+    p = Path(value).expanduser()
+    return p if p.is_absolute() or path is None else path.parent / p
 
 
 def resolve_scenario_path(name_or_path: str | Path | None = None) -> Path:

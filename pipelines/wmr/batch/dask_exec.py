@@ -24,6 +24,7 @@ from distributed.diagnostics.plugin import WorkerPlugin
 from wmr.batch import worker as _worker
 from wmr.batch.local import DIED_TWICE, Outcome, made_up_record
 from wmr.batch.worker import TOKEN_FILE, Attachment, Task, dask_run_many
+from wmr.fmu.varmap import VariableMap
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -76,8 +77,10 @@ class DaskExecutor:
 
     def __init__(self, fmu_path: Path, out_dir: Path, *, scheduler: str | None = None,
                  client: Client | None = None, attachment: Path | None = None,
-                 ship_logs: bool = False, chunk: int | None = None) -> None:
+                 ship_logs: bool = False, chunk: int | None = None,
+                 var_map: VariableMap | None = None) -> None:
         self.chunk = chunk
+        self.var_map = var_map
         self.fmu_path = fmu_path
         self.out_dir = out_dir
         self.ship_logs = ship_logs
@@ -113,7 +116,7 @@ class DaskExecutor:
             size = self.chunk or max(1, min(8, len(tasks) // (8 * threads)))
             def submit(chunk: list[Task], tag: str) -> Any:
                 fut = client.submit(dask_run_many, chunk, plugin.sha256, att, out, token,
-                                    pure=False, retries=0,
+                                    self.var_map, pure=False, retries=0,
                                     key=f"wmr-runs-{chunk[0].run_id}-{token[:8]}{tag}")
                 futures[fut] = chunk
                 return fut

@@ -28,7 +28,9 @@ from typing import Any
 
 import wmr.run  # noqa: F401 - preloaded by the forkserver, so that workers start fast
 from wmr.batch.worker import PlantHolder, Task, wall_limit_message
+from wmr.energy import ENERGY_KEYS
 from wmr.errors import FmuError, WmrError
+from wmr.fmu.varmap import VariableMap
 
 #: Exit code of a worker that could not open the FMU.
 _INIT_FAILED = 3
@@ -73,7 +75,8 @@ def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
     """The result record of a run that produced none (killed, or its worker died)."""
     return {"name": run_id, "status": status, "message": message,
             "final_position_error_m": None, "final_heading_error_rad": None,
-            "time_to_goal_s": None, "path_length_m": None, "energy_j": None,
+            "time_to_goal_s": None, "path_length_m": None,
+            **dict.fromkeys(ENERGY_KEYS),
             "torque_sq_integral_n2m2s": None, "peak_torque_nm": None, "steps": None,
             "mcap": None}
 
@@ -108,7 +111,8 @@ def _die_with(batch_pid: int) -> None:
 
 
 def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str | None,
-                 log_file: str | None, batch_pid: int) -> None:
+                 log_file: str | None, batch_pid: int,
+                 var_map: VariableMap | None = None) -> None:
     """A worker process: open the FMU once, then run what the pipe brings until ``None``."""
     _die_with(batch_pid)
     # Ctrl-C and SIGTERM reach the whole process group: the parent alone decides what stops
@@ -120,7 +124,7 @@ def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str
         os.dup2(fd, 2)
         os.close(fd)
     try:
-        holder = PlantHolder(Path(fmu_path))
+        holder = PlantHolder(Path(fmu_path), var_map)
     except Exception as exc:
         conn.send(("init_error", f"{type(exc).__name__}: {exc}"))
         conn.close()
@@ -176,8 +180,9 @@ class LocalPool:
 
     def __init__(self, fmu_path: Path, runs_dir: Path, workers: int, *,
                  hard_limit_s: float | None = None, attachment: Path | None = None,
-                 log_dir: Path | None = None) -> None:
+                 log_dir: Path | None = None, var_map: VariableMap | None = None) -> None:
         self.fmu_path = fmu_path
+        self.var_map = var_map
         self.runs_dir = runs_dir
         self.workers = max(1, int(workers))
         self.hard_limit_s = hard_limit_s
@@ -192,7 +197,8 @@ class LocalPool:
         proc = self._ctx.Process(
             target=_worker_main, name=f"wmr-batch-{number}", daemon=True,
             args=(child, str(self.fmu_path), str(self.runs_dir),
-                  str(self.attachment) if self.attachment else None, log_file, os.getpid()))
+                  str(self.attachment) if self.attachment else None, log_file, os.getpid(),
+                  self.var_map))
         proc.start()
         child.close()
         return _Slot(number, proc, parent)

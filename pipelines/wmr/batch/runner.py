@@ -16,6 +16,7 @@ the others, half-written logs included; a run is never reported twice.
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import json
 import os
 import sys
@@ -33,6 +34,7 @@ from wmr.batch.worker import DISK_FULL, FAULTS, Task
 from wmr.durable import AtomicFile, partial_path, storage_error
 from wmr.errors import ConfigError, DiskFullError, WmrError
 from wmr.fmu.archive import file_sha256
+from wmr.fmu.varmap import VariableMap, load_map
 
 #: Default per-run wall-clock limit, s: generous (a 120 s simulated run takes about 1 s).
 DEFAULT_RUN_TIMEOUT_S: Final = 600.0
@@ -110,6 +112,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
               fmu_path: str | os.PathLike[str] | None = None, fmi_version: int = 3,
               progress: bool | None = None, stop_after: int | None = None,
               faults: Mapping[str, str] | None = None, dask_ship_logs: bool = False,
+              var_map: VariableMap | None = None,
               on_outcome: Callable[[Outcome], None] | None = None) -> BatchOutcome:
     """Run the runs of ``batch`` not done yet into ``out_dir``; write the summary.
 
@@ -127,7 +130,10 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
         Wall-clock limit per run, s; a run past it is a ``timeout`` row ("wall-clock limit").
         Local workers still busy ``max(1 s, 10 %)`` later are killed.  ``None``: no limit.
     fmu_path, fmi_version
-        The FMU to drive; by default the project's own, built (or reused) once, here.
+        The FMU to drive; by default the spec's ``fmu``, else the project's own, built (or
+        reused) once, here.
+    var_map
+        The FMU's variable map (:mod:`wmr.fmu.varmap`); by default the spec's ``fmu_map``.
     progress
         tqdm bar on stderr: ``None`` shows it on a terminal only.
     stop_after
@@ -172,8 +178,14 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     except OSError as exc:
         raise ConfigError("--out", f"cannot create {runs_dir}: {exc.strerror}",
                           "give a writable folder") from None
-    fmu = Path(fmu_path) if fmu_path is not None else default_fmu(fmi_version)
+    fmu = Path(fmu_path) if fmu_path is not None else batch.fmu or default_fmu(fmi_version)
+    if var_map is None and batch.fmu_map is not None:
+        var_map = load_map(batch.fmu_map)
     fmu_sha = file_sha256(fmu)
+    if var_map is not None:
+        # a run through another map is another run: the journal must not reuse it
+        fmu_sha += "+map:" + hashlib.sha256(
+            json.dumps(var_map.as_dict(), sort_keys=True).encode()).hexdigest()[:16]
     lock = _Lock(out)
     try:
         journal = Journal(out / JOURNAL)
@@ -199,14 +211,15 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             from wmr.batch.dask_exec import DaskExecutor
 
             stream = DaskExecutor(fmu, out, scheduler=scheduler, client=client,
-                                  attachment=attachment, ship_logs=dask_ship_logs).run(tasks)
+                                  attachment=attachment, ship_logs=dask_ship_logs,
+                                  var_map=var_map).run(tasks)
         else:
             n = workers if workers is not None else (os.cpu_count() or 1)
             (out / "logs").mkdir(exist_ok=True)
             hard = None if run_timeout_s is None else run_timeout_s + max(1.0,
                                                                           0.1 * run_timeout_s)
             stream = LocalPool(fmu, runs_dir, n, hard_limit_s=hard, attachment=attachment,
-                               log_dir=out / "logs").run(tasks)
+                               log_dir=out / "logs", var_map=var_map).run(tasks)
         statuses = [str(r.get("status")) for r in records.values()]
         bar = tqdm(total=len(batch.runs), initial=len(records), unit="run", file=sys.stderr,
                    disable=None if progress is None else not progress, smoothing=0.05,

@@ -168,6 +168,9 @@ class BatchSpec:
     input_columns: tuple[str, ...]
     path: Path | None = None
     source: bytes = b""
+    #: The scenario part's ``fmu`` and ``fmu_map`` (:mod:`wmr.fmu.varmap`), if given.
+    fmu: Path | None = None
+    fmu_map: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -356,6 +359,9 @@ def _random(table: Mapping[str, Any], max_runs: int = MAX_RUNS
             ) -> tuple[int, list[tuple[str, _Dist]], dict[str, str]]:
     """The sample count, the distributions and their sources (nothing drawn yet)."""
     seed = table.get("seed")
+    if seed is None:
+        raise ConfigError("random.seed", "missing (the samples must be reproducible)",
+                          "write e.g. seed = 1")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError("random.seed", f"must be a non-negative integer, got {seed!r}",
                           "write e.g. seed = 1")
@@ -473,8 +479,10 @@ def _flat(value: Any) -> Any:
 def spec_digest(spec: RunSpec) -> str:
     """SHA-256 of a run's complete inputs (floats by ``repr``: bit-exact)."""
     d = _flat(spec)
-    if d["sensors"] is None:  # runs without sensors keep the ids they had before sensors
-        del d["sensors"]
+    # runs without sensors or a controller FMU keep the ids they had before those keys
+    for key in ("sensors", "controller_fmu"):
+        if d[key] is None:
+            del d[key]
     text = json.dumps(_canonical(d), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -589,7 +597,8 @@ def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | N
                                          inputs=_inputs(spec, values, columns)))
                     index += 1
     return BatchSpec(name=scenario.name, description=scenario.description, runs=tuple(runs),
-                     input_columns=tuple(columns), path=path, source=raw)
+                     input_columns=tuple(columns), path=path, source=raw,
+                     fmu=scenario.fmu, fmu_map=scenario.fmu_map)
 
 
 def load_batch(name_or_path: str | Path, max_runs: int = MAX_RUNS) -> BatchSpec:

@@ -9,17 +9,20 @@ worker threads (:func:`dask_run`, with the FMU shipped once per worker by
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import shutil
 import tempfile
 import threading
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from wmr.errors import DiskFullError
 from wmr.fmu.plant import FmuPlant
+from wmr.fmu.varmap import VariableMap
 from wmr.scenario import RunSpec
 
 #: Key of a result record whose log could not be written for lack of space.
@@ -124,9 +127,18 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
                 raised.append(True)
                 raise WallClockLimit(wall_limit_message(limit))
 
-    # no fsync per log: the resume checks every log, and redoes one a power loss damaged
-    record = run_to_log(task.spec, mcap_path, plant, scenario_file=attachment,
-                        progress=progress, durable=False)
+    with ExitStack() as stack:
+        ctrl = None
+        if task.spec.controller_fmu is not None:  # the scenario key controller_fmu
+            from wmr.fmu.fmu_controller import FmuController
+            from wmr.run import default_controller_fmu
+
+            ctrl_path = task.spec.controller_fmu or default_controller_fmu(
+                int(plant.fmi_version[0]))
+            ctrl = stack.enter_context(FmuController(ctrl_path))
+        # no fsync per log: the resume checks every log, and redoes one a power loss damaged
+        record = run_to_log(task.spec, mcap_path, plant, scenario_file=attachment,
+                            progress=progress, controller_fmu=ctrl, durable=False)
     if limit is not None and record["status"] == "failed" \
             and str(record["message"]).startswith(WallClockLimit.__name__):
         record["status"] = "timeout"
@@ -138,9 +150,10 @@ class PlantHolder:
     """An :class:`FmuPlant` reopened after a failed run (an FMU left in its error state may
     refuse the next reset)."""
 
-    def __init__(self, fmu_path: Path) -> None:
+    def __init__(self, fmu_path: Path, var_map: VariableMap | None = None) -> None:
         self.fmu_path = fmu_path
-        self.plant = FmuPlant(fmu_path)
+        self.var_map = var_map
+        self.plant = FmuPlant(fmu_path, var_map=var_map)
 
     def run(self, task: Task, mcap_path: Path, attachment: Path | None) -> dict[str, Any]:
         """:func:`execute` on the held plant; a fresh plant after a failure.
@@ -158,7 +171,7 @@ class PlantHolder:
                       "message": f"{type(exc).__name__}: {exc}", "mcap": str(mcap_path)}
         if record["status"] == "failed":
             self.plant.close()
-            self.plant = FmuPlant(self.fmu_path)
+            self.plant = FmuPlant(self.fmu_path, var_map=self.var_map)
         return record
 
     def close(self) -> None:
@@ -172,18 +185,19 @@ _FMUS: dict[str, Path] = {}
 _local = threading.local()
 
 
-def _holder(sha256: str) -> PlantHolder:
+def _holder(sha256: str, var_map: VariableMap | None = None) -> PlantHolder:
     """This thread's plant of the FMU ``sha256`` (FmuPlant is not thread-safe)."""
-    holders: dict[str, PlantHolder] | None = getattr(_local, "holders", None)
+    holders: dict[tuple[str, str], PlantHolder] | None = getattr(_local, "holders", None)
     if holders is None:
         holders = _local.holders = {}
-    holder = holders.get(sha256)
+    key = (sha256, "" if var_map is None else json.dumps(var_map.as_dict(), sort_keys=True))
+    holder = holders.get(key)
     if holder is None:
         path = _FMUS.get(sha256)
         if path is None:
             raise RuntimeError(f"FMU {sha256[:12]} was not shipped to this worker "
                                "(FmuPlugin not registered)")
-        holder = holders[sha256] = PlantHolder(path)
+        holder = holders[key] = PlantHolder(path, var_map)
     return holder
 
 
@@ -206,7 +220,8 @@ TOKEN_FILE = ".dask-token"
 
 
 def dask_run(task: Task, fmu_sha256: str, attachment: Attachment | None, out_dir: str,
-             token: str) -> tuple[str, dict[str, Any], bytes | None, float]:
+             token: str, var_map: VariableMap | None = None
+             ) -> tuple[str, dict[str, Any], bytes | None, float]:
     """A Dask task: run ``task``; return its id, record, log bytes (or ``None``) and wall time.
 
     A worker that sees the batch folder (same host or shared file system: it holds the
@@ -214,7 +229,7 @@ def dask_run(task: Task, fmu_sha256: str, attachment: Attachment | None, out_dir
     temp file and sends its bytes back for the client to write.
     """
     t0 = time.perf_counter()
-    holder = _holder(fmu_sha256)
+    holder = _holder(fmu_sha256, var_map)
     att = materialise(attachment.name, attachment.data) if attachment is not None else None
     if sees_folder(out_dir, token):
         final = Path(out_dir) / "runs" / f"{task.run_id}.mcap"
@@ -237,11 +252,11 @@ def dask_run(task: Task, fmu_sha256: str, attachment: Attachment | None, out_dir
 
 
 def dask_run_many(tasks: list[Task], fmu_sha256: str, attachment: Attachment | None,
-                  out_dir: str, token: str
+                  out_dir: str, token: str, var_map: VariableMap | None = None
                   ) -> list[tuple[str, dict[str, Any], bytes | None, float]]:
     """A Dask task of several runs (:func:`dask_run` each): fewer, longer tasks cost the
     scheduler less."""
-    return [dask_run(t, fmu_sha256, attachment, out_dir, token) for t in tasks]
+    return [dask_run(t, fmu_sha256, attachment, out_dir, token, var_map) for t in tasks]
 
 
 __all__ = ["FAULTS", "Attachment", "PlantHolder", "Task", "WallClockLimit",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -10,20 +11,24 @@ from types import FrameType
 from typing import Any
 
 from wmr import __version__
-from wmr.errors import WmrError
+from wmr.errors import ConfigError, DiskFullError, WmrError
 
 Handler = Callable[[argparse.Namespace], int]
 
 
 def _cmd_fmu_build(args: argparse.Namespace) -> int:
     from wmr.fmu.build import build_fmus, summarize
+    from wmr.outputs import check_output
 
+    if args.out is not None:
+        check_output(args.out, "--out", "dir")
     result = build_fmus(args.out, force=args.force)
     # Standard output stays one path a line (scripts read it); what each FMU offers goes to
     # standard error.
-    for version in sorted(result.fmus):
-        print(result.fmus[version])
-        print(summarize(result.fmus[version]).line(), file=sys.stderr)
+    for fmu in [result.fmus[v] for v in sorted(result.fmus)] + \
+            [result.controllers[v] for v in sorted(result.controllers)]:
+        print(fmu)
+        print(summarize(fmu).line(), file=sys.stderr)
     if args.verbose:
         state = "reused" if result.reused else "built"
         print(f"{state}: digest {result.digest[:16]}", file=sys.stderr)
@@ -31,6 +36,8 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from wmr.cli import crosscheck
+
     parser = argparse.ArgumentParser(
         prog="wmr",
         description="Co-simulation and log analysis of a two-wheeled differential-drive robot.")
@@ -51,6 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("--force", action="store_true", help="rebuild even if nothing changed")
     build.add_argument("-v", "--verbose", action="store_true", help="say whether it rebuilt")
     build.set_defaults(handler=_cmd_fmu_build)
+    crosscheck.register(fmu_sub)
 
     for register in _extra_commands():
         register(sub)
@@ -60,9 +68,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
                                         None]]:
     """The ``register`` functions of the other sub-commands, in ``--help`` order."""
-    from wmr.cli import batch, log, optimal, replay, run
+    from wmr.cli import batch, log, optimal, replay, run, ssp
 
-    return [run.register, replay.register, batch.register, optimal.register, log.register]
+    return [run.register, replay.register, batch.register, optimal.register, ssp.register,
+            log.register]
 
 
 class Terminated(KeyboardInterrupt):
@@ -105,6 +114,19 @@ class _Signals:
         return 128 + self.first if self.first is not None else default
 
 
+def _json_error(args: argparse.Namespace, message: str, exc: BaseException) -> None:
+    """With ``--json``, a failure is a JSON line on stdout too, so that a script that reads the
+    last line always gets an object (``status`` ``error``, ``field`` for bad input)."""
+    if not getattr(args, "json", False):
+        return
+    # a full disk fails the run; anything else is an error of the command
+    status = "failed" if isinstance(exc, DiskFullError) else "error"
+    record: dict[str, str] = {"status": status, "message": message.replace("\n", " ")}
+    if isinstance(exc, ConfigError):
+        record["field"] = exc.field
+    print(json.dumps(record))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -134,12 +156,14 @@ def _dispatch(handler: Handler, args: argparse.Namespace) -> int:
         lines = str(exc).splitlines() or [type(exc).__name__]
         more = " (run with --debug for details)" if len(lines) > 1 else ""
         print(f"wmr: error: {lines[0]}{more}", file=sys.stderr)
+        _json_error(args, lines[0], exc)
         return 1
     except Exception as exc:
         if args.debug:
             raise
         print(f"wmr: internal error: {type(exc).__name__}: {exc} (run with --debug for the "
               "traceback)".replace("\n", " "), file=sys.stderr)
+        _json_error(args, f"internal error: {type(exc).__name__}: {exc}", exc)
         return 2
 
 

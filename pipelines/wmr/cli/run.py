@@ -5,11 +5,15 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from wmr.errors import ConfigError, WmrError
-from wmr.paths import safe_filename
+from wmr.errors import ConfigError
+
+if TYPE_CHECKING:
+    from wmr.scenario import RunSpec, Scenario
 
 
 def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
@@ -24,18 +28,6 @@ def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
         except ValueError:
             raise ConfigError(f"{option} {name}", f"{value!r} is not a number") from None
     return out
-
-
-def _pose_name(name: str, start: list[float] | None, goal: list[float] | None) -> str | None:
-    """A run whose start or goal is typed in is named after them, so that its log and its
-    ``run`` record do not pass for the scenario's own run (``fig11`` to (20, 10, 0))."""
-    if start is None and goal is None:
-        return None
-    parts = [name]
-    for label, pose in (("from", start), ("to", goal)):
-        if pose is not None:
-            parts.append(f"{label}_{pose[0]:g}_{pose[1]:g}_{pose[2]:g}deg")
-    return "-".join(parts)
 
 
 def add_run_overrides(parser: argparse.ArgumentParser) -> None:
@@ -58,19 +50,18 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
                         help="FMI version of the FMU to drive (default 3)")
     parser.add_argument("--fmu", metavar="FILE.fmu",
                         help="drive this FMU instead of the project's own build")
+    parser.add_argument("--map", metavar="FILE.toml",
+                        help="variable map of an FMU made by another tool: its names and "
+                             "units for ours (docs/fmu_map.md)")
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
-    from wmr.fmu.plant import FmuPlant
-    from wmr.run import default_fmu, failed_record, result_json, run_to_log
-    from wmr.scenario import load_scenario, with_overrides
-
-    scenario = load_scenario(args.scenario)
+def select_run(scenario: Scenario, name: str | None) -> RunSpec:
+    """The run ``name`` of ``scenario``, or its only run."""
     runs = list(scenario.runs)
-    if args.run is not None:
-        chosen = [r for r in runs if r.name == args.run]
+    if name is not None:
+        chosen = [r for r in runs if r.name == name]
         if not chosen:
-            raise ConfigError("--run", f"scenario {scenario.name} has no run {args.run!r}",
+            raise ConfigError("--run", f"scenario {scenario.name} has no run {name!r}",
                               "pick one of: " + ", ".join(r.name for r in runs))
         runs = chosen
     if len(runs) != 1:
@@ -79,41 +70,75 @@ def _cmd_run(args: argparse.Namespace) -> int:
                           + ", ".join(r.name for r in runs[:6])
                           + (", ..." if len(runs) > 6 else "") + ") or run them all with "
                           "'wmr batch'")
+    return runs[0]
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from wmr.fmu.plant import FmuPlant
+    from wmr.fmu.varmap import load_map
+    from wmr.naming import default_log_path, fmu_tokens, run_name
+    from wmr.outputs import check_output
+    from wmr.run import default_controller_fmu, default_fmu, result_json, run_to_log
+    from wmr.scenario import load_scenario, with_overrides
+
+    scenario = load_scenario(args.scenario)
+    run = select_run(scenario, args.run)
     spec = with_overrides(
-        runs[0], start=args.start, goal=args.goal,
+        run, start=args.start, goal=args.goal,
         gains=_key_values(args.gain, "--gain"), limits=_key_values(args.limit, "--limit"),
         params=_key_values(args.param, "--param"), period_s=args.period,
-        stop_radius_m=args.stop_radius, t_max_s=args.max_time,
-        name=_pose_name(runs[0].name, args.start, args.goal))
+        stop_radius_m=args.stop_radius, t_max_s=args.max_time)
     if args.sensors is not None or args.sensor:
-        from dataclasses import replace
-
         from wmr.sensing.config import command_line_sensors
 
         spec = replace(spec, sensors=command_line_sensors(spec.sensors, args.sensors,
                                                           args.sensor))
-    out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(spec.name)}.mcap"
-    if out.suffix != ".mcap":
-        raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
-    fmu_path = Path(args.fmu) if args.fmu else default_fmu(args.fmi)
+    # a variant is named after what it changes, so that its log never overwrites the
+    # scenario's own run (runs/fig11.mcap) nor passes for it
+    extra = fmu_tokens(args.fmi, args.fmu)
+    if args.map:
+        extra.append(f"map_{Path(args.map).stem}")
+    if args.controller_fmu is not None and run.controller_fmu is None:
+        extra.append("controller_fmu")
+    spec = replace(spec, name=run_name(run, spec, extra))
+    out = check_output(args.out if args.out else default_log_path(spec.name), "--out",
+                       suffix=".mcap")
+    if args.view:
+        check_output(out.with_suffix(".rrd"), "--view")
+    fmu_path = Path(args.fmu) if args.fmu else scenario.fmu or default_fmu(args.fmi)
+    map_path = Path(args.map) if args.map else scenario.fmu_map
+    var_map = load_map(map_path) if map_path is not None else None
+    ctrl_choice = args.controller_fmu if args.controller_fmu is not None else spec.controller_fmu
+    ctrl_path = None
+    if ctrl_choice is not None:
+        if spec.controller != "pi":
+            raise ConfigError("--controller-fmu", f"the controller FMU is the PI stabiliser, "
+                              f"but the run uses controller = {spec.controller!r}",
+                              "drop --controller-fmu or run the pi controller")
+        ctrl_path = Path(ctrl_choice) if ctrl_choice else default_controller_fmu(args.fmi)
+        if not ctrl_path.is_file():
+            raise ConfigError("--controller-fmu", f"no such file: {ctrl_path}",
+                              "give a controller .fmu, or no FILE for the built one")
     progress, finish = _progress_bar(spec.name, args.json)
     live = None
     if args.view:
         from wmr.replay import live_view_sink
 
         live = live_view_sink(spec.name, spec.goal, out.with_suffix(".rrd"))
-    with FmuPlant(fmu_path) as plant:
+    with FmuPlant(fmu_path, var_map=var_map) as plant, ExitStack() as stack:
+        ctrl = None
+        if ctrl_path is not None:
+            from wmr.fmu.fmu_controller import FmuController
+
+            ctrl = stack.enter_context(FmuController(ctrl_path))
         try:
             record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress,
-                                also=live)
-        except WmrError as exc:  # the log cannot be written (disk full, ...): say so in JSON too
-            if args.json:
-                print(result_json(failed_record(spec.name, str(exc))))
-            raise
+                                also=live, controller_fmu=ctrl)
         finally:
             finish()
             if live is not None:
                 live.close()
+                print(f"live view recorded in {out.with_suffix('.rrd')}", file=sys.stderr)
     if args.json:
         print(result_json(record))
     else:
@@ -159,6 +184,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="scenario name (fig9, fig10, fig11) or TOML file (default fig11)")
     p.add_argument("--run", metavar="NAME", help="the run of a multi-run scenario to simulate")
     add_run_overrides(p)
+    p.add_argument("--controller-fmu", nargs="?", const="", default=None, metavar="FILE.fmu",
+                   help="run the stabiliser in the controller FMU (C, FMI --fmi) instead of "
+                        "Python: the built one, or FILE.fmu (scenario key controller_fmu)")
     p.add_argument("--sensors", metavar="PRESET", choices=("gps", "raw", "off"),
                    help="measure instead of knowing: gps (2 cm fixes at 10 Hz, 50 ms late, "
                         "encoders, EKF), raw (the same fixes and a compass fed raw), off "

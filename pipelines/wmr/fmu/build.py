@@ -22,12 +22,20 @@ import zipfile
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from wmr import __version__, paths
 from wmr.errors import BuildError
-from wmr.fmu.platforms import CFLAGS, PLATFORMS, Compiler, Platform, check_binary, find_compiler
+from wmr.fmu.platforms import (
+    CFLAGS,
+    GLIBC_FLOOR,
+    PLATFORMS,
+    Compiler,
+    Platform,
+    check_binary,
+    find_compiler,
+)
 
 FMI_VERSIONS = (2, 3)
 _STAMP = ".wmr-build.json"
@@ -43,10 +51,23 @@ class BuildResult:
     reused: bool
     #: FMI 3 names of the platforms the binaries were built for, in :data:`PLATFORMS` order.
     platforms: tuple[str, ...] = ()
+    #: The controller FMUs (:mod:`wmr.fmu.controller`) by FMI version.
+    controllers: dict[int, Path] = field(default_factory=dict)
 
 
 def fmu_name(fmi_version: int) -> str:
     return f"wmr_robot-fmi{fmi_version}.fmu"
+
+
+def controller_fmu_name(fmi_version: int) -> str:
+    return f"wmr_controller-fmi{fmi_version}.fmu"
+
+
+def _products(out_dir: Path) -> dict[str, Path]:
+    """Every FMU of a build by stamp key: the robot's ``"2"``, the controller's ``"c2"``."""
+    fmus = {str(v): out_dir / fmu_name(v) for v in FMI_VERSIONS}
+    fmus.update({f"c{v}": out_dir / controller_fmu_name(v) for v in FMI_VERSIONS})
+    return fmus
 
 
 def _fmi_headers() -> Path:
@@ -83,6 +104,9 @@ def build_digest(compiler: Compiler | None = None,
     for path in _hand_written_sources():
         h.update(path.name.encode())
         h.update(path.read_bytes())
+    for path in sorted((paths.fmu_src_dir() / "controller").iterdir()):
+        h.update(f"controller/{path.name}".encode())
+        h.update(path.read_bytes())
     for module in sorted(Path(__file__).parent.glob("*.py")):
         h.update(module.name.encode())
         h.update(module.read_bytes())
@@ -105,9 +129,9 @@ def _locked(out_dir: Path) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
-def _reusable(out_dir: Path, digest: str) -> dict[int, Path] | None:
+def _reusable(out_dir: Path, digest: str) -> dict[str, Path] | None:
     stamp = out_dir / _STAMP
-    fmus = {v: out_dir / fmu_name(v) for v in FMI_VERSIONS}
+    fmus = _products(out_dir)
     if not stamp.exists() or not all(p.exists() for p in fmus.values()):
         return None
     try:
@@ -116,8 +140,8 @@ def _reusable(out_dir: Path, digest: str) -> dict[int, Path] | None:
         return None
     if recorded.get("digest") != digest:
         return None
-    for v, p in fmus.items():
-        if recorded.get("sha256", {}).get(str(v)) != hashlib.sha256(p.read_bytes()).hexdigest():
+    for key, p in fmus.items():
+        if recorded.get("sha256", {}).get(key) != hashlib.sha256(p.read_bytes()).hexdigest():
             return None
     return fmus
 
@@ -134,7 +158,7 @@ def _compile(compiler: Compiler, target: Platform, sources: list[Path],
     if proc.stderr.strip():
         raise BuildError(f"the C sources must compile without warnings ({target.name}):\n"
                          f"{proc.stderr.strip()}")
-    problems = check_binary(output, target)
+    problems = check_binary(output, target, GLIBC_FLOOR if compiler.cross else None)
     if problems:
         raise BuildError("; ".join(problems))
 
@@ -187,22 +211,34 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
         if not force:
             reused = _reusable(out, digest)
             if reused is not None:
-                return BuildResult(reused, digest, reused=True, platforms=names)
+                return _result(reused, digest, True, names)
         fmus = _build(out, digest, compiler, targets)
+        controllers = _build(out, digest, compiler, targets, "controller")
         if validate:
             _validate(fmus)
+            _validate(controllers)
+        products = _products(out)
         stamp = {"digest": digest, "compiler": compiler.version, "platforms": list(names),
-                 "sha256": {str(v): hashlib.sha256(p.read_bytes()).hexdigest()
-                            for v, p in fmus.items()}}
+                 "sha256": {key: hashlib.sha256(p.read_bytes()).hexdigest()
+                            for key, p in products.items()}}
         (out / _STAMP).write_text(json.dumps(stamp, indent=1) + "\n")
-    return BuildResult(fmus, digest, reused=False, platforms=names)
+    return _result(products, digest, False, names)
 
 
-def _build(out: Path, digest: str, compiler: Compiler,
-           targets: Sequence[Platform]) -> dict[int, Path]:
+def _result(products: dict[str, Path], digest: str, reused: bool,
+            platforms: tuple[str, ...]) -> BuildResult:
+    return BuildResult({v: products[str(v)] for v in FMI_VERSIONS}, digest, reused,
+                       platforms=platforms,
+                       controllers={v: products[f"c{v}"] for v in FMI_VERSIONS})
+
+
+def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platform],
+           product: str = "robot") -> dict[int, Path]:
+    """Build one product, ``robot`` or ``controller``, for every FMI version and platform."""
     from wmr.fmu.codegen import MODEL_IDENTIFIER, unity_source, write_model_core
+    from wmr.fmu.controller import ControllerModel
     from wmr.fmu.documentation import index_html, license_files
-    from wmr.fmu.flatten import flatten
+    from wmr.fmu.flatten import FlatModel
     from wmr.fmu.modeldesc import (
         fmi2_model_description,
         fmi3_build_description,
@@ -210,33 +246,59 @@ def _build(out: Path, digest: str, compiler: Compiler,
         token_from_digest,
     )
 
-    model = flatten(paths.modelica_dir())
-    token = token_from_digest(digest)
+    model: FlatModel | ControllerModel
+    extra: list[Path] = []  # hand-written C of the product's model core
+    if product == "robot":
+        from wmr.fmu.flatten import flatten
+
+        model = flatten(paths.modelica_dir())
+        identifier, name = MODEL_IDENTIFIER, fmu_name
+        token = token_from_digest(digest)
+    else:
+        from wmr.fmu.controller import controller_model, controller_sources
+
+        model = controller_model()
+        identifier, name, extra = model.model_identifier, controller_fmu_name, \
+            controller_sources()
+        # its own token: an importer must not pair the robot's description with this binary
+        token = token_from_digest(hashlib.sha256(f"{identifier}:{digest}".encode()).hexdigest())
     headers = _fmi_headers()
-    hand = _hand_written_sources()
+    hand = _hand_written_sources() + extra
     result: dict[int, Path] = {}
     with tempfile.TemporaryDirectory(prefix="wmr-fmu-") as tmp:
         gen_dir = Path(tmp) / "generated"
-        generated = write_model_core(model, token, gen_dir)
+        if isinstance(model, ControllerModel):
+            from wmr.fmu.controller import write_controller_core
+
+            generated = write_controller_core(model, token, gen_dir)
+        else:
+            generated = write_model_core(model, token, gen_dir)
         # One translation unit per FMI version includes all the others, so that only the fmi*
         # entry points are global symbols (fmu/src/README.md).
         unity: dict[int, Path] = {}
         for v in FMI_VERSIONS:
-            unity[v] = Path(tmp) / f"fmi{v}" / f"{MODEL_IDENTIFIER}.c"
+            unity[v] = Path(tmp) / f"fmi{v}" / f"{identifier}.c"
             unity[v].parent.mkdir()
             unity[v].write_text(unity_source(model, v))
         sources = {v: [p for p in hand if p.name != ("fmi3.c" if v == 2 else "fmi2.c")]
                    + generated + [unity[v]] for v in FMI_VERSIONS}
         # One job per FMI version and platform; FMI 2 has no folder name for aarch64.
-        jobs = [(v, t, Path(tmp) / f"fmi{v}" / t.name / f"{MODEL_IDENTIFIER}{t.extension}")
+        jobs = [(v, t, Path(tmp) / f"fmi{v}" / t.name / f"{identifier}{t.extension}")
                 for v in FMI_VERSIONS for t in targets if t.folder(v) is not None]
-        include = [gen_dir, paths.fmu_src_dir(), headers]
+        include = [gen_dir, paths.fmu_src_dir(), headers,
+                   *sorted({p.parent for p in extra})]
         with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
             futures = [pool.submit(_compile, compiler, t, [unity[v]], include, lib)
                        for v, t, lib in jobs]
             for future in futures:
                 future.result()
-        docs = {"documentation/index.html": index_html(model).encode(), **license_files()}
+        if isinstance(model, ControllerModel):
+            from wmr.fmu.controller import index_html as controller_index
+
+            page = controller_index(model)
+        else:
+            page = index_html(model)
+        docs = {"documentation/index.html": page.encode(), **license_files()}
         readme = paths.fmu_src_dir() / "README.md"
         if readme.exists():
             docs["documentation/README.md"] = readme.read_bytes()
@@ -251,8 +313,9 @@ def _build(out: Path, digest: str, compiler: Compiler,
                 members["modelDescription.xml"] = fmi2_model_description(model, token, c_names)
             else:
                 members["modelDescription.xml"] = fmi3_model_description(model, token)
-                members["sources/buildDescription.xml"] = fmi3_build_description(c_names)
-            target = out / fmu_name(version)
+                members["sources/buildDescription.xml"] = fmi3_build_description(c_names,
+                                                                                  identifier)
+            target = out / name(version)
             _write_zip(target, members)
             result[version] = target
     return result

@@ -41,7 +41,7 @@ ERRATA: tuple[tuple[str, str, str], ...] = (
     ("8, 16", "(v - l thetadot^2), l theta", "(vdot - l thetadot^2), l thetadot"),
     ("11, 13", "+l sin, mixed entries", "product of eq. 11 and eq. 3"),
     ("19", "L (tau_mr - tau_mr) / r (always 0)", "L (tau_r - tau_l) / r"),
-    ("24", "2 I_wm/r^2 in row 1, column 2",
+    ("24", "2 I_wm / r^2 in row 1, column 2",
      "diag(m + 2 I_wm/r^2, I_g + m l^2 + 2 L^2 I_wm / r^2)"),
 )
 
@@ -63,7 +63,12 @@ def index_html(model: FlatModel) -> str:
                           for n, e in EQUATIONS)
     errata = "\n".join(f"<tr><td>{escape(n)}</td><td><code>{escape(p)}</code></td>"
                        f"<td><code>{escape(u)}</code></td></tr>" for n, p, u in ERRATA)
-    states = ", ".join(f"<code>{escape(s)}</code>" for s in model.state_names)
+    states = ", ".join(f"<code>{escape(s)}</code> (output <code>{escape(v.name)}</code>, "
+                       f"derivative <code>{escape(d.name)}</code>)"
+                       for s, v, d in zip(model.state_names,
+                                          sorted((v for v in model.outputs if v.state >= 0),
+                                                 key=lambda v: v.state),
+                                          model.derivatives, strict=True))
     return f"""<!DOCTYPE html>
 <html lang="en">
 <head><meta charset="utf-8"><title>{escape(model.name)}: {escape(model.description)}</title>
@@ -81,7 +86,11 @@ torque and no friction (a check any importer can make). Built by wmr-cosim {esca
 from the Modelica package <code>WMR</code> (model <code>{escape(model.name)}</code>): pymoca
 flattens it, the build solves it for an explicit ODE, CasADi generates the C of the model core,
 and an adaptive Dormand-Prince 5(4) solver (relative tolerance 1e-9 unless the importer sets
-one) integrates it inside each co-simulation step. The C sources are in
+one) integrates it inside each co-simulation step. For Model Exchange the importer's solver
+integrates the states below through their derivatives <code>der(...)</code> instead. Directional
+derivatives (and, in FMI 3, adjoint derivatives) come from CasADi's exact Jacobian, and the
+model structure's dependencies are its sparsity: no output depends directly on the torques.
+The C sources are in
 <code>sources/</code>; <code>README.md</code> here describes the FMI layer.</p>
 
 <h2>Equations</h2>

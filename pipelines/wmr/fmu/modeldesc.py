@@ -13,6 +13,7 @@ import re
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import casadi as ca
 
@@ -20,8 +21,13 @@ from wmr import __version__
 from wmr.fmu.codegen import MODEL_IDENTIFIER
 from wmr.fmu.flatten import FlatModel, Variable
 
+if TYPE_CHECKING:
+    from wmr.fmu.controller import ControllerModel
+
+    Model = FlatModel | ControllerModel
+
 # SI base-unit exponents of every unit the Modelica source uses (FMI 2.0 section 2.2.2).
-_BASE_UNITS: dict[str, dict[str, int]] = {
+_BASE_UNITS: dict[str, dict[str, float]] = {
     "m": {"m": 1},
     "kg": {"kg": 1},
     "s": {"s": 1},
@@ -35,7 +41,22 @@ _BASE_UNITS: dict[str, dict[str, int]] = {
     "kg.m2": {"kg": 1, "m": 2},
     "N.m": {"kg": 1, "m": 2, "s": -2},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+    # the controller FMU's gains, and its parameters in the scenario files' degrees
+    "1/s": {"s": -1},
+    "1/s2": {"s": -2},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "deg": {"rad": 1, "factor": math.pi / 180.0},
 }
+
+
+def _identifier(model: Model) -> str:
+    return getattr(model, "model_identifier", MODEL_IDENTIFIER)
+
+
+def _sampled(model: Model) -> bool:
+    """A sampled-data model (the controller): discrete outputs, one fixed step size, no
+    Model Exchange, no partial derivatives, no CasADi functions to read a structure from."""
+    return not isinstance(model, FlatModel)
 
 
 # Display units (Modelica's displayUnit): (unit, factor); value in display unit = factor * value.
@@ -49,7 +70,7 @@ def _fmt(value: float) -> str:
     return repr(float(value))
 
 
-def _units(model: FlatModel) -> ET.Element:
+def _units(model: Model) -> ET.Element:
     defs = ET.Element("UnitDefinitions")
     displays: dict[str, set[str]] = {}
     for v in model.variables:
@@ -147,7 +168,7 @@ def model_structure(model: FlatModel) -> ModelStructure:
     )
 
 
-def _causality(v: Variable) -> tuple[str, str, str | None]:
+def _causality(v: Variable, sampled: bool = False) -> tuple[str, str, str | None]:
     """(causality, variability, initial) of a variable."""
     if v.kind == "parameter":
         return "parameter", "tunable" if v.tunable else "fixed", "exact"
@@ -155,7 +176,7 @@ def _causality(v: Variable) -> tuple[str, str, str | None]:
         return "input", "continuous", None
     if v.kind == "derivative":
         return "local", "continuous", "calculated"
-    return "output", "continuous", "calculated"
+    return "output", "discrete" if sampled else "continuous", "calculated"
 
 
 def _bounds(v: Variable) -> dict[str, str]:
@@ -184,20 +205,22 @@ def _log_categories() -> ET.Element:
     return cats
 
 
-def _experiment(model: FlatModel) -> ET.Element:
-    return ET.Element("DefaultExperiment", startTime=_fmt(model.start_time),
-                      stopTime=_fmt(model.stop_time), tolerance=_fmt(model.tolerance),
-                      stepSize=_fmt(model.step_size))
+def _experiment(model: Model) -> ET.Element:
+    attrs = {"startTime": _fmt(model.start_time), "stopTime": _fmt(model.stop_time)}
+    if isinstance(model, FlatModel):  # a sampled model has no solver to tune
+        attrs["tolerance"] = _fmt(model.tolerance)
+    return ET.Element("DefaultExperiment", attrs, stepSize=_fmt(model.step_size))
 
 
-def _root(fmi_version: str, model: FlatModel, token: str) -> ET.Element:
+def _root(fmi_version: str, model: Model, token: str) -> ET.Element:
     key = "guid" if fmi_version == "2.0" else "instantiationToken"
     attrs = {
         "fmiVersion": fmi_version,
         "modelName": model.name,
         key: token,
         "description": model.description,
-        "generationTool": f"wmr-cosim {__version__} (pymoca, CasADi)",
+        "generationTool": f"wmr-cosim {__version__} "
+                          f"({getattr(model, 'generated_by', 'pymoca, CasADi')})",
         "variableNamingConvention": "structured",
     }
     if fmi_version == "2.0":
@@ -211,26 +234,43 @@ def _to_bytes(root: ET.Element) -> bytes:
 
 
 def _dependency_attrs(unknown: Unknown, ref: dict[str, int]) -> dict[str, str]:
+    if unknown.dependencies == _EVERY_KNOWN:
+        return {}
     return {"dependencies": " ".join(str(ref[n]) for n in unknown.dependencies),
             "dependenciesKind": " ".join(unknown.kinds)}
 
 
-def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str]) -> bytes:
+def _structure(model: Model) -> ModelStructure:
+    """:func:`model_structure`; for a sampled model every output and initial unknown without
+    a ``dependencies`` list (the standard's "depends on every known": direct feedthrough)."""
+    if isinstance(model, FlatModel):
+        return model_structure(model)
+    free = [Unknown(v.name, _EVERY_KNOWN, _EVERY_KNOWN) for v in model.outputs]
+    return ModelStructure(outputs=free, derivatives=[], initial_unknowns=free)
+
+
+#: ``Unknown.dependencies`` of an unknown that depends on every known: written without the
+#: ``dependencies`` attribute, which is what its absence means in FMI.
+_EVERY_KNOWN: tuple[str, ...] = ("*",)
+
+
+def fmi2_model_description(model: Model, token: str, sources: Sequence[str]) -> bytes:
     """``modelDescription.xml`` of the FMI 2.0 FMU: Model Exchange (if the model has continuous
     states) and Co-Simulation."""
     root = _root("2.0", model, token)
-    common = {"modelIdentifier": MODEL_IDENTIFIER,
+    sampled = _sampled(model)
+    common = {"modelIdentifier": _identifier(model),
               "canNotUseMemoryManagementFunctions": "true",
               "canGetAndSetFMUstate": "true",
               "canSerializeFMUstate": "true",
-              "providesDirectionalDerivative": "true"}
+              "providesDirectionalDerivative": "false" if sampled else "true"}
     interfaces = []
-    if model.derivatives:
+    if isinstance(model, FlatModel) and model.derivatives:
         interfaces.append(ET.SubElement(root, "ModelExchange", {
             **common, "completedIntegratorStepNotNeeded": "true"}))
     cs = ET.SubElement(root, "CoSimulation", {
-        "modelIdentifier": MODEL_IDENTIFIER,
-        "canHandleVariableCommunicationStepSize": "true",
+        "modelIdentifier": _identifier(model),
+        "canHandleVariableCommunicationStepSize": "false" if sampled else "true",
         "canInterpolateInputs": "false",
         "canRunAsynchronuously": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false",
@@ -255,7 +295,7 @@ def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str])
     index = {name: vr + 1 for name, vr in vrs.items()}
     state_of = {v.state: v.name for v in model.outputs if v.state >= 0}
     for v in model.variables:
-        causality, variability, initial = _causality(v)
+        causality, variability, initial = _causality(v, _sampled(model))
         attrs = {"name": v.name, "valueReference": str(vrs[v.name]), "description": v.description,
                  "causality": causality, "variability": variability}
         if initial:
@@ -265,7 +305,7 @@ def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str])
         if v.kind == "derivative":
             real["derivative"] = str(index[state_of[v.index]])
         ET.SubElement(sv, "Real", real)
-    structure = model_structure(model)
+    structure = _structure(model)
     ms = ET.SubElement(root, "ModelStructure")
     for tag, unknowns in (("Outputs", structure.outputs), ("Derivatives", structure.derivatives),
                           ("InitialUnknowns", structure.initial_unknowns)):
@@ -277,25 +317,29 @@ def fmi2_model_description(model: FlatModel, token: str, sources: Sequence[str])
     return _to_bytes(root)
 
 
-def fmi3_model_description(model: FlatModel, token: str) -> bytes:
+def fmi3_model_description(model: Model, token: str) -> bytes:
     """``modelDescription.xml`` of the FMI 3.0 FMU: Model Exchange (if the model has continuous
     states) and Co-Simulation."""
     root = _root("3.0", model, token)
-    common = {"modelIdentifier": MODEL_IDENTIFIER,
+    sampled = _sampled(model)
+    derivatives = "false" if sampled else "true"
+    common = {"modelIdentifier": _identifier(model),
               "canBeInstantiatedOnlyOncePerProcess": "false",
               "canGetAndSetFMUState": "true",
               "canSerializeFMUState": "true",
-              "providesDirectionalDerivatives": "true",
-              "providesAdjointDerivatives": "true"}
-    if model.derivatives:
+              "providesDirectionalDerivatives": derivatives,
+              "providesAdjointDerivatives": derivatives}
+    if isinstance(model, FlatModel) and model.derivatives:
         ET.SubElement(root, "ModelExchange", {**common, "needsCompletedIntegratorStep": "false"})
-    ET.SubElement(root, "CoSimulation", {
+    cs = ET.SubElement(root, "CoSimulation", {
         **common,
-        "canHandleVariableCommunicationStepSize": "true",
+        "canHandleVariableCommunicationStepSize": "false" if sampled else "true",
         "hasEventMode": "false",
         "providesIntermediateUpdate": "false",
         "canReturnEarlyAfterIntermediateUpdate": "false",
     })
+    if sampled:
+        cs.set("fixedInternalStepSize", _fmt(model.step_size))
     root.append(_units(model))
     root.append(_log_categories())
     root.append(_experiment(model))
@@ -305,7 +349,7 @@ def fmi3_model_description(model: FlatModel, token: str) -> bytes:
     vrs = model.value_references
     state_of = {v.state: v.name for v in model.outputs if v.state >= 0}
     for v in model.variables:
-        causality, variability, initial = _causality(v)
+        causality, variability, initial = _causality(v, _sampled(model))
         attrs = {"name": v.name, "valueReference": str(vrs[v.name]), "description": v.description,
                  "causality": causality, "variability": variability}
         if initial:
@@ -314,7 +358,7 @@ def fmi3_model_description(model: FlatModel, token: str) -> bytes:
         if v.kind == "derivative":
             attrs["derivative"] = str(vrs[state_of[v.index]])
         ET.SubElement(mv, "Float64", attrs)
-    structure = model_structure(model)
+    structure = _structure(model)
     ms = ET.SubElement(root, "ModelStructure")
     for tag, unknowns in (("Output", structure.outputs),
                           ("ContinuousStateDerivative", structure.derivatives),
@@ -325,10 +369,11 @@ def fmi3_model_description(model: FlatModel, token: str) -> bytes:
     return _to_bytes(root)
 
 
-def fmi3_build_description(sources: Sequence[str]) -> bytes:
+def fmi3_build_description(sources: Sequence[str],
+                           model_identifier: str = MODEL_IDENTIFIER) -> bytes:
     """``sources/buildDescription.xml`` of the FMI 3.0 FMU."""
     root = ET.Element("fmiBuildDescription", fmiVersion="3.0")
-    cfg = ET.SubElement(root, "BuildConfiguration", modelIdentifier=MODEL_IDENTIFIER)
+    cfg = ET.SubElement(root, "BuildConfiguration", modelIdentifier=model_identifier)
     fs = ET.SubElement(cfg, "SourceFileSet", language="C99")
     for name in sources:
         ET.SubElement(fs, "SourceFile", name=name)

@@ -4,6 +4,11 @@ Every FMI call goes through fmpy's wrappers, which raise ``fmpy.fmi1.FMICallExce
 error status; :class:`FmuPlant` turns those into :class:`wmr.errors.FmuError` naming the
 function.  The per-step path holds prebuilt ctypes arrays for the value references, the inputs
 and the outputs, so a step allocates nothing and looks nothing up.
+
+A robot FMU made by another tool is driven through a variable map
+(:mod:`wmr.fmu.varmap`): the value references are the FMU's, and the inputs, outputs and
+parameters pass through ``ours = scale * theirs + offset`` on the way.  Without a map (or with
+one whose outputs all keep their unit) the outputs are the ctypes array itself.
 """
 
 from __future__ import annotations
@@ -22,11 +27,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from wmr.errors import FmuError
+from wmr.errors import ConfigError, FmuError
 from wmr.fmu.archive import file_sha256, safe_extract
+from wmr.fmu.varmap import VariableMap, resolve
 from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
 
-_INPUTS = ("tau_r", "tau_l")
 #: Prefix of the folders an FMU is extracted to (in the temp folder).
 TMP_PREFIX = "wmr-fmu-"
 #: File in such a folder, locked while its :class:`FmuPlant` lives.
@@ -129,9 +134,13 @@ class FmuPlant:
         The ``.fmu`` file.
     instance_name
         Name given to the FMU instance (shows in its log messages).
+    var_map
+        How our interface names map to the FMU's variables (:mod:`wmr.fmu.varmap`);
+        ``None``: the FMU has our names and units.
     """
 
-    def __init__(self, fmu_path: str | Path, instance_name: str = "robot") -> None:
+    def __init__(self, fmu_path: str | Path, instance_name: str = "robot",
+                 var_map: VariableMap | None = None) -> None:
         from fmpy import read_model_description
 
         self.fmu_path = Path(fmu_path)
@@ -158,12 +167,12 @@ class FmuPlant:
         self.model_description = md
         self.fmi_version = md.fmiVersion
         self.sha256 = file_sha256(self.fmu_path)
-        self._vr = {v.name: v.valueReference for v in md.modelVariables}
-        needed = (*_INPUTS, *OUTPUT_NAMES, *RobotParams().as_dict())
-        missing = [n for n in needed if n not in self._vr]
-        if missing:
+        try:
+            self._map = resolve(var_map, md, self.fmu_path.name)
+        except ConfigError:
             self._drop_tmp()
-            raise FmuError(f"{self.fmu_path}: lacks the variables {', '.join(missing)}")
+            raise
+        self.var_map = var_map
         self._fmu: Any = None
         self._t = self._t0 = self._h = 0.0
         self._n = 0
@@ -172,11 +181,36 @@ class FmuPlant:
 
     def _make_arrays(self) -> None:
         vr_type = ctypes.c_uint32
-        self._in_vr = (vr_type * 2)(*(self._vr[n] for n in _INPUTS))
+        rm = self._map
+        self._in_vr = (vr_type * 2)(*(vr for vr, _ in rm.inputs))
         self._in_val = (ctypes.c_double * 2)()
-        self._out_vr = (vr_type * len(OUTPUT_NAMES))(*(self._vr[n] for n in OUTPUT_NAMES))
-        self._out_val = (ctypes.c_double * len(OUTPUT_NAMES))()
-        self._outputs: npt.NDArray[np.float64] = np.ctypeslib.as_array(self._out_val)
+        # theirs = ours * gain + bias for the two torques
+        (_, e_r), (_, e_l) = rm.inputs
+        self._in_names = (e_r.name, e_l.name)  # the FMU's names of tau_r and tau_l
+        self._in_gain_r, self._in_bias_r = 1.0 / e_r.scale, -e_r.offset / e_r.scale
+        self._in_gain_l, self._in_bias_l = 1.0 / e_l.scale, -e_l.offset / e_l.scale
+        present = [(i, o) for i, o in enumerate(rm.outputs) if o is not None]
+        self._n_out = len(present)
+        self._out_vr = (vr_type * self._n_out)(*(o[0] for _, o in present))
+        self._out_val = (ctypes.c_double * self._n_out)()
+        raw: npt.NDArray[np.float64] = np.ctypeslib.as_array(self._out_val)
+        self._raw_out = raw
+        self._outputs: npt.NDArray[np.float64]
+        if rm.identity:
+            self._outputs = raw
+            self._convert = False
+        else:
+            self._outputs = np.full(len(OUTPUT_NAMES), np.nan)
+            self._out_idx = np.array([i for i, _ in present], dtype=np.intp)
+            self._out_scale = np.array([o[1].scale for _, o in present])
+            self._out_offset = np.array([o[1].offset for _, o in present])
+            self._convert = True
+
+    def _get_outputs(self) -> None:
+        """Read the outputs into :attr:`_outputs`, in our names' order and units."""
+        self._check(2, self._raw_get())
+        if self._convert:
+            self._outputs[self._out_idx] = self._raw_out * self._out_scale + self._out_offset
 
     def _instantiate(self) -> None:
         md = self.model_description
@@ -207,7 +241,7 @@ class FmuPlant:
         exchange calls the library directly (fmpy set the prototypes) and :meth:`_check`
         turns a status above fmiWarning into an :class:`FmuError` naming the function.
         """
-        dll, comp, n_out = fmu.dll, fmu.component, len(OUTPUT_NAMES)
+        dll, comp, n_out = fmu.dll, fmu.component, self._n_out
         if self.fmi_version.startswith("2"):
             self._names = ("fmi2SetReal", "fmi2DoStep", "fmi2GetReal")
             self._raw_set = partial(dll.fmi2SetReal, comp, self._in_vr, 2, self._in_val)
@@ -232,7 +266,8 @@ class FmuPlant:
             return
         name = ("OK", "Warning", "Discard", "Error", "Fatal")[status] if status < 5 else status
         raise FmuError(f"{self._names[which]} returned {name} at t = {self._t:g} s "
-                       f"(tau_r = {self._in_val[0]!r}, tau_l = {self._in_val[1]!r}); "
+                       f"({self._in_names[0]} = {self._in_val[0]!r}, "
+                       f"{self._in_names[1]} = {self._in_val[1]!r}); "
                        "the FMU's log says why")
 
     def _call(self, what: str, fun: Any, *args: Any) -> Any:
@@ -252,32 +287,43 @@ class FmuPlant:
         values = params.as_dict()
         values.update(x0=start.x_m, y0=start.y_m, theta0=start.heading_rad, v0=v0_mps,
                       omega0=omega0_radps)
-        names = list(values)
+        vrs, theirs = self._parameter_values(values)
         self._t, self._t0, self._h, self._n = 0.0, 0.0, 0.0, 0
         if self.fmi_version.startswith("2"):
             self._call("setupExperiment", fmu.setupExperiment, None, 0.0)
         self._call("enterInitializationMode", fmu.enterInitializationMode)
         try:
             if self.fmi_version.startswith("2"):
-                fmu.setReal([self._vr[n] for n in names], [values[n] for n in names])
+                fmu.setReal(vrs, theirs)
             else:
-                fmu.setFloat64([self._vr[n] for n in names], [values[n] for n in names])
+                fmu.setFloat64(vrs, theirs)
         except Exception as exc:
             raise FmuError(f"setting the parameters {values} failed: {exc}") from exc
-        self._in_val[0] = self._in_val[1] = 0.0
+        self._in_val[0] = self._in_bias_r
+        self._in_val[1] = self._in_bias_l
         self._check(0, self._raw_set())
         self._call("exitInitializationMode", fmu.exitInitializationMode)
-        self._check(2, self._raw_get())
+        self._get_outputs()
         return self._outputs
+
+    def _parameter_values(self, values: dict[str, float]) -> tuple[list[int], list[float]]:
+        """Value references and the FMU's values of our parameters ``values`` (those it has).
+
+        A parameter the map leaves unmapped keeps the FMU's own value.
+        """
+        params = self._map.parameters
+        vrs = [params[n][0] for n in values if n in params]
+        theirs = [params[n][1].to_theirs(v) for n, v in values.items() if n in params]
+        return vrs, theirs
 
     def step(self, tau_r_nm: float, tau_l_nm: float, h_s: float) -> npt.NDArray[np.float64]:
         """Hold the torques for ``h_s`` seconds; the returned array is reused by the next step."""
-        self._in_val[0] = tau_r_nm
-        self._in_val[1] = tau_l_nm
+        self._in_val[0] = tau_r_nm * self._in_gain_r + self._in_bias_r
+        self._in_val[1] = tau_l_nm * self._in_gain_l + self._in_bias_l
         # a failed call raises; the outputs keep their last good values
         self._check(0, self._raw_set())
         self._check(1, self._raw_step(self._t, h_s))
-        self._check(2, self._raw_get())
+        self._get_outputs()
         # Time is t0 + n*h while h stays the same (never t += h): no drift over long runs.
         if h_s != self._h:
             self._t0, self._h, self._n = self._t, h_s, 0
@@ -296,9 +342,14 @@ class FmuPlant:
 
     def set_parameters(self, **values: float) -> None:
         """Change tunable parameters (e.g. ``m`` for a load change) between steps."""
-        vrs = [self._vr[name] for name in values]
+        unknown = [n for n in values if n not in self._map.parameters]
+        if unknown:
+            raise ConfigError(f"parameter {unknown[0]}", f"{self.fmu_path.name} has no "
+                              "such parameter (or the map leaves it unmapped)",
+                              "set one of: " + ", ".join(self._map.parameters))
+        vrs, theirs = self._parameter_values(dict(values))
         setter = self._fmu.setReal if self.fmi_version.startswith("2") else self._fmu.setFloat64
-        self._call(f"setting {values}", setter, vrs, list(values.values()))
+        self._call(f"setting {values}", setter, vrs, theirs)
 
     def get_state(self) -> tuple[Any, float, float, float, int]:
         """Snapshot of the FMU state and of the master's clock (FMI get FMU state)."""
@@ -312,7 +363,7 @@ class FmuPlant:
         setter = fmu.setFMUstate if self.fmi_version.startswith("2") else fmu.setFMUState
         self._call("setFMUState", setter, snapshot[0])
         self._t, self._t0, self._h, self._n = snapshot[1:]
-        self._check(2, self._raw_get())
+        self._get_outputs()
 
     def serialize_state(self, snapshot: tuple[Any, float, float, float, int]) -> bytes:
         """Bytes of a snapshot's FMU state (FMI serialize FMU state)."""

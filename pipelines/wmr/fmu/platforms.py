@@ -121,6 +121,10 @@ class Compiler:
             flags = ["-shared"]
         if target.binary_format != "PE":
             flags.append("-fPIC")  # zig warns that -fPIC is unused on Windows
+        if target.binary_format == "MachO":
+            # The install name would otherwise be the absolute path of the temporary output,
+            # different in every build.
+            flags.append(f"-Wl,-install_name,@rpath/{output.name}")
         libm = ["-lm"] if target.binary_format == "ELF" else []
         return [*self.command, *flags, *CFLAGS, *(f"-I{d}" for d in include_dirs),
                 *map(str, sources), "-o", str(output), *libm]
@@ -175,11 +179,13 @@ def _fmi_export(name: str) -> bool:
 _LIEF_MACHINE = {"x86_64": ("X86_64", "AMD64"), "aarch64": ("AARCH64", "ARM64")}
 
 
-def check_binary(path: Path, target: Platform) -> list[str]:
+def check_binary(path: Path, target: Platform,
+                 glibc_floor: tuple[int, ...] | None = GLIBC_FLOOR) -> list[str]:
     """Problems of the shared library ``path`` built for ``target`` (empty when none).
 
     Checks the format and architecture, that every exported symbol is an ``fmi*`` entry
-    point, and for ELF that no imported symbol needs a glibc newer than :data:`GLIBC_FLOOR`.
+    point, and for ELF that no imported symbol needs a glibc newer than ``glibc_floor`` (None:
+    not checked, for a host gcc build, which links against the host's glibc).
     """
     import lief
 
@@ -198,10 +204,10 @@ def check_binary(path: Path, target: Platform) -> list[str]:
                    if s.shndx != 0 and s.binding != lief.ELF.Symbol.BINDING.LOCAL
                    and s.name and s.type != lief.ELF.Symbol.TYPE.SECTION]
         needed = [v for v in (_glibc_version(s) for s in binary.dynamic_symbols) if v]
-        if needed and max(needed) > GLIBC_FLOOR:
+        if glibc_floor is not None and needed and max(needed) > glibc_floor:
             newest = ".".join(map(str, max(needed)))
             problems.append(f"{path.name}: needs GLIBC_{newest}, newer than the floor "
-                            f"GLIBC_{'.'.join(map(str, GLIBC_FLOOR))}")
+                            f"GLIBC_{'.'.join(map(str, glibc_floor))}")
     elif isinstance(binary, lief.PE.Binary):
         machine = binary.header.machine.name
         export = binary.get_export()

@@ -1,0 +1,99 @@
+"""``wmr ssp export`` (the closed loop as an SSP 1.0 package) and ``wmr ssp run`` (a package
+in libcosim, logged to MCAP like ``wmr run``)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from wmr.errors import ConfigError
+from wmr.paths import safe_filename
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from wmr.cli.run import select_run
+    from wmr.fmu.build import build_fmus
+    from wmr.fmu.varmap import load_map
+    from wmr.scenario import load_scenario, with_overrides
+    from wmr.ssp.export import export_ssp
+
+    scenario = load_scenario(args.scenario)
+    spec = with_overrides(select_run(scenario, args.run), start=args.start, goal=args.goal)
+    out = Path(args.out) if args.out else Path(f"{safe_filename(spec.name)}.ssp")
+    if out.suffix != ".ssp":
+        raise ConfigError("--out", f"{out} does not end in .ssp", "give FILE.ssp")
+    built = None
+    robot_choice = args.robot_fmu or scenario.fmu
+    if robot_choice is None or args.controller_fmu is None:
+        built = build_fmus()
+    robot = Path(robot_choice) if robot_choice else built.fmus[args.fmi]  # type: ignore[union-attr]
+    map_path = Path(args.map) if args.map else scenario.fmu_map
+    ctrl = (Path(args.controller_fmu) if args.controller_fmu
+            else built.controllers[args.fmi])  # type: ignore[union-attr]
+    print(export_ssp(spec, out, robot, ctrl, scenario_file=scenario.path,
+                     var_map=load_map(map_path) if map_path is not None else None))
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from wmr.run import result_json
+    from wmr.ssp.cosim import log_ssp_run, simulate_libcosim
+
+    ssp = Path(args.ssp)
+    out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(ssp.stem)}.mcap"
+    if out.suffix != ".mcap":
+        raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
+    if args.stop_time is not None and not args.stop_time > 0:
+        raise ConfigError("--stop-time", f"must be > 0, got {args.stop_time}",
+                          "give seconds, e.g. --stop-time 30")
+    run = simulate_libcosim(ssp, stop_time_s=args.stop_time)
+    record = log_ssp_run(run, out)
+    if args.json:
+        print(result_json(record))
+    else:
+        print(f"{record['status']}: {record['message']} in {record['master']}; final position "
+              f"error {record['final_position_error_m']:.4f} m, heading error "
+              f"{record['final_heading_error_rad']:.5f} rad, path "
+              f"{record['path_length_m']:.2f} m; log {record['mcap']}")
+    return 0 if record["status"] == "converged" else 3
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("ssp", help="the closed loop as an SSP package, run in libcosim",
+                       description="Export the closed loop (robot and controller FMUs) as an "
+                                   "SSP 1.0 package, or run a package in libcosim.")
+    ssp_sub = p.add_subparsers(dest="ssp_command", metavar="ACTION", required=True)
+    ex = ssp_sub.add_parser(
+        "export", help="write a scenario's closed loop as an SSP 1.0 package",
+        description="Write SCENARIO's run as an SSP 1.0 package: both FMUs, the connections, "
+                    "the scenario's parameters as parameter sets, a default experiment.")
+    ex.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
+                    help="scenario name (fig9, fig10, fig11) or TOML file (default fig11)")
+    ex.add_argument("--run", metavar="NAME", help="the run of a multi-run scenario")
+    ex.add_argument("--start", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
+                    help="start pose of B: x and y in m, heading in degrees")
+    ex.add_argument("--goal", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
+                    help="goal pose: x and y in m, heading in degrees")
+    ex.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                    help="FMI version of the FMUs (default 2, what SSP masters take today)")
+    ex.add_argument("--robot-fmu", metavar="FILE.fmu",
+                    help="robot FMU (default: the scenario's fmu, else our build)")
+    ex.add_argument("--controller-fmu", metavar="FILE.fmu",
+                    help="controller FMU (default: our build)")
+    ex.add_argument("--map", metavar="FILE.toml",
+                    help="variable map of a robot FMU made by another tool (docs/fmu_map.md; "
+                         "default: the scenario's fmu_map)")
+    ex.add_argument("--out", metavar="FILE.ssp", help="package file (default NAME.ssp)")
+    ex.set_defaults(handler=_cmd_export)
+    run = ssp_sub.add_parser(
+        "run", help="run an SSP package in libcosim and log it to MCAP",
+        description="Run an SSP package of 'wmr ssp export' in libcosim (observing every "
+                    "variable) and log it in the layout of 'wmr run', so that 'wmr replay' "
+                    "shows it.  Exit status: 0 converged, 3 not converged.")
+    run.add_argument("ssp", metavar="FILE.ssp", help="the package")
+    run.add_argument("--out", metavar="FILE.mcap", help="log file (default runs/NAME.mcap)")
+    run.add_argument("--stop-time", type=float, metavar="S",
+                     help="end of the run, s (default: the package's stop time)")
+    run.add_argument("--json", action="store_true",
+                     help="print the result as one JSON object on the last line")
+    run.set_defaults(handler=_cmd_run)

@@ -1,0 +1,251 @@
+"""``wmr ssp export`` / ``wmr ssp run``: the closed loop as an SSP 1.0 package, run by masters
+we did not write (libcosim through libcosimpy, fmpy's SSP simulator), against ``wmr run``.
+
+Every logged sample of the SSP runs must be within 5 mm and 0.2 deg of ``wmr run``'s path,
+after the master's measured lag (libcosim: 0 steps, fmpy: 1 step, see docs/ssp.md).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from wmr.cli import main
+from wmr.fmu.build import BuildResult
+from wmr.mcaplog.reader import read_run
+from wmr.scenario import RunSpec, load_scenario
+from wmr.signals import SIGNALS
+from wmr.ssp.agreement import deviation, fmpy_path, libcosim_path, measured_lag, wmr_run_path
+from wmr.ssp.cosim import simulate_libcosim
+from wmr.ssp.export import controller_parameters, export_ssp, robot_parameters
+from wmr.ssp.package import read_package
+
+POSITION_TOL_M = 5e-3
+HEADING_TOL_RAD = math.radians(0.2)
+#: The controller FMU's outputs after doStep are g(z_next, u) of the measurement set before
+#: the step (docs/control.md): a Jacobi master hands the robot the new state's torques on a
+#: measurement one period old.  Where that costs more than the 0.2 deg bar, the case is a
+#: strict xfail with the measured figure, so that a change that brings it back in turns the
+#: test red until the docs and this list are updated (docs/ssp.md, "Measured agreement").
+_OVER_HEADING_BAR = "over the 0.2 deg bar with the controller FMU's direct-feedthrough outputs"
+
+
+def _cases(over: dict[str, str]) -> list[object]:
+    cases: list[object] = []
+    for scenario, run in (("fig11", None), ("fig9", "fig9-thd-090"), ("fig9", "fig9-thd+045")):
+        marks = [] if scenario == "fig11" else [pytest.mark.slow]
+        if (run or scenario) in over:
+            marks.append(pytest.mark.xfail(strict=True, raises=AssertionError,
+                                           reason=over[run or scenario]))
+        cases.append(pytest.param(scenario, run, marks=marks, id=run or scenario))
+    return cases
+
+
+LIBCOSIM_CASES = _cases({"fig9-thd-090": f"0.253 deg: {_OVER_HEADING_BAR}"})
+FMPY_CASES = _cases({"fig11": f"0.244 deg: {_OVER_HEADING_BAR}"})
+
+
+def _spec(scenario: str, run: str | None) -> RunSpec:
+    return next(r for r in load_scenario(scenario).runs if run is None or r.name == run)
+
+
+def _wmr_run(spec: RunSpec, robot_fmu: Path) -> npt.NDArray[np.float64]:
+    """``wmr run``'s ``(x, y, theta)`` rows (the Python stabiliser on the robot FMU)."""
+    status, path = wmr_run_path(spec, robot_fmu)
+    assert status == "converged"
+    return path
+
+
+@pytest.fixture(scope="session")
+def ssp_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("ssp")
+
+
+def _export(built: BuildResult, spec: RunSpec, folder: Path, fmi: int = 2) -> Path:
+    out = folder / f"{spec.name}-fmi{fmi}.ssp"
+    if not out.exists():
+        export_ssp(spec, out, built.fmus[fmi], built.controllers[fmi])
+    return out
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_the_package_validates_against_the_ssp_schemas(built: BuildResult, ssp_dir: Path,
+                                                       fmi: int) -> None:
+    from fmpy.ssp.ssd import get_connections, read_ssd
+
+    spec = _spec("fig9", "fig9-thd+045")
+    path = _export(built, spec, ssp_dir, fmi)
+    ssd = read_ssd(str(path), validate=True)  # SSD and both SSVs against the SSP 1.0 XSDs
+    names = {c.name: c for c in ssd.system.elements}
+    assert set(names) == {"robot", "controller"}
+    assert names["robot"].source == f"resources/wmr_robot-fmi{fmi}.fmu"
+    pairs = {(a.parent.name, a.name, b.parent.name, b.name)
+             for a, b in get_connections(ssd.system)}
+    measured = ("x", "y", "theta", "v", "omega", "omega_r", "omega_l")
+    assert pairs == {("robot", n, "controller", n) for n in measured} | \
+        {("controller", n, "robot", n) for n in ("tau_r", "tau_l")}
+    package = read_package(path)
+    assert package.components["robot"].parameters == robot_parameters(spec)
+    ctrl = package.components["controller"].parameters
+    assert ctrl["goal.heading_deg"] == pytest.approx(45.0, abs=1e-12)
+    assert ctrl == {k: v for k, v in controller_parameters(spec).items() if k in ctrl}
+    assert package.stop_time_s == spec.t_max_s and package.step_size_s == spec.period_s
+    with zipfile.ZipFile(path) as zf:
+        assert zf.read(f"resources/wmr_controller-fmi{fmi}.fmu") == \
+            built.controllers[fmi].read_bytes()
+
+
+def test_the_schema_check_is_real(built: BuildResult, ssp_dir: Path, tmp_path: Path) -> None:
+    """A package whose SSD breaks the schema is refused by the same validation."""
+    from fmpy.ssp.ssd import read_ssd
+
+    good = _export(built, _spec("fig11", None), ssp_dir)
+    bad = tmp_path / "bad.ssp"
+    with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "SystemStructure.ssd":
+                data = data.replace(b'kind="input"', b'kind="sideways"', 1)
+            dst.writestr(item, data)
+    with pytest.raises(Exception, match="kind"):
+        read_ssd(str(bad), validate=True)
+
+
+@pytest.mark.parametrize(("scenario", "run"), LIBCOSIM_CASES)
+def test_libcosim_traces_wmr_run(built: BuildResult, ssp_dir: Path, scenario: str,
+                                 run: str | None) -> None:
+    spec = _spec(scenario, run)
+    ref = _wmr_run(spec, built.fmus[2])
+    status, path = libcosim_path(_export(built, spec, ssp_dir))
+    assert status == "converged"
+    assert measured_lag(path, ref) == 0
+    pos, head = deviation(path, ref, 0)
+    assert pos <= POSITION_TOL_M and head <= HEADING_TOL_RAD, (pos, math.degrees(head))
+    assert abs(len(path) - len(ref)) <= 2  # converges within a step or two of wmr run
+    goal = spec.goal
+    assert math.hypot(path[-1, 0] - goal.x_m, path[-1, 1] - goal.y_m) <= spec.stop_radius_m
+
+
+@pytest.mark.parametrize(("scenario", "run"), FMPY_CASES)
+def test_fmpy_simulate_ssp_traces_wmr_run_one_step_late(built: BuildResult, ssp_dir: Path,
+                                                         scenario: str, run: str | None) -> None:
+    """fmpy starts every connection at 0 and passes values after each step (Jacobi): the
+    robot gets each torque one step late, so its path is ``wmr run``'s one step later."""
+    spec = _spec(scenario, run)
+    ref = _wmr_run(spec, built.fmus[2])
+    converged, path = fmpy_path(_export(built, spec, ssp_dir), len(ref) * spec.period_s + 0.1)
+    assert converged  # the controller's flag rose: it reached the goal
+    assert measured_lag(path, ref) == 1
+    pos, head = deviation(path, ref, 1)
+    assert pos <= POSITION_TOL_M and head <= HEADING_TOL_RAD, (pos, math.degrees(head))
+
+
+def test_wmr_ssp_run_logs_the_layout_of_wmr_run(built: BuildResult, ssp_dir: Path,
+                                                tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    spec = _spec("fig11", None)
+    package = _export(built, spec, ssp_dir)
+    log_path = tmp_path / "ssp.mcap"
+    code = main(["ssp", "run", str(package), "--out", str(log_path), "--json"])
+    record = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert code == 0 and record["status"] == "converged"
+    log = read_run(log_path)
+    assert not log.truncated and log.n_steps == record["steps"]
+    assert set(log.signals) == set(SIGNALS)
+    assert all(np.isfinite(log.signals[name]).all() for name in SIGNALS)
+    direct = simulate_libcosim(package)
+    assert np.array_equal(log.block(), direct.block)  # the log holds the run bit for bit
+    assert log.goal is not None and (log.goal.x_m, log.goal.y_m) == (20.0, 10.0)
+    run_meta = log.metadata["run"]
+    assert run_meta["master"].startswith("libcosimpy")
+    assert json.loads(run_meta["gains"]) == {k: v for k, v in spec.gains.as_dict().items()}
+    assert "SystemStructure.ssd" in log.attachments
+    assert record["final_position_error_m"] <= spec.stop_radius_m
+
+
+def test_wmr_ssp_export_writes_what_it_prints(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "f11.ssp"
+    assert main(["ssp", "export", "fig11", "--out", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    assert read_package(out).components["robot"].fmi_version == "2.0"
+
+
+@pytest.mark.parametrize(("damage", "expected"), [
+    ("drop-fmu", "its FMU resources/wmr_controller-fmi2.fmu is missing from the package"),
+    ("period", "control_period_s = 0.02 s but the package steps at 0.01 s"),
+    ("drop-ssv", "parameter set resources/robot.ssv is missing"),
+    ("no-file", "no such file"),
+    ("not-zip", "is not an SSP package"),
+])
+def test_a_broken_package_is_one_line(built: BuildResult, ssp_dir: Path, tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str], damage: str,
+                                      expected: str) -> None:
+    good = _export(built, _spec("fig11", None), ssp_dir)
+    bad = tmp_path / "bad.ssp"
+    drop = {"drop-fmu": "resources/wmr_controller-fmi2.fmu",
+            "drop-ssv": "resources/robot.ssv"}.get(damage)
+    if damage == "not-zip":
+        bad.write_text("not a zip")
+    elif damage == "period":
+        with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+            for item in src.infolist():
+                data = src.read(item)
+                if item.filename == "resources/controller.ssv":
+                    data = data.replace(b'"control_period_s">\n      <ssv:Real value="0.01"',
+                                        b'"control_period_s">\n      <ssv:Real value="0.02"')
+                    assert b'value="0.02"' in data
+                dst.writestr(item, data)
+    elif drop is not None:
+        with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+            for item in src.infolist():
+                if item.filename != drop:
+                    dst.writestr(item, src.read(item))
+    out = tmp_path / "x.mcap"
+    code = main(["ssp", "run", str(bad), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and len(err.splitlines()) == 1 and expected in err, err
+    assert not out.exists()
+
+
+def test_libcosim_refuses_fmi3_with_one_line(built: BuildResult, ssp_dir: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    package = _export(built, _spec("fig11", None), ssp_dir, fmi=3)
+    assert main(["ssp", "run", str(package), "--out", str(ssp_dir / "x.mcap")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "runs FMI 2.0 FMUs only" in err and "--fmi 2" in err
+
+
+def test_the_docs_list_what_the_package_holds(built: BuildResult, ssp_dir: Path) -> None:
+    """docs/ssp.md names every member of an exported package and every parameter set entry."""
+    doc = (Path(__file__).parents[1] / "docs" / "ssp.md").read_text()
+    spec = _spec("fig11", None)
+    package = ssp_dir / "doc.ssp"
+    export_ssp(spec, package, built.fmus[2], built.controllers[2],
+               scenario_file=load_scenario("fig11").path)
+    with zipfile.ZipFile(package) as zf:
+        for name in zf.namelist():
+            assert f"`{name}`" in doc, name
+    ctrl = read_package(package).components["controller"].parameters
+    for name in ctrl:
+        section = name.split(".")[0]
+        assert f"`{name}`" in doc or f"`{section}.*`" in doc, name
+
+
+def test_a_run_with_sensors_is_not_exported(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """The package wires true outputs to the controller: a sensed run would be another run."""
+    scenario = tmp_path / "sensed.toml"
+    scenario.write_text('start = [0.0, 0.0, 0.0]\ngoal = [5.0, 2.0, 0.0]\n'
+                        '[sensors]\nestimator = "ekf"\ngps_sigma_m = 0.02\n')
+    out = tmp_path / "s.ssp"
+    assert main(["ssp", "export", str(scenario), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "sensors" in err and "perfect measurements" in err
+    assert not out.exists()
