@@ -132,7 +132,7 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     with RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant)) as log:
         sink: BlockSink = log
         if also is not None:
-            from wmr.replay import TeeSink
+            from wmr.live_view import TeeSink
 
             sink = TeeSink(log, also)
         result = run_closed_loop(spec, plant, sink=sink, progress=progress,

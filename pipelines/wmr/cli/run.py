@@ -124,7 +124,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     progress, finish = _progress_bar(spec.name, args.json)
     live = None
     if args.view:
-        from wmr.replay import live_view_sink
+        from wmr.live_view import live_view_sink
 
         live = live_view_sink(spec.name, spec.goal, out.with_suffix(".rrd"))
     with FmuPlant(fmu_path, var_map=var_map) as plant, ExitStack() as stack:
