@@ -374,6 +374,14 @@ def test_controller_fmus_pass_validation_and_declare_the_fixed_step(built: Build
     assert variables["goal.heading_deg"].unit == "deg"
 
 
+#: fmpy's native logger proxy (``fmpy.logging.addLoggerProxy``) keeps the LAST Python logger
+#: given to ``instantiate_fmu`` in a process-wide variable, and ``fmpy.fmi2.defaultCallbacks``
+#: goes through that proxy too: once such a logger is garbage-collected, the next FMI 2 message of
+#: any instance in the process calls freed memory (a Bus error in a later test).  The callbacks
+#: given to fmpy here therefore live as long as the process.
+_FMPY_LOGGER_CALLBACKS: list[object] = []
+
+
 def _simulate(path: Path, step_size: float, inputs: dict[str, float] | None = None
               ) -> tuple[int, list[str]]:
     """Drive the FMU one step through fmpy; return the doStep status and the log lines."""
@@ -388,6 +396,7 @@ def _simulate(path: Path, step_size: float, inputs: dict[str, float] | None = No
 
     unzipdir = extract(str(path))
     fmu = instantiate_fmu(unzipdir, md, fmi_type="CoSimulation", logger=logger)
+    _FMPY_LOGGER_CALLBACKS.append(getattr(fmu, "callbacks", None) or fmu.logMessage)
     setter = fmu.setReal if md.fmiVersion == "2.0" else fmu.setFloat64
     getter = fmu.getReal if md.fmiVersion == "2.0" else fmu.getFloat64
     status = 0
