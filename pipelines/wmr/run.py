@@ -136,7 +136,7 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
                       durable=durable) as log:
         sink: BlockSink = log
         if also is not None:
-            from wmr.replay import TeeSink
+            from wmr.live_view import TeeSink
 
             sink = TeeSink(log, also)
         result = run_closed_loop(spec, plant, sink=sink, progress=progress,
