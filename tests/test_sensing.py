@@ -478,3 +478,20 @@ def test_study_epsilon_table_and_figure(tmp_path: Path) -> None:
     assert "| 0.01 | 0.5 | 0.05 |" in lines and "| 0.1 | 0.2 | 0.2 |" in lines
     assert (tmp_path / "sensing.png").stat().st_size > 10_000
     assert sensing_section(table.drop_columns(["stop_radius_m"]), tmp_path) == []
+
+
+def test_controller_fmu_acts_on_the_estimate_as_python_does(built: Any) -> None:
+    """With sensors, the controller FMU gets the estimate, as the Python controller does: the
+    same path (the C controller traces the Python one to 1e-9, docs/fmu.md)."""
+    from wmr.fmu.fmu_controller import FmuController
+
+    (spec,) = expand(load_scenario("fig11"))
+    spec = with_overrides(replace(spec, t_max_s=10.0), sensors=preset("gps"))
+    py_rows, c_rows = _Rows(), _Rows()
+    py = run_closed_loop(spec, ReferencePlant(), py_rows)
+    with FmuController(built.controllers[3]) as ctrl:
+        c = run_closed_loop(spec, ReferencePlant(), c_rows, controller_fmu=ctrl)
+    assert py.sensing is not None and c.sensing is not None
+    np.testing.assert_allclose(np.vstack(c_rows.blocks), np.vstack(py_rows.blocks),
+                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(c.sensing.est_pose, py.sensing.est_pose, rtol=0, atol=1e-9)
