@@ -571,10 +571,10 @@ def test_a_batch_with_the_controller_fmu_key_logs_the_python_paths(tmp_path: Pat
 
 
 @pytest.mark.parametrize("version", [2, 3])
-def test_outputs_are_the_sample_of_the_current_state_and_inputs(built: BuildResult,
-                                                                version: int) -> None:
-    """After doStep the outputs are g(z_next, u) even when the master sets no new input, and
-    an FMU state restores the controller's discrete state."""
+def test_outputs_hold_the_sample_until_the_next_input(built: BuildResult, version: int) -> None:
+    """After doStep the outputs hold the sample just taken (zero-order hold); setting the
+    inputs at the new time takes the next sample, equal to the Python controller's second
+    step; an FMU state restores the controller's discrete state."""
     from fmpy import extract, instantiate_fmu
 
     path = built.controllers[version]
@@ -596,12 +596,16 @@ def test_outputs_are_the_sample_of_the_current_state_and_inputs(built: BuildResu
         put(ins, u1)
         y0 = get(outs)
         fmu.doStep(0.0, 0.01)
+        held = get(outs)  # no input set since the step: the sample of t = 0
         state = fmu.getFMUstate() if version == 2 else fmu.getFMUState()
-        y1 = get(outs)  # no input set since the step
+        put(ins, u1)  # the same measurement, set at t = 0.01: the next sample
+        y1 = get(outs)
         fmu.doStep(0.01, 0.01)
         put(ins, u2)
         y2 = get(outs)
         (fmu.setFMUstate if version == 2 else fmu.setFMUState)(state)
+        held_again = get(outs)
+        put(ins, u1)
         y1_again = get(outs)
     finally:
         fmu.freeInstance()
@@ -614,6 +618,7 @@ def test_outputs_are_the_sample_of_the_current_state_and_inputs(built: BuildResu
     for u, y in ((u1, y0), (u1, y1), (u2, y2)):
         x, yy, theta, _, _, w_r, w_l = u
         assert ctrl.step(x, yy, theta, w_r, w_l) == pytest.approx(y, abs=1e-12)
+    assert held == y0 and held_again == y0
     assert y1_again == y1
     assert y1 != y0  # the integrals moved: the second sample differs from the first
 
