@@ -225,16 +225,9 @@ def index_html(model: ControllerModel) -> str:
     from html import escape
 
     from wmr import __version__
-    from wmr.fmu.documentation import PAPER, _table
+    from wmr.fmu.documentation import PAPER, _table, html_page
 
-    return f"""<!DOCTYPE html>
-<html lang="en">
-<head><meta charset="utf-8"><title>{escape(model.name)}: {escape(model.description)}</title>
-<style>body{{font-family:sans-serif;max-width:60em;margin:auto}}
-table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:left}}
-</style></head>
-<body>
-<h1>{escape(model.name)}</h1>
+    return html_page(model.name, model.description, f"""\
 <p>{escape(model.description)}. The point stabiliser of the paper below (reference point and
 reference orientation control, eqs. 25 to 27; two PI controllers with conditional-integration
 anti-windup, eq. 29; the inverse kinematics eq. 28 read as rates) with a PI speed servo per
@@ -257,9 +250,7 @@ robot is at the goal, aligned and at rest. Non-finite inputs are refused with an
 
 <h2>Paper</h2>
 <p>{escape(PAPER)}</p>
-</body>
-</html>
-"""
+""")
 
 
 __all__ = [

@@ -57,6 +57,25 @@ def _table(title: str, variables: list[Variable], start: str) -> str:
             f"<th>{start}</th><th>meaning</th></tr>\n{_rows(variables)}\n</table>")
 
 
+def html_page(name: str, description: str, body: str) -> str:
+    """A standalone HTML page: title ``name: description``, heading ``name``, then ``body``.
+
+    The one skeleton (and style) of every FMU's ``documentation/index.html``; ``body`` is HTML
+    (escaped by the caller), ``name`` and ``description`` are plain text.
+    """
+    return f"""<!DOCTYPE html>
+<html lang="en">
+<head><meta charset="utf-8"><title>{escape(name)}: {escape(description)}</title>
+<style>body{{font-family:sans-serif;max-width:60em;margin:auto}}
+table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:left}}
+</style></head>
+<body>
+<h1>{escape(name)}</h1>
+{body}</body>
+</html>
+"""
+
+
 def index_html(model: FlatModel) -> str:
     """``documentation/index.html`` for the FMUs of ``model``."""
     equations = "\n".join(f"<tr><td>{escape(n)}</td><td><code>{escape(e)}</code></td></tr>"
@@ -69,14 +88,7 @@ def index_html(model: FlatModel) -> str:
                                           sorted((v for v in model.outputs if v.state >= 0),
                                                  key=lambda v: v.state),
                                           model.derivatives, strict=True))
-    return f"""<!DOCTYPE html>
-<html lang="en">
-<head><meta charset="utf-8"><title>{escape(model.name)}: {escape(model.description)}</title>
-<style>body{{font-family:sans-serif;max-width:60em;margin:auto}}
-table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:left}}
-</style></head>
-<body>
-<h1>{escape(model.name)}</h1>
+    return html_page(model.name, model.description, f"""\
 <p>{escape(model.description)}. The two-wheeled differential-drive mobile robot of the paper
 below: a rigid platform on two driving wheels that roll without slipping, each driven by a
 motor with its own inertia and friction. Inputs are the two motor torques; outputs are the
@@ -120,9 +132,7 @@ model nor this one.</p>
 
 <h2>Licence</h2>
 <p>{LICENSE_ID}, see <code>licenses/LICENSE.txt</code>.</p>
-</body>
-</html>
-"""
+""")
 
 
 def license_files() -> dict[str, bytes]:
