@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
@@ -53,6 +53,21 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", metavar="FILE.toml",
                         help="variable map of an FMU made by another tool: its names and "
                              "units for ours (docs/fmu_map.md)")
+
+
+def add_scenario_choice(parser: argparse.ArgumentParser, doing: str) -> None:
+    """``SCENARIO`` and ``--run NAME``: the run that :func:`select_run` picks for ``doing``."""
+    parser.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
+                        help="scenario name (fig9, fig10, fig11) or TOML file (default fig11)")
+    parser.add_argument("--run", metavar="NAME",
+                        help=f"the run of a multi-run scenario to {doing}")
+
+
+def result_summary(record: Mapping[str, Any]) -> str:
+    """The end of a run's one-line result: final errors, path length and the log file."""
+    return (f"final position error {record['final_position_error_m']:.4f} m, heading error "
+            f"{record['final_heading_error_rad']:.5f} rad, path "
+            f"{record['path_length_m']:.2f} m; log {record['mcap']}")
 
 
 def select_run(scenario: Scenario, name: str | None) -> RunSpec:
@@ -144,10 +159,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.json:
         print(result_json(record))
     else:
-        line = (f"{record['status']}: {record['message']}; final position error "
-                f"{record['final_position_error_m']:.4f} m, heading error "
-                f"{record['final_heading_error_rad']:.5f} rad, path "
-                f"{record['path_length_m']:.2f} m; log {record['mcap']}")
+        line = f"{record['status']}: {record['message']}; {result_summary(record)}"
         if spec.sensors is not None:
             line += (f"; as estimated: {record['estimated_final_position_error_m']:.4f} m, "
                      f"{record['estimated_final_heading_error_rad']:.5f} rad")
@@ -182,9 +194,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "run", help="one closed-loop co-simulation of the paper's PI stabiliser",
         description="Run the paper's PI point stabiliser on the FMU and log the run to MCAP. "
                     "Exit status: 0 converged, 3 timeout, 1 failed.")
-    p.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
-                   help="scenario name (fig9, fig10, fig11) or TOML file (default fig11)")
-    p.add_argument("--run", metavar="NAME", help="the run of a multi-run scenario to simulate")
+    add_scenario_choice(p, "simulate")
     add_run_overrides(p)
     p.add_argument("--controller-fmu", nargs="?", const="", default=None, metavar="FILE.fmu",
                    help="run the stabiliser in the controller FMU (C, FMI --fmi) instead of "

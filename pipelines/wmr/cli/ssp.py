@@ -14,14 +14,14 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from wmr.cli.run import select_run
     from wmr.fmu.build import build_fmus
     from wmr.fmu.varmap import load_map
+    from wmr.outputs import check_output
     from wmr.scenario import load_scenario, with_overrides
     from wmr.ssp.export import export_ssp
 
     scenario = load_scenario(args.scenario)
     spec = with_overrides(select_run(scenario, args.run), start=args.start, goal=args.goal)
-    out = Path(args.out) if args.out else Path(f"{safe_filename(spec.name)}.ssp")
-    if out.suffix != ".ssp":
-        raise ConfigError("--out", f"{out} does not end in .ssp", "give FILE.ssp")
+    out = check_output(args.out if args.out else f"{safe_filename(spec.name)}.ssp", "--out",
+                       suffix=".ssp")
     built = None
     robot_choice = args.robot_fmu or scenario.fmu
     if robot_choice is None or args.controller_fmu is None:
@@ -36,13 +36,15 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from wmr.cli.run import result_summary
+    from wmr.naming import default_log_path
+    from wmr.outputs import check_output
     from wmr.run import result_json
     from wmr.ssp.cosim import log_ssp_run, simulate_libcosim
 
     ssp = Path(args.ssp)
-    out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(ssp.stem)}.mcap"
-    if out.suffix != ".mcap":
-        raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
+    out = check_output(args.out if args.out else default_log_path(ssp.stem), "--out",
+                       suffix=".mcap")
     if args.stop_time is not None and not args.stop_time > 0:
         raise ConfigError("--stop-time", f"must be > 0, got {args.stop_time}",
                           "give seconds, e.g. --stop-time 30")
@@ -51,14 +53,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.json:
         print(result_json(record))
     else:
-        print(f"{record['status']}: {record['message']} in {record['master']}; final position "
-              f"error {record['final_position_error_m']:.4f} m, heading error "
-              f"{record['final_heading_error_rad']:.5f} rad, path "
-              f"{record['path_length_m']:.2f} m; log {record['mcap']}")
+        print(f"{record['status']}: {record['message']} in {record['master']}; "
+              f"{result_summary(record)}")
     return 0 if record["status"] == "converged" else 3
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from wmr.cli.run import add_scenario_choice
+
     p = sub.add_parser("ssp", help="the closed loop as an SSP package, run in libcosim",
                        description="Export the closed loop (robot and controller FMUs) as an "
                                    "SSP 1.0 package, or run a package in libcosim.")
@@ -67,9 +69,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "export", help="write a scenario's closed loop as an SSP 1.0 package",
         description="Write SCENARIO's run as an SSP 1.0 package: both FMUs, the connections, "
                     "the scenario's parameters as parameter sets, a default experiment.")
-    ex.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
-                    help="scenario name (fig9, fig10, fig11) or TOML file (default fig11)")
-    ex.add_argument("--run", metavar="NAME", help="the run of a multi-run scenario")
+    add_scenario_choice(ex, "export")
     ex.add_argument("--start", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
                     help="start pose of B: x and y in m, heading in degrees")
     ex.add_argument("--goal", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
