@@ -32,7 +32,7 @@ from typing import Final
 from wmr.control.stabiliser import Gains, Limits
 from wmr.errors import BuildError
 from wmr.fmu.codegen import sizes_header, variables_source
-from wmr.fmu.flatten import Variable
+from wmr.fmu.flatten import ModelInterface, Variable
 from wmr.plant import RobotParams
 from wmr.signals import CONTROL_SIGNALS
 
@@ -103,19 +103,13 @@ ROBOT_PARAMETERS: Final = {"r": ("m", 1e-3, "wheel radius (eq. 28)"),
 
 
 @dataclass
-class ControllerModel:
+class ControllerModel(ModelInterface):
     """The variables of the controller FMU, in the shape :mod:`wmr.fmu.modeldesc` reads.
 
     Like :class:`wmr.fmu.flatten.FlatModel` without the CasADi functions: the law is the
     hand-written C core.  ``state_names`` are the discrete states.
     """
 
-    name: str
-    description: str
-    parameters: list[Variable]
-    inputs: list[Variable]
-    outputs: list[Variable]
-    state_names: list[str]
     start_time: float = 0.0
     stop_time: float = 120.0
     step_size: float = 0.01
@@ -123,15 +117,6 @@ class ControllerModel:
     generated_by: str = "hand-written C"
     period_parameter: str = "control_period_s"
     source_digest: str = field(default="")
-
-    @property
-    def variables(self) -> list[Variable]:
-        """Parameters, inputs then outputs: value reference = position + 1 (0 is time)."""
-        return [*self.parameters, *self.inputs, *self.outputs]
-
-    @property
-    def value_references(self) -> dict[str, int]:
-        return {v.name: i + 1 for i, v in enumerate(self.variables)}
 
 
 def controller_model() -> ControllerModel:

@@ -51,11 +51,11 @@ class Variable:
 
 
 @dataclass
-class FlatModel:
-    """The explicit form ``xdot = f(x, u, p)``, ``y = h(x, u, p)``, ``x(0) = x0(p)``.
+class ModelInterface:
+    """What an FMU's model description declares of a model: its name, variables and states.
 
-    Every continuous state is also an output (``Variable.state``); ``derivatives`` holds one
-    ``der(<output>)`` variable per state, in state order (the FMI state vector order).
+    :class:`FlatModel` (the robot) and :class:`wmr.fmu.controller.ControllerModel` extend it;
+    each keeps its own default experiment (start, stop, step), whose defaults differ.
     """
 
     name: str
@@ -64,6 +64,25 @@ class FlatModel:
     inputs: list[Variable]
     outputs: list[Variable]
     state_names: list[str]
+
+    @property
+    def variables(self) -> list[Variable]:
+        """Parameters, inputs then outputs: value reference = position + 1 (0 is time)."""
+        return [*self.parameters, *self.inputs, *self.outputs]
+
+    @property
+    def value_references(self) -> dict[str, int]:
+        return {v.name: i + 1 for i, v in enumerate(self.variables)}
+
+
+@dataclass
+class FlatModel(ModelInterface):
+    """The explicit form ``xdot = f(x, u, p)``, ``y = h(x, u, p)``, ``x(0) = x0(p)``.
+
+    Every continuous state is also an output (``Variable.state``); ``derivatives`` holds one
+    ``der(<output>)`` variable per state, in state order (the FMI state vector order).
+    """
+
     ode: ca.Function  # (x, u, p) -> xdot
     out: ca.Function  # (x, u, p) -> y
     init: ca.Function  # (p) -> x0
@@ -80,10 +99,6 @@ class FlatModel:
         """Parameters, inputs, outputs then state derivatives: value reference = position + 1
         (0 is time), so that the references of the first three never move."""
         return [*self.parameters, *self.inputs, *self.outputs, *self.derivatives]
-
-    @property
-    def value_references(self) -> dict[str, int]:
-        return {v.name: i + 1 for i, v in enumerate(self.variables)}
 
 
 def _modelica_files(modelica_dir: Path) -> list[Path]:
