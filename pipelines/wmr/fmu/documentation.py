@@ -35,7 +35,7 @@ EQUATIONS: tuple[tuple[str, str], ...] = (
           "I_g omega^2 + I_wm (omega_r^2 + omega_l^2))"),
 )
 
-#: The paper's errata (shared/design/errata.md, docs/model.md): equation, printed, used.
+#: The paper's errata (the table of docs/model.md, kept equal by a test): equation, printed, used.
 ERRATA: tuple[tuple[str, str, str], ...] = (
     ("6, 7", "v_G = xdot_B + ydot_G", "v_B = v e^{j theta}"),
     ("8, 16", "(v - l thetadot^2), l theta", "(vdot - l thetadot^2), l thetadot"),

@@ -2,7 +2,7 @@
 
 A robot FMU exported by Dymola, OpenModelica, Simulink or a hand-written tool has its own
 variable names and perhaps its own units.  A map (a TOML file, ``docs/fmu_map.md``) names, for
-each of our interface names (``shared/design/interface.md``: inputs ``tau_r``, ``tau_l``;
+each of our interface names (the table of ``docs/fmu_map.md``: inputs ``tau_r``, ``tau_l``;
 outputs ``x``, ``y``, ``theta``, ...; parameters ``m``, ``r``, ``L``, ..., ``x0``, ``y0``,
 ``theta0``), the FMU's variable and the affine relation between the two units::
 
