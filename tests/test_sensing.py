@@ -412,6 +412,16 @@ def test_wmr_run_sensors_gps_logs_fixes_and_estimate(tmp_path: Path) -> None:
     idx = np.searchsorted(run.t_ns, trace.gps_t_ns)
     d = trace.gps_xy_m - np.column_stack([run.signals["x_m"][idx], run.signals["y_m"][idx]])
     assert 0.01 < float(np.std(d)) < 0.04
+    from mcap.reader import make_reader
+
+    from wmr.sensing.log import COVARIANCE_TOPIC, PoseCovariance
+    with open(out, "rb") as f:
+        cov = [PoseCovariance.FromString(m.data) for _, _, m in
+               make_reader(f).iter_messages(topics=[COVARIANCE_TOPIC])]
+    assert len(cov) == run.n_steps
+    assert all(c.xx_m2 > 0 and c.yy_m2 > 0 and c.theta_theta_rad2 > 0
+               and c.xy_m2**2 <= c.xx_m2 * c.yy_m2 for c in cov)
+    assert math.sqrt(cov[-1].xx_m2) < 0.02  # the filter knows better than one fix
     rrd = tmp_path / "gps.rrd"
     with redirect_stdout(io.StringIO()), redirect_stderr(io.StringIO()):
         assert main(["replay", str(out), "--rrd", str(rrd)]) == 0
