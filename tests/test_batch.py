@@ -282,8 +282,9 @@ max_time_s = 15.0
 [[list]]
 name = "ok"
 [[list]]
-name = "singular"                     # valid fields, but the FMU cannot initialise
-params = { m = 0.0, Ig = 0.0, Iwm = 0.0 }
+name = "singular"                     # valid fields, but the FMU cannot integrate them
+params = { m = 1e-300, Ig = 0.0, Iwm = 0.0 }
+gains = { K_pw = 0.0 }                # (no servo gain that the period check would refuse)
 [[list]]
 name = "weak"                         # 0.01 N m cannot move the robot in 2 s
 limits = { torque_max_nm = 0.01 }
@@ -313,7 +314,7 @@ def test_failures_timeouts_hangs_and_crashes_are_rows(fmu3: Path, tmp_path: Path
     rows = {row["variant"]: row for row in table}
     assert rows["ok"]["status"] == rows["ok2"]["status"] == "converged"
     assert rows["singular"]["status"] == "failed"
-    assert "exitInitializationMode" in rows["singular"]["message"]
+    assert "DoStep returned Error" in rows["singular"]["message"]
     assert rows["weak"]["status"] == "timeout"
     assert "max_time_s" in rows["weak"]["message"]
     assert rows["slow"]["status"] == "timeout"
@@ -391,3 +392,15 @@ def test_ctrl_c_stops_cleanly_and_the_rerun_finishes(spec20: Path, fmu3: Path,
 
 def _rows(out: Path) -> list[dict[str, Any]]:
     return pq.read_table(out / "summary.parquet").to_pylist()
+
+
+def test_each_batch_log_attaches_its_own_run_not_the_spec(reference: Path, spec20: Path) -> None:
+    from wmr.scenario import parse_scenario
+
+    runs = load_batch(spec20).runs
+    for r in (runs[0], runs[7]):
+        log = read_run(reference / "runs" / f"{r.run_id}.mcap")
+        tomls = [n for n in log.attachments if n.endswith(".toml")]
+        assert tomls == [f"{r.spec.name}.toml"]
+        back = parse_scenario(tomllib.loads(log.attachments[tomls[0]].decode())).runs
+        assert back == (r.spec,)

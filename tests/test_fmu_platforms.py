@@ -340,9 +340,16 @@ def test_build_prints_paths_on_stdout_and_what_each_fmu_offers_on_stderr(
     _zig()
     assert main(["fmu", "build", "--out", str(built.fmus[2].parent)]) == 0
     captured = capsys.readouterr()
-    assert [Path(p) for p in captured.out.splitlines()] == [built.fmus[2], built.fmus[3]]
+    assert [Path(p) for p in captured.out.splitlines()] == [
+        built.fmus[2], built.fmus[3], built.controllers[2], built.controllers[3]]
     err = captured.err.splitlines()
-    assert err[0].startswith("wmr_robot-fmi2.fmu: FMI 2.0, co-simulation")
-    assert err[0].split("binaries for ")[1].startswith("linux64 win64 darwin64 (")
-    assert err[1].startswith("wmr_robot-fmi3.fmu: FMI 3.0, co-simulation")
-    assert err[1].endswith("binaries for " + " ".join(ALL))
+    assert len(err) == 4
+    for line, name, version in zip(err, ("wmr_robot", "wmr_robot", "wmr_controller",
+                                         "wmr_controller"), (2, 3, 2, 3), strict=True):
+        assert line.startswith(f"{name}-fmi{version}.fmu: FMI {version}.0, co-simulation")
+        if version == 2:
+            assert line.split("binaries for ")[1].startswith("linux64 win64 darwin64 (")
+        else:
+            assert line.endswith("binaries for " + " ".join(ALL))
+    # Model Exchange is the robot's only: the controller is a sampled-data system.
+    assert ["model exchange" in line for line in err] == [True, True, False, False]

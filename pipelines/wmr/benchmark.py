@@ -14,14 +14,16 @@ Figures per run (SI units):
   time :math:`T^*` (it ends at rest, on the goal pose);
 * ``time_to_radius_s``: the first time B is within :math:`\varepsilon` of the goal;
 * ``path_length_m``: :math:`\sum |B_{k+1} - B_k|` along the FMU's path;
-* ``energy_abs_j``: :math:`\int (|\tau_r\omega_r| + |\tau_l\omega_l|)\,dt` (motor work without
-  recuperation; the net work is about 0 for a rest-to-rest manoeuvre without friction);
+* ``energy_net_j``, ``energy_positive_j``, ``energy_abs_j``: the motors' work as
+  :mod:`wmr.energy` defines it for every command (net; delivered, none recovered; driving and
+  braking both counted); the net work is about 0 for a rest-to-rest manoeuvre without
+  friction;
 * ``torque_sq_integral_n2m2s``: :math:`\int (\tau_r^2 + \tau_l^2)\,dt`;
 * ``peak_torque_nm``: :math:`\max |\tau|`;
 * ``final_position_error_m``, ``final_heading_error_rad``: at the end of the run (optimal:
   of the open-loop replay);
-* ``time_ratio``, ``path_ratio``, ``energy_ratio``, ``effort_ratio``: the run's figure over
-  the optimal's for the same case (``None`` when either is missing).
+* ``time_ratio``, ``path_ratio``, ``energy_ratio`` (of ``energy_positive_j``), ``effort_ratio``:
+  the run's figure over the optimal's for the same case (``None`` when either is missing).
 
 Each run is logged to ``OUT/logs/<controller>/<case>.mcap``: closed-loop runs as ``wmr run``
 logs them; the optimal as :func:`write_optimal_log` does (FMU driven open-loop).
@@ -44,11 +46,14 @@ import numpy.typing as npt
 
 from wmr import __version__
 from wmr.closedloop import RunResult, run_closed_loop
+from wmr.control import Limits
+from wmr.energy import ENERGY_KEYS, wheel_work
 from wmr.fmu.plant import FmuPlant
-from wmr.mcaplog import RunLogWriter
+from wmr.mcaplog import OPEN_LOOP_TOPICS, RunLogWriter
 from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
-from wmr.run import run_metadata
+from wmr.run import run_metadata, scenario_attachment_name
 from wmr.scenario import RunSpec, load_scenario
+from wmr.scenario_file import run_spec_toml
 from wmr.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 from wmr.tune import TUNED_GAINS, with_gains
 
@@ -66,14 +71,13 @@ DEFAULT_SCENARIOS: Final = ("fig9", "fig10")
 #: Columns of the CSV/Parquet table and of the ``--json`` objects, in order.
 FIELDS: Final = (
     "case", "scenario", "controller", "status", "time_to_goal_s", "time_to_radius_s",
-    "path_length_m", "energy_abs_j", "torque_sq_integral_n2m2s", "peak_torque_nm",
+    "path_length_m", *ENERGY_KEYS, "torque_sq_integral_n2m2s", "peak_torque_nm",
     "final_position_error_m", "final_heading_error_rad", "time_ratio", "path_ratio",
     "energy_ratio", "effort_ratio", "message", "mcap",
 )
 _X, _Y = COLUMN["x_m"], COLUMN["y_m"]
 _N_PLANT = len(PLANT_SIGNALS)
 _C_TAU_R, _C_TAU_L = COLUMN["tau_r_nm"], COLUMN["tau_l_nm"]
-_C_DR = COLUMN["dr_m"]
 
 
 def _num(v: float | None) -> float | None:
@@ -163,9 +167,9 @@ class OptimalRun:
 def replay_figures(replay: Any, goal: Pose, stop_radius_m: float) -> dict[str, Any]:
     r"""Figures of an open-loop replay (:class:`wmr.optimal.ReplayResult`).
 
-    Energy and effort are integrated per FMU step with the step's held torque:
-    :math:`\sum_k h_k (|\tau_{r,k}| \bar\omega_{r,k} + \dots)` with the trapezoid mean of the
-    wheel speed, :math:`\sum_k h_k (\tau_{r,k}^2 + \tau_{l,k}^2)`.
+    Energy (:func:`wmr.energy.wheel_work`) and effort
+    :math:`\sum_k h_k (\tau_{r,k}^2 + \tau_{l,k}^2)` are integrated per FMU step with the
+    step's held torque.
     """
     t = np.asarray(replay.t_s, dtype=float)
     x, y = replay.outputs["x"], replay.outputs["y"]
@@ -173,14 +177,12 @@ def replay_figures(replay: Any, goal: Pose, stop_radius_m: float) -> dict[str, A
     tau = np.asarray(replay.torques, dtype=float).reshape(-1, 2)
     h = np.diff(t)
     path = float(np.sum(np.hypot(np.diff(x), np.diff(y))))
-    p_r = np.abs(tau[:, 0] * 0.5 * (wr[1:] + wr[:-1]))
-    p_l = np.abs(tau[:, 1] * 0.5 * (wl[1:] + wl[:-1]))
     d = np.hypot(x - goal.x_m, y - goal.y_m)
     inside = np.flatnonzero(d <= stop_radius_m)
     return {
         "time_to_radius_s": float(t[inside[0]]) if inside.size else None,
         "path_length_m": path,
-        "energy_abs_j": float(np.sum(h * (p_r + p_l))),
+        **wheel_work(tau, np.column_stack([wr, wl]), h),
         "torque_sq_integral_n2m2s": float(np.sum(h * np.sum(tau**2, axis=1))),
         "peak_torque_nm": float(np.max(np.abs(tau))) if tau.size else 0.0,
         "final_position_error_m": float(replay.final_position_error_m),
@@ -188,14 +190,39 @@ def replay_figures(replay: Any, goal: Pose, stop_radius_m: float) -> dict[str, A
     }
 
 
+def replay_step_s(replay: Any) -> float:
+    """The (equal) FMU step of an open-loop replay, s: each torque interval T / N is split in
+    the same number of steps (:func:`wmr.optimal.replay_open_loop`)."""
+    t = np.asarray(replay.t_s, dtype=float)
+    return float((t[-1] - t[0]) / (len(t) - 1)) if len(t) > 1 else 0.0
+
+
+def optimal_scenario(name: str, scenario: str, start: Pose, goal: Pose, params: RobotParams,
+                     limits: Any, period_s: float) -> RunSpec:
+    """The case of an optimal manoeuvre as a run of the PI (attached to the optimal's log).
+
+    Limits the optimum did not have (``wmr optimal --torque-only``) are the PI's defaults.
+    """
+    pi = Limits()
+    return RunSpec(name=name, start=start, goal=goal, params=params, period_s=period_s,
+                   scenario=scenario or name, limits=Limits(**{
+                       k: getattr(pi, k) if getattr(limits, k) is None else getattr(limits, k)
+                       for k in ("torque_max_nm", "wheel_speed_max_radps", "v_max_mps",
+                                 "omega_max_radps")}))
+
+
 def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
-                      run: Mapping[str, object], record: Mapping[str, object]) -> None:
+                      run: Mapping[str, object], record: Mapping[str, object],
+                      scenario: RunSpec | None = None) -> None:
     """Log an optimal manoeuvre's open-loop FMU replay as a run log.
 
     ``/robot/pose`` and every plant column are the FMU's outputs (driven open-loop by the
-    optimal torques, not the optimiser's states); ``tau_r_nm``/``tau_l_nm`` are the torques
-    applied over the step that starts at the row (0 on the last row); ``dr_m`` is the distance
-    to the goal; the other control columns are NaN (no controller).
+    optimal torques, not the optimiser's states); ``/robot/torques`` holds the torques applied
+    over the step that starts at the row (0 on the last row).  The controller topics are not
+    written (:data:`wmr.mcaplog.OPEN_LOOP_TOPICS`): there is no controller.  Row ``n`` is at
+    ``round(n h 1e9)`` ns, ``h`` the replay's (equal) FMU step, the ``control_period_s`` of
+    the ``run`` record.  Attached: ``modelDescription.xml`` and the case as a scenario
+    (:func:`optimal_scenario`), which ``wmr run`` runs with the PI.
 
     Parameters
     ----------
@@ -207,9 +234,12 @@ def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
         The FMU replayed (for the attachment).
     run, record
         The ``run`` and ``result`` metadata records.
+    scenario
+        The case as a run (:func:`optimal_scenario`), attached as a scenario file.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     n = len(replay.t_s)
+    h_s = replay_step_s(replay)
     block = np.full((n, len(SIGNALS)), np.nan)
     for i, name in enumerate(OUTPUT_NAMES):
         block[:, i] = replay.outputs[name]
@@ -219,10 +249,15 @@ def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
     block[: tau.shape[0], _C_TAU_R] = tau[:, 0]
     block[: tau.shape[0], _C_TAU_L] = tau[:, 1]
     goal = result.goal
-    block[:, _C_DR] = np.hypot(block[:, _X] - goal.x_m, block[:, _Y] - goal.y_m)
-    t_ns = np.round(np.asarray(replay.t_s, dtype=float) * 1e9).astype(np.int64)
-    with RunLogWriter(path, run=run, goal=(goal.x_m, goal.y_m, goal.heading_rad),
-                      attachments=fmu_attachments(plant)) as log:
+    # exact multiples of the step, never accumulated
+    t_ns = np.round(np.arange(n) * (h_s * 1e9)).astype(np.int64)
+    attachments = fmu_attachments(plant)
+    if scenario is not None:
+        attachments[scenario_attachment_name(scenario)] = (
+            "application/toml", run_spec_toml(scenario).encode("utf-8"))
+    with RunLogWriter(path, run={**run, "control_period_s": h_s}, attachments=attachments,
+                      goal=(goal.x_m, goal.y_m, goal.heading_rad),
+                      topics=OPEN_LOOP_TOPICS) as log:
         log.write_block(t_ns, block)
         log.close({k: v for k, v in record.items() if v is not None})
 
@@ -274,7 +309,7 @@ def run_optimal(spec: RunSpec, plant: FmuPlant, mcap: Path | None) -> OptimalRun
         write_optimal_log(mcap, res, replay, plant,
                           optimal_metadata(spec.name, spec.scenario, spec.start, spec.goal,
                                            spec.params, limits, "time", plant, spec.period_s),
-                          record)
+                          record, scenario=spec)
         figs["mcap"] = str(mcap)
     return OptimalRun(res.status, res.message, res.final_time_s, figs)
 
@@ -374,7 +409,7 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
                 "case": case, "scenario": spec.scenario, "controller": label,
                 "status": res.status, "time_to_goal_s": _num(res.time_to_goal_s),
                 "time_to_radius_s": _num(t_radius), "path_length_m": _num(res.path_length_m),
-                "energy_abs_j": _num(res.energy_abs_j),
+                **{k: _num(getattr(res, k)) for k in ENERGY_KEYS},
                 "torque_sq_integral_n2m2s": _num(res.torque_sq_integral),
                 "peak_torque_nm": _num(res.peak_torque_nm),
                 "final_position_error_m": _num(res.final_position_error_m),
@@ -391,7 +426,8 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
             for r in case_rows:
                 r["time_ratio"] = _ratio(r.get("time_to_goal_s"), f.get("time_to_goal_s"))
                 r["path_ratio"] = _ratio(r.get("path_length_m"), f.get("path_length_m"))
-                r["energy_ratio"] = _ratio(r.get("energy_abs_j"), f.get("energy_abs_j"))
+                r["energy_ratio"] = _ratio(r.get("energy_positive_j"),
+                                           f.get("energy_positive_j"))
                 r["effort_ratio"] = _ratio(r.get("torque_sq_integral_n2m2s"),
                                            f.get("torque_sq_integral_n2m2s"))
         rows.extend({k: r.get(k) for k in FIELDS} for r in case_rows)
@@ -448,7 +484,7 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
             "mean_time_s": mean("time_to_goal_s"), "mean_time_ratio": mean("time_ratio"),
             "max_time_ratio": max(ratios) if ratios else None,
             "mean_path_m": mean("path_length_m"), "mean_path_ratio": mean("path_ratio"),
-            "mean_energy_j": mean("energy_abs_j"),
+            "mean_energy_abs_j": mean("energy_abs_j"),
             "mean_effort_n2m2s": mean("torque_sq_integral_n2m2s"),
             "max_heading_error_deg": math.degrees(max(heads)) if heads else None,
         })
@@ -487,7 +523,7 @@ def format_tables(rows: Sequence[Mapping[str, Any]]) -> str:
         lines.append(" | ".join([
             r["controller"], f"{r['ok']}/{r['runs']}", _fmt(r["mean_time_s"]),
             _fmt(r["mean_time_ratio"], 3), _fmt(r["max_time_ratio"], 3), _fmt(r["mean_path_m"]),
-            _fmt(r["mean_path_ratio"], 3), _fmt(r["mean_energy_j"], 1),
+            _fmt(r["mean_path_ratio"], 3), _fmt(r["mean_energy_abs_j"], 1),
             _fmt(r["mean_effort_n2m2s"], 0), _fmt(r["max_heading_error_deg"], 3)]))
     return "\n".join(lines)
 

@@ -33,6 +33,7 @@ import numpy.typing as npt
 
 from wmr.control import wrap_angle
 from wmr.control.peers import make_controller
+from wmr.energy import step_work
 from wmr.plant import Plant, Pose
 from wmr.scenario import RunSpec
 from wmr.sensing import Sensing, SensingRecord
@@ -77,8 +78,8 @@ class RunResult:
     final_heading_error_rad: float
     time_to_goal_s: float | None
     path_length_m: float
-    energy_j: float  # integral of sum(tau * omega_wheel) dt: net mechanical work, J
-    energy_abs_j: float  # integral of sum(|tau * omega_wheel|) dt: work without recuperation
+    energy_net_j: float  # wmr.energy: net mechanical work of the motors, J
+    energy_abs_j: float  # wmr.energy: driving and braking both counted, J
     torque_sq_integral: float  # integral of sum(tau^2) dt, N^2 m^2 s
     peak_torque_nm: float
     steps: int
@@ -89,6 +90,9 @@ class RunResult:
     estimated_final_heading_error_rad: float = math.nan
     #: The fixes and estimates of a run with sensors, for its log.
     sensing: SensingRecord | None = field(default=None, repr=False, compare=False)
+    #: wmr.energy: work the motors deliver, none recovered, J (last, so that positional
+    #: construction keeps its meaning)
+    energy_positive_j: float = math.nan
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready fields (the ``wmr run --json`` object without the log path)."""
@@ -122,7 +126,7 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
     row = 0
     path = 0.0
     energy = 0.0
-    energy_abs = 0.0
+    energy_pos = 0.0
     tau_sq = 0.0
     peak = 0.0
     time_to_goal: float | None = None
@@ -153,12 +157,10 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
         while True:
             v, omega = float(out[3]), float(out[4])
             w_r, w_l = float(out[5]), float(out[6])
-            if n:
-                # energy of the torques held over the last step (trapezoid on the wheel speed)
-                p_r = tau_r_prev * (w_r_prev + w_r)
-                p_l = tau_l_prev * (w_l_prev + w_l)
-                energy += 0.5 * h * (p_r + p_l)
-                energy_abs += 0.5 * h * (abs(p_r) + abs(p_l))
+            if n:  # the work of the torques held over the last step
+                net, pos, _ = step_work(h, tau_r_prev, tau_l_prev, w_r_prev, w_r, w_l_prev, w_l)
+                energy += net
+                energy_pos += pos
             if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
                 raise FloatingPointError(f"plant returned a non-finite pose at t={n * h:g} s")
             if sensing is None:
@@ -229,7 +231,8 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
         est_head_err = abs(wrap_angle(known.heading_rad - goal.heading_rad))
     return RunResult(status=status, message=message, final_position_error_m=pos_err,
                      final_heading_error_rad=head_err, time_to_goal_s=time_to_goal,
-                     path_length_m=path, energy_j=energy, energy_abs_j=energy_abs,
+                     path_length_m=path, energy_net_j=energy,
+                     energy_positive_j=energy_pos, energy_abs_j=2.0 * energy_pos - energy,
                      torque_sq_integral=tau_sq,
                      peak_torque_nm=peak, steps=steps, final_pose=Pose(x, y, theta),
                      name=spec.name, estimated_final_position_error_m=est_pos_err,

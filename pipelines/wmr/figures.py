@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 
 from wmr.errors import ConfigError, LogError
 from wmr.mcaplog import RunData, read_run
+from wmr.naming import plural
 from wmr.plant import Plant, Pose
 from wmr.scenario import RunSpec
 
@@ -501,8 +502,8 @@ def _run_scenarios(names: Sequence[str], log_dir: Path, fmu: Path,
                 path = log_dir / scenario.name / f"{safe_filename(spec.name)}.mcap"
                 run_to_log(spec, path, plant, scenario_file=scenario.path)
                 runs.append(read_run(path))
-            progress(f"ran scenario {name}: {len(runs)} runs in {time.perf_counter() - t0:.1f} s "
-                     f"-> {log_dir / scenario.name}")
+            progress(f"ran scenario {name}: {plural(len(runs), 'run')} in "
+                     f"{time.perf_counter() - t0:.1f} s -> {log_dir / scenario.name}")
             out[name] = runs
     return out
 

@@ -8,7 +8,7 @@ State, in this order (:data:`STATE_NAMES`):
 ``x, y, theta, v, omega, phi_r, phi_l`` - position of B, the centre of the wheel axle, heading,
 linear velocity of B, angular velocity of the platform, and the two wheel angles.
 
-The model is the paper's eq. 23 with the corrected eq. 24 (see ``shared/design/errata.md``):
+The model is the paper's eq. 23 with the corrected eq. 24 (see ``docs/model.md``):
 
 .. math::
 
@@ -154,7 +154,7 @@ def kinetic_energy(v: float, omega: float, params: RobotParams) -> float:
         T = \tfrac12 \left(m + \frac{2 I_{wm}}{r^2}\right) v^2
           + \tfrac12 \left(I_g + m l^2 + \frac{2 L^2 I_{wm}}{r^2}\right) \omega^2
 
-    With zero motor and friction torque it is conserved (errata.md), while :math:`v` and
+    With zero motor and friction torque it is conserved (``docs/model.md``), while :math:`v` and
     :math:`\omega` exchange energy through the :math:`m l` terms of :math:`C(v)`.
     """
     m11, m22 = mass_matrix_diag(params)

@@ -53,10 +53,16 @@ class RobotParams:
     def __post_init__(self) -> None:
         lower = {"m": 0.0, "r": 1e-3, "L": 1e-3, "Ig": 0.0, "Iwm": 0.0, "b_f": 0.0,
                  "tau_c": 0.0, "w_c": 1e-6}
+        #: bounds that exclude their value, with the physical reason
+        strict = {"m": "a platform without mass has no dynamics (eq. 24 needs m > 0)"}
         for f in fields(self):
             value = getattr(self, f.name)
             if not isinstance(value, int | float) or not math.isfinite(value):
                 raise ConfigError(f"params.{f.name}", f"must be a finite number, got {value!r}")
+            if f.name in strict and value <= lower[f.name]:
+                raise ConfigError(f"params.{f.name}",
+                                  f"must be > {lower[f.name]:g}, got {value!r}: "
+                                  f"{strict[f.name]}", "give a positive value")
             if f.name in lower and value < lower[f.name]:
                 raise ConfigError(f"params.{f.name}",
                                   f"must be >= {lower[f.name]:g}, got {value!r}")

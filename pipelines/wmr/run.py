@@ -16,10 +16,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from wmr import __version__
+from wmr._callable import make_callable
 from wmr.closedloop import BlockSink, Progress, run_closed_loop
 from wmr.fmu.plant import FmuPlant
 from wmr.mcaplog import RunLogWriter
+from wmr.paths import safe_filename
 from wmr.scenario import RunSpec
+from wmr.scenario_file import run_spec_toml
 
 if TYPE_CHECKING:
     from wmr.fmu.fmu_controller import FmuController
@@ -45,7 +48,7 @@ def _jsonable(value: float | None) -> float | None:
 
 def run_metadata(spec: RunSpec, plant: FmuPlant,
                  controller_fmu: FmuController | None = None) -> dict[str, object]:
-    """The ``run`` metadata record of a log (interface.md); ``sensors`` only when on, the
+    """The ``run`` metadata record of a log (``docs/formats.md``); ``sensors`` only when on, the
     controller FMU only when it ran the law, ``fmu_map`` for a mapped robot FMU."""
     extra: dict[str, object] = {} if controller_fmu is None else {
         "controller_fmu_file": controller_fmu.fmu_path.name,
@@ -78,13 +81,20 @@ def run_metadata(spec: RunSpec, plant: FmuPlant,
     return meta
 
 
-def _attachments(plant: FmuPlant, scenario_file: Path | None) -> dict[str, tuple[str, bytes]]:
+def scenario_attachment_name(spec: RunSpec) -> str:
+    """Name of the effective scenario a run's log attaches: ``NAME.toml``."""
+    return f"{safe_filename(spec.name)}.toml"
+
+
+def _attachments(spec: RunSpec, plant: FmuPlant) -> dict[str, tuple[str, bytes]]:
+    """The FMU's ``modelDescription.xml`` and the run's effective scenario: the scenario file
+    with every override of this run applied, one run only (a batch run's log holds its own
+    run, not the whole spec), which ``wmr run`` reads back into the same run."""
     with zipfile.ZipFile(plant.fmu_path) as zf:
         md = zf.read("modelDescription.xml")
-    att = {"modelDescription.xml": ("application/xml", md)}
-    if scenario_file is not None:
-        att[scenario_file.name] = ("application/toml", scenario_file.read_bytes())
-    return att
+    return {"modelDescription.xml": ("application/xml", md),
+            scenario_attachment_name(spec): ("application/toml",
+                                             run_spec_toml(spec).encode("utf-8"))}
 
 
 def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant, *,
@@ -93,6 +103,9 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
                also: BlockSink | None = None,
                controller_fmu: FmuController | None = None) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
+
+    The log attaches the run's effective scenario (:func:`scenario_attachment_name`), not
+    ``scenario_file``, whose name only is recorded in the ``run`` metadata (``source_file``).
 
     The log is written as the run goes: a run killed midway leaves a log readable up to its
     last chunk (without a ``result`` record).  A run that fails is logged with status
@@ -113,8 +126,10 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     path = Path(mcap_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
-    with RunLogWriter(path, run=run_metadata(spec, plant, controller_fmu), goal=goal,
-                      attachments=_attachments(plant, scenario_file)) as log:
+    run = run_metadata(spec, plant, controller_fmu)
+    if scenario_file is not None:
+        run["source_file"] = Path(scenario_file).name
+    with RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant)) as log:
         sink: BlockSink = log
         if also is not None:
             from wmr.replay import TeeSink
@@ -130,7 +145,9 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
             "final_heading_error_rad": _jsonable(result.final_heading_error_rad),
             "time_to_goal_s": _jsonable(result.time_to_goal_s),
             "path_length_m": _jsonable(result.path_length_m),
-            "energy_j": _jsonable(result.energy_j),
+            "energy_net_j": _jsonable(result.energy_net_j),
+            "energy_positive_j": _jsonable(result.energy_positive_j),
+            "energy_abs_j": _jsonable(result.energy_abs_j),
             "torque_sq_integral_n2m2s": _jsonable(result.torque_sq_integral),
             "peak_torque_nm": _jsonable(result.peak_torque_nm),
             "steps": result.steps,
@@ -151,3 +168,7 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
 def result_json(record: dict[str, Any]) -> str:
     """One line of JSON (NaN-free: non-finite figures are ``null``)."""
     return json.dumps(record, allow_nan=False, sort_keys=False)
+
+
+# ``wmr.run(...)`` is the API function (wmr.api); see wmr._callable.
+make_callable(__name__)

@@ -108,6 +108,7 @@ class RunSpec:
         for label, pose in (("start", self.start), ("goal", self.goal)):
             for f in fields(pose):
                 _finite(f"{label}.{f.name}", getattr(pose, f.name))
+        _check_sanity(self)
 
     @property
     def n_steps_max(self) -> int:
@@ -127,6 +128,42 @@ class Scenario:
     #: project's own FMU, our names.
     fmu: Path | None = None
     fmu_map: Path | None = None
+
+
+def _check_sanity(spec: RunSpec) -> None:
+    """Refuse settings that are valid numbers but cannot give a meaningful run.
+
+    * The period against the wheel servos: seen from a wheel the robot is an inertia J
+      (``docs/control.md``: the smaller of the common mode r^2 M11 / 2 and the differential
+      mode r^2 M22 / (2 L^2)); the sampled P loop of gain K_pw on it is stable only for
+      K_pw h / J < 2.
+    * The stop radius against the trip: a radius that reaches the start makes the run
+      "converge" where it stands.
+    """
+    from wmr.physics import mass_matrix_diag
+
+    p = spec.params
+    m11, m22 = mass_matrix_diag(p)
+    if m22 <= 0.0:
+        raise ConfigError("params.Ig", "the platform has no inertia about its vertical axis "
+                          "(Ig + m l^2 + 2 L^2 Iwm / r^2 = 0): the mass matrix of eq. 24 is "
+                          "singular", "give Ig > 0")
+    j_min = min(p.r**2 * m11 / 2.0, p.r**2 * m22 / (2.0 * p.L**2))
+    loop = spec.gains.K_pw * spec.period_s / j_min
+    if loop >= 2.0:
+        raise ConfigError("control_period_s",
+                          f"{spec.period_s:g} s is too long for the wheel servos: K_pw h / J = "
+                          f"{loop:.3g} >= 2 (K_pw = {spec.gains.K_pw:g} N m s/rad, wheel "
+                          f"inertia J = {j_min:.3g} kg m^2) makes the sampled servo unstable",
+                          f"give a period below {2.0 * j_min / spec.gains.K_pw:.3g} s, or a "
+                          "smaller K_pw")
+    distance = math.hypot(spec.goal.x_m - spec.start.x_m, spec.goal.y_m - spec.start.y_m)
+    if spec.stop_radius_m > DEFAULT_STOP_RADIUS_M and spec.stop_radius_m >= distance > 0.0:
+        raise ConfigError("stop_radius_m",
+                          f"{spec.stop_radius_m:g} m reaches the start, {distance:.3g} m from "
+                          "the goal: the run would count as converged where it stands",
+                          f"give a stop radius below {distance:.3g} m (default "
+                          f"{DEFAULT_STOP_RADIUS_M:g})")
 
 
 def _finite(field: str, value: object) -> float:
@@ -191,6 +228,10 @@ def _peer_gains(controller: str, values: Mapping[str, Any]) -> tuple[tuple[str, 
     return tuple(out)
 
 
+#: Tables of a batch spec (docs/batch.md) that a scenario file does not have.
+BATCH_TABLES = ("grid", "list", "random", "sweep")
+
+
 def _controller_fmu(value: object, path: Path | None) -> str | None:
     """``controller_fmu``: true (the built FMU, ``""``), false (``None``) or a path; a relative
     path is read from the scenario file's folder."""
@@ -208,6 +249,10 @@ def _controller_fmu(value: object, path: Path | None) -> str | None:
 def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
                    path: Path | None = None) -> Scenario:
     """Validate a scenario's parsed TOML ``data`` and expand it into runs."""
+    for key in BATCH_TABLES:
+        if key in data:
+            raise ConfigError(key, f"{source} is a batch spec (it has [{key}]), not a scenario",
+                              f"run it with 'wmr batch {source}'")
     _check_keys(data, TOP_FIELDS, "")
     name = data.get("name", Path(source).stem)
     if not isinstance(name, str) or not name:
@@ -262,6 +307,11 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
         if not isinstance(run_name, str) or not run_name:
             raise ConfigError(f"{where}.name", f"must be a non-empty string, got {run_name!r}",
                               "quote the name")
+        earlier = [j for j, r in enumerate(runs) if r.name == run_name]
+        if earlier:
+            raise ConfigError(f"{where}.name", f"{run_name!r} is already the name of "
+                              f"runs[{earlier[0]}]: the second could not be picked with --run",
+                              "give each run its own name")
         run_t_max = _positive(f"{where}.max_time_s", run.get("max_time_s", t_max))
         runs.append(RunSpec(name=run_name, start=run_start, goal=run_goal, params=params,
                             gains=gains, limits=limits, period_s=period, stop_radius_m=eps,

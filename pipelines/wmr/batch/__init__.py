@@ -11,6 +11,7 @@ See ``docs/batch.md``.
 
 from __future__ import annotations
 
+from wmr._callable import make_callable
 from wmr.batch.runner import DEFAULT_RUN_TIMEOUT_S, BatchOutcome, run_batch
 from wmr.batch.spec import BatchRun, BatchSpec, load_batch, parse_batch, spec_digest
 from wmr.batch.summary import read_summary
@@ -26,3 +27,7 @@ __all__ = [
     "run_batch",
     "spec_digest",
 ]
+
+
+# ``wmr.batch(...)`` is the API function (wmr.api); see wmr._callable.
+make_callable(__name__)

@@ -25,6 +25,7 @@ from typing import Any
 
 import wmr.run  # noqa: F401 - preloaded by the forkserver, so that workers start fast
 from wmr.batch.worker import PlantHolder, Task, wall_limit_message
+from wmr.energy import ENERGY_KEYS
 from wmr.errors import FmuError, WmrError
 from wmr.fmu.varmap import VariableMap
 
@@ -65,7 +66,8 @@ def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
     """The result record of a run that produced none (killed, or its worker died)."""
     return {"name": run_id, "status": status, "message": message,
             "final_position_error_m": None, "final_heading_error_rad": None,
-            "time_to_goal_s": None, "path_length_m": None, "energy_j": None,
+            "time_to_goal_s": None, "path_length_m": None,
+            **dict.fromkeys(ENERGY_KEYS),
             "torque_sq_integral_n2m2s": None, "peak_torque_nm": None, "steps": None,
             "mcap": None}
 

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from wmr.batch.spec import POSE_COLUMNS
 from wmr.batch.summary import ID_COLUMNS, RESULT_COLUMNS, STATUSES, SUMMARY_PARQUET
 from wmr.errors import ConfigError
+from wmr.naming import plural
 
 #: Inputs with at most this many distinct values are plotted per value, others in bins.
 DISCRETE_MAX: Final = 12
@@ -85,7 +86,8 @@ def _plot_status(counts: dict[str, int], path: Path) -> None:
         ax.annotate(f"{100.0 * counts[n] / total:.1f} %", (bar.get_x() + bar.get_width() / 2,
                     bar.get_height()), ha="center", va="bottom", fontsize=8)
     ax.set_ylabel("runs")
-    ax.set_title(f"{total} runs: {100.0 * counts.get('converged', 0) / total:.1f} % converged")
+    converged_pct = 100.0 * counts.get("converged", 0) / total
+    ax.set_title(f"{plural(total, 'run')}: {converged_pct:.1f} % converged")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -183,7 +185,7 @@ def write_report(batch_dir: Path, max_plots: int = 8) -> Path:
     ok = np.array([s == "converged" for s in status], dtype=bool)
     cols = {c: _floats(table, c) for c, _, _ in _SPREAD}
     lines = [f"# Batch report: {batch_dir.name}", "",
-             f"Summary: `{summary}`, {n} runs.", ""]
+             f"Summary: `{summary}`, {plural(n, 'run')}.", ""]
     if n == 0:
         lines.append("No finished runs.")
         path = out / "report.md"

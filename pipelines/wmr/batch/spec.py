@@ -347,6 +347,9 @@ def _dist(raw: object, field: str, src: str) -> _Dist:
 
 def _random(table: Mapping[str, Any]) -> tuple[list[dict[str, Value]], dict[str, str]]:
     seed = table.get("seed")
+    if seed is None:
+        raise ConfigError("random.seed", "missing (the samples must be reproducible)",
+                          "write e.g. seed = 1")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError("random.seed", f"must be a non-negative integer, got {seed!r}",
                           "write e.g. seed = 1")

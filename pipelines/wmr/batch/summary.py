@@ -31,7 +31,9 @@ RESULT_COLUMNS: Final[dict[str, pa.DataType]] = {
     "final_heading_error_rad": pa.float64(),
     "time_to_goal_s": pa.float64(),
     "path_length_m": pa.float64(),
-    "energy_j": pa.float64(),
+    "energy_net_j": pa.float64(),  # wmr.energy
+    "energy_positive_j": pa.float64(),
+    "energy_abs_j": pa.float64(),
     "torque_sq_integral_n2m2s": pa.float64(),
     "peak_torque_nm": pa.float64(),
     "steps": pa.int64(),

@@ -3,18 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Callable, Sequence
 
 from wmr import __version__
-from wmr.errors import WmrError
+from wmr.errors import ConfigError, WmrError
 
 Handler = Callable[[argparse.Namespace], int]
 
 
 def _cmd_fmu_build(args: argparse.Namespace) -> int:
     from wmr.fmu.build import build_fmus, summarize
+    from wmr.outputs import check_output
 
+    if args.out is not None:
+        check_output(args.out, "--out", "dir")
     result = build_fmus(args.out, force=args.force)
     # Standard output stays one path a line (scripts read it); what each FMU offers goes to
     # standard error.
@@ -66,6 +70,17 @@ def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.Argu
     return [run.register, replay.register, batch.register, optimal.register, ssp.register]
 
 
+def _json_error(args: argparse.Namespace, message: str, exc: BaseException) -> None:
+    """With ``--json``, a failure is a JSON line on stdout too, so that a script that reads the
+    last line always gets an object (``status`` ``error``, ``field`` for bad input)."""
+    if not getattr(args, "json", False):
+        return
+    record: dict[str, str] = {"status": "error", "message": message.replace("\n", " ")}
+    if isinstance(exc, ConfigError):
+        record["field"] = exc.field
+    print(json.dumps(record))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -81,12 +96,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         lines = str(exc).splitlines() or [type(exc).__name__]
         more = " (run with --debug for details)" if len(lines) > 1 else ""
         print(f"wmr: error: {lines[0]}{more}", file=sys.stderr)
+        _json_error(args, lines[0], exc)
         return 1
     except Exception as exc:
         if args.debug:
             raise
         print(f"wmr: internal error: {type(exc).__name__}: {exc} (run with --debug for the "
               "traceback)".replace("\n", " "), file=sys.stderr)
+        _json_error(args, f"internal error: {type(exc).__name__}: {exc}", exc)
         return 2
 
 

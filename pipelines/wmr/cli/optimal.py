@@ -43,13 +43,47 @@ def _json_line(obj: Any) -> str:
 
 # ---------------------------------------------------------------------------------- optimal
 
+#: Arguments of wmr.optimal.solve_optimal -> the options of wmr optimal that give them.
+_FLAGS = {"final_time_s": "--final-time", "torque_limit_nm": "--torque-limit",
+          "goal": "--goal", "start": "--start", "control_period_s": "--period"}
+
+
+def _as_flag(exc: ConfigError) -> ConfigError:
+    """The same error naming the command-line option instead of the function's argument."""
+    flag = _FLAGS.get(exc.field) or _FLAGS.get(exc.field.split(".")[0])
+    if flag is None:
+        return exc
+    fix = exc.fix.replace("n_intervals", "the Python API's n_intervals")
+    return ConfigError(flag, exc.problem, fix)
+
+
+def _optimal_name(args: argparse.Namespace, default_start: tuple[float, float, float],
+                  default_goal: tuple[float, float, float]) -> str:
+    """``optimal-time`` and a token per option that changes the manoeuvre (wmr.naming)."""
+    from wmr.naming import fmu_tokens, pose_token, variant_name
+    from wmr.plant import Pose
+
+    tokens = []
+    for label, given, default in (("from", args.start, default_start),
+                                  ("to", args.goal, default_goal)):
+        if given is not None and tuple(given) != default:
+            tokens.append(pose_token(label, Pose(given[0], given[1], math.radians(given[2]))))
+    if args.torque_limit is not None:
+        tokens.append(f"torque_max_nm={args.torque_limit:.10g}")
+    if args.torque_only:
+        tokens.append("torque_only")
+    if args.final_time is not None:
+        tokens.append(f"T={args.final_time:.10g}")
+    if args.period != 0.01:
+        tokens.append(f"period={args.period:.10g}")
+    return variant_name(f"optimal-{args.objective}", [*tokens, *fmu_tokens(args.fmi, args.fmu)])
+
 
 def _cmd_optimal(args: argparse.Namespace) -> int:
-    from wmr.benchmark import optimal_metadata, replay_figures, write_optimal_log
-    from wmr.control import Limits
-    from wmr.fmu.plant import FmuPlant
-    from wmr.optimal import OptimalLimits, replay_open_loop, solve_optimal
-    from wmr.plant import Pose, RobotParams
+    from wmr.naming import default_log_path
+    from wmr.optimal_case import optimal_to_log
+    from wmr.outputs import check_output
+    from wmr.plant import Pose
 
     def pose(v: list[float] | None, default: tuple[float, float, float], name: str) -> Pose:
         x, y, h = default if v is None else v
@@ -58,70 +92,36 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
                 raise ConfigError(f"--{name} {label}", f"must be finite, got {val!r}")
         return Pose(float(x), float(y), math.radians(h))
 
-    start = pose(args.start, (0.0, 0.0, 0.0), "start")
-    goal = pose(args.goal, (20.0, 10.0, 0.0), "goal")
-    pi = Limits()
-    torque = pi.torque_max_nm if args.torque_limit is None else args.torque_limit
-    if not math.isfinite(torque) or torque <= 0.0:
-        raise ConfigError("--torque-limit", f"must be > 0, got {torque!r}")
-    if args.torque_only:
-        limits = OptimalLimits(torque_max_nm=torque)
-    else:
-        limits = OptimalLimits(torque_max_nm=torque,
-                               wheel_speed_max_radps=pi.wheel_speed_max_radps,
-                               v_max_mps=pi.v_max_mps, omega_max_radps=pi.omega_max_radps)
-    params = RobotParams()
-    final_time = args.final_time
-    note = ""
-    if args.objective == "energy" and final_time is None:
-        t_min = solve_optimal(start, goal, params, objective="time", limits=limits)
-        if t_min.status != "solved":
-            raise ConfigError("--final-time", "no minimum time to base the energy run on "
-                              f"({t_min.status}: {t_min.message})", "give --final-time S")
-        final_time = 1.5 * t_min.final_time_s
-        note = f"final time 1.5 x the minimum time {t_min.final_time_s:.3f} s"
-    if args.objective == "time" and final_time is not None:
+    default_start, default_goal = (0.0, 0.0, 0.0), (20.0, 10.0, 0.0)
+    start = pose(args.start, default_start, "start")
+    goal = pose(args.goal, default_goal, "goal")
+    if not math.isfinite(args.period) or args.period <= 0.0:
+        raise ConfigError("--period", f"must be > 0, got {args.period!r}")
+    name = _optimal_name(args, default_start, default_goal)
+    out = check_output(args.out if args.out else default_log_path(name), "--out",
+                       suffix=".mcap")
+    if args.objective == "time" and args.final_time is not None:
         raise ConfigError("--final-time", "the time objective leaves the final time free",
                           "drop --final-time or use --objective energy")
-    res = solve_optimal(start, goal, params, objective=args.objective, limits=limits,
-                        final_time_s=final_time)
-    out = Path(args.out) if args.out else Path("runs") / f"optimal-{args.objective}.mcap"
-    if out.suffix != ".mcap":
-        raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
-    record: dict[str, Any] = {
-        "status": res.status, "message": res.message + (f"; {note}" if note else ""),
-        "objective": res.objective,
-        "final_time_s": res.final_time_s if res.status == "solved" else None,
-        "path_length_m": None, "mcap": None,
-        "ocp_path_length_m": res.path_length_m, "energy_J": res.energy_J,
-        "effort_N2m2s": res.effort_N2m2s, "solve_time_s": res.solve_time_s,
-        "iterations": res.iterations, "limits": res.summary()["limits"],
-    }
-    if res.status == "solved":
-        with FmuPlant(_fmu_path(args)) as plant:
-            replay = replay_open_loop(res, plant, params=params, start=start,
-                                      control_period_s=args.period)
-            figs = replay_figures(replay, goal, 0.05)
-            record.update(figs)
-            record["mcap"] = str(out)
-            record["final_heading_error_rad"] = float(replay.final_heading_error_rad)
-            record["final_speed_mps"] = replay.final_speed_mps
-            write_optimal_log(out, res, replay, plant,
-                              optimal_metadata("optimal", "", start, goal, params, limits,
-                                               args.objective, plant, args.period),
-                              {k: v for k, v in record.items()
-                               if not isinstance(v, dict)})
+    try:
+        record = optimal_to_log(start, goal, out, _fmu_path(args), name=name,
+                                objective=args.objective, torque_limit_nm=args.torque_limit,
+                                torque_only=args.torque_only, final_time_s=args.final_time,
+                                period_s=args.period)
+    except ConfigError as exc:
+        raise _as_flag(exc) from None
     if args.json:
         print(_json_line(record))
     else:
-        if res.status == "solved":
-            print(f"{res.status}: T = {res.final_time_s:.3f} s, path {record['path_length_m']:.2f}"
+        if record["status"] == "solved":
+            print(f"solved: T = {record['final_time_s']:.3f} s, path "
+                  f"{record['path_length_m']:.2f}"
                   f" m; FMU replay ends {record['final_position_error_m']:.4f} m and "
                   f"{math.degrees(abs(record['final_heading_error_rad'])):.3f} deg from the "
                   f"goal; log {out}")
         else:
-            print(f"{res.status}: {res.message}")
-    return {"solved": 0, "infeasible": 3}.get(res.status, 1)
+            print(f"{record['status']}: {record['message']}")
+    return {"solved": 0, "infeasible": 3}.get(record["status"], 1)
 
 
 # ---------------------------------------------------------------------------------- benchmark
@@ -138,14 +138,15 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         write_tables,
     )
     from wmr.fmu.plant import FmuPlant
+    from wmr.outputs import check_output
 
+    out = check_output(args.out if args.out else Path("runs") / "benchmark", "--out", "dir")
     specs = benchmark_specs(args.scenarios or list(DEFAULT_SCENARIOS))
     if args.limit_cases is not None:
         specs = specs[: args.limit_cases]
     labels = (list(CONTROLLERS) if not args.controllers
               else [c.strip() for c in args.controllers.split(",") if c.strip()])
     tuned = load_tuned(args.tuned)
-    out = Path(args.out) if args.out else Path("runs") / "benchmark"
 
     def progress(case: str, label: str) -> None:
         if not args.json:
@@ -169,9 +170,16 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
 def _cmd_tune(args: argparse.Namespace) -> int:
     from wmr.benchmark import run_optimal
     from wmr.fmu.plant import FmuPlant
+    from wmr.outputs import check_output
     from wmr.scenario import RunSpec, load_scenario
     from wmr.tune import DEFAULT_BUDGET, default_cases, tune
 
+    budget = DEFAULT_BUDGET if args.budget is None else args.budget
+    if budget < 1:
+        raise ConfigError("--budget", f"must be an integer >= 1, got {budget}",
+                          f"give e.g. --budget {DEFAULT_BUDGET}")
+    if args.save:
+        check_output(args.save, "--save")
     specs: list[RunSpec] = []
     if args.scenarios:
         for s in args.scenarios:
@@ -189,8 +197,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
                 o = run_optimal(s, plant, None)
                 opt_times.append(o.final_time_s)
         for c in controllers:
-            res = tune(c, specs, plant,
-                       budget=DEFAULT_BUDGET if args.budget is None else args.budget)
+            res = tune(c, specs, plant, budget=budget)
             saved[c] = res.gains
             gains = ", ".join(f"{k} = {v:.4g}" for k, v in res.gains.items())
             start = ", ".join(f"{k} = {v:.4g}" for k, v in res.start_gains.items())
@@ -205,10 +212,13 @@ def _cmd_tune(args: argparse.Namespace) -> int:
                 ratio = t / t_opt if t is not None and t_opt else None
                 if ratio is not None:
                     ratios.append(ratio)
-                print(f"    {s.name:22s} {r.status if r else 'rejected':9s} "
-                      f"t = {t if t is not None else float('nan'):7.2f} s  optimal "
-                      f"{t_opt if t_opt is not None else float('nan'):7.2f} s  ratio "
-                      f"{ratio if ratio is not None else float('nan'):.3f}")
+                line = (f"    {s.name:22s} {r.status if r else 'rejected':9s} t = "
+                        + (f"{t:7.2f} s" if t is not None else "      - s"))
+                if not args.no_optimal:  # without the optimum there is nothing to compare
+                    line += ("  optimal " + (f"{t_opt:7.2f} s" if t_opt is not None
+                                             else "      - s")
+                             + "  ratio " + (f"{ratio:.3f}" if ratio is not None else "-"))
+                print(line)
             if ratios:
                 print(f"  time / optimal time: mean {sum(ratios) / len(ratios):.3f}, "
                       f"max {max(ratios):.3f}")
@@ -249,7 +259,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--period", type=float, default=0.01, metavar="S",
                    help="longest FMU step of the replay, s (default 0.01)")
     p.add_argument("--out", metavar="FILE.mcap",
-                   help="log file (default runs/optimal-OBJECTIVE.mcap)")
+                   help="log file (default runs/optimal-OBJECTIVE[-CHANGES].mcap, named after "
+                        "the options that change the manoeuvre)")
     p.add_argument("--json", action="store_true", help="the result as JSON on the last line")
     _fmu_options(p)
     p.set_defaults(handler=_cmd_optimal)

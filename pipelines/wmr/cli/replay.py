@@ -12,8 +12,24 @@ def _warn(line: str) -> None:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from wmr.errors import ConfigError
+    from wmr.outputs import check_output
     from wmr.replay import replay
 
+    if args.blueprint is not None:
+        from wmr.rerun_blueprint import APPLICATION_ID, write_blueprint
+
+        path = write_blueprint(check_output(args.blueprint, "--blueprint", suffix=".rbl"))
+        print(path)
+        print(f"wrote the blueprint; open a log with Rerun's own loader: rerun mcap convert "
+              f"RUN.mcap --timeline-type duration --application-id {APPLICATION_ID} -o RUN.rrd"
+              f" && rerun RUN.rrd {path}", file=sys.stderr)
+        if not args.logs:
+            return 0
+    if not args.logs:
+        raise ConfigError("FILE.mcap|DIR", "no log given", "give run logs or folders of them")
+    if args.rrd is not None:
+        check_output(args.rrd, "--rrd", suffix=".rrd")
     spawn = False if args.no_viewer else None
     result = replay(args.logs, rrd=args.rrd, spawn=spawn)
     for line in result.warnings:
@@ -31,10 +47,13 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 def _cmd_figures(args: argparse.Namespace) -> int:
     from wmr.errors import ConfigError
     from wmr.figures import make_figures
+    from wmr.outputs import check_output
 
     if args.roa_grid < 0 or args.roa_headings < 1:
         raise ConfigError("--roa-grid", "needs N >= 0 and --roa-headings K >= 1",
                           "e.g. --roa-grid 9 --roa-headings 4, or --roa-grid 0 to skip it")
+
+    check_output(args.out, "--out", "dir")
 
     def progress(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
@@ -59,9 +78,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "recording, each under runs/<name>.  Opens a viewer when there is a "
                     "screen; otherwise, or with --rrd, writes an .rrd file (default: next to "
                     "the input) and prints its path.")
-    p.add_argument("logs", nargs="+", metavar="FILE.mcap|DIR",
+    p.add_argument("logs", nargs="*", metavar="FILE.mcap|DIR",
                    help="run logs, or folders searched recursively for *.mcap")
     p.add_argument("--rrd", metavar="OUT.rrd", help="write the recording to this file")
+    p.add_argument("--blueprint", metavar="OUT.rbl",
+                   help="write a Rerun blueprint that plots a log opened with Rerun's own MCAP "
+                        "loader (docs/replay.md)")
     p.add_argument("--no-viewer", action="store_true",
                    help="do not open a viewer even if there is a screen (write the .rrd)")
     p.set_defaults(handler=_cmd_replay)

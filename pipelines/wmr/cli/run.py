@@ -6,11 +6,11 @@ import argparse
 import sys
 from collections.abc import Callable
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from wmr.errors import ConfigError
-from wmr.paths import safe_filename
 
 if TYPE_CHECKING:
     from wmr.scenario import RunSpec, Scenario
@@ -28,18 +28,6 @@ def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
         except ValueError:
             raise ConfigError(f"{option} {name}", f"{value!r} is not a number") from None
     return out
-
-
-def _pose_name(name: str, start: list[float] | None, goal: list[float] | None) -> str | None:
-    """A run whose start or goal is typed in is named after them, so that its log and its
-    ``run`` record do not pass for the scenario's own run (``fig11`` to (20, 10, 0))."""
-    if start is None and goal is None:
-        return None
-    parts = [name]
-    for label, pose in (("from", start), ("to", goal)):
-        if pose is not None:
-            parts.append(f"{label}_{pose[0]:g}_{pose[1]:g}_{pose[2]:g}deg")
-    return "-".join(parts)
 
 
 def add_run_overrides(parser: argparse.ArgumentParser) -> None:
@@ -88,6 +76,8 @@ def select_run(scenario: Scenario, name: str | None) -> RunSpec:
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.fmu.plant import FmuPlant
     from wmr.fmu.varmap import load_map
+    from wmr.naming import default_log_path, fmu_tokens, run_name
+    from wmr.outputs import check_output
     from wmr.run import default_controller_fmu, default_fmu, result_json, run_to_log
     from wmr.scenario import load_scenario, with_overrides
 
@@ -97,18 +87,24 @@ def _cmd_run(args: argparse.Namespace) -> int:
         run, start=args.start, goal=args.goal,
         gains=_key_values(args.gain, "--gain"), limits=_key_values(args.limit, "--limit"),
         params=_key_values(args.param, "--param"), period_s=args.period,
-        stop_radius_m=args.stop_radius, t_max_s=args.max_time,
-        name=_pose_name(run.name, args.start, args.goal))
+        stop_radius_m=args.stop_radius, t_max_s=args.max_time)
     if args.sensors is not None or args.sensor:
-        from dataclasses import replace
-
         from wmr.sensing.config import command_line_sensors
 
         spec = replace(spec, sensors=command_line_sensors(spec.sensors, args.sensors,
                                                           args.sensor))
-    out = Path(args.out) if args.out else Path("runs") / f"{safe_filename(spec.name)}.mcap"
-    if out.suffix != ".mcap":
-        raise ConfigError("--out", f"{out} does not end in .mcap", "give FILE.mcap")
+    # a variant is named after what it changes, so that its log never overwrites the
+    # scenario's own run (runs/fig11.mcap) nor passes for it
+    extra = fmu_tokens(args.fmi, args.fmu)
+    if args.map:
+        extra.append(f"map_{Path(args.map).stem}")
+    if args.controller_fmu is not None and run.controller_fmu is None:
+        extra.append("controller_fmu")
+    spec = replace(spec, name=run_name(run, spec, extra))
+    out = check_output(args.out if args.out else default_log_path(spec.name), "--out",
+                       suffix=".mcap")
+    if args.view:
+        check_output(out.with_suffix(".rrd"), "--view")
     fmu_path = Path(args.fmu) if args.fmu else scenario.fmu or default_fmu(args.fmi)
     map_path = Path(args.map) if args.map else scenario.fmu_map
     var_map = load_map(map_path) if map_path is not None else None
@@ -142,6 +138,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             finish()
             if live is not None:
                 live.close()
+                print(f"live view recorded in {out.with_suffix('.rrd')}", file=sys.stderr)
     if args.json:
         print(result_json(record))
     else:

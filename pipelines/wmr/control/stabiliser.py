@@ -5,8 +5,8 @@ Block structure of Figs. 5 and 7, one control period ``h``::
     pose -> errors (eqs. 25-27, ROC) -> PI (eq. 29) -> D^-1 (eq. 28) -> wheel speed refs
                                                                        -> wheel servos (actuator.py)
 
-Every equation below carries the paper's number; the corrections of
-``shared/design/errata.md`` are applied (eq. 27: ``atan2`` and wrapping; ROC: ``gamma``
+Every equation below carries the paper's number; the corrections of the
+paper's errata (``docs/model.md``) are applied (eq. 27: ``atan2`` and wrapping; ROC: ``gamma``
 wrapped).
 
 Interpretation of eq. 28

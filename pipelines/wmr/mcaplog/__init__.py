@@ -33,10 +33,17 @@ bit for bit.  Metadata records: ``run`` (written first) and ``result`` (written 
 """
 
 from wmr.mcaplog.reader import Pose2D, RunData, read_run
-from wmr.mcaplog.schemas import STEP_TOPICS, TopicLayout, file_descriptor_set, message_class
+from wmr.mcaplog.schemas import (
+    OPEN_LOOP_TOPICS,
+    STEP_TOPICS,
+    TopicLayout,
+    file_descriptor_set,
+    message_class,
+)
 from wmr.mcaplog.writer import RunLogWriter, goal_message, yaw_quaternion
 
 __all__ = [
+    "OPEN_LOOP_TOPICS",
     "STEP_TOPICS",
     "Pose2D",
     "RunData",

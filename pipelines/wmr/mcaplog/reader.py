@@ -25,7 +25,9 @@ from wmr.errors import LogError
 from wmr.mcaplog.schemas import (
     GOAL_SCHEMA,
     GOAL_TOPIC,
+    OPEN_LOOP_TOPICS,
     STEP_TOPICS,
+    TORQUE_TOPIC,
     TopicLayout,
     decode_bodies,
     file_descriptor_set,
@@ -291,12 +293,15 @@ def read_run(path: str | os.PathLike[str]) -> RunData:
     counts: list[int] = []
     t_ns: NDArray[np.int64] | None = None
     warnings = list(scan.warnings)
-    for layout in STEP_TOPICS:
+    open_loop = TORQUE_TOPIC.topic in by_topic
+    expected = {t.topic for t in (OPEN_LOOP_TOPICS if open_loop else STEP_TOPICS)}
+    for layout in (*STEP_TOPICS, TORQUE_TOPIC):
         if not layout.signals:
             continue
         channel = by_topic.get(layout.topic)
         if channel is None:
-            warnings.append(f"topic {layout.topic} is missing: its signals are NaN")
+            if layout.topic in expected:
+                warnings.append(f"topic {layout.topic} is missing: its signals are NaN")
             continue
         msgs = scan.messages.get(channel.id, [])
         values = _decode_topic(layout, channel, scan.schemas.get(channel.schema_id), msgs)

@@ -49,6 +49,9 @@ WMR_MESSAGES: Final[dict[str, tuple[str, ...]]] = {
     "wmr.ControllerErrors": CONTROL_SIGNALS[0:6],
     "wmr.Commands": CONTROL_SIGNALS[6:16],
     "wmr.ControlPoints": CONTROL_SIGNALS[16:20],
+    # the torques alone: the input of an open-loop run (an optimal manoeuvre replayed on the
+    # FMU), which has no controller and so none of the controller topics
+    "wmr.Torques": ("tau_r_nm", "tau_l_nm"),
 }
 WMR_PROTO_FILE: Final = "wmr/signals.proto"
 
@@ -236,6 +239,11 @@ STEP_TOPICS: Final[tuple[TopicLayout, ...]] = (
     _wmr_layout("/controller/commands", "wmr.Commands"),
     _wmr_layout("/controller/points", "wmr.ControlPoints"),
 )
+#: The torque topic of an open-loop log (``/robot/torques``, :data:`OPEN_LOOP_TOPICS`).
+TORQUE_TOPIC: Final = _wmr_layout("/robot/torques", "wmr.Torques")
+#: The per-step topics of an open-loop log: the robot's, and the torques applied; no
+#: controller topics, so that no field is NaN for want of a controller.
+OPEN_LOOP_TOPICS: Final[tuple[TopicLayout, ...]] = (*STEP_TOPICS[:3], TORQUE_TOPIC)
 GOAL_TOPIC: Final = "/goal"
 GOAL_SCHEMA: Final = "foxglove.PoseInFrame"
 
@@ -305,18 +313,22 @@ class RowEncoder:
     Parameters
     ----------
     channel_ids
-        MCAP channel id of each topic of :data:`STEP_TOPICS`, same order.
+        MCAP channel id of each topic of ``layouts``, same order.
+    layouts
+        The topics written for each row: :data:`STEP_TOPICS` (a closed-loop run, default) or
+        :data:`OPEN_LOOP_TOPICS`.
     """
 
-    def __init__(self, channel_ids: tuple[int, ...]) -> None:
-        if len(channel_ids) != len(STEP_TOPICS):
+    def __init__(self, channel_ids: tuple[int, ...],
+                 layouts: tuple[TopicLayout, ...] = STEP_TOPICS) -> None:
+        if len(channel_ids) != len(layouts):
             raise ValueError("one channel id per step topic")
-        n_topics = len(STEP_TOPICS)
+        n_topics = len(layouts)
         # The padded segment of topic k, in symbols (kind, index), mapped to source columns.
         sym: list[tuple[str, int]] = []
         ts_pos: list[int] = []  # where each topic's 12 padded timestamp bytes start
         seg_const: list[int] = []  # segment length without the timestamp bytes
-        for k, (layout, cid) in enumerate(zip(STEP_TOPICS, channel_ids, strict=True)):
+        for k, (layout, cid) in enumerate(zip(layouts, channel_ids, strict=True)):
             head = struct.pack("<BQHI", _OP_MESSAGE, 0, cid, 0)
             sym += [("len", 8 * k + j - 1) if 1 <= j <= 8 else ("c", b) for j, b in enumerate(head)]
             sym += [("t", j) for j in range(8)] * 2  # log time, publish time

@@ -1,0 +1,333 @@
+"""The Python API for notebooks and scripts: ``import wmr``.
+
+::
+
+    import wmr
+    res = wmr.run("fig11", params={"m": 40.0})    # a closed-loop run on the FMU, logged
+    res.path                                       # DataFrame: t_s, x_m, y_m, theta_rad
+    log = wmr.read_log(res.mcap)                   # every signal as a DataFrame + metadata
+
+Every function runs what the matching command runs (``wmr run``, ``wmr batch``, ``wmr
+optimal``) with the same names, validation, logs and result records (``docs/results.md``);
+results show as a table in a notebook (``_repr_html_``) and draw themselves (``plot()``).
+
+Signals come as :class:`pandas.DataFrame` s: pandas is what notebooks, matplotlib and seaborn
+take as they are, and the batch summaries are Arrow tables that become DataFrames without a
+copy of the columns' meaning.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from wmr.errors import ConfigError
+
+if TYPE_CHECKING:  # pandas and matplotlib load only when a result is used
+    import pandas as pd
+    from matplotlib.axes import Axes
+
+    from wmr.scenario import Scenario
+
+PoseLike = Sequence[float]
+#: Columns of :attr:`Log.path` (and :attr:`RunResult.path`).
+PATH_COLUMNS = ("x_m", "y_m", "theta_rad")
+
+
+def _table_html(title: str, record: Mapping[str, Any]) -> str:
+    rows = "".join(
+        f"<tr><th style='text-align:left'>{html.escape(str(k))}</th>"
+        f"<td style='text-align:left'>{html.escape(_fmt(v))}</td></tr>"
+        for k, v in record.items() if not isinstance(v, dict))
+    return f"<b>{html.escape(title)}</b><table>{rows}</table>"
+
+
+def _fmt(v: object) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}" if math.isfinite(v) else "-"
+    return "-" if v is None else str(v)
+
+
+@dataclass(frozen=True)
+class Log:
+    """A run log read back (:func:`read_log`).
+
+    Attributes
+    ----------
+    path_to_file
+        The ``.mcap`` file.
+    signals
+        One row per control step, index ``t_s`` (simulation time, s), a column per signal of
+        :data:`wmr.signals.SIGNALS` (name with unit; NaN where the log has no such topic).
+    metadata
+        ``run`` and ``result`` records, values decoded from JSON.
+    attachments
+        Attachment name -> bytes (the effective scenario ``NAME.toml``, the FMU's
+        ``modelDescription.xml``).
+    truncated, warnings
+        A cut file's prefix, and what was skipped.
+    """
+
+    path_to_file: Path
+    signals: pd.DataFrame
+    metadata: dict[str, dict[str, Any]]
+    attachments: dict[str, bytes] = field(default_factory=dict)
+    truncated: bool = False
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def path(self) -> pd.DataFrame:
+        """The robot's path: ``x_m``, ``y_m``, ``theta_rad`` against ``t_s``."""
+        return self.signals[list(PATH_COLUMNS)]
+
+    @property
+    def result(self) -> dict[str, Any]:
+        """The ``result`` record (the ``wmr run --json`` object)."""
+        return self.metadata.get("result", {})
+
+    @property
+    def scenario_toml(self) -> str | None:
+        """The effective scenario attached to the log (``wmr run`` repeats the run from it)."""
+        for name, data in self.attachments.items():
+            if name.endswith(".toml"):
+                return data.decode("utf-8")
+        return None
+
+    def plot(self, ax: Axes | None = None) -> Axes:
+        """Draw the path of B and the goal in the plane (m), equal axes."""
+        return _plot_path(self.path, self.metadata.get("run", {}).get("goal"),
+                          str(self.metadata.get("run", {}).get("name", "")), ax)
+
+    def _repr_html_(self) -> str:
+        name = self.metadata.get("run", {}).get("name", self.path_to_file.name)
+        return _table_html(f"{name}: {len(self.signals)} steps, {self.path_to_file}",
+                           self.result)
+
+
+def _plot_path(path: pd.DataFrame, goal: Mapping[str, float] | None, label: str,
+               ax: Axes | None) -> Axes:
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        _, ax = plt.subplots()
+    ax.plot(path["x_m"], path["y_m"], label=label or None)
+    if goal:
+        ax.plot([goal["x_m"]], [goal["y_m"]], "k*", markersize=12, label="goal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(loc="best")
+    return ax
+
+
+def read_log(path: str | Path) -> Log:
+    """Read a run log (``wmr run``, ``wmr batch``, ``wmr optimal``) into a :class:`Log`."""
+    import pandas as pd
+
+    from wmr.mcaplog import read_run
+    from wmr.signals import SIGNALS
+
+    data = read_run(path)
+    frame = pd.DataFrame({name: data.signals[name] for name in SIGNALS},
+                         index=pd.Index(data.t_s, name="t_s"))
+    metadata: dict[str, dict[str, Any]] = {}
+    for rec, values in data.metadata.items():
+        decoded: dict[str, Any] = {}
+        for k, v in values.items():
+            try:
+                decoded[k] = json.loads(v)
+            except ValueError:
+                decoded[k] = v
+        metadata[rec] = decoded
+    return Log(Path(path), frame, metadata, dict(data.attachments), data.truncated,
+               tuple(data.warnings))
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """A run made by :func:`run` or :func:`optimal`: its result record and its log."""
+
+    record: dict[str, Any]
+    log: Log | None
+
+    @property
+    def status(self) -> str:
+        """``converged``, ``timeout`` or ``failed`` (optimal: ``solved``, ``infeasible``...)."""
+        return str(self.record["status"])
+
+    @property
+    def mcap(self) -> Path | None:
+        """The log file (None when nothing was logged)."""
+        return None if self.record.get("mcap") is None else Path(self.record["mcap"])
+
+    @property
+    def path(self) -> pd.DataFrame:
+        """The robot's path: ``x_m``, ``y_m``, ``theta_rad`` against ``t_s`` (empty without a
+        log)."""
+        if self.log is None:
+            import pandas as pd
+
+            return pd.DataFrame(columns=list(PATH_COLUMNS), index=pd.Index([], name="t_s"))
+        return self.log.path
+
+    @property
+    def signals(self) -> pd.DataFrame:
+        """Every signal of the log (:attr:`Log.signals`)."""
+        if self.log is None:
+            raise ConfigError("log", "this run wrote no log", "see .record['message']")
+        return self.log.signals
+
+    def __getitem__(self, key: str) -> Any:
+        return self.record[key]
+
+    def plot(self, ax: Axes | None = None) -> Axes:
+        """Draw the path and the goal (:meth:`Log.plot`)."""
+        if self.log is None:
+            raise ConfigError("log", "this run wrote no log", "see .record['message']")
+        return self.log.plot(ax)
+
+    def _repr_html_(self) -> str:
+        return _table_html(str(self.record.get("name", "run")), self.record)
+
+
+def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
+    """A scenario file (``"fig9"``, ``"fig10"``, ``"fig11"`` or a path), validated and
+    expanded (:func:`wmr.scenario.load_scenario`)."""
+    from wmr.scenario import load_scenario as _load
+
+    return _load(name_or_path)
+
+
+def _pose(value: PoseLike | None, name: str) -> tuple[float, float, float] | None:
+    if value is None:
+        return None
+    if len(value) != 3:
+        raise ConfigError(name, f"must be (x_m, y_m, heading_deg), got {value!r}")
+    return (float(value[0]), float(value[1]), float(value[2]))
+
+
+def run(scenario: str | Path | None = None, *, run: str | None = None,
+        start: PoseLike | None = None, goal: PoseLike | None = None,
+        params: Mapping[str, float] | None = None, gains: Mapping[str, float] | None = None,
+        limits: Mapping[str, float] | None = None, period_s: float | None = None,
+        stop_radius_m: float | None = None, max_time_s: float | None = None,
+        controller: str | None = None, out: str | Path | None = None,
+        fmi: int = 3, fmu: str | Path | None = None) -> RunResult:
+    """One closed-loop run, as ``wmr run`` makes it; returns its record and its log.
+
+    Parameters
+    ----------
+    scenario
+        Scenario name or file (default ``fig11``); ``run`` picks one run of a multi-run one.
+    start, goal
+        ``(x_m, y_m, heading_deg)``, as on the command line.
+    params, gains, limits
+        Overrides by name (``--param``, ``--gain``, ``--limit``).
+    period_s, stop_radius_m, max_time_s, controller
+        Overrides of the run's settings.
+    out
+        The log (default ``runs/NAME.mcap``, NAME after the overrides: ``docs/results.md``).
+    fmi, fmu
+        The project's FMI 2 or 3 build, or another FMU file.
+    """
+    from wmr.fmu.plant import FmuPlant
+    from wmr.naming import default_log_path, fmu_tokens, run_name
+    from wmr.outputs import check_output
+    from wmr.run import default_fmu, run_to_log
+    from wmr.scenario import with_overrides
+
+    sc = load_scenario(scenario)
+    runs = [r for r in sc.runs if run is None or r.name == run]
+    if len(runs) != 1:
+        raise ConfigError("run", f"scenario {sc.name} has {len(runs)} runs named {run!r}"
+                          if run is not None else f"scenario {sc.name} has {len(runs)} runs",
+                          "pick one of: " + ", ".join(r.name for r in sc.runs[:6]))
+    base = runs[0]
+    spec = with_overrides(base, start=_pose(start, "start"), goal=_pose(goal, "goal"),
+                          params=params, gains=gains, limits=limits, period_s=period_s,
+                          stop_radius_m=stop_radius_m, t_max_s=max_time_s,
+                          controller=controller)
+    spec = replace(spec, name=run_name(base, spec, fmu_tokens(fmi, fmu)))
+    path = check_output(out if out is not None else default_log_path(spec.name), "out",
+                        suffix=".mcap")
+    with FmuPlant(Path(fmu) if fmu is not None else default_fmu(fmi)) as plant:
+        record = run_to_log(spec, path, plant, scenario_file=sc.path)
+    return RunResult(record, read_log(path))
+
+
+def optimal(start: PoseLike = (0.0, 0.0, 0.0), goal: PoseLike = (20.0, 10.0, 0.0), *,
+            objective: str = "time", torque_limit_nm: float | None = None,
+            torque_only: bool = False, final_time_s: float | None = None,
+            period_s: float = 0.01, out: str | Path | None = None,
+            fmi: int = 3, fmu: str | Path | None = None) -> RunResult:
+    """The optimal manoeuvre, as ``wmr optimal`` makes it (solved, replayed on the FMU,
+    logged); ``start`` and ``goal`` are ``(x_m, y_m, heading_deg)``."""
+    from wmr.naming import default_log_path, fmu_tokens, pose_token, variant_name
+    from wmr.optimal_case import optimal_to_log
+    from wmr.outputs import check_output
+    from wmr.plant import Pose
+    from wmr.run import default_fmu
+
+    poses: list[Pose] = []
+    tokens: list[str] = []
+    for field_name, label, value, default in (("start", "from", start, (0.0, 0.0, 0.0)),
+                                              ("goal", "to", goal, (20.0, 10.0, 0.0))):
+        x, y, heading_deg = _pose(value, field_name) or default
+        poses.append(Pose(x, y, math.radians(heading_deg)))
+        if (x, y, heading_deg) != default:  # named after what differs, as wmr optimal
+            tokens.append(pose_token(label, poses[-1]))
+    name = variant_name(f"optimal-{objective}", [*tokens, *fmu_tokens(fmi, fmu)])
+    path = check_output(out if out is not None else default_log_path(name), "out",
+                        suffix=".mcap")
+    record = optimal_to_log(poses[0], poses[1], path,
+                            Path(fmu) if fmu is not None else default_fmu(fmi), name=name,
+                            objective=objective, torque_limit_nm=torque_limit_nm,
+                            torque_only=torque_only, final_time_s=final_time_s,
+                            period_s=period_s)
+    return RunResult(record, read_log(path) if record.get("mcap") else None)
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """A batch made by :func:`batch`: its folder and its summary, one row per run."""
+
+    out: Path
+    summary: pd.DataFrame
+
+    def log(self, run_id: str) -> Log:
+        """The log of one run of the batch."""
+        return read_log(self.out / "runs" / f"{run_id}.mcap")
+
+    def _repr_html_(self) -> str:
+        counts = self.summary["status"].value_counts().to_dict()
+        head = ", ".join(f"{n} {s}" for s, n in counts.items())
+        return f"<b>{html.escape(str(self.out))}</b>: {head}" + str(
+            self.summary.to_html(max_rows=20))
+
+
+def batch(spec: str | Path, out: str | Path | None = None, *,
+          workers: int | None = None, scheduler: str | None = None,
+          run_timeout_s: float | None = None, fmi: int = 3,
+          fmu: str | Path | None = None) -> BatchResult:
+    """Many runs, as ``wmr batch`` makes them (resumable: done runs are kept); returns the
+    summary as a DataFrame (``docs/batch.md``)."""
+    import pyarrow.parquet as pq
+
+    from wmr.batch import DEFAULT_RUN_TIMEOUT_S, load_batch, run_batch
+    from wmr.outputs import check_output
+
+    folder = check_output(out if out is not None else Path("batches") / Path(spec).stem, "out",
+                          "dir")
+    run_batch(load_batch(spec), folder, workers=workers, scheduler=scheduler,
+              run_timeout_s=DEFAULT_RUN_TIMEOUT_S if run_timeout_s is None else run_timeout_s,
+              fmu_path=fmu, fmi_version=fmi, progress=False)
+    return BatchResult(folder, pq.read_table(folder / "summary.parquet").to_pandas())
+
+
+__all__ = ["BatchResult", "Log", "RunResult", "batch", "load_scenario", "optimal",
+           "read_log", "run"]

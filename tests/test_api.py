@@ -1,0 +1,65 @@
+"""The Python API (issue 11, item 2): the example of docs/api.md runs as written, ``import
+wmr`` loads nothing heavy, and the API names stay callable when their modules are imported."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import wmr
+from wmr.paths import _REPO_ROOT
+
+DOC = _REPO_ROOT / "docs" / "api.md"
+
+
+def _python_blocks(text: str) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", text, flags=re.S)
+
+
+def test_the_documented_example_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    blocks = _python_blocks(DOC.read_text(encoding="utf-8"))
+    assert len(blocks) >= 4
+    namespace: dict[str, object] = {}
+    for block in blocks:
+        exec(compile(block, str(DOC), "exec"), namespace)
+    res = namespace["res"]
+    assert isinstance(res, wmr.RunResult)
+    assert "<table>" in res._repr_html_() and "converged" in res._repr_html_()
+    assert "masses" in namespace["sweep"]._repr_html_()  # type: ignore[attr-defined]
+
+
+def test_import_wmr_loads_nothing_heavy() -> None:
+    code = ("import sys, wmr; heavy = [m for m in ('numpy', 'pandas', 'wmr.api', 'casadi', "
+            "'fmpy') if m in sys.modules]; print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env={"PYTHONPATH": str(_REPO_ROOT / "pipelines")})
+    assert out.stdout.strip() == "[]"
+
+
+def test_api_names_stay_callable_next_to_their_modules() -> None:
+    import wmr.batch
+    import wmr.optimal
+    import wmr.run
+    from wmr.run import run_to_log
+
+    assert callable(wmr.run) and callable(wmr.batch) and callable(wmr.optimal)
+    assert wmr.run.run_to_log is run_to_log  # the module is still the module
+    for name in ("load_scenario", "read_log", "Log", "RunResult", "BatchResult"):
+        assert name in dir(wmr) and getattr(wmr, name) is not None
+    with pytest.raises(AttributeError):
+        _ = wmr.no_such_thing  # type: ignore[attr-defined]
+
+
+def test_api_input_errors_name_the_argument(tmp_path: Path) -> None:
+    from wmr.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"params\.m"):
+        wmr.run(params={"m": 0.0}, out=tmp_path / "x.mcap")
+    with pytest.raises(ConfigError, match="goal"):
+        wmr.run(goal=(1.0, 2.0), out=tmp_path / "x.mcap")
+    assert not (tmp_path / "x.mcap").exists()
