@@ -307,7 +307,9 @@ def test_failures_timeouts_hangs_and_crashes_are_rows(fmu3: Path, tmp_path: Path
     batch = load_batch(_write(tmp_path, FAILING))
     by_variant = {r.variant: r.run_id for r in batch.runs}
     out = tmp_path / "out"
-    result = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False, run_timeout_s=0.5,
+    # 2 s of wall clock: the short runs finish well inside it on a loaded machine, "slow" (300 000
+    # steps) cannot
+    result = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False, run_timeout_s=2.0,
                        faults={by_variant["hang"]: "hang", by_variant["crash"]: "crash"})
     assert not result.interrupted and result.finished == 7
     table = pq.read_table(out / "summary.parquet").to_pylist()
@@ -326,7 +328,7 @@ def test_failures_timeouts_hangs_and_crashes_are_rows(fmu3: Path, tmp_path: Path
     assert rows["crash"]["time_to_goal_s"] is None
     assert result.counts == {"converged": 2, "timeout": 3, "failed": 2}
     # killed runs are final: a rerun does nothing
-    again = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False, run_timeout_s=0.5)
+    again = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False, run_timeout_s=2.0)
     assert again.executed == []
 
 

@@ -374,6 +374,14 @@ def test_controller_fmus_pass_validation_and_declare_the_fixed_step(built: Build
     assert variables["goal.heading_deg"].unit == "deg"
 
 
+#: fmpy's native logger proxy (``fmpy.logging.addLoggerProxy``) keeps the LAST Python logger
+#: given to ``instantiate_fmu`` in a process-wide variable, and ``fmpy.fmi2.defaultCallbacks``
+#: goes through that proxy too: once such a logger is garbage-collected, the next FMI 2 message of
+#: any instance in the process calls freed memory (a Bus error in a later test).  The callbacks
+#: given to fmpy here therefore live as long as the process.
+_FMPY_LOGGER_CALLBACKS: list[object] = []
+
+
 def _simulate(path: Path, step_size: float, inputs: dict[str, float] | None = None
               ) -> tuple[int, list[str]]:
     """Drive the FMU one step through fmpy; return the doStep status and the log lines."""
@@ -388,6 +396,7 @@ def _simulate(path: Path, step_size: float, inputs: dict[str, float] | None = No
 
     unzipdir = extract(str(path))
     fmu = instantiate_fmu(unzipdir, md, fmi_type="CoSimulation", logger=logger)
+    _FMPY_LOGGER_CALLBACKS.append(getattr(fmu, "callbacks", None) or fmu.logMessage)
     setter = fmu.setReal if md.fmiVersion == "2.0" else fmu.setFloat64
     getter = fmu.getReal if md.fmiVersion == "2.0" else fmu.getFloat64
     status = 0
@@ -562,10 +571,10 @@ def test_a_batch_with_the_controller_fmu_key_logs_the_python_paths(tmp_path: Pat
 
 
 @pytest.mark.parametrize("version", [2, 3])
-def test_outputs_are_the_sample_of_the_current_state_and_inputs(built: BuildResult,
-                                                                version: int) -> None:
-    """After doStep the outputs are g(z_next, u) even when the master sets no new input, and
-    an FMU state restores the controller's discrete state."""
+def test_outputs_hold_the_sample_until_the_next_input(built: BuildResult, version: int) -> None:
+    """After doStep the outputs hold the sample just taken (zero-order hold); setting the
+    inputs at the new time takes the next sample, equal to the Python controller's second
+    step; an FMU state restores the controller's discrete state."""
     from fmpy import extract, instantiate_fmu
 
     path = built.controllers[version]
@@ -587,12 +596,16 @@ def test_outputs_are_the_sample_of_the_current_state_and_inputs(built: BuildResu
         put(ins, u1)
         y0 = get(outs)
         fmu.doStep(0.0, 0.01)
+        held = get(outs)  # no input set since the step: the sample of t = 0
         state = fmu.getFMUstate() if version == 2 else fmu.getFMUState()
-        y1 = get(outs)  # no input set since the step
+        put(ins, u1)  # the same measurement, set at t = 0.01: the next sample
+        y1 = get(outs)
         fmu.doStep(0.01, 0.01)
         put(ins, u2)
         y2 = get(outs)
         (fmu.setFMUstate if version == 2 else fmu.setFMUState)(state)
+        held_again = get(outs)
+        put(ins, u1)
         y1_again = get(outs)
     finally:
         fmu.freeInstance()
@@ -605,6 +618,7 @@ def test_outputs_are_the_sample_of_the_current_state_and_inputs(built: BuildResu
     for u, y in ((u1, y0), (u1, y1), (u2, y2)):
         x, yy, theta, _, _, w_r, w_l = u
         assert ctrl.step(x, yy, theta, w_r, w_l) == pytest.approx(y, abs=1e-12)
+    assert held == y0 and held_again == y0
     assert y1_again == y1
     assert y1 != y0  # the integrals moved: the second sample differs from the first
 

@@ -23,6 +23,7 @@ from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
+from wmr.durable import partial_path
 from wmr.errors import LogError
 from wmr.mcaplog import RunLogWriter, read_run
 from wmr.mcaplog.schemas import (
@@ -382,7 +383,8 @@ def test_killed_writer_leaves_whole_seconds(tmp_path: Path) -> None:
     env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parents[1] / "pipelines"), *sys.path])
     proc = subprocess.run([sys.executable, "-c", script], env=env, check=False, timeout=60)
     assert proc.returncode == 9
-    run = read_run(path)
+    assert not path.exists(), "nothing at the final path until the log is finished"
+    run = read_run(partial_path(path))
     assert run.truncated
     assert run.n_steps == 300  # seconds 0, 1, 2 were flushed; the chunk of second 3 was not
     assert run.signals["tau_l_nm"][299] == COLUMN["tau_l_nm"] + 2.99
@@ -450,8 +452,11 @@ def test_damaged_chunk_is_dropped_not_trusted(tmp_path: Path) -> None:
     run = read_run(path)
     assert run.truncated
     assert any("crc" in w.lower() for w in run.warnings)
-    assert run.n_steps == 100
-    assert np.array_equal(run.block(), block[:100])
+    assert any("from t = 1 s to 1.99 s are left out" in w for w in run.warnings)
+    # the damaged second is left out; the seconds on either side are kept
+    assert run.n_steps == 200
+    assert np.array_equal(run.t_ns, np.concatenate([t[:100], t[200:]]))
+    assert np.array_equal(run.block(), np.concatenate([block[:100], block[200:]]))
 
 
 # ------------------------------------------------------------------------------------------

@@ -303,7 +303,7 @@ def test_live_view_default_rrd_without_screen(spec: RunSpec, tmp_path: Path,
     t = np.arange(3, dtype=np.int64) * 10_000_000
     sink.write_block(t, np.zeros((3, len(SIGNALS))))
     sink.close()
-    out = tmp_path / "runs" / "a_run_with_spaces.rrd"
+    out = tmp_path / "runs" / "a%20run%2Fwith%20spaces.rrd"  # one-to-one with the name
     assert out.is_file()
     ents, _ = read_rrd(out)
     assert ents["/runs/a\\ run\\/with\\ spaces/errors"].rows == 3

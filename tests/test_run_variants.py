@@ -44,7 +44,7 @@ def test_every_override_names_the_run(override: dict[str, object], token: str) -
 def test_an_unchanged_run_keeps_its_name_and_long_names_stay_apart() -> None:
     base = load_scenario("fig11").runs[0]
     assert run_name(base, with_overrides(base, goal=(20.0, 10.0, 0.0))) == "fig11"
-    assert run_name(base, base, fmu_tokens(2, None)) == "fig11-fmi2"
+    assert run_name(base, base, fmu_tokens(2, None)) == "fig11-fmi2"  # (wmr run: file only)
     assert run_name(base, base, fmu_tokens(3, "other/plant.fmu")) == "fig11-fmu_plant"
     a = with_overrides(base, gains={k: 0.123456789 for k in base.gains.as_dict()},
                        limits={"torque_max_nm": 5.0}, params={"m": 30.0})
@@ -61,6 +61,7 @@ def test_a_variant_run_does_not_overwrite_the_baseline_log(
     _, variant = _run_json(capsys, "--max-time", "1", "--param", "m=40", "--fmi", "2")
     assert base["mcap"] == str(Path("runs/fig11-tmax=1.mcap"))
     assert variant["mcap"] == str(Path("runs/fig11-m=40-tmax=1-fmi2.mcap"))
+    assert variant["name"] == "fig11-m=40-tmax=1"  # the FMI version names the file, not the run
     assert json.loads(read_run(str(base["mcap"])).metadata["run"]["params"])["m"] == 25.0
     assert json.loads(read_run(str(variant["mcap"])).metadata["run"]["params"])["m"] == 40.0
 

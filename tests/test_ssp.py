@@ -28,12 +28,10 @@ from wmr.ssp.package import read_package
 
 POSITION_TOL_M = 5e-3
 HEADING_TOL_RAD = math.radians(0.2)
-#: The controller FMU's outputs after doStep are g(z_next, u) of the measurement set before
-#: the step (docs/control.md): a Jacobi master hands the robot the new state's torques on a
-#: measurement one period old.  Where that costs more than the 0.2 deg bar, the case is a
-#: strict xfail with the measured figure, so that a change that brings it back in turns the
-#: test red until the docs and this list are updated (docs/ssp.md, "Measured agreement").
-_OVER_HEADING_BAR = "over the 0.2 deg bar with the controller FMU's direct-feedthrough outputs"
+#: The controller FMU holds its sample after doStep until the next input (docs/control.md):
+#: a Jacobi master hands the robot each torque one period late.  A case over a bar would be a
+#: strict xfail with the measured figure (docs/ssp.md, "Measured agreement"); none is now.
+_OVER: dict[str, str] = {}
 
 
 def _cases(over: dict[str, str]) -> list[object]:
@@ -47,8 +45,8 @@ def _cases(over: dict[str, str]) -> list[object]:
     return cases
 
 
-LIBCOSIM_CASES = _cases({"fig9-thd-090": f"0.253 deg: {_OVER_HEADING_BAR}"})
-FMPY_CASES = _cases({"fig11": f"0.244 deg: {_OVER_HEADING_BAR}"})
+LIBCOSIM_CASES = _cases(_OVER)
+FMPY_CASES = _cases(_OVER)
 
 
 def _spec(scenario: str, run: str | None) -> RunSpec:

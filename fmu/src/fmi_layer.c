@@ -732,11 +732,12 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
         return fail(inst);
     }
 #if MODEL_SAMPLED
-    /* y stays the last good sample; the outputs at the new time are g(z_next, u), evaluated
-     * on the next get with whatever inputs the master has set by then (direct feedthrough) */
+    /* zero-order hold: the outputs keep the sample just taken until the master sets an
+     * input at the new time, which takes the next sample (direct feedthrough); a master that
+     * reads before it sets (Jacobi) so applies each sample one period late, a pure delay */
     memcpy(d->x, x, sizeof(x));
     memcpy(d->y, y, sizeof(y));
-    d->outputs_dirty = 1;
+    d->outputs_dirty = 0;
 #else
     if (!compute_outputs(fn, inst, x, y)) {
         fl_log(inst, FL_ERROR, "%s: the last good state at t = %.17g is kept", fn, d->time);

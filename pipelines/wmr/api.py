@@ -236,7 +236,7 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
         The project's FMI 2 or 3 build, or another FMU file.
     """
     from wmr.fmu.plant import FmuPlant
-    from wmr.naming import default_log_path, fmu_tokens, run_name
+    from wmr.naming import default_log_path, fmu_tokens, run_name, variant_name
     from wmr.outputs import check_output
     from wmr.run import default_fmu, run_to_log
     from wmr.scenario import with_overrides
@@ -252,9 +252,10 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
                           params=params, gains=gains, limits=limits, period_s=period_s,
                           stop_radius_m=stop_radius_m, t_max_s=max_time_s,
                           controller=controller)
-    spec = replace(spec, name=run_name(base, spec, fmu_tokens(fmi, fmu)))
-    path = check_output(out if out is not None else default_log_path(spec.name), "out",
-                        suffix=".mcap")
+    spec = replace(spec, name=run_name(base, spec))  # the FMU names the file only (wmr run)
+    path = check_output(out if out is not None
+                        else default_log_path(variant_name(spec.name, fmu_tokens(fmi, fmu))),
+                        "out", suffix=".mcap")
     with FmuPlant(Path(fmu) if fmu is not None else default_fmu(fmi)) as plant:
         record = run_to_log(spec, path, plant, scenario_file=sc.path)
     return RunResult(record, read_log(path))

@@ -7,6 +7,9 @@ class WmrError(Exception):
     """Base of every error the user can act on."""
 
 
+_MAX_PROBLEM = 300
+
+
 class ConfigError(WmrError, ValueError):
     """Bad user input: names the field and says how to fix it.
 
@@ -21,6 +24,8 @@ class ConfigError(WmrError, ValueError):
     """
 
     def __init__(self, field: str, problem: str, fix: str = "") -> None:
+        if len(problem) > _MAX_PROBLEM:  # a 200k-element value must not make a 1 MB line
+            problem = f"{problem[:_MAX_PROBLEM]}... ({len(problem)} characters)"
         self.field = field
         self.problem = problem
         self.fix = fix
@@ -40,3 +45,7 @@ class FmuError(WmrError):
 
 class LogError(WmrError):
     """An MCAP log cannot be written or read."""
+
+
+class DiskFullError(WmrError):
+    """An output cannot be written: no space left on its device (``ENOSPC``, ``EDQUOT``)."""

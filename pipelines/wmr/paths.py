@@ -54,5 +54,15 @@ def default_fmu_dir() -> Path:
 
 
 def safe_filename(name: str) -> str:
-    """A run name as a file name: letters, digits, ``-``, ``_``, ``.``, ``+`` and ``=``."""
-    return re.sub(r"[^A-Za-z0-9_.+=-]+", "_", name).strip("._") or "run"
+    """A run name as a file name, one-to-one: two names never give the same file.
+
+    Letters, digits, ``-``, ``_``, ``.``, ``+`` and ``=`` are kept; any other character (``/``,
+    a space, ``%`` itself), and a leading ``.`` (``.``, ``..``, hidden files), is written
+    ``%XX`` per UTF-8 byte, as in URLs; the empty name is ``%``.
+    """
+    def escape(match: re.Match[str]) -> str:
+        return "".join(f"%{b:02X}" for b in match.group().encode("utf-8"))
+
+    if not name:
+        return "%"
+    return re.sub(r"^\.|[^A-Za-z0-9_.+=-]", escape, name)

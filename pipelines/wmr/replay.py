@@ -26,8 +26,9 @@ Entity layout, one subtree per run (``<run>`` is the log's file name without ``.
     runs/<run>/pi                 Scalars [p_s, i_s, u_s, p_theta, i_theta, u_theta]
     runs/<run>/info               static TextDocument: the run and result metadata
 
-:class:`LiveViewSink` sends the same layout block by block from the closed loop
-(:class:`wmr.closedloop.BlockSink`), and :class:`TeeSink` feeds it next to the MCAP writer.
+:class:`~wmr.live_view.LiveViewSink` (in :mod:`wmr.live_view`, importable from here too) sends
+the same layout block by block from the closed loop, and :class:`~wmr.live_view.TeeSink` feeds
+it next to the MCAP writer.
 """
 
 from __future__ import annotations
@@ -38,17 +39,16 @@ import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Final, Protocol
+from typing import Any, Final
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 from numpy.typing import NDArray
 
-from wmr.closedloop import BlockSink
 from wmr.errors import LogError, WmrError
 from wmr.mcaplog import Pose2D, RunData, read_run
-from wmr.signals import COLUMN, SIGNALS
+from wmr.signals import COLUMN
 
 #: The Rerun application id of every recording written here.
 APPLICATION_ID: Final = "wmr-cosim"
@@ -457,6 +457,8 @@ def read_logs(logs: Sequence[RunLog]) -> tuple[list[tuple[RunLog, RunData]], lis
         if data.truncated:
             warnings.append(f"{log.path}: truncated log, replaying its first {data.n_steps} "
                             f"steps (to t = {data.t_s[-1]:.2f} s)")
+        # what the reader left out or could not check: never replayed silently
+        warnings += [f"{log.path}: {line}" for line in data.warnings]
         runs.append((log, data))
     return runs, warnings
 
@@ -531,149 +533,6 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                         spawned=spawned, warnings=warnings)
 
 
-# --------------------------------------------------------------------------- live view
-
-
-class _GoalLike(Protocol):
-    x_m: float
-    y_m: float
-    heading_rad: float
-
-
-def _as_pose2d(goal: _GoalLike | Pose2D | Sequence[float] | None) -> Pose2D | None:
-    """A goal given as a Pose, a Pose2D or ``(x_m, y_m, heading_rad)``, as a Pose2D."""
-    if goal is None or isinstance(goal, Pose2D):
-        return goal
-    if isinstance(goal, Sequence):
-        x, y, th = (float(v) for v in goal)
-        return Pose2D(x, y, th)
-    return Pose2D(float(goal.x_m), float(goal.y_m), float(goal.heading_rad))
-
-
-class LiveViewSink:
-    """A :class:`wmr.closedloop.BlockSink` that shows a run in Rerun while it is simulated.
-
-    Each block of rows (100 per call in the master loop) goes out as a handful of
-    ``send_columns`` calls; the path so far (every ``path_stride``-th row) is re-sent once per
-    block as one line strip.
-
-    Parameters
-    ----------
-    rec
-        The recording to send to (a spawned viewer or an ``.rrd`` file sink).
-    name
-        The run name (subtree ``runs/<name>``).
-    goal
-        The goal pose (``x_m``, ``y_m``, ``heading_rad``), or None.
-    path_stride
-        Keep every this many rows of the path (the path strip is re-sent per block).
-    """
-
-    def __init__(self, rec: rr.RecordingStream, name: str,
-                 goal: _GoalLike | Pose2D | Sequence[float] | None, *,
-                 path_stride: int = 5) -> None:
-        self.rec = rec
-        self.name = name
-        self.rows = 0
-        self._stride = max(1, int(path_stride))
-        self._path: list[NDArray[np.float64]] = []
-        self._color = RUN_COLORS[0]
-        self._path_entity = f"{run_entity(name)}/world/path"
-        log_run_static(rec, name, goal=_as_pose2d(goal), path_xy=None, color=self._color,
-                       info=f"### {name}\n\nlive run")
-
-    def write_block(self, t_ns: NDArray[np.int64], block: NDArray[np.float64]) -> None:
-        """Send ``block`` (shape ``(n, len(SIGNALS))``) at times ``t_ns`` (ns)."""
-        n = int(t_ns.shape[0])
-        if n == 0:
-            return
-        # the master reuses its arrays: take our own copies before they leave
-        t = np.array(t_ns, dtype=np.int64, copy=True)
-        rows = np.array(block, dtype=np.float64, copy=True).reshape(n, len(SIGNALS))
-        send_run_columns(self.rec, self.name, t, rows)
-        first = (-self.rows) % self._stride
-        self._path.append(rows[first::self._stride, [_X, _Y]])
-        self.rows += n
-        path = np.concatenate([*self._path, rows[-1:, [_X, _Y]]])
-        path = path[np.isfinite(path).all(axis=1)]
-        self.rec.set_time(TIMELINE, duration=np.timedelta64(int(t[-1]), "ns"))
-        self.rec.log(self._path_entity, rr.LineStrips2D([path], colors=[self._color],
-                                                        radii=[0.03]))
-
-    def close(self) -> None:
-        """Flush what is buffered (and finish the ``.rrd`` file, if any)."""
-        self.rec.flush()
-        self.rec.disconnect()
-
-    def __enter__(self) -> LiveViewSink:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-class TeeSink:
-    """A :class:`wmr.closedloop.BlockSink` that hands each block to several sinks, in order.
-
-    E.g. ``TeeSink(log, live)`` for ``wmr run --view``: the MCAP writer and the live view.
-    """
-
-    def __init__(self, *sinks: BlockSink) -> None:
-        self.sinks: tuple[BlockSink, ...] = sinks
-
-    def write_block(self, t_ns: NDArray[np.int64], block: NDArray[np.float64]) -> None:
-        """Pass the block to every sink."""
-        for sink in self.sinks:
-            sink.write_block(t_ns, block)
-
-
-def live_view_sink(spec_name: str, goal: Any, rrd: Path | None = None, *,
-                   spawn: bool | None = None) -> LiveViewSink:
-    """A live view of one run: a spawned viewer when there is a screen, else an ``.rrd`` file.
-
-    Parameters
-    ----------
-    spec_name
-        The run's name.
-    goal
-        The goal pose: :class:`wmr.plant.Pose` (``x_m``, ``y_m``, ``heading_rad``), a
-        :class:`~wmr.mcaplog.Pose2D` or ``(x_m, y_m, heading_rad)``.
-    rrd
-        Save the recording here (also when a viewer is spawned).  Without a viewer and without
-        ``rrd``: ``runs/<spec_name>.rrd``.
-    spawn
-        Open a viewer; default: when there is a screen.
-
-    Returns
-    -------
-    LiveViewSink
-        Call :meth:`LiveViewSink.close` (or use it as a context manager) after the run.
-    """
-    from wmr.paths import safe_filename
-
-    rec = rr.RecordingStream(APPLICATION_ID)
-    rec.send_recording_name(f"{spec_name} (live)")
-    blueprint = replay_blueprint([spec_name], live=True)
-    spawned = False
-    if spawn if spawn is not None else has_screen():
-        try:
-            rec.spawn(default_blueprint=blueprint, connect=rrd is None)
-            spawned = True
-        except Exception as exc:  # no viewer binary, or it would not start
-            print(f"wmr: warning: could not start the Rerun viewer ({exc}); saving an .rrd",
-                  file=sys.stderr)
-    if rrd is None and not spawned:
-        rrd = Path("runs") / f"{safe_filename(spec_name)}.rrd"
-    if rrd is not None:
-        rrd = Path(rrd)
-        rrd.parent.mkdir(parents=True, exist_ok=True)
-        if spawned:  # both: the viewer spawned above, and the file
-            rec.set_sinks(rr.GrpcSink(), rr.FileSink(rrd), default_blueprint=blueprint)
-        else:
-            rec.save(rrd, default_blueprint=blueprint)
-    return LiveViewSink(rec, spec_name, goal)
-
-
 def iter_signal_names() -> Iterable[str]:
     """Every signal the replay plots, panel by panel (for tests and docs)."""
     for panel in PANELS:
@@ -681,20 +540,29 @@ def iter_signal_names() -> Iterable[str]:
             yield s.signal
 
 
+#: The live view lives in wmr.live_view; these names stay importable from here.
+_LIVE_VIEW: Final = ("LiveViewSink", "TeeSink", "live_view_sink")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LIVE_VIEW:
+        from wmr import live_view
+
+        return getattr(live_view, name)
+    raise AttributeError(f"module 'wmr.replay' has no attribute {name!r}")
+
+
 __all__ = [
     "APPLICATION_ID",
     "PANELS",
     "TIMELINE",
-    "LiveViewSink",
     "Panel",
     "ReplayResult",
     "RunLog",
     "Series",
-    "TeeSink",
     "default_rrd_path",
     "find_logs",
     "has_screen",
-    "live_view_sink",
     "log_run_static",
     "read_logs",
     "replay",

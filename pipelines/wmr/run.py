@@ -101,17 +101,20 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
                scenario_file: Path | None = None,
                progress: Progress | None = None,
                also: BlockSink | None = None,
-               controller_fmu: FmuController | None = None) -> dict[str, Any]:
+               controller_fmu: FmuController | None = None,
+               durable: bool = True) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
 
     The log attaches the run's effective scenario (:func:`scenario_attachment_name`), not
     ``scenario_file``, whose name only is recorded in the ``run`` metadata (``source_file``).
 
-    The log is written as the run goes: a run killed midway leaves a log readable up to its
-    last chunk (without a ``result`` record).  A run that fails is logged with status
-    ``failed`` and its error, and the file is closed and readable.  ``also`` receives the same
-    blocks as the log (the live Rerun view of ``wmr run --view``).  ``controller_fmu`` runs
-    the controller FMU in place of the Python controller (``wmr run --controller-fmu``).
+    The log is written as the run goes, to ``mcap_path + ".partial"``, and renamed into place
+    when finished (fsynced first unless ``durable`` is false): a run killed midway leaves the
+    previous log whole and its own readable up to its last chunk in the ``.partial`` file
+    (without a ``result`` record).  A run that fails is logged with status ``failed`` and its
+    error, and the file is closed and readable.  ``also`` receives the same blocks as the log
+    (the live Rerun view of ``wmr run --view``).  ``controller_fmu`` runs the controller FMU
+    in place of the Python controller (``wmr run --controller-fmu``).
 
     Returns
     -------
@@ -129,10 +132,11 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     run = run_metadata(spec, plant, controller_fmu)
     if scenario_file is not None:
         run["source_file"] = Path(scenario_file).name
-    with RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant)) as log:
+    with RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant),
+                      durable=durable) as log:
         sink: BlockSink = log
         if also is not None:
-            from wmr.replay import TeeSink
+            from wmr.live_view import TeeSink
 
             sink = TeeSink(log, also)
         result = run_closed_loop(spec, plant, sink=sink, progress=progress,

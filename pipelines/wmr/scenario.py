@@ -345,23 +345,36 @@ def resolve_scenario_path(name_or_path: str | Path | None = None) -> Path:
     return scenarios_dir() / f"{p.name}.toml"
 
 
+def read_toml(path: Path, field: str = "scenario") -> tuple[dict[str, Any], bytes]:
+    """The parsed TOML of ``path`` and its bytes; every failure is one :class:`ConfigError`
+    line naming ``field`` (missing, unreadable, not UTF-8, not TOML, nested too deeply)."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        shipped = ", ".join(sorted(p.stem for p in scenarios_dir().glob("*.toml")))
+        raise ConfigError(field, f"no such file: {path}",
+                          f"give a path to a .toml file or one of: {shipped}") from None
+    except OSError as exc:
+        raise ConfigError(field, f"cannot read {path}: {exc.strerror}",
+                          "check the path and its permissions") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(field, f"{path} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at "
+                          f"offset {exc.start})", "save the file as UTF-8") from None
+    try:
+        return tomllib.loads(text), raw
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(field, f"{path} is not valid TOML: {exc}", "fix the syntax") from None
+    except RecursionError:
+        raise ConfigError(field, f"{path} nests arrays or tables too deeply",
+                          "flatten the file") from None
+
+
 def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
     """Read, validate and expand a scenario file (default: ``fig11``)."""
     path = resolve_scenario_path(name_or_path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        shipped = ", ".join(sorted(p.stem for p in scenarios_dir().glob("*.toml")))
-        raise ConfigError("scenario", f"no such file: {path}",
-                          f"give a path to a .toml file or one of: {shipped}") from None
-    except OSError as exc:
-        raise ConfigError("scenario", f"cannot read {path}: {exc.strerror}",
-                          "check the path and its permissions") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError("scenario", f"{path} is not valid TOML: {exc}",
-                          "fix the syntax") from None
+    data, _ = read_toml(path)
     return parse_scenario(data, source=str(path), path=path)
 
 

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from wmr.batch import worker as _worker
-from wmr.batch.local import Outcome, made_up_record
+from wmr.batch.local import DIED_TWICE, Outcome, made_up_record
 from wmr.batch.worker import TOKEN_FILE, Attachment, Task, dask_run_many
 from wmr.fmu.varmap import VariableMap
 
@@ -104,28 +104,44 @@ class DaskExecutor:
             client.register_plugin(plugin, name=f"wmr-fmu-{plugin.sha256[:16]}")
             att: Any = None
             if self.attachment is not None:
-                [att] = client.scatter([Attachment(self.attachment.name,
-                                                   self.attachment.read_bytes())],
-                                       broadcast=True, hash=False)
+                # by value in each task (a spec is a few kB), not scattered: scattered data
+                # dies with the workers that hold it, and every task needing it is then
+                # cancelled instead of rescheduled when a worker process dies
+                att = Attachment(self.attachment.name, self.attachment.read_bytes())
             token = secrets.token_hex(16)
             if not self.ship_logs:
                 (self.out_dir / TOKEN_FILE).write_text(token)
             out = str(self.out_dir.resolve())
             threads = sum(client.nthreads().values()) or 1
             size = self.chunk or max(1, min(8, len(tasks) // (8 * threads)))
-            for i in range(0, len(tasks), size):
-                chunk = list(tasks[i:i + size])
+            def submit(chunk: list[Task], tag: str) -> Any:
                 fut = client.submit(dask_run_many, chunk, plugin.sha256, att, out, token,
                                     self.var_map, pure=False, retries=0,
-                                    key=f"wmr-runs-{chunk[0].run_id}-{token[:8]}")
+                                    key=f"wmr-runs-{chunk[0].run_id}-{token[:8]}{tag}")
                 futures[fut] = chunk
-            for fut, result in as_completed(list(futures), with_results=True,
-                                            raise_errors=False):
+                return fut
+
+            for i in range(0, len(tasks), size):
+                submit(list(tasks[i:i + size]), "")
+            retried: set[str] = set()
+            done = as_completed(list(futures), with_results=True, raise_errors=False)
+            for fut, result in done:
                 chunk = futures.pop(fut)
+                if fut.status == "error" and isinstance(result, tuple):
+                    result = result[1]  # as_completed gives an erred task's (type, exc, tb)
                 if isinstance(result, BaseException):
+                    died = type(result).__name__ == "KilledWorker"
+                    # the rule of the local pool: a run whose worker died gets one more
+                    # try, alone (the others of its chunk too: they died with it)
+                    again = [t for t in chunk if died and t.run_id not in retried]
+                    for task in again:
+                        retried.add(task.run_id)
+                        done.add(submit([task], "-retry"))
                     for task in chunk:
+                        if task in again:
+                            continue
                         yield Outcome(task.run_id, made_up_record(
-                            task.run_id, "failed",
+                            task.run_id, "failed", DIED_TWICE if died else
                             f"the Dask task failed: {type(result).__name__}: {result}"),
                             0.0, killed=True)
                     continue

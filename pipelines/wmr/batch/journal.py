@@ -1,10 +1,11 @@
 """The journal of a batch (``OUT/journal.jsonl``) and the test of a finished log.
 
-The parent process appends one JSON line per finished run, in one ``write`` on a file opened
-with ``O_APPEND``: a batch killed at any moment leaves whole lines, plus at most one cut line,
-which the reader ignores.  A run counts as done when its journal line matches its inputs and its
-FMU, and its log ends with a ``result`` metadata record (or the executor killed it: then the
-journal line is all there is).
+The parent process appends one JSON line per finished run to a file opened with ``O_APPEND``
+(a short write is continued until every byte is written): a batch killed at any moment leaves
+whole lines, plus at most one cut line, which the reader ignores.  A run counts as done when
+its journal line matches its inputs and its FMU, and its log ends with a ``result`` metadata
+record (or the executor killed it: then the journal line, and the log recovered from what the
+run had written, are all there is).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
+
+from wmr.durable import write_all
 
 JOURNAL = "journal.jsonl"
 
@@ -66,7 +69,8 @@ class Journal:
         return rows
 
     def append(self, row: Mapping[str, Any]) -> None:
-        """Append ``row`` as one line, in one write."""
+        """Append ``row`` as one line (a short write is continued, a full disk raises
+        :class:`~wmr.errors.DiskFullError`)."""
         line = (json.dumps(row, allow_nan=False, separators=(",", ":")) + "\n").encode()
         fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         try:
@@ -75,7 +79,7 @@ class Journal:
                 self._checked = True
                 if os.fstat(fd).st_size and not self._ends_with_newline():
                     line = b"\n" + line
-            os.write(fd, line)
+            write_all(fd, line, self.path)  # os.write may write less than asked: loop
         finally:
             os.close(fd)
 

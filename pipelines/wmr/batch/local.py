@@ -1,19 +1,22 @@
 """Local execution: a pool of worker processes, one FMU instance each.
 
 Not :class:`concurrent.futures.ProcessPoolExecutor`: a run that hangs must be killable on its
-own, and a worker that dies (a crash in the FMU's C code) must cost its run only, not the pool.
+own, and a worker that dies (a crash in the FMU's C code, the OOM killer) must cost its run
+only, not the pool: the run is given once more to a fresh worker, then recorded ``failed``.
 Each worker has its own pipe; the parent hands out one run at a time, kills a worker whose run
 passes the hard wall-clock limit, and starts a new one in its place.  Workers come from a
 ``forkserver`` that has imported the simulation code once, so a replacement starts in
-milliseconds and no worker inherits the parent's threads.  Workers ignore SIGINT: Ctrl-C reaches
-the parent only, which stops them.
+milliseconds and no worker inherits the parent's threads.  Workers ignore SIGINT and SIGTERM:
+the parent alone stops them; and they end as soon as it is gone, even killed outright.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import select
 import signal
+import threading
 import time
 from collections import deque
 from collections.abc import Iterator, Sequence
@@ -31,6 +34,8 @@ from wmr.fmu.varmap import VariableMap
 
 #: Exit code of a worker that could not open the FMU.
 _INIT_FAILED = 3
+#: Exit code of a worker whose batch process is gone.
+_ORPHANED = 4
 
 
 @dataclass
@@ -62,6 +67,10 @@ class Outcome:
     worker: str = ""
 
 
+#: Message of a run whose worker process died on it twice (the same on every executor).
+DIED_TWICE = "the worker process died during the run, and again when it was retried"
+
+
 def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
     """The result record of a run that produced none (killed, or its worker died)."""
     return {"name": run_id, "status": status, "message": message,
@@ -72,10 +81,43 @@ def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
             "mcap": None}
 
 
+def _die_with(batch_pid: int) -> None:
+    """End this worker as soon as the batch process ``batch_pid`` is gone, even killed by
+    SIGKILL: an orphan must not go on writing into a folder that a resumed batch uses.
+
+    The worker's parent is the forkserver, not the batch process, and the forkserver outlives
+    the batch while workers hold its liveness pipe, so ``PR_SET_PDEATHSIG`` cannot do this.
+    A daemon thread waits on a pidfd of the batch process (Linux >= 5.3), else polls it.
+    """
+    def watch() -> None:
+        try:
+            fd = os.pidfd_open(batch_pid)
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            select.select([fd], [], [])  # readable when the process has ended
+        else:
+            while True:
+                time.sleep(0.5)
+                try:
+                    os.kill(batch_pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:  # alive, someone else's: cannot be ours
+                    continue
+        os._exit(_ORPHANED)
+
+    threading.Thread(target=watch, name="wmr-die-with-batch", daemon=True).start()
+
+
 def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str | None,
-                 log_file: str | None, var_map: VariableMap | None = None) -> None:
+                 log_file: str | None, batch_pid: int,
+                 var_map: VariableMap | None = None) -> None:
     """A worker process: open the FMU once, then run what the pipe brings until ``None``."""
+    _die_with(batch_pid)
+    # Ctrl-C and SIGTERM reach the whole process group: the parent alone decides what stops
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     if log_file is not None:  # the FMU's own messages go to a file, not over the progress bar
         fd = os.open(log_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         os.dup2(fd, 1)
@@ -155,7 +197,8 @@ class LocalPool:
         proc = self._ctx.Process(
             target=_worker_main, name=f"wmr-batch-{number}", daemon=True,
             args=(child, str(self.fmu_path), str(self.runs_dir),
-                  str(self.attachment) if self.attachment else None, log_file, self.var_map))
+                  str(self.attachment) if self.attachment else None, log_file, os.getpid(),
+                  self.var_map))
         proc.start()
         child.close()
         return _Slot(number, proc, parent)
@@ -186,6 +229,7 @@ class LocalPool:
             A worker cannot open the FMU.
         """
         pending = deque(tasks)
+        retried: set[str] = set()
         slots: list[_Slot] = []
         spawned = 0
         try:
@@ -241,10 +285,13 @@ class LocalPool:
                     self._stop(slot, kill=True)
                     slots[slots.index(slot)] = self._spawn(spawned)
                     spawned += 1
-                    yield Outcome(task.run_id, made_up_record(
-                        task.run_id, "failed",
-                        f"the worker process died during the run (exit code {code})"),
-                        wall, killed=True, worker=str(slot.proc.pid))
+                    if task.run_id not in retried:  # e.g. the OOM killer: once more, then failed
+                        retried.add(task.run_id)
+                        pending.appendleft(task)
+                        continue
+                    yield Outcome(task.run_id, made_up_record(task.run_id, "failed", DIED_TWICE),
+                                  wall, killed=True,
+                                  worker=f"{slot.proc.pid} (died, exit code {code})")
                 if self.hard_limit_s is not None:
                     now = time.monotonic()
                     for i, slot in enumerate(slots):
@@ -264,4 +311,4 @@ class LocalPool:
                 self._stop(slot, kill=slot.task is not None)
 
 
-__all__ = ["LocalPool", "Outcome", "made_up_record"]
+__all__ = ["DIED_TWICE", "LocalPool", "Outcome", "made_up_record"]

@@ -30,13 +30,17 @@ from wmr.batch.journal import JOURNAL, Journal, log_complete
 from wmr.batch.local import LocalPool, Outcome
 from wmr.batch.spec import BatchSpec, spec_digest
 from wmr.batch.summary import status_counts, summary_table, write_summary
-from wmr.batch.worker import FAULTS, Task
-from wmr.errors import ConfigError
+from wmr.batch.worker import DISK_FULL, FAULTS, Task
+from wmr.durable import AtomicFile, partial_path, storage_error
+from wmr.errors import ConfigError, DiskFullError, WmrError
 from wmr.fmu.archive import file_sha256
 from wmr.fmu.varmap import VariableMap, load_map
 
 #: Default per-run wall-clock limit, s: generous (a 120 s simulated run takes about 1 s).
 DEFAULT_RUN_TIMEOUT_S: Final = 600.0
+#: A batch whose first runs (this many, or all) fail before their first step stops: the FMU
+#: or the setup is broken, not the runs.
+EARLY_STOP_RUNS: Final = 4
 
 
 @dataclass
@@ -93,9 +97,13 @@ class _Lock:
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    """Write ``path`` whole or not at all (fsynced; a full disk is a DiskFullError)."""
+    out = AtomicFile(path, "file")
+    try:
+        out.write(data)
+        out.commit()
+    finally:
+        out.abandon()
 
 
 def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
@@ -223,16 +231,31 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                                 f"failed {counts['failed']}", refresh=False)
 
         show()
+        full: DiskFullError | None = None
+        started = False  # a run of this invocation got past its first step
+        unstarted = 0  # runs of this invocation that failed before it
         try:
             for outcome in stream:
+                if outcome.record.get(DISK_FULL):
+                    raise DiskFullError(str(outcome.record.get("message")))
                 if outcome.log is not None:
                     _write_atomic(runs_dir / f"{outcome.run_id}.mcap", outcome.log)
+                elif outcome.killed:
+                    _recover_partial(runs_dir / f"{outcome.run_id}.mcap")
                 journal.append({"run_id": outcome.run_id, "digest": digests[outcome.run_id],
                                 "fmu_sha256": fmu_sha, "killed": outcome.killed,
                                 "wall_s": round(outcome.wall_s, 6), "worker": outcome.worker,
                                 "record": outcome.record})
                 records[outcome.run_id] = outcome.record
                 result.executed.append(outcome.run_id)
+                if outcome.record.get("status") != "failed" or outcome.record.get("steps"):
+                    started = True
+                elif not outcome.killed:
+                    unstarted += 1
+                    if not started and unstarted >= min(EARLY_STOP_RUNS, len(tasks)):
+                        raise WmrError(
+                            f"the first {unstarted} runs all failed before their first step, "
+                            f"stopping the batch: {outcome.record.get('message')}")
                 status = str(outcome.record.get("status"))
                 counts[status] = counts.get(status, 0) + 1
                 show()
@@ -244,16 +267,53 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                     raise KeyboardInterrupt
         except KeyboardInterrupt:
             result.interrupted = True
+        except DiskFullError as exc:
+            full = exc
         finally:
             close = getattr(stream, "close", None)
             if close is not None:
                 close()  # stops the workers
             bar.close()
             table = summary_table(batch.runs, batch.input_columns, records)
-            write_summary(table, out)
             result.counts = status_counts(table.column("status").to_pylist())
             result.wall_s = time.perf_counter() - t0
-            _write_atomic(out / "batch.json", (json.dumps({
+            try:
+                _finish(out, table, result, batch, scheduler, client, workers, fmu, fmu_sha)
+            except DiskFullError as exc:
+                full = full or exc
+        if full is not None:
+            raise DiskFullError(f"{full}; {result.finished} of {result.total} runs finished "
+                                "and are in the journal; free some space and rerun the same "
+                                "command to finish the batch") from full
+    finally:
+        lock.release()
+    return result
+
+
+def _recover_partial(log: Path) -> None:
+    """A run killed by its executor leaves ``<id>.mcap.partial``: make it a finished log
+    (what was lost is recorded in it), so that every tool reads the run's last seconds."""
+    from wmr.mcaplog.recover import recover_log
+
+    partial = partial_path(log)
+    killed = log.with_name(log.name + ".killed")  # out of the way of the recovered log's own
+    try:
+        os.replace(partial, killed)
+    except FileNotFoundError:
+        return
+    try:
+        recover_log(killed, log, overwrite=True)
+    except WmrError:  # nothing readable: the journal line says the run was killed
+        return
+    killed.unlink()
+
+
+def _finish(out: Path, table: Any, result: BatchOutcome, batch: BatchSpec, scheduler: str | None,
+            client: Any, workers: int | None, fmu: Path, fmu_sha: str) -> None:
+    """Write the summary and ``batch.json``; a full disk is one :class:`DiskFullError`."""
+    try:
+        write_summary(table, out)
+        _write_atomic(out / "batch.json", (json.dumps({
                 "spec": str(batch.path) if batch.path else batch.name, "total": result.total,
                 "finished": result.finished, "skipped": result.skipped,
                 "executed": len(result.executed), "counts": result.counts,
@@ -261,9 +321,8 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                 "executor": (f"dask {scheduler or 'client'}" if scheduler or client
                              else f"local, {workers or os.cpu_count()} workers"),
                 "fmu": fmu.name, "fmu_sha256": fmu_sha}, indent=1) + "\n").encode())
-    finally:
-        lock.release()
-    return result
+    except OSError as exc:
+        raise storage_error(exc, out) from exc
 
 
 __all__ = ["DEFAULT_RUN_TIMEOUT_S", "BatchOutcome", "run_batch"]

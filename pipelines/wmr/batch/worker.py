@@ -20,12 +20,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from wmr.errors import DiskFullError
 from wmr.fmu.plant import FmuPlant
 from wmr.fmu.varmap import VariableMap
 from wmr.scenario import RunSpec
 
+#: Key of a result record whose log could not be written for lack of space.
+DISK_FULL = "disk_full"
 #: ``fault`` values understood by :func:`execute`, for tests of the executors only.
-FAULTS = ("hang", "crash")
+FAULTS = ("hang", "crash", "crash-once")
 
 
 class WallClockLimit(Exception):
@@ -45,7 +48,8 @@ class Task:
     wall_limit_s
         Wall-clock limit of the run, s (checked every 100 control steps), ``None``: none.
     fault
-        Test hook: ``"hang"`` sleeps for ever, ``"crash"`` kills the worker process.
+        Test hook: ``"hang"`` sleeps for ever, ``"crash"`` kills the worker process,
+        ``"crash-once"`` kills it on the first attempt only.
     """
 
     run_id: str
@@ -102,6 +106,12 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
 
     if task.fault == "crash":
         os._exit(70)
+    if task.fault == "crash-once":  # dies on the first attempt only (a marker beside the log)
+        marker = mcap_path.with_name(f"{task.run_id}.crashed")
+        if not marker.exists():
+            marker.touch()
+            os._exit(70)
+        marker.unlink()
     if task.fault == "hang":
         while True:
             time.sleep(3600)
@@ -126,8 +136,9 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
             ctrl_path = task.spec.controller_fmu or default_controller_fmu(
                 int(plant.fmi_version[0]))
             ctrl = stack.enter_context(FmuController(ctrl_path))
+        # no fsync per log: the resume checks every log, and redoes one a power loss damaged
         record = run_to_log(task.spec, mcap_path, plant, scenario_file=attachment,
-                            progress=progress, controller_fmu=ctrl)
+                            progress=progress, controller_fmu=ctrl, durable=False)
     if limit is not None and record["status"] == "failed" \
             and str(record["message"]).startswith(WallClockLimit.__name__):
         record["status"] = "timeout"
@@ -152,6 +163,9 @@ class PlantHolder:
         """
         try:
             record = execute(task, self.plant, mcap_path, attachment)
+        except DiskFullError as exc:  # not the run's fault: the batch stops, the run is redone
+            return {"name": task.spec.name, "status": "failed", "message": str(exc),
+                    "mcap": str(mcap_path), DISK_FULL: True}
         except Exception as exc:
             record = {"name": task.spec.name, "status": "failed",
                       "message": f"{type(exc).__name__}: {exc}", "mcap": str(mcap_path)}

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from collections.abc import Callable, Sequence
+from types import FrameType
+from typing import Any
 
 from wmr import __version__
-from wmr.errors import ConfigError, WmrError
+from wmr.errors import ConfigError, DiskFullError, WmrError
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -65,9 +68,50 @@ def build_parser() -> argparse.ArgumentParser:
 def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
                                         None]]:
     """The ``register`` functions of the other sub-commands, in ``--help`` order."""
-    from wmr.cli import batch, optimal, replay, run, ssp
+    from wmr.cli import batch, log, optimal, replay, run, ssp
 
-    return [run.register, replay.register, batch.register, optimal.register, ssp.register]
+    return [run.register, replay.register, batch.register, optimal.register, ssp.register,
+            log.register]
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler, ``timeout``, ``kill``): handled like Ctrl-C, exit status 143."""
+
+
+class _Signals:
+    """SIGINT and SIGTERM stop a command the same way: the first raises in the main thread
+    (:class:`KeyboardInterrupt` or :class:`Terminated`), so that logs get their ``failed``
+    result and batches their summary; later ones, while that cleanup runs, are only noted
+    (a second Ctrl-C must not cut the cleanup short).  The exit status is ``128 + signal``
+    of the first (130, 143), as shells report it."""
+
+    def __init__(self) -> None:
+        self.first: int | None = None
+        self._old: dict[int, Any] = {}
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        if self.first is not None:
+            print("wmr: already stopping, finishing the logs and the summary", file=sys.stderr)
+            return
+        self.first = signum
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+    def install(self) -> None:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._old[signum] = signal.signal(signum, self._on_signal)
+            except ValueError:  # not the main thread (main() called from a thread)
+                return
+
+    def restore(self) -> None:
+        """Put the old handlers back, unless a signal came: the process is ending then, and
+        a late second signal must not turn into a traceback."""
+        if self.first is None:
+            for signum, old in self._old.items():
+                signal.signal(signum, old)
+
+    def status(self, default: int) -> int:
+        return 128 + self.first if self.first is not None else default
 
 
 def _json_error(args: argparse.Namespace, message: str, exc: BaseException) -> None:
@@ -75,7 +119,9 @@ def _json_error(args: argparse.Namespace, message: str, exc: BaseException) -> N
     last line always gets an object (``status`` ``error``, ``field`` for bad input)."""
     if not getattr(args, "json", False):
         return
-    record: dict[str, str] = {"status": "error", "message": message.replace("\n", " ")}
+    # a full disk fails the run; anything else is an error of the command
+    status = "failed" if isinstance(exc, DiskFullError) else "error"
+    record: dict[str, str] = {"status": status, "message": message.replace("\n", " ")}
     if isinstance(exc, ConfigError):
         record["field"] = exc.field
     print(json.dumps(record))
@@ -85,11 +131,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     handler: Handler = args.handler
+    signals = _Signals()
+    signals.install()
+    try:
+        return signals.status(_dispatch(handler, args))
+    except KeyboardInterrupt as exc:  # raised outside the handler's own cleanup
+        if signals.first is None:
+            signals.first = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
+        return signals.status(130)
+    finally:
+        signals.restore()
+
+
+def _dispatch(handler: Handler, args: argparse.Namespace) -> int:
     try:
         return handler(args)
-    except KeyboardInterrupt:
-        print("wmr: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        what = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        print(f"wmr: {what}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
     except WmrError as exc:
         if args.debug:
             raise

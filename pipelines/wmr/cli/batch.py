@@ -50,10 +50,15 @@ def check_scheduler(address: str, timeout_s: float = 3.0) -> str:
 
 def _cmd_batch(args: argparse.Namespace) -> int:
     from wmr.batch import load_batch, run_batch
+    from wmr.batch.spec import MAX_RUNS
     from wmr.fmu.varmap import load_map
     from wmr.naming import plural
     from wmr.outputs import check_output
 
+    max_runs = MAX_RUNS if args.max_runs is None else args.max_runs
+    if max_runs < 1:
+        raise ConfigError("--max-runs", f"must be >= 1, got {max_runs}",
+                          "give e.g. --max-runs 2000000")
     if args.scheduler is not None and args.workers is not None:
         raise ConfigError("--workers", "has no effect with --scheduler",
                           "size the Dask cluster instead")
@@ -69,7 +74,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
             print(f"wmr: warning: --workers {args.workers} on {plural(cores, 'core')}: the runs "
                   "share the cores (no faster, more memory)", file=sys.stderr)
     scheduler = None if args.scheduler is None else check_scheduler(args.scheduler)
-    batch = load_batch(args.spec)
+    batch = load_batch(args.spec, max_runs=max_runs)
     out = check_output(args.out if args.out else _default_out(args.spec), "--out", "dir")
     progress = None if args.progress is None else args.progress
     result = run_batch(batch, out, workers=args.workers, scheduler=scheduler,
@@ -111,8 +116,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "[random] sections; see docs/batch.md) and write OUT/summary.parquet and "
                     "OUT/summary.csv, one row per run, and OUT/runs/<id>.mcap.  Rerunning the "
                     "same command skips the runs already done.  Exit status 0 when the batch "
-                    "completed (whatever the runs' statuses), 130 when interrupted, 1 on bad "
-                    "input.")
+                    "completed (whatever the runs' statuses), 130 when interrupted (143 on "
+                    "SIGTERM), 1 on bad input, a full disk, or when the first runs all fail "
+                    "before their first step (a broken FMU).")
     p.add_argument("spec", metavar="SPEC", help="batch spec or scenario (.toml or name)")
     p.add_argument("--out", metavar="DIR", help="batch folder (default batches/SPEC_NAME)")
     p.add_argument("--workers", type=int, metavar="N",
@@ -122,6 +128,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--run-timeout", type=float, default=600.0, metavar="S",
                    help="wall-clock limit of one run, s (default 600; 0: none); a run past it "
                         "is recorded as 'timeout' and the batch goes on")
+    p.add_argument("--max-runs", type=int, metavar="N",
+                   help="refuse a spec of more runs than this (default one million; counted "
+                        "before anything is expanded)")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=3,
                    help="FMI version of the FMU to drive (default 3)")
     p.add_argument("--fmu", metavar="FILE.fmu",

@@ -53,7 +53,8 @@ def _as_flag(exc: ConfigError) -> ConfigError:
     flag = _FLAGS.get(exc.field) or _FLAGS.get(exc.field.split(".")[0])
     if flag is None:
         return exc
-    fix = exc.fix.replace("n_intervals", "the Python API's n_intervals")
+    fix = exc.fix.replace("raise n_intervals", "raise n_intervals in the Python API "
+                          "(wmr.optimal.solve_optimal)")
     return ConfigError(flag, exc.problem, fix)
 
 

@@ -76,7 +76,7 @@ def select_run(scenario: Scenario, name: str | None) -> RunSpec:
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.fmu.plant import FmuPlant
     from wmr.fmu.varmap import load_map
-    from wmr.naming import default_log_path, fmu_tokens, run_name
+    from wmr.naming import default_log_path, fmu_tokens, run_name, variant_name
     from wmr.outputs import check_output
     from wmr.run import default_controller_fmu, default_fmu, result_json, run_to_log
     from wmr.scenario import load_scenario, with_overrides
@@ -94,15 +94,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
         spec = replace(spec, sensors=command_line_sensors(spec.sensors, args.sensors,
                                                           args.sensor))
     # a variant is named after what it changes, so that its log never overwrites the
-    # scenario's own run (runs/fig11.mcap) nor passes for it
+    # scenario's own run (runs/fig11.mcap) nor passes for it; the plant and controller
+    # implementation (FMI version, another FMU, the controller FMU) name the log file only,
+    # not the run, whose name seeds the sensor noise (the same run on another FMU is the same)
     extra = fmu_tokens(args.fmi, args.fmu)
     if args.map:
         extra.append(f"map_{Path(args.map).stem}")
     if args.controller_fmu is not None and run.controller_fmu is None:
         extra.append("controller_fmu")
-    spec = replace(spec, name=run_name(run, spec, extra))
-    out = check_output(args.out if args.out else default_log_path(spec.name), "--out",
-                       suffix=".mcap")
+    spec = replace(spec, name=run_name(run, spec))
+    out = check_output(args.out if args.out else default_log_path(variant_name(spec.name, extra)),
+                       "--out", suffix=".mcap")
     if args.view:
         check_output(out.with_suffix(".rrd"), "--view")
     fmu_path = Path(args.fmu) if args.fmu else scenario.fmu or default_fmu(args.fmi)
@@ -122,7 +124,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     progress, finish = _progress_bar(spec.name, args.json)
     live = None
     if args.view:
-        from wmr.replay import live_view_sink
+        from wmr.live_view import live_view_sink
 
         live = live_view_sink(spec.name, spec.goal, out.with_suffix(".rrd"))
     with FmuPlant(fmu_path, var_map=var_map) as plant, ExitStack() as stack:

@@ -13,8 +13,12 @@ one whose outputs all keep their unit) the outputs are the ctypes array itself.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import fcntl
+import os
 import shutil
+import sys
 import tempfile
 from functools import partial
 from pathlib import Path
@@ -27,6 +31,98 @@ from wmr.errors import ConfigError, FmuError
 from wmr.fmu.archive import file_sha256, safe_extract
 from wmr.fmu.varmap import VariableMap, resolve
 from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
+
+#: Prefix of the folders an FMU is extracted to (in the temp folder).
+TMP_PREFIX = "wmr-fmu-"
+#: File in such a folder, locked while its :class:`FmuPlant` lives.
+_LOCK_NAME = ".wmr-owner.lock"
+
+
+def _hold(folder: Path) -> int | None:
+    """Lock ``folder``'s owner file; the lock dies with the process, however it ends."""
+    # locked under another name, then renamed: a cleaner never sees it unlocked
+    tmp = folder / (_LOCK_NAME + ".new")
+    try:
+        fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    except OSError:
+        return None
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    os.replace(tmp, folder / _LOCK_NAME)
+    return fd
+
+
+_LABELS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
+
+
+def _log(status: int, message: bytes | None) -> None:
+    """An FMU's log message, on stderr: stdout is for results (``--json``), never for FMUs."""
+    label = _LABELS[status] if 0 <= status < len(_LABELS) else str(status)
+    text = (message or b"").decode("utf-8", "replace")
+    print(f"[{label}] {text}", file=sys.stderr)
+
+
+def _fmi3_log(env: object, status: int, category: bytes, message: bytes) -> None:
+    _log(status, message)
+
+
+def _fmi2_log(component: object, instance: bytes, status: int, category: bytes,
+              message: bytes) -> None:
+    _log(status, message)
+
+
+_FMI2_CALLBACKS: list[Any] = []
+
+
+def _fmi2_callbacks() -> Any:
+    """fmpy's default FMI 2 callbacks with the logger on stderr (one set per process)."""
+    if not _FMI2_CALLBACKS:
+        from ctypes import byref
+
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(_fmi2_log)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        try:  # formats the variadic message in C, as fmpy does for its own logger
+            from fmpy.logging import addLoggerProxy
+
+            addLoggerProxy(byref(cb))
+        except Exception:  # no proxy: messages arrive unformatted, still on stderr
+            pass
+        _FMI2_CALLBACKS.append(cb)
+    return _FMI2_CALLBACKS[0]
+
+
+def remove_stale_folders(tmp_dir: str | Path | None = None) -> list[Path]:
+    """Remove the extraction folders of FMU plants whose process is gone (killed runs).
+
+    A folder counts as stale when its owner file exists and nobody holds its lock: folders
+    without one (being created, or not ours) are left alone.  Returns the folders removed.
+    """
+    removed: list[Path] = []
+    base = Path(tmp_dir) if tmp_dir is not None else Path(tempfile.gettempdir())
+    with contextlib.suppress(OSError):
+        for folder in base.glob(TMP_PREFIX + "*"):
+            try:
+                fd = os.open(folder / _LOCK_NAME, os.O_RDWR | os.O_CLOEXEC)
+            except OSError:
+                continue
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:  # its owner is alive
+                os.close(fd)
+                continue
+            shutil.rmtree(folder, ignore_errors=True)
+            os.close(fd)
+            removed.append(folder)
+    return removed
 
 
 class FmuPlant:
@@ -48,18 +144,25 @@ class FmuPlant:
         from fmpy import read_model_description
 
         self.fmu_path = Path(fmu_path)
-        self._tmp = Path(tempfile.mkdtemp(prefix="wmr-fmu-"))
+        remove_stale_folders()
+        self._tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX))
+        self._tmp_lock = _hold(self._tmp)
         try:
             safe_extract(self.fmu_path, self._tmp)
             md = read_model_description(str(self._tmp))
         except FmuError:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._drop_tmp()
             raise
+        except KeyError as exc:  # fmpy looks references up in a dict of the variables
+            self._drop_tmp()
+            raise FmuError(f"{self.fmu_path}: invalid model description: value reference "
+                           f"{exc.args[0] if exc.args else '?'} is used (in ModelStructure, a "
+                           "derivative, dimension or clock) but no variable has it") from exc
         except Exception as exc:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._drop_tmp()
             raise FmuError(f"{self.fmu_path}: unreadable model description: {exc}") from exc
         if md.coSimulation is None:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._drop_tmp()
             raise FmuError(f"{self.fmu_path}: not a co-simulation FMU")
         self.model_description = md
         self.fmi_version = md.fmiVersion
@@ -67,7 +170,7 @@ class FmuPlant:
         try:
             self._map = resolve(var_map, md, self.fmu_path.name)
         except ConfigError:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._drop_tmp()
             raise
         self.var_map = var_map
         self._fmu: Any = None
@@ -118,14 +221,14 @@ class FmuPlant:
                 fmu: Any = FMU2Slave(guid=md.guid, unzipDirectory=str(self._tmp),
                                      modelIdentifier=md.coSimulation.modelIdentifier,
                                      instanceName=self._instance_name)
-                fmu.instantiate(loggingOn=False)
+                fmu.instantiate(loggingOn=False, callbacks=_fmi2_callbacks())
             else:
                 from fmpy.fmi3 import FMU3Slave
 
                 fmu = FMU3Slave(guid=md.guid, unzipDirectory=str(self._tmp),
                                 modelIdentifier=md.coSimulation.modelIdentifier,
                                 instanceName=self._instance_name)
-                fmu.instantiate(loggingOn=False)
+                fmu.instantiate(loggingOn=False, logMessage=_fmi3_log)
         except Exception as exc:
             raise FmuError(f"{self.fmu_path}: cannot instantiate: {exc}") from exc
         self._fmu = fmu
@@ -287,7 +390,14 @@ class FmuPlant:
             except Exception:  # same: nothing left to do but free it
                 pass
             self._fmu = None
+        self._drop_tmp()
+
+    def _drop_tmp(self) -> None:
+        """Remove the extraction folder (idempotent)."""
         shutil.rmtree(self._tmp, ignore_errors=True)
+        if self._tmp_lock is not None:
+            os.close(self._tmp_lock)
+            self._tmp_lock = None
 
     def __enter__(self) -> FmuPlant:
         return self

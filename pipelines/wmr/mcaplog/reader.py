@@ -16,7 +16,16 @@ from google.protobuf.message import DecodeError
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, Schema
+from mcap.records import (
+    Attachment,
+    Channel,
+    Chunk,
+    DataEnd,
+    Footer,
+    Message,
+    Metadata,
+    Schema,
+)
 from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
@@ -67,8 +76,9 @@ class RunData:
     goal
         The ``/goal`` pose (heading from the quaternion), or None when absent.
     truncated
-        True when the file ends before its footer (cut, or a killed writer) or is damaged: the
-        data is then the prefix up to the last complete chunk.
+        True when the file ends before its footer (cut, or a killed writer) or is damaged (a
+        CRC mismatch, data after the end): the data is then what could be checked, and
+        ``warnings`` says what is missing.
     warnings
         Human-readable notes on anything missing or skipped.
     """
@@ -111,7 +121,18 @@ class _Scan:
         self.attachments: dict[str, bytes] = {}
         self.media_types: dict[str, str] = {}
         self.complete = False
+        self.damaged = False
+        self.in_summary = False
+        self.bad_chunks = 0
         self.warnings: list[str] = []
+        #: The uncompressed records of every chunk that passed its checks (for recovery).
+        self.chunks: list[bytes] = []
+        #: Message records outside chunks, whole (for recovery).
+        self.loose: list[Message] = []
+
+    def damage(self, what: str) -> None:
+        self.damaged = True
+        self.warnings.append(what)
 
     def add_message(self, channel_id: int, log_time: int, data: bytes) -> None:
         self.messages.setdefault(channel_id, []).append((log_time, data))
@@ -169,30 +190,81 @@ def _chunk_messages(chunk: Chunk, scan: _Scan) -> list[tuple[int, int, bytes]]:
             else:
                 channel = Channel.read(rec)
                 scan.channels[channel.id] = channel
+    scan.chunks.append(buf)
     return out
 
 
+def _check_footer(buf: bytes, footer: Footer, start: int, scan: _Scan) -> None:
+    """Check the summary CRC (summary start to the footer's ``summary_offset_start``)."""
+    if footer.summary_crc == 0 or footer.summary_start == 0:
+        return
+    covered = buf[footer.summary_start:start + 9 + 16]
+    if footer.summary_start > start or zlib.crc32(covered) != footer.summary_crc:
+        scan.damage("the summary section is damaged (summary CRC mismatch): "
+                    "read from the data section's records instead")
+
+
 def _scan(stream: IO[bytes], size: int) -> _Scan:
+    """Walk every record, checking each CRC the file offers.
+
+    Records of the summary section never override those of the data section (a damaged
+    summary must not hide an intact Schema); attachment, data section and summary CRCs are
+    checked, and bytes after the closing magic are reported.
+    """
     scan = _Scan()
+    buf = stream.read()
+    bio = io.BytesIO(buf)
+    start = 0
     try:
-        for record in _records(stream, size):
+        for record in _records(bio, size):
+            end = bio.tell()
             if isinstance(record, Chunk):
-                # Decode the whole chunk before using any of it: a damaged chunk is dropped.
-                for cid, log_time, data in _chunk_messages(record, scan):
+                # Decode the whole chunk before using any of it: a damaged chunk is dropped,
+                # and the chunks after it are still read (their framing is intact).
+                try:
+                    messages = _chunk_messages(record, scan)
+                except _DAMAGE as exc:
+                    scan.damage(f"the chunk at byte {start} is damaged ({exc or type(exc)}): "
+                                f"its messages from t = {record.message_start_time * 1e-9:g} s "
+                                f"to {record.message_end_time * 1e-9:g} s are left out")
+                    messages = []
+                    scan.bad_chunks += 1
+                for cid, log_time, data in messages:
                     scan.add_message(cid, log_time, data)
             elif isinstance(record, Message):
                 scan.add_message(record.channel_id, record.log_time, record.data)
+                scan.loose.append(record)
             elif isinstance(record, Schema):
-                scan.schemas[record.id] = record
+                if not scan.in_summary or record.id not in scan.schemas:
+                    scan.schemas[record.id] = record
             elif isinstance(record, Channel):
-                scan.channels[record.id] = record
+                if not scan.in_summary or record.id not in scan.channels:
+                    scan.channels[record.id] = record
             elif isinstance(record, Metadata):
                 scan.metadata[record.name] = dict(record.metadata)
             elif isinstance(record, Attachment):
-                scan.attachments[record.name] = bytes(record.data)
-                scan.media_types[record.name] = record.media_type
+                crc = int.from_bytes(buf[end - 4:end], "little")
+                if crc and zlib.crc32(buf[start + 9:end - 4]) != crc:
+                    scan.damage(f"attachment {record.name!r} is damaged (CRC mismatch): "
+                                "left out")
+                else:
+                    scan.attachments[record.name] = bytes(record.data)
+                    scan.media_types[record.name] = record.media_type
+            elif isinstance(record, DataEnd):
+                scan.in_summary = True
+                if record.data_section_crc and zlib.crc32(buf[:start]) != \
+                        record.data_section_crc:
+                    scan.damage("the data section is damaged (data section CRC mismatch)"
+                                + ("" if scan.bad_chunks else ": a record outside the chunks "
+                                   "(metadata, attachment, schema, channel or index) may be "
+                                   "wrong"))
             elif isinstance(record, Footer):
                 scan.complete = True
+                _check_footer(buf, record, start, scan)
+            start = end
+        if scan.complete and bio.tell() < size:
+            scan.damage(f"{size - bio.tell()} bytes of unknown data after the closing magic "
+                        "(another write appended to this file?)")
     except _DAMAGE as exc:
         detail = str(exc) or type(exc).__name__
         if scan.complete:  # only the closing magic is missing or wrong
@@ -235,10 +307,13 @@ def _decode_topic(
     if decode is None:
         return None
     out = np.full((len(datas), len(layout.signals)), np.nan)
-    for i, data in enumerate(datas):
-        msg = decode(data)
-        for j, name in enumerate(layout.signals):
-            out[i, j] = getattr(msg, name, math.nan)
+    try:
+        for i, data in enumerate(datas):
+            msg = decode(data)
+            for j, name in enumerate(layout.signals):
+                out[i, j] = getattr(msg, name, math.nan)
+    except Exception:  # a damaged or foreign schema (a field of another type): not ours
+        return None
     return out
 
 
@@ -253,6 +328,29 @@ def _goal(scan: _Scan, by_topic: dict[str, Channel]) -> Pose2D | None:
         return None
     p, q = msg.pose.position, msg.pose.orientation
     return Pose2D(p.x, p.y, 2.0 * math.atan2(q.z, q.w))
+
+
+def scan_file(name: str) -> _Scan:
+    """Every readable record of the MCAP file ``name``, checked.
+
+    Raises
+    ------
+    LogError
+        The file is missing, empty, or not MCAP at all.
+    """
+    try:
+        stream = open(name, "rb")
+    except OSError as exc:
+        raise LogError(f"{name}: cannot open the log: {exc.strerror}") from exc
+    with stream:
+        size = os.fstat(stream.fileno()).st_size
+        head = stream.read(len(MAGIC))
+        if not head:
+            raise LogError(f"{name}: empty file, not an MCAP log")
+        if head != MAGIC[: len(head)]:
+            raise LogError(f"{name}: not an MCAP file (bad magic bytes)")
+        stream.seek(0)
+        return _scan(stream, size)
 
 
 def read_run(path: str | os.PathLike[str]) -> RunData:
@@ -274,20 +372,7 @@ def read_run(path: str | os.PathLike[str]) -> RunData:
         The file is missing, empty, or not MCAP at all.
     """
     name = os.fspath(path)
-    try:
-        stream = open(name, "rb")
-    except OSError as exc:
-        raise LogError(f"{name}: cannot open the log: {exc.strerror}") from exc
-    with stream:
-        size = os.fstat(stream.fileno()).st_size
-        head = stream.read(len(MAGIC))
-        if not head:
-            raise LogError(f"{name}: empty file, not an MCAP log")
-        if head != MAGIC[: len(head)]:
-            raise LogError(f"{name}: not an MCAP file (bad magic bytes)")
-        stream.seek(0)
-        scan = _scan(stream, size)
-
+    scan = scan_file(name)
     by_topic = {c.topic: c for c in scan.channels.values()}
     columns: dict[str, NDArray[np.float64]] = {}
     counts: list[int] = []
@@ -332,7 +417,7 @@ def read_run(path: str | os.PathLike[str]) -> RunData:
         attachments=scan.attachments,
         media_types=scan.media_types,
         goal=_goal(scan, by_topic),
-        truncated=not scan.complete,
+        truncated=not scan.complete or scan.damaged,
         warnings=warnings,
     )
 

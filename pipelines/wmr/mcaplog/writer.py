@@ -25,7 +25,7 @@ import zlib
 from collections.abc import Mapping
 from importlib.metadata import PackageNotFoundError, version
 from types import TracebackType
-from typing import IO, Any, Final, Literal
+from typing import Any, Final, Literal, Protocol
 
 import numpy as np
 from mcap.data_stream import RecordBuilder
@@ -49,6 +49,7 @@ from mcap.records import (
 from numpy.typing import ArrayLike, NDArray
 
 import wmr
+from wmr.durable import AtomicFile
 from wmr.errors import LogError
 from wmr.mcaplog.schemas import (
     GOAL_SCHEMA,
@@ -88,6 +89,14 @@ def _compressor(kind: Compression) -> Any:
     raise LogError(f"unknown MCAP chunk compression {kind!r} (use 'zstd', 'lz4' or '')")
 
 
+class Sink(Protocol):
+    """What :class:`McapFile` writes to: a binary file, or a :class:`wmr.durable.AtomicFile`."""
+
+    def write(self, data: bytes, /) -> object: ...
+    def flush(self) -> None: ...
+    def close(self) -> None: ...
+
+
 class McapFile:
     """Minimal chunked MCAP writer with a vectorised message path.
 
@@ -104,7 +113,7 @@ class McapFile:
     """
 
     def __init__(
-        self, stream: IO[bytes], compression: Compression = "zstd", library: str = LIBRARY
+        self, stream: Sink, compression: Compression = "zstd", library: str = LIBRARY
     ) -> None:
         self._stream = stream
         self._compression = compression
@@ -120,6 +129,7 @@ class McapFile:
         self._n_messages = 0
         self._t_first = 0
         self._t_last = 0
+        self._crc = 0  # of the data section: every byte before Data End, magic included
         self._write(MAGIC)
         Header(profile="", library=library).write(self._rb)
         self._flush_records()
@@ -127,6 +137,7 @@ class McapFile:
     def _write(self, data: bytes) -> None:
         self._stream.write(data)
         self._pos += len(data)
+        self._crc = zlib.crc32(data, self._crc)
 
     def _flush_records(self) -> int:
         """Write the records built so far; return their length."""
@@ -134,22 +145,23 @@ class McapFile:
         self._write(data)
         return len(data)
 
-    def add_schema(self, name: str, data: bytes) -> int:
-        """Write a protobuf Schema record; return its id (1, 2, ...)."""
-        schema = Schema(id=len(self._schemas) + 1, name=name, encoding="protobuf", data=data)
+    def add_schema(self, name: str, data: bytes, encoding: str = "protobuf") -> int:
+        """Write a Schema record (protobuf by default); return its id (1, 2, ...)."""
+        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
         self._schemas.append(schema)
         schema.write(self._rb)
         self._flush_records()
         return schema.id
 
-    def add_channel(self, topic: str, schema_id: int) -> int:
-        """Write a protobuf Channel record; return its id (1, 2, ...)."""
+    def add_channel(self, topic: str, schema_id: int, message_encoding: str = "protobuf",
+                    metadata: Mapping[str, str] | None = None) -> int:
+        """Write a Channel record (protobuf by default); return its id (1, 2, ...)."""
         channel = Channel(
             id=len(self._channels) + 1,
             topic=topic,
-            message_encoding="protobuf",
+            message_encoding=message_encoding,
             schema_id=schema_id,
-            metadata={},
+            metadata=dict(metadata or {}),
         )
         self._channels.append(channel)
         self._counts[channel.id] = 0
@@ -256,8 +268,12 @@ class McapFile:
         self._stream.close()
 
     def finish(self) -> None:
-        """Write Data End, the summary section and the Footer; close the stream."""
-        DataEnd(data_section_crc=0).write(self._rb)
+        """Write Data End, the summary section and the Footer; close the stream.
+
+        A stream with a ``commit`` method (:class:`wmr.durable.AtomicFile`) is committed instead
+        of closed: the finished file then replaces the one at its final path.
+        """
+        DataEnd(data_section_crc=self._crc).write(self._rb)
         self._flush_records()
         summary_start = self._pos
         rb = RecordBuilder()
@@ -306,7 +322,11 @@ class McapFile:
         ).write(self._rb)
         self._flush_records()
         self._write(MAGIC)
-        self._stream.close()
+        commit = getattr(self._stream, "commit", None)
+        if commit is not None:
+            commit()
+        else:
+            self._stream.close()
 
 
 def _as_str(value: object) -> str:
@@ -367,7 +387,10 @@ class RunLogWriter:
     Parameters
     ----------
     path
-        Output file, written in place (a killed run leaves a readable prefix).
+        Output file.  Written as ``path + ".partial"`` (locked: a second writer to the same
+        path is refused) and renamed over ``path`` once finished and fsynced, so that a killed
+        run leaves the previous log at ``path`` whole and its own prefix in the ``.partial``
+        file (readable; ``wmr log recover`` makes it a finished log).
     run
         The ``run`` metadata record: scenario, start, goal, params, gains, FMU hash, FMI version,
         software version, ...; string values are kept, others are JSON-encoded.
@@ -383,11 +406,17 @@ class RunLogWriter:
         Simulation time per chunk, ns (default 1 s).
     topics
         The per-step topics: ``STEP_TOPICS`` (default) or ``OPEN_LOOP_TOPICS`` (no controller).
+    durable
+        fsync the finished log before its rename (default); off, a power loss (not a kill)
+        may damage a finished log.
 
     Raises
     ------
     LogError
-        The file cannot be created, or the metadata is not string-convertible.
+        The file cannot be created or is being written by another process, or the metadata
+        is not string-convertible.
+    DiskFullError
+        No space left on the device (from any method that writes).
     """
 
     def __init__(
@@ -400,15 +429,14 @@ class RunLogWriter:
         compression: Compression = "zstd",
         chunk_period_ns: int = 1_000_000_000,
         topics: tuple[TopicLayout, ...] = STEP_TOPICS,
+        durable: bool = True,
     ) -> None:
         self.path = os.fspath(path)
         if chunk_period_ns <= 0:
             raise LogError(f"chunk_period_ns must be positive, got {chunk_period_ns}")
         run_record = _str_dict("run", run)
-        try:
-            stream = open(self.path, "wb")  # closed by McapFile.finish or abort
-        except OSError as exc:
-            raise LogError(f"{self.path}: cannot create the log: {exc.strerror}") from exc
+        # committed by McapFile.finish, or abandoned
+        stream = AtomicFile(self.path, "log", durable=durable)
         self._period = int(chunk_period_ns)
         self._pending_t: list[NDArray[np.int64]] = []
         self._pending_x: list[NDArray[np.float64]] = []

@@ -57,7 +57,7 @@ def _check_resolvable(start: Pose, goal: Pose, params: RobotParams, limits: Opti
         if final_time_s > longest:
             raise ConfigError("final_time_s", f"{final_time_s:g} s needs intervals longer than "
                               f"{MAX_INTERVAL_S:g} s with {n_intervals} intervals",
-                              f"give at most {longest:g} s, or more n_intervals")
+                              f"give at most {longest:g} s, or raise n_intervals")
         return
     t_min = min_time_bound_s(start, goal, params, limits)
     if t_min > longest:
@@ -66,7 +66,7 @@ def _check_resolvable(start: Pose, goal: Pose, params: RobotParams, limits: Opti
                           f"under the limits, more than {n_intervals} intervals of "
                           f"{MAX_INTERVAL_S:g} s resolve ({longest:g} s)",
                           f"bring the goal within about {d * longest / t_min:.0f} m of the "
-                          "start, or give more n_intervals")
+                          "start, or raise n_intervals")
 
 
 def _check_arguments(start: Pose, goal: Pose, params: RobotParams, objective: Objective,
