@@ -46,7 +46,7 @@ def main() -> None:
                 t0 = time.perf_counter()
                 res = run_closed_loop(replace(spec, sensors=sensors), plant)
                 times[name].append((time.perf_counter() - t0) / res.steps)
-            sensing = Sensing(preset("gps"), spec.period_s, spec.params, spec.start, "bench")
+            sensing = Sensing(preset("gps"), spec.period_s, spec.params, spec.start, spec.goal)
             t0 = time.perf_counter()
             for n, out in enumerate(outputs):
                 sensing.step(n, out)

@@ -25,6 +25,7 @@ from wmr.sensing.models import Encoders, Gps, Schedule, generators
 
 H = 0.01
 PARAMS = RobotParams()
+TRIP = (10.0, 0.0, 0.0, 0.0, 0.0, math.pi)  # start and goal poses: x_m, y_m, heading_rad
 
 
 def _outputs(x: float, y: float, theta: float, phi_r: float = 0.0,
@@ -86,7 +87,7 @@ def test_schedule_rate_and_delay() -> None:
 
 def test_gps_noise_statistics_rate_and_latency() -> None:
     cfg = SensorConfig(gps_rate_hz=10.0, gps_latency_s=0.05, gps_sigma_m=0.3)
-    gps = Gps(cfg, H, generators(3, "stats"))
+    gps = Gps(cfg, H, generators(3, TRIP))
     steps = 200_000
     fixes = []
     for n in range(steps):
@@ -113,7 +114,7 @@ def test_gps_bias_walk_and_dropouts() -> None:
     kept = 0
     in_window = 0
     for seed in range(n_runs):
-        gps = Gps(cfg, H, generators(seed, "walk"))
+        gps = Gps(cfg, H, generators(seed, TRIP))
         for n in range(steps):
             gps.measure(n, 0.0, 0.0)
             for f in gps.arrivals(n):
@@ -132,7 +133,7 @@ def test_gps_bias_walk_and_dropouts() -> None:
 def test_compass_statistics_and_encoder_quantisation() -> None:
     cfg = SensorConfig(compass_sigma_deg=2.0, compass_rate_hz=25.0, compass_latency_s=0.1,
                        encoder_counts_per_rev=512)
-    sensing = Sensing(cfg, H, PARAMS, Pose(0.0, 0.0, 3.1), "compass")
+    sensing = Sensing(cfg, H, PARAMS, Pose(0.0, 0.0, 3.1), Pose(1.0, 0.0, 0.0))
     assert sensing.compass is not None
     comp = sensing.compass
     errs, delays = [], set()
@@ -156,14 +157,19 @@ def test_compass_statistics_and_encoder_quantisation() -> None:
 
 
 def test_streams_are_independent_and_reproducible() -> None:
-    a = generators(7, "run-a")["gps_noise"].normal(size=5)
-    assert np.array_equal(a, generators(7, "run-a")["gps_noise"].normal(size=5))
-    assert not np.array_equal(a, generators(7, "run-b")["gps_noise"].normal(size=5))
-    assert not np.array_equal(a, generators(8, "run-a")["gps_noise"].normal(size=5))
+    a = generators(7, TRIP)["gps_noise"].normal(size=5)
+    assert np.array_equal(a, generators(7, TRIP)["gps_noise"].normal(size=5))
+    assert not np.array_equal(a, generators(8, TRIP)["gps_noise"].normal(size=5))
+    for i in range(len(TRIP)):  # any part of the start or the goal, by one ulp
+        other = [*TRIP]
+        other[i] = math.nextafter(other[i], math.inf)
+        assert not np.array_equal(a, generators(7, other)["gps_noise"].normal(size=5))
+    negative_zero = [-0.0 if v == 0.0 else v for v in TRIP]
+    assert np.array_equal(a, generators(7, negative_zero)["gps_noise"].normal(size=5))
     # a dropout probability changes which fixes arrive, not their noise
     base = SensorConfig(gps_sigma_m=1.0)
-    g1 = Gps(base, H, generators(1, "r"))
-    g2 = Gps(replace(base, gps_dropout_probability=0.5), H, generators(1, "r"))
+    g1 = Gps(base, H, generators(1, TRIP))
+    g2 = Gps(replace(base, gps_dropout_probability=0.5), H, generators(1, TRIP))
     v1, v2 = {}, {}
     for n in range(2000):
         g1.measure(n, 0.0, 0.0)
@@ -412,6 +418,16 @@ def test_wmr_run_sensors_gps_logs_fixes_and_estimate(tmp_path: Path) -> None:
     idx = np.searchsorted(run.t_ns, trace.gps_t_ns)
     d = trace.gps_xy_m - np.column_stack([run.signals["x_m"][idx], run.signals["y_m"][idx]])
     assert 0.01 < float(np.std(d)) < 0.04
+    from mcap.reader import make_reader
+
+    from wmr.sensing.log import COVARIANCE_TOPIC, PoseCovariance
+    with open(out, "rb") as f:
+        cov = [PoseCovariance.FromString(m.data) for _, _, m in
+               make_reader(f).iter_messages(topics=[COVARIANCE_TOPIC])]
+    assert len(cov) == run.n_steps
+    assert all(c.xx_m2 > 0 and c.yy_m2 > 0 and c.theta_theta_rad2 > 0
+               and c.xy_m2**2 <= c.xx_m2 * c.yy_m2 for c in cov)
+    assert math.sqrt(cov[-1].xx_m2) < 0.02  # the filter knows better than one fix
     rrd = tmp_path / "gps.rrd"
     with redirect_stdout(io.StringIO()), redirect_stderr(io.StringIO()):
         assert main(["replay", str(out), "--rrd", str(rrd)]) == 0
@@ -432,6 +448,69 @@ def test_noisy_run_is_reproducible_and_seeded() -> None:
     assert not np.array_equal(a.sensing.gps_xy_m, c.sensing.gps_xy_m)
     assert len(a.sensing.gps_t_ns) == 50  # 10 Hz for 5 s, the last 5 fixes still in flight
     assert np.all(a.sensing.gps_arrival_ns - a.sensing.gps_t_ns == 50_000_000)
+
+
+class _Truth:
+    """The time and true position of every step, as the master writes them."""
+
+    def __init__(self) -> None:
+        self.t_ns: list[np.ndarray] = []
+        self.xy_m: list[np.ndarray] = []
+
+    def write_block(self, t_ns: np.ndarray, block: np.ndarray) -> None:
+        self.t_ns.append(t_ns.copy())
+        self.xy_m.append(block[:, :2].copy())  # x_m, y_m lead the rows
+
+
+def _fix_errors(spec: RunSpec) -> tuple[np.ndarray, np.ndarray]:
+    """``spec`` on the reference plant: its GPS fixes minus the true position each measured,
+    and the true path, m."""
+    rec = _Truth()
+    res = run_closed_loop(spec, ReferencePlant(), rec)
+    assert res.sensing is not None and len(res.sensing.gps_t_ns) > 10
+    t_ns, xy_m = np.concatenate(rec.t_ns), np.vstack(rec.xy_m)
+    idx = np.searchsorted(t_ns, res.sensing.gps_t_ns)
+    assert np.array_equal(t_ns[idx], res.sensing.gps_t_ns)
+    return res.sensing.gps_xy_m - xy_m[idx], xy_m
+
+
+def test_a_gains_variant_sees_the_noise_of_its_trip_not_of_its_name() -> None:
+    """Common random numbers: ``fig11-K_ptheta=17`` (a variant named after its override)
+    drives another path through the very same GPS noise as ``fig11``."""
+    from wmr.naming import run_name
+
+    (base,) = expand(load_scenario("fig11"))
+    base = with_overrides(replace(base, t_max_s=3.0), sensors=preset("gps"))
+    tuned = with_overrides(base, gains={"K_ptheta": 17.0})
+    tuned = replace(tuned, name=run_name(base, tuned))
+    assert tuned.name == "fig11-K_ptheta=17"
+    (e_base, path_base), (e_tuned, path_tuned) = _fix_errors(base), _fix_errors(tuned)
+    assert not np.allclose(path_base, path_tuned, rtol=0.0, atol=1e-3)
+    np.testing.assert_allclose(e_tuned, e_base, rtol=0.0, atol=1e-12)
+
+
+def test_batch_runs_share_noise_per_trip_and_random_starts_do_not() -> None:
+    """A batch of 2 gains x 2 random starts: the two gains see one noise realisation per
+    start, the two starts two independent ones."""
+    data = {"name": "crn", "start": [10, 0, 0], "goal": [0, 0, 180], "max_time_s": 2.0,
+            "sensors": {"estimator": "ekf", "heading": "none", "gps_sigma_m": 0.02},
+            "grid": {"gains": {"K_ptheta": [1.0, 17.0]}},
+            "random": {"seed": 3, "n": 2,
+                       "start": {"r_m": {"dist": "uniform", "low": 3.0, "high": 12.0},
+                                 "bearing_deg": {"dist": "uniform", "low": -180.0,
+                                                 "high": 180.0}}}}
+    runs = parse_batch(data).runs
+    by_start: dict[Pose, list[np.ndarray]] = {}
+    for r in runs:
+        by_start.setdefault(r.spec.start, []).append(_fix_errors(r.spec)[0])
+    assert len(runs) == 4 and len({r.spec.name for r in runs}) == 4 and len(by_start) == 2
+    (a1, a2), (b1, b2) = by_start.values()
+    np.testing.assert_allclose(a2, a1, rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(b2, b1, rtol=0.0, atol=1e-12)
+    n = min(len(a1), len(b1))
+    # independent streams: the noise of the two starts is uncorrelated (4 standard errors)
+    r = np.corrcoef(a1[:n].ravel(), b1[:n].ravel())[0, 1]
+    assert abs(r) < 4.0 / math.sqrt(2 * n)
 
 
 def test_fig11_converges_with_2cm_gps_at_10hz_and_50ms() -> None:

@@ -150,7 +150,7 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
         stab = controller.stabiliser
         out = plant.reset(spec.params, spec.start)
         if spec.sensors is not None:
-            sensing = Sensing(spec.sensors, h, spec.params, spec.start, spec.name)
+            sensing = Sensing(spec.sensors, h, spec.params, spec.start, spec.goal)
         x, y, theta = float(out[0]), float(out[1]), float(out[2])
         w_r_prev, w_l_prev = float(out[5]), float(out[6])
         tau_r_prev = tau_l_prev = 0.0

@@ -82,6 +82,7 @@ from wmr.scenario import (
     with_overrides,
 )
 from wmr.sensing.config import NAME_FIELDS, SensorConfig
+from wmr.sensing.models import NOISE_SEEDING
 
 #: Sections a batch spec adds to a scenario file.
 BATCH_SECTIONS: Final = ("grid", "sweep", "list", "random")
@@ -483,6 +484,10 @@ def spec_digest(spec: RunSpec) -> str:
     for key in ("sensors", "controller_fmu"):
         if d[key] is None:
             del d[key]
+    if spec.sensors is not None:
+        # the noise is seeded by the trip, no longer by the run's name: a rerun must not skip
+        # runs journalled with the earlier streams as done
+        d["noise_seeding"] = NOISE_SEEDING
     text = json.dumps(_canonical(d), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 

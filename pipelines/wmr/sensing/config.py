@@ -4,7 +4,7 @@
 
     [sensors]                          # absent: perfect state feedback (the default)
     estimator = "ekf"                  # "none": raw latest fixes; "ekf": odometry + fixes
-    seed = 0                           # with the run's name, seeds every noise stream
+    seed = 0                           # with the start and goal, seeds every noise stream
     gps_rate_hz = 10.0                 # position fix rate
     gps_latency_s = 0.05               # from measurement to arrival (rounded up to a step)
     gps_sigma_m = 0.02                 # white noise per axis, 1 sigma

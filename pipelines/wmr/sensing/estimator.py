@@ -73,19 +73,21 @@ class Sensing:
         The robot (wheel radius ``r`` and half track ``L`` for the odometry).
     start
         The true start pose.
-    run_name
-        Seeds the noise with ``cfg.seed``.
+    goal
+        The goal pose: with ``start`` and ``cfg.seed``, seeds the noise
+        (:func:`~wmr.sensing.models.generators`).
     """
 
     def __init__(self, cfg: SensorConfig, period_s: float, params: RobotParams, start: Pose,
-                 run_name: str) -> None:
+                 goal: Pose) -> None:
         cfg.check(period_s)
         self.cfg = cfg
         self._h = period_s
         # the estimator's wheel radius: the odometry's scale error, if any
         self._r = params.r * (1.0 + cfg.wheel_radius_error_frac)
         self._half_track = params.L
-        rngs = generators(cfg.seed, run_name)
+        rngs = generators(cfg.seed, (start.x_m, start.y_m, start.heading_rad,
+                                      goal.x_m, goal.y_m, goal.heading_rad))
         self.gps = Gps(cfg, period_s, rngs)
         self.compass = Compass(cfg, period_s, rngs) if cfg.heading == "compass" else None
         self.encoders = Encoders(cfg, period_s)

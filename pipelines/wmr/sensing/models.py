@@ -6,15 +6,17 @@ Time is the control grid ``t_n = n h``.  A sensor of rate ``f`` samples at step 
 with at most one per step (rates above the control rate are refused).  A sample measured at
 step ``n`` arrives ``ceil(latency / h)`` steps later (latencies round up to the grid: a fix is
 never early).  Every noise stream has its own :class:`numpy.random.Generator` (PCG64) spawned
-from ``SeedSequence([seed, crc32(run name)])``, so a run is reproducible bit for bit on any
-executor and switching one sensor on or off leaves the draws of the others unchanged.
+from ``SeedSequence([seed, *trip])``, the trip being the bits of the start and goal poses
+(:func:`trip_entropy`), so a run is reproducible bit for bit on any executor, switching one
+sensor on or off leaves the draws of the others unchanged, and runs of the same trip that differ
+only in controller, gains, limits or estimator see the same noise (common random numbers).
 """
 
 from __future__ import annotations
 
 import math
-import zlib
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final
 
@@ -24,11 +26,31 @@ from wmr.sensing.config import SensorConfig
 
 #: Independent noise streams, in spawn order (never reorder: it would change every draw).
 STREAMS: Final = ("gps_noise", "gps_bias", "gps_dropout", "compass", "initial")
+#: What seeds the streams (:func:`generators`), part of a batch run's id with sensors: change
+#: it with the seeding, so that a rerun never takes runs done with other streams as done.
+NOISE_SEEDING: Final = "seed+start+goal"
 
 
-def generators(seed: int, run_name: str) -> dict[str, np.random.Generator]:
-    """One PCG64 generator per stream of :data:`STREAMS`, seeded by ``(seed, run_name)``."""
-    children = np.random.SeedSequence([seed, zlib.crc32(run_name.encode())]).spawn(len(STREAMS))
+def trip_entropy(trip: Sequence[float]) -> list[int]:
+    """The trip (start and goal pose: ``x_m, y_m, heading_rad`` each) as seed words: the
+    IEEE-754 bits of each value, ``-0.0`` counted as ``0.0``.
+
+    Bit-exact rather than rounded: two random starts never share a stream by rounding, and the
+    same trip typed twice (or read back from a log's effective scenario) always does.
+    """
+    values = np.asarray(trip, dtype=np.float64) + 0.0  # -0.0 + 0.0 is +0.0
+    return [int(w) for w in values.view(np.uint64)]
+
+
+def generators(seed: int, trip: Sequence[float]) -> dict[str, np.random.Generator]:
+    """One PCG64 generator per stream of :data:`STREAMS`, seeded by ``seed`` and the ``trip``
+    (:func:`trip_entropy`).
+
+    The run's name is deliberately not part of the seed: a variant run is named after its
+    overrides (:mod:`wmr.naming`), and a comparison of gains, controllers or estimators on one
+    trip must see one noise realisation.
+    """
+    children = np.random.SeedSequence([seed, *trip_entropy(trip)]).spawn(len(STREAMS))
     return {name: np.random.Generator(np.random.PCG64(ss))
             for name, ss in zip(STREAMS, children, strict=True)}
 
@@ -141,4 +163,5 @@ class Encoders:
         return math.floor(phi_rad / q) * q if q else phi_rad
 
 
-__all__ = ["STREAMS", "Compass", "Encoders", "Fix", "Gps", "Schedule", "generators"]
+__all__ = ["NOISE_SEEDING", "STREAMS", "Compass", "Encoders", "Fix", "Gps", "Schedule",
+           "generators", "trip_entropy"]
