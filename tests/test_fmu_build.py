@@ -17,7 +17,7 @@ from wmr.fmu.archive import check_archive
 from wmr.fmu.build import BuildResult, build_fmus
 from wmr.fmu.plant import FmuPlant
 
-INTERFACE = {  # shared/design/interface.md
+INTERFACE = {  # the public interface (docs/formats.md)
     "tau_r": ("input", "N.m"), "tau_l": ("input", "N.m"),
     "x": ("output", "m"), "y": ("output", "m"), "theta": ("output", "rad"),
     "v": ("output", "m/s"), "omega": ("output", "rad/s"),
