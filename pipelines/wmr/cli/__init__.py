@@ -48,8 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     fmu = sub.add_parser("fmu", help="build the FMUs from the Modelica model")
     fmu_sub = fmu.add_subparsers(dest="fmu_command", metavar="ACTION", required=True)
     build = fmu_sub.add_parser(
-        "build", help="build (or reuse, if nothing changed) the FMI 2.0 and 3.0 FMUs",
-        description="Build the FMI 2.0 and FMI 3.0 FMUs and print their paths, one a line "
+        "build", help="build (or reuse, if nothing changed) the robot and controller FMUs",
+        description="Build the robot's and the controller's FMI 2.0 and FMI 3.0 FMUs (the robot "
+                    "with co-simulation and model exchange) and print their paths, one a line "
                     "(standard error says what each offers: FMI version, interfaces, platforms). "
                     "With the ziglang package the binaries cover x86_64-linux, aarch64-linux, "
                     "x86_64-windows, x86_64-darwin and aarch64-darwin; with gcc, the host only.")
