@@ -205,8 +205,12 @@ def test_without_zig_gcc_builds_the_host_platform(built: BuildResult, tmp_path: 
         pytest.skip("needs gcc on Linux")
     with pytest.raises(BuildError, match="not on PATH"):
         find_compiler("no-such-cc-wmr")
-    gcc = build_fmus(tmp_path, cc="gcc")  # validated by fmpy inside the build
+    notices: list[str] = []
+    gcc = build_fmus(tmp_path, cc="gcc", on_build=notices.append)  # validated by fmpy inside
     assert gcc.platforms == (host.name,) and gcc.digest != built.digest
+    # a build says so before it starts (it may take minutes); a reuse says nothing
+    assert len(notices) == 1 and host.name in notices[0] and str(tmp_path) in notices[0]
+    assert build_fmus(tmp_path, cc="gcc", on_build=notices.append).reused and len(notices) == 1
     assert summarize(gcc.fmus[2]).platforms == (host.fmi2,)
     assert summarize(gcc.fmus[3]).platforms == (host.name,)
 

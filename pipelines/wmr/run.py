@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import zipfile
 from dataclasses import asdict
 from pathlib import Path
@@ -28,18 +29,24 @@ if TYPE_CHECKING:
     from wmr.fmu.fmu_controller import FmuController
 
 
+def _notice(message: str) -> None:
+    """A build that a run starts says so on stderr: it may take minutes, and stdout is for
+    results (``--json``)."""
+    print(f"wmr: {message}", file=sys.stderr, flush=True)
+
+
 def default_fmu(fmi_version: int = 3) -> Path:
     """The FMU of the project's model, built (or reused) in the user's cache."""
     from wmr.fmu.build import build_fmus
 
-    return build_fmus().fmus[fmi_version]
+    return build_fmus(on_build=_notice).fmus[fmi_version]
 
 
 def default_controller_fmu(fmi_version: int = 3) -> Path:
     """The controller FMU (the PI stabiliser in C), built (or reused) in the user's cache."""
     from wmr.fmu.build import build_fmus
 
-    return build_fmus().controllers[fmi_version]
+    return build_fmus(on_build=_notice).controllers[fmi_version]
 
 
 def _jsonable(value: float | None) -> float | None:

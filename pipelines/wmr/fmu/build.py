@@ -19,7 +19,7 @@ import shutil
 import subprocess
 import tempfile
 import zipfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -182,7 +182,8 @@ def _write_zip(target: Path, members: dict[str, bytes]) -> None:
 
 
 def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = False,
-               cc: str | None = None, validate: bool = True) -> BuildResult:
+               cc: str | None = None, validate: bool = True,
+               on_build: Callable[[str], None] | None = None) -> BuildResult:
     """Build (or reuse) the FMI 2.0 and FMI 3.0 FMUs into ``out_dir``.
 
     Parameters
@@ -196,6 +197,9 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
         platform only), or None for zig when the ``ziglang`` package is installed, else gcc.
     validate
         Run fmpy's ``validate_fmu`` on each new FMU and fail on any problem.
+    on_build
+        Called with a one-line notice when the FMUs must be built rather than reused (a first
+        build takes minutes: Zig builds its C libraries for every platform once per machine).
 
     Raises
     ------
@@ -212,6 +216,9 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
             reused = _reusable(out, digest)
             if reused is not None:
                 return _result(reused, digest, True, names)
+        if on_build is not None:
+            on_build(f"building the robot and controller FMUs for {', '.join(names)} into {out} "
+                     "(the first build on a machine takes a few minutes)")
         fmus = _build(out, digest, compiler, targets)
         controllers = _build(out, digest, compiler, targets, "controller")
         if validate:
