@@ -124,11 +124,18 @@ class DaskExecutor:
             for i in range(0, len(tasks), size):
                 submit(list(tasks[i:i + size]), "")
             retried: set[str] = set()
-            done = as_completed(list(futures), with_results=True, raise_errors=False)
-            for fut, result in done:
+            # Not as_completed(with_results=True): it gathers each result inside its own
+            # tracking task, and a worker that dies during that gather raises KilledWorker
+            # there; the future is then never yielded and the batch waits for ever (seen with
+            # workers killed mid-run).  Waiting only for completion, then asking the finished
+            # future for its result here, cannot lose one.
+            done = as_completed(list(futures))
+            for fut in done:
                 chunk = futures.pop(fut)
-                if fut.status == "error" and isinstance(result, tuple):
-                    result = result[1]  # as_completed gives an erred task's (type, exc, tb)
+                try:
+                    result = fut.result()
+                except Exception as exc:  # KilledWorker, CancelledError or the task's own
+                    result = exc
                 if isinstance(result, BaseException):
                     died = type(result).__name__ == "KilledWorker"
                     # the rule of the local pool: a run whose worker died gets one more
