@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -10,16 +11,20 @@ import subprocess
 import sys
 import time
 import tomllib
+import tracemalloc
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from wmr.batch import BatchSpec, load_batch, parse_batch, run_batch
 from wmr.batch.journal import Journal, log_complete
 from wmr.batch.report import write_report
+from wmr.batch.spec import RunList
 from wmr.cli import main
 from wmr.errors import ConfigError
 from wmr.mcaplog import read_run
@@ -109,6 +114,131 @@ def test_grid_list_random_expand_to_their_product() -> None:
     for col in ("max_time_s", "gains.K_ps", "params.m", "params.l"):
         assert col in batch.input_columns
     assert len({r.run_id for r in batch.runs}) == len(batch.runs)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(1, 3), max_size=3), st.integers(0, 3), st.integers(0, 3),
+       st.integers(0, 2))
+def test_lazy_runs_are_the_product_in_index_order(axes: list[int], n_list: int,
+                                                  n_random: int, extra_bases: int) -> None:
+    """Run ``i`` made from ``i`` alone is the ``i``-th of an eager product (a second
+    implementation: itertools.product over the raw values, base slowest, sample fastest)."""
+    fields = ("max_time_s", "gains.K_ps", "params.m")[:len(axes)]
+    values = {f: [10.0 + 10.0 * k + j for j in range(n)] for k, (f, n) in
+              enumerate(zip(fields, axes, strict=True))}
+    text = 'name = "p"\nstart = [1.0, 0.0, 0.0]\ngoal = [0.0, 0.0, 0.0]\n'
+    if extra_bases:
+        text += "".join(f'[[runs]]\nname = "b{k}"\n' for k in range(extra_bases + 1))
+    if values:
+        text += "[grid]\n" + "".join(f"{f} = {v}\n" for f, v in values.items() if "." not in f)
+        for f, v in values.items():
+            if "." in f:
+                group, name = f.split(".")
+                text += f"[grid.{group}]\n{name} = {v}\n"
+    entries = [{"name": f"e{k}", "l": 0.3 + 0.01 * k} for k in range(n_list)]
+    text += "".join(f'[[list]]\nname = "{e["name"]}"\nparams = {{ l = {e["l"]} }}\n'
+                    for e in entries)
+    if n_random:
+        text += (f"[random]\nseed = 5\nn = {n_random}\n"
+                 '[random.limits]\ntorque_max_nm = { dist = "uniform", low = 5.0, high = 9.0 }\n')
+    runs = _parse(text).runs
+    bases = [f"b{k}" for k in range(extra_bases + 1)] if extra_bases else ["p"]
+    expected = list(itertools.product(bases, *values.values(), entries or [None],
+                                      range(n_random or 1)))
+    assert len(runs) == len(expected)
+    made = list(runs)
+    assert [r.run_id for r in made] == [runs[i].run_id for i in range(len(runs))]
+    for i, (run, combo) in enumerate(zip(made, expected, strict=True)):
+        base, *grid_values, entry, _ = combo
+        assert run.base == base and runs.index_of(run.run_id) == i  # type: ignore[attr-defined]
+        got = {"max_time_s": run.spec.t_max_s, "gains.K_ps": run.spec.gains.K_ps,
+               "params.m": run.spec.params.m}
+        assert [got[f] for f in fields] == grid_values
+        assert run.variant == (entry["name"] if entry else "")
+        if entry:
+            assert run.spec.params.l == entry["l"]
+    assert runs[-1] == made[-1] and runs[1:3] == made[1:3]
+    with pytest.raises(IndexError):
+        runs[len(runs)]
+
+
+def test_a_million_run_spec_loads_lazily(monkeypatch: pytest.MonkeyPatch) -> None:
+    made: list[int] = []
+    original = RunList._make
+
+    def spy(self: RunList, index: int) -> Any:
+        made.append(index)
+        return original(self, index)
+
+    monkeypatch.setattr(RunList, "_make", spy)
+    values = ", ".join(f"{0.1 + 0.01 * i:.2f}" for i in range(100))
+    masses = ", ".join(f"{20.0 + 0.1 * i:.1f}" for i in range(100))
+    tracemalloc.start()
+    try:
+        batch = _parse(f"""
+            start = [1.0, 0.0, 0.0]
+            goal = [0.0, 0.0, 0.0]
+            [grid.gains]
+            K_ps = [{values}]
+            K_is = [{values}]
+            [grid.params]
+            m = [{masses}]
+        """)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert len(batch.runs) == 1_000_000
+    assert len(made) == 298 and peak < 20e6  # the probes: each grid value once, not the product
+    last = batch.runs[-1]
+    assert last.run_id.startswith("999999-") and last.spec.params.m == 29.9
+    assert (last.spec.gains.K_ps, last.spec.gains.K_is) == (1.09, 1.09)
+
+
+def test_a_bad_grid_value_of_a_large_spec_is_found_at_load() -> None:
+    values = ", ".join(f"{0.1 + 0.01 * i:.2f}" for i in range(100))
+    with pytest.raises(ConfigError, match=r"grid\.params\.m: must be > 0.*\(run 19,"):
+        _parse(f"""
+            start = [1.0, 0.0, 0.0]
+            goal = [0.0, 0.0, 0.0]
+            [grid.gains]
+            K_ps = [{values}]
+            [grid.params]
+            m = [{", ".join(["25.0"] * 19)}, -1.0]
+        """)
+
+
+def test_a_run_invalid_only_in_combination_stops_its_batch_and_the_fix_resumes(
+        tmp_path: Path, fmu3: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The probes try each grid value with the first of the others: a combination of two
+    valid values (a long period with a stiff wheel servo) is found when the batch makes it."""
+    import wmr.batch.spec as spec_module
+
+    monkeypatch.setattr(spec_module, "CHECK_ALL_RUNS", 0)  # probe this 4-run spec as if large
+    text = """
+        name = "combo"
+        start = [0.3, 0.0, 0.0]
+        goal = [0.0, 0.0, 0.0]
+        max_time_s = 3.0
+        [grid]
+        control_period_s = [0.01, 0.05]
+        [grid.gains]
+        K_pw = [7.0, 14.0]
+    """
+    spec = _write(tmp_path, text)
+    out = tmp_path / "out"
+    assert main(["batch", str(spec), "--check", "--no-progress"]) == 1
+    assert "grid.control_period_s" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match=r"grid\.control_period_s.*run 3, combo-0003") as info:
+        run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    assert "rerun the same command" in info.value.fix
+    assert len(_journal_ids(out)) == 3  # the runs before it are kept ...
+    assert pq.read_table(out / "summary.parquet").num_rows == 3  # ... and summarised
+    spec.write_text(text.replace("K_pw = [7.0, 14.0]", "K_pw = [7.0, 10.0]"), encoding="utf-8")
+    assert main(["batch", str(spec), "--check", "--no-progress"]) == 0
+    assert "4 runs, all valid" in capsys.readouterr().err
+    again = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    assert again.skipped == 2 and len(again.executed) == 2 and again.finished == 4
 
 
 def test_random_samples_are_reproducible_and_keep_their_values_when_n_grows() -> None:

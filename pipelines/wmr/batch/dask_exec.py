@@ -14,16 +14,17 @@ local executor kills such a worker, the Dask one only reports it when its future
 from __future__ import annotations
 
 import hashlib
+import itertools
 import secrets
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from wmr.batch import worker as _worker
 from wmr.batch.local import DIED_TWICE, Outcome, made_up_record
-from wmr.batch.worker import TOKEN_FILE, Attachment, Task, dask_run_many
+from wmr.batch.worker import TOKEN_FILE, Attachment, Task, TaskSource, dask_run_many
 from wmr.fmu.varmap import VariableMap
 
 if TYPE_CHECKING:
@@ -51,6 +52,12 @@ class FmuPlugin(WorkerPlugin):
 
     def teardown(self, worker: Any) -> None:
         _worker._FMUS.pop(self.sha256, None)
+
+
+#: Dask tasks in flight per worker thread (each of ``chunk`` runs): enough to keep every
+#: thread busy while results travel back, few enough that a million-run batch is not all
+#: submitted (and made) at once.
+WINDOW: Final = 4
 
 
 class DaskExecutor:
@@ -88,10 +95,12 @@ class DaskExecutor:
         self.client = client
         self.attachment = attachment
 
-    def run(self, tasks: Sequence[Task]) -> Iterator[Outcome]:
+    def run(self, tasks: TaskSource) -> Iterator[Outcome]:
         """Submit ``tasks``; yield each :class:`Outcome` as it finishes.
 
-        Closing the iterator early cancels the runs not finished.
+        At most :data:`WINDOW` tasks per worker thread are submitted at a time, the next as one
+        finishes: the client holds, and the scheduler tracks, a window of a large batch, not
+        all of it.  Closing the iterator early cancels the runs not finished.
         """
         from distributed import Client, as_completed
 
@@ -121,8 +130,15 @@ class DaskExecutor:
                 futures[fut] = chunk
                 return fut
 
-            for i in range(0, len(tasks), size):
-                submit(list(tasks[i:i + size]), "")
+            source = iter(tasks)
+
+            def submit_next() -> Any:
+                chunk = list(itertools.islice(source, size))
+                return submit(chunk, "") if chunk else None
+
+            for _ in range(WINDOW * threads):
+                if submit_next() is None:
+                    break
             retried: set[str] = set()
             # Not as_completed(with_results=True): it gathers each result inside its own
             # tracking task, and a worker that dies during that gather raises KilledWorker
@@ -132,6 +148,9 @@ class DaskExecutor:
             done = as_completed(list(futures))
             for fut in done:
                 chunk = futures.pop(fut)
+                more = submit_next()
+                if more is not None:
+                    done.add(more)
                 try:
                     result = fut.result()
                 except Exception as exc:  # KilledWorker, CancelledError or the task's own

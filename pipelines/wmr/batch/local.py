@@ -19,7 +19,7 @@ import signal
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import wmr.run  # noqa: F401 - preloaded by the forkserver, so that workers start fast
-from wmr.batch.worker import PlantHolder, Task, wall_limit_message
+from wmr.batch.worker import PlantHolder, Task, TaskSource, wall_limit_message
 from wmr.energy import ENERGY_KEYS
 from wmr.errors import FmuError, WmrError
 from wmr.fmu.varmap import VariableMap
@@ -218,7 +218,7 @@ class LocalPool:
             slot.proc.join(2.0)
         slot.conn.close()
 
-    def run(self, tasks: Sequence[Task]) -> Iterator[Outcome]:
+    def run(self, tasks: TaskSource) -> Iterator[Outcome]:
         """Run ``tasks``; yield each :class:`Outcome` as it finishes (in finishing order).
 
         Closing the iterator early (Ctrl-C in the consumer) kills the workers.
@@ -228,18 +228,21 @@ class LocalPool:
         FmuError
             A worker cannot open the FMU.
         """
-        pending = deque(tasks)
+        source = iter(tasks)  # taken one at a time: a large batch's runs are made as they go
+        again: deque[Task] = deque()
         retried: set[str] = set()
         slots: list[_Slot] = []
         spawned = 0
         try:
-            for _ in range(min(self.workers, len(pending))):
+            for _ in range(min(self.workers, len(tasks))):
                 slots.append(self._spawn(spawned))
                 spawned += 1
             while True:
                 for slot in slots:
-                    if slot.task is None and pending:
-                        slot.task = pending.popleft()
+                    if slot.task is None:
+                        slot.task = again.popleft() if again else next(source, None)
+                        if slot.task is None:
+                            continue
                         slot.started = time.monotonic()
                         try:
                             slot.conn.send(slot.task)
@@ -287,7 +290,7 @@ class LocalPool:
                     spawned += 1
                     if task.run_id not in retried:  # e.g. the OOM killer: once more, then failed
                         retried.add(task.run_id)
-                        pending.appendleft(task)
+                        again.appendleft(task)
                         continue
                     yield Outcome(task.run_id, made_up_record(task.run_id, "failed", DIED_TWICE),
                                   wall, killed=True,

@@ -29,7 +29,7 @@ from typing import Any, Final
 from wmr.batch.journal import JOURNAL, Journal, log_complete
 from wmr.batch.local import LocalPool, Outcome
 from wmr.batch.spec import BatchSpec, spec_digest
-from wmr.batch.summary import status_counts, summary_table, write_summary
+from wmr.batch.summary import SummaryRow, status_counts, summary_table, write_summary
 from wmr.batch.worker import DISK_FULL, FAULTS, Task
 from wmr.durable import AtomicFile, partial_path, storage_error
 from wmr.errors import ConfigError, DiskFullError, WmrError
@@ -189,22 +189,14 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     lock = _Lock(out)
     try:
         journal = Journal(out / JOURNAL)
-        digests = {r.run_id: spec_digest(r.spec) for r in batch.runs}
-        records: dict[str, dict[str, Any]] = {}
-        for run_id, row in journal.load().items():
-            if digests.get(run_id) != row.get("digest") or row.get("fmu_sha256") != fmu_sha:
-                continue
-            if row.get("killed") or log_complete(runs_dir / f"{run_id}.mcap"):
-                records[run_id] = row["record"]
-        todo = [r for r in batch.runs if r.run_id not in records]
+        records, rows = _resume(batch, journal.load(), fmu_sha, runs_dir, progress)
         result = BatchOutcome(out_dir=out, total=len(batch.runs), skipped=len(records))
         attachment = None
         if batch.path is not None and batch.source:
             attachment = out / f"spec-{batch.path.name}"
             if not attachment.exists() or attachment.read_bytes() != batch.source:
                 _write_atomic(attachment, batch.source)
-        tasks = [Task(r.run_id, r.spec, run_timeout_s, (faults or {}).get(r.run_id))
-                 for r in todo]
+        tasks = _Tasks(batch, records, rows, run_timeout_s, faults or {})
         if not tasks:
             stream: Iterator[Outcome] = iter(())
         elif scheduler is not None or client is not None:
@@ -222,7 +214,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                                log_dir=out / "logs", var_map=var_map).run(tasks)
         statuses = [str(r.get("status")) for r in records.values()]
         bar = tqdm(total=len(batch.runs), initial=len(records), unit="run", file=sys.stderr,
-                   disable=None if progress is None else not progress, smoothing=0.05,
+                   disable=_bar_off(progress), smoothing=0.05,
                    dynamic_ncols=True, desc=batch.name)
         counts = status_counts(statuses)
 
@@ -242,7 +234,8 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                     _write_atomic(runs_dir / f"{outcome.run_id}.mcap", outcome.log)
                 elif outcome.killed:
                     _recover_partial(runs_dir / f"{outcome.run_id}.mcap")
-                journal.append({"run_id": outcome.run_id, "digest": digests[outcome.run_id],
+                journal.append({"run_id": outcome.run_id,
+                                "digest": tasks.digests.pop(outcome.run_id),
                                 "fmu_sha256": fmu_sha, "killed": outcome.killed,
                                 "wall_s": round(outcome.wall_s, 6), "worker": outcome.worker,
                                 "record": outcome.record})
@@ -274,7 +267,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             if close is not None:
                 close()  # stops the workers
             bar.close()
-            table = summary_table(batch.runs, batch.input_columns, records)
+            table = summary_table(rows.values(), batch.input_columns, records)
             result.counts = status_counts(table.column("status").to_pylist())
             result.wall_s = time.perf_counter() - t0
             try:
@@ -288,6 +281,83 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     finally:
         lock.release()
     return result
+
+
+def _resume(batch: BatchSpec, journal: Mapping[str, Mapping[str, Any]], fmu_sha: str,
+            runs_dir: Path, progress: bool | None
+            ) -> tuple[dict[str, dict[str, Any]], dict[str, SummaryRow]]:
+    """The journal's records still valid for ``batch``, and their summary rows, by run id.
+
+    A line counts when its run is the spec's run of that id (same inputs: same digest), was
+    run by the same FMU, and was killed by its executor or has a complete log.  Each line's
+    run is made again to compare its digest (about 0.1 ms a run): only the runs done are
+    made, not the spec.
+    """
+    from tqdm import tqdm
+
+    runs = batch.runs
+    index_of = getattr(runs, "index_of", None)
+    records: dict[str, dict[str, Any]] = {}
+    rows: dict[str, SummaryRow] = {}
+    for run_id, line in tqdm(journal.items(), desc="checking the journal", unit="run",
+                             file=sys.stderr, leave=False, disable=_bar_off(progress)
+                             or len(journal) < 10_000):
+        digest = line.get("digest")
+        if line.get("fmu_sha256") != fmu_sha or not isinstance(digest, str) \
+                or not run_id.endswith("-" + digest[:8]):
+            continue
+        if index_of is not None:
+            i = index_of(run_id)
+        else:  # any sequence of runs: ids start with their index
+            head = run_id.partition("-")[0]
+            i = int(head) if head.isdigit() and int(head) < len(runs) else None
+        if i is None:
+            continue
+        run = runs[i]
+        if run.run_id != run_id or (run.digest or spec_digest(run.spec)) != digest:
+            continue
+        if line.get("killed") or log_complete(runs_dir / f"{run_id}.mcap"):
+            records[run_id] = dict(line["record"])
+            rows[run_id] = SummaryRow.of(run)
+    return records, rows
+
+
+def _bar_off(progress: bool | None) -> bool | None:
+    """tqdm's ``disable``: ``None`` shows the bar on a terminal only."""
+    return None if progress is None else not progress
+
+
+class _Tasks:
+    """The runs of ``batch`` not in ``records``, made one by one as the executor asks.
+
+    Each made run's summary row goes into ``rows`` and its digest into :attr:`digests` (until
+    its journal line is written), so that nothing is made twice.
+    """
+
+    def __init__(self, batch: BatchSpec, records: Mapping[str, Any],
+                 rows: dict[str, SummaryRow], run_timeout_s: float | None,
+                 faults: Mapping[str, str]) -> None:
+        self._runs = batch.runs
+        self._done = {int(run_id.partition("-")[0]) for run_id in records}
+        self._rows = rows
+        self._timeout, self._faults = run_timeout_s, faults
+        self.digests: dict[str, str] = {}
+
+    def __len__(self) -> int:
+        return len(self._runs) - len(self._done)
+
+    def __iter__(self) -> Iterator[Task]:
+        for i in range(len(self._runs)):
+            if i in self._done:
+                continue
+            try:
+                run = self._runs[i]
+            except ConfigError as exc:  # a run made late, e.g. a sample drawn out of range
+                raise ConfigError(exc.field, exc.problem, f"{exc.fix}; the runs finished are "
+                                  "kept: rerun the same command after the fix") from None
+            self.digests[run.run_id] = run.digest or spec_digest(run.spec)
+            self._rows[run.run_id] = SummaryRow.of(run)
+            yield Task(run.run_id, run.spec, self._timeout, self._faults.get(run.run_id))
 
 
 def _recover_partial(log: Path) -> None:

@@ -55,19 +55,27 @@ section counts as one empty variant), in that order (base run slowest).  Each ge
 ``NNNN-hhhhhhhh``: its index in that order and the first 8 hex digits of the SHA-256 of its
 complete :class:`~wmr.scenario.RunSpec`.  Every error is a :class:`~wmr.errors.ConfigError`
 naming the field, e.g. ``random.params.m.std``.
+
+Expansion is lazy (:class:`RunList`): the run count comes from the section sizes, and run ``i``
+is made from ``i`` when it is needed, so a spec of a million runs loads in milliseconds and a
+batch of it holds only the runs in flight.  Loading still checks what can be wrong: every run
+of a spec of up to :data:`CHECK_ALL_RUNS` runs; for a larger one, every grid value, every list
+entry and the first :data:`CHECK_SAMPLES` samples, with every base run.  A run found invalid
+later (a sample drawn out of range) stops its batch with the same error, naming the run.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
-import itertools
 import json
 import math
+import operator
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, fields, is_dataclass
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, overload
 
 import numpy as np
 
@@ -142,6 +150,13 @@ class BatchRun:
     base: str
     variant: str
     inputs: dict[str, float | str]
+    #: :func:`spec_digest` of ``spec`` (its first 8 hex digits end the id).
+    digest: str = ""
+
+    @property
+    def name(self) -> str:
+        """The run's name (``spec.name``)."""
+        return self.spec.name
 
 
 @dataclass(frozen=True)
@@ -153,7 +168,8 @@ class BatchSpec:
     name, description
         From the scenario part.
     runs
-        Every run, in index order (sorted by id).
+        Every run, in index order (sorted by id): a :class:`RunList`, which knows its length
+        at once and makes each run when asked.
     input_columns
         Summary input columns: :data:`POSE_COLUMNS` then the varied fields in order of first
         appearance.
@@ -165,7 +181,7 @@ class BatchSpec:
 
     name: str
     description: str
-    runs: tuple[BatchRun, ...]
+    runs: Sequence[BatchRun]
     input_columns: tuple[str, ...]
     path: Path | None = None
     source: bytes = b""
@@ -289,12 +305,6 @@ def _grid(table: Mapping[str, Any], where: str
     return axes, sources
 
 
-def _points(axes: Sequence[Sequence[dict[str, Value]]]) -> list[dict[str, Value]]:
-    """The grid points of ``axes``: their cartesian product, first axis slowest."""
-    return [dict(itertools.chain.from_iterable(d.items() for d in combo))
-            for combo in itertools.product(*axes)]
-
-
 def _list(entries: object) -> tuple[list[tuple[str, dict[str, Value]]], dict[str, str]]:
     if not isinstance(entries, list) or not entries:
         raise ConfigError("list", "must be a non-empty array of tables",
@@ -384,10 +394,10 @@ def _random(table: Mapping[str, Any], max_runs: int = MAX_RUNS
     return n, dists, sources
 
 
-def _samples(seed: int, n: int, dists: Sequence[tuple[str, _Dist]]) -> list[dict[str, Value]]:
-    """Sample ``i`` of field ``f`` from a generator seeded by ``(seed, i, crc32(f))``."""
-    return [{field: d.sample(np.random.default_rng([seed, i, zlib.crc32(field.encode())]))
-             for field, d in dists} for i in range(n)]
+def _sample(seed: int, i: int, dists: Sequence[tuple[str, _Dist]]) -> dict[str, Value]:
+    """Sample ``i``: field ``f`` drawn from a generator seeded by ``(seed, i, crc32(f))``."""
+    return {field: d.sample(np.random.default_rng([seed, i, zlib.crc32(field.encode())]))
+            for field, d in dists}
 
 
 def _cut(value: object, limit: int = 80) -> str:
@@ -522,6 +532,134 @@ def _inputs(spec: RunSpec, values: Mapping[str, Value], columns: Sequence[str]
     return row
 
 
+#: A spec of at most this many runs has every run checked when it is loaded; a larger one has
+#: its probes checked (:meth:`RunList.probes`) and the rest as they are made.
+CHECK_ALL_RUNS: Final = 1000
+#: Random samples checked at load, with each base run.
+CHECK_SAMPLES: Final = 100
+
+
+class RunList(Sequence[BatchRun]):
+    """The runs of a spec, made on demand.
+
+    Its length is the product of the section sizes, known at once; run ``i`` is made from
+    ``i`` alone when it is asked for (mixed radix: base slowest, then each grid axis in order,
+    the list entry, the random sample fastest), so a batch of a million runs starts at once
+    and holds in memory only the runs it is running.
+
+    Raises
+    ------
+    ConfigError
+        When a run made is invalid (a value out of range, e.g. a drawn negative mass): the
+        field, its source in the spec, and the run's index and name.
+    """
+
+    def __init__(self, bases: Sequence[RunSpec], axes: Sequence[Sequence[dict[str, Value]]],
+                 entries: Sequence[tuple[str, dict[str, Value]]], seed: int, n_samples: int,
+                 dists: Sequence[tuple[str, _Dist]], columns: Sequence[str],
+                 sources: Mapping[str, str]) -> None:
+        self._bases = tuple(bases)
+        self._axes = tuple(tuple(a) for a in axes)
+        self._entries = tuple(entries)
+        self._seed, self._n_samples, self._dists = seed, n_samples, tuple(dists)
+        self._columns = tuple(columns)
+        self._sources = dict(sources)
+        self._n_points = math.prod(len(a) for a in self._axes)
+        self._n_variants = self._n_points * len(self._entries) * n_samples
+        self._total = len(self._bases) * self._n_variants
+        self._width = max(4, len(str(self._total - 1)))
+        # a grid sweeps its samples once per point: keep them (a few kB each) while they last
+        self._draw = functools.lru_cache(maxsize=4096)(self._sample)
+
+    def __len__(self) -> int:
+        return self._total
+
+    @overload
+    def __getitem__(self, index: int) -> BatchRun: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[BatchRun]: ...
+
+    def __getitem__(self, index: int | slice) -> BatchRun | list[BatchRun]:
+        if isinstance(index, slice):
+            return [self._make(i) for i in range(*index.indices(self._total))]
+        i = operator.index(index)
+        if i < 0:
+            i += self._total
+        if not 0 <= i < self._total:
+            raise IndexError(f"run {index} of {self._total}")
+        return self._make(i)
+
+    def __iter__(self) -> Iterator[BatchRun]:
+        for i in range(self._total):
+            yield self._make(i)
+
+    def index_of(self, run_id: str) -> int | None:
+        """The index that ``run_id`` names (its number), ``None`` if it names none; the
+        digest part is not checked (compare :attr:`BatchRun.run_id`)."""
+        number, dash, _ = run_id.partition("-")
+        if not dash or len(number) != self._width or not number.isdigit():
+            return None
+        i = int(number)
+        return i if i < self._total else None
+
+    def probes(self) -> list[int]:
+        """Indices that together try every grid value, every list entry and the first
+        :data:`CHECK_SAMPLES` samples with every base run (each with the first of the rest)."""
+        s, e = self._n_samples, len(self._entries)
+        variants: set[int] = set()
+        stride = e * s
+        for k in reversed(range(len(self._axes))):
+            variants.update(j * stride for j in range(len(self._axes[k])))
+            stride *= len(self._axes[k])
+        variants.update(j * s for j in range(e))
+        variants.update(range(min(s, CHECK_SAMPLES)))
+        return sorted(b * self._n_variants + v for b in range(len(self._bases))
+                      for v in variants)
+
+    def check(self) -> None:
+        """Make every run of a small spec, the :meth:`probes` of a large one: what is wrong
+        with a spec is said when it is loaded, not hours into its batch."""
+        for i in range(self._total) if self._total <= CHECK_ALL_RUNS else self.probes():
+            self._make(i)
+
+    def _sample(self, i: int) -> dict[str, Value]:
+        return _sample(self._seed, i, self._dists)
+
+    def _values(self, i: int) -> tuple[int, str, dict[str, Value]]:
+        """Run ``i``'s base index, list entry name and values (grid, entry, sample)."""
+        i, k_sample = divmod(i, self._n_samples)
+        i, k_entry = divmod(i, len(self._entries))
+        k_base, k_point = divmod(i, self._n_points)
+        values: dict[str, Value] = {}
+        picks = []
+        for axis in reversed(self._axes):
+            k_point, k = divmod(k_point, len(axis))
+            picks.append(axis[k])
+        for pick in reversed(picks):  # the first axis first, as the spec lists them
+            values.update(pick)
+        variant, entry = self._entries[k_entry]
+        values.update(entry)
+        if self._dists:
+            values.update(self._draw(k_sample))
+        return k_base, variant, values
+
+    def _make(self, index: int) -> BatchRun:
+        k_base, variant, values = self._values(index)
+        base = self._bases[k_base]
+        label = base.name + (f"-{variant}" if variant else "")
+        name = label if self._n_variants == 1 else f"{label}-{index:0{self._width}d}"
+        try:
+            spec = _resolve(base, values, name)
+        except ConfigError as exc:
+            field = self._sources.get(exc.field, exc.field)
+            raise ConfigError(field, f"{exc.problem} (run {index}, {name})", exc.fix) from None
+        digest = spec_digest(spec)
+        return BatchRun(run_id=f"{index:0{self._width}d}-{digest[:8]}", spec=spec,
+                        base=base.name, variant=variant,
+                        inputs=_inputs(spec, values, self._columns), digest=digest)
+
+
 def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | None = None,
                 raw: bytes = b"", max_runs: int = MAX_RUNS) -> BatchSpec:
     """Validate a batch spec's parsed TOML ``data`` and expand it into runs.
@@ -572,36 +710,14 @@ def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | N
         raise ConfigError("grid" if n_points > 1 else "random.n",
                           f"the spec expands to {total} runs, more than {max_runs}",
                           "use fewer values, or raise the limit with --max-runs")
-    points = _points(axes)
-    samples = (_samples(sections["random"]["seed"], n_samples, dists) if dists
-               else [{}])
     columns = list(POSE_COLUMNS)
     for key in sources:
         if key not in columns:
             columns.append(key)
-    width = max(4, len(str(total - 1)))
-    n_variants = len(points) * len(entries) * len(samples)
-    runs: list[BatchRun] = []
-    index = 0
-    for base in scenario.runs:
-        for point in points:
-            for variant, entry in entries:
-                for sample in samples:
-                    values = {**point, **entry, **sample}
-                    label = base.name + (f"-{variant}" if variant else "")
-                    name = label if n_variants == 1 else f"{label}-{index:0{width}d}"
-                    try:
-                        spec = _resolve(base, values, name)
-                    except ConfigError as exc:
-                        field = sources.get(exc.field, exc.field)
-                        raise ConfigError(f"{field}", f"{exc.problem} (run {index}, {name})",
-                                          exc.fix) from None
-                    run_id = f"{index:0{width}d}-{spec_digest(spec)[:8]}"
-                    runs.append(BatchRun(run_id=run_id, spec=spec, base=base.name,
-                                         variant=variant,
-                                         inputs=_inputs(spec, values, columns)))
-                    index += 1
-    return BatchSpec(name=scenario.name, description=scenario.description, runs=tuple(runs),
+    seed = sections["random"]["seed"] if dists else 0
+    runs = RunList(scenario.runs, axes, entries, seed, n_samples, dists, columns, sources)
+    runs.check()
+    return BatchSpec(name=scenario.name, description=scenario.description, runs=runs,
                      input_columns=tuple(columns), path=path, source=raw,
                      fmu=scenario.fmu, fmu_map=scenario.fmu_map)
 
@@ -619,4 +735,4 @@ def load_batch(name_or_path: str | Path, max_runs: int = MAX_RUNS) -> BatchSpec:
     return parse_batch(data, source=str(path), path=path, raw=raw, max_runs=max_runs)
 
 
-__all__ = ["BatchRun", "BatchSpec", "load_batch", "parse_batch", "spec_digest"]
+__all__ = ["BatchRun", "BatchSpec", "RunList", "load_batch", "parse_batch", "spec_digest"]

@@ -11,7 +11,8 @@ import csv
 import io
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
@@ -56,14 +57,30 @@ def _float(value: object) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def summary_table(runs: Sequence[BatchRun], input_columns: Sequence[str],
+@dataclass(frozen=True)
+class SummaryRow:
+    """What the summary says of a run besides its result: a :class:`BatchRun` without its
+    :class:`~wmr.scenario.RunSpec` (the summary of a large batch holds many)."""
+
+    run_id: str
+    name: str
+    base: str
+    variant: str
+    inputs: Mapping[str, float | str]
+
+    @classmethod
+    def of(cls, run: BatchRun) -> SummaryRow:
+        return cls(run.run_id, run.spec.name, run.base, run.variant, run.inputs)
+
+
+def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence[str],
                   records: Mapping[str, Mapping[str, Any]]) -> pa.Table:
     """The summary of the runs of ``runs`` that have a record, sorted by run id.
 
     Parameters
     ----------
     runs
-        The batch's runs.
+        The batch's runs, or the summary rows of some of them (at least those with a record).
     input_columns
         Input columns (:attr:`wmr.batch.spec.BatchSpec.input_columns`).
     records
@@ -75,7 +92,7 @@ def summary_table(runs: Sequence[BatchRun], input_columns: Sequence[str],
     for run in done:
         rec = records[run.run_id]
         cols["run_id"].append(run.run_id)
-        cols["name"].append(run.spec.name)
+        cols["name"].append(run.name)
         cols["base"].append(run.base)
         cols["variant"].append(run.variant)
         for c in input_columns:
@@ -145,5 +162,14 @@ def status_counts(statuses: Sequence[str]) -> dict[str, int]:
     return counts
 
 
-__all__ = ["RESULT_COLUMNS", "SUMMARY_CSV", "SUMMARY_PARQUET", "log_relpath", "read_summary",
-           "status_counts", "summary_table", "write_summary"]
+__all__ = [
+    "RESULT_COLUMNS",
+    "SUMMARY_CSV",
+    "SUMMARY_PARQUET",
+    "SummaryRow",
+    "log_relpath",
+    "read_summary",
+    "status_counts",
+    "summary_table",
+    "write_summary",
+]

@@ -15,10 +15,11 @@ import shutil
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from wmr.errors import DiskFullError
 from wmr.fmu.plant import FmuPlant
@@ -56,6 +57,15 @@ class Task:
     spec: RunSpec
     wall_limit_s: float | None = None
     fault: str | None = None
+
+
+class TaskSource(Protocol):
+    """The runs for an executor: their count at once, the runs themselves as it takes them
+    (a list, or the runs of a large batch made one by one)."""
+
+    def __len__(self) -> int: ...
+
+    def __iter__(self) -> Iterator[Task]: ...
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,12 @@ import os
 import socket
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from wmr.errors import ConfigError
+
+if TYPE_CHECKING:
+    from wmr.batch import BatchSpec
 
 
 def _default_out(spec: str) -> Path:
@@ -75,6 +79,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
                   "share the cores (no faster, more memory)", file=sys.stderr)
     scheduler = None if args.scheduler is None else check_scheduler(args.scheduler)
     batch = load_batch(args.spec, max_runs=max_runs)
+    if args.check:
+        return _check_runs(batch, args.progress)
     out = check_output(args.out if args.out else _default_out(args.spec), "--out", "dir")
     progress = None if args.progress is None else args.progress
     result = run_batch(batch, out, workers=args.workers, scheduler=scheduler,
@@ -93,6 +99,21 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     if result.interrupted:
         print("wmr: interrupted; rerun the same command to finish the batch", file=sys.stderr)
         return 130
+    return 0
+
+
+def _check_runs(batch: BatchSpec, progress: bool | None) -> int:
+    """``wmr batch --check``: make every run of ``batch`` (a :class:`ConfigError` names the
+    first invalid one) and say how many there are; nothing is run or written."""
+    from tqdm import tqdm
+
+    from wmr.naming import plural
+
+    n = 0
+    for _ in tqdm(batch.runs, desc=f"checking {batch.name}", unit="run", file=sys.stderr,
+                  disable=None if progress is None else not progress, dynamic_ncols=True):
+        n += 1
+    print(f"{batch.name}: {plural(n, 'run')}, all valid", file=sys.stderr)
     return 0
 
 
@@ -137,6 +158,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="drive this FMU instead of the project's own build")
     p.add_argument("--map", metavar="FILE.toml",
                    help="variable map of an FMU made by another tool (docs/fmu_map.md)")
+    p.add_argument("--check", action="store_true",
+                   help="make every run of the spec and stop: the first invalid one is named "
+                        "(loading checks every grid value and list entry at once, and every "
+                        "run of a spec of up to 1000; a larger spec's other runs are checked "
+                        "as the batch reaches them)")
     bar = p.add_mutually_exclusive_group()
     bar.add_argument("--progress", dest="progress", action="store_true", default=None,
                      help="show the progress bar even when stderr is not a terminal")
