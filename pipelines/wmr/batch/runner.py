@@ -299,9 +299,10 @@ def _resume(batch: BatchSpec, journal: Mapping[str, Mapping[str, Any]], fmu_sha:
     index_of = getattr(runs, "index_of", None)
     records: dict[str, dict[str, Any]] = {}
     rows: dict[str, SummaryRow] = {}
+    quick = len(journal) < 10_000  # under 2 s: no bar
     for run_id, line in tqdm(journal.items(), desc="checking the journal", unit="run",
-                             file=sys.stderr, leave=False, disable=_bar_off(progress)
-                             or len(journal) < 10_000):
+                             file=sys.stderr, leave=False,
+                             disable=True if quick else _bar_off(progress)):
         digest = line.get("digest")
         if line.get("fmu_sha256") != fmu_sha or not isinstance(digest, str) \
                 or not run_id.endswith("-" + digest[:8]):
