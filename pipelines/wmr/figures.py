@@ -28,17 +28,9 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
-
-import matplotlib
-
-matplotlib.use("Agg")
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.colors import Normalize
-from matplotlib.figure import Figure
-from matplotlib.typing import ColorType
 from numpy.typing import NDArray
 
 from wmr.errors import ConfigError, LogError
@@ -46,6 +38,12 @@ from wmr.mcaplog import RunData, read_run
 from wmr.naming import plural
 from wmr.plant import Plant, Pose
 from wmr.scenario import RunSpec
+
+if TYPE_CHECKING:  # matplotlib is imported where a figure is drawn: `wmr --help` need not wait
+    from matplotlib.axes import Axes
+    from matplotlib.colors import Colormap
+    from matplotlib.figure import Figure
+    from matplotlib.typing import ColorType
 
 #: The scenarios whose logs the paper's figures need, by figure.
 FIGURE_SCENARIOS: Final = ("fig9", "fig10", "fig11")
@@ -131,7 +129,15 @@ def _world_axes(ax: Axes, title: str) -> None:
 
 
 def _new_figure(width: float = 7.0, height: float = 5.0) -> Figure:
+    from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global state
+
     return Figure(figsize=(width, height), dpi=DPI, layout="constrained")
+
+
+def _colormap(name: str) -> Colormap:
+    import matplotlib
+
+    return matplotlib.colormaps[name]
 
 
 # --------------------------------------------------------------------------- the paper's figures
@@ -154,7 +160,7 @@ def fig9_paths(runs: Sequence[RunData]) -> Figure:
     fig = _new_figure(7.5, 5.2)
     ax = fig.add_subplot()
     ordered = sorted(runs, key=lambda r: _goal(r)[2])
-    cmap = matplotlib.colormaps["coolwarm"]
+    cmap = _colormap("coolwarm")
     for run in ordered:
         gx, gy, thd = _goal(run)
         deg = math.degrees(thd)
@@ -195,7 +201,7 @@ def fig10_paths(runs: Sequence[RunData]) -> Figure:
     """
     fig = _new_figure(6.4, 6.0)
     ax = fig.add_subplot()
-    cmap = matplotlib.colormaps["tab20"]
+    cmap = _colormap("tab20")
     headings: set[float] = set()
     for k, run in enumerate(runs):
         color = cmap(k % 20)
@@ -425,6 +431,8 @@ def roa_figure(roa: RoaResult) -> Figure:
     finite = roa.time_to_goal_s[np.isfinite(roa.time_to_goal_s)]
     vmax = float(finite.max()) if finite.size else roa.t_max_s
     vmin = float(finite.min()) if finite.size else 0.0
+    from matplotlib.colors import Normalize
+
     norm = Normalize(vmin=vmin, vmax=max(vmax, vmin + 1e-9))
     mesh = None
     xe, ye = _edges(roa.xs), _edges(roa.ys)

@@ -46,7 +46,6 @@ from typing import Final
 
 import numpy as np
 import numpy.typing as npt
-from scipy.integrate import solve_ivp
 
 from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
 
@@ -276,6 +275,8 @@ class ReferencePlant:
 
         def rhs(_t: float, s: npt.NDArray[np.float64]) -> list[float]:
             return derivatives(s, tr, tl, params)
+
+        from scipy.integrate import solve_ivp  # 0.5 s of imports: only when integrating
 
         sol = solve_ivp(rhs, (0.0, h_s), self._state, method="DOP853",
                         rtol=self.rtol, atol=self.atol)

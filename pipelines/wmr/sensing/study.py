@@ -105,6 +105,9 @@ def study(table: pa.Table) -> Study | None:
 
 def plot_study(st: Study, path: Path) -> None:
     """Heat maps: rows success rate, position error, heading error; a column per variant."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # a file, never a window (as wmr report)
     import matplotlib.pyplot as plt
 
     rows = (("success rate, %", lambda c: 100.0 * c.rate, "RdYlGn", (0.0, 100.0)),
