@@ -17,6 +17,17 @@ def median_time_per_call(fn: Callable[[int], None], n_calls: int, repeats: int =
     return statistics.median(samples)
 
 
+def median_seconds(fn: Callable[[], object], repeats: int = 5) -> float:
+    """Median wall time of ``fn()`` over ``repeats`` calls (after one warm-up call)."""
+    fn()
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        samples.append(time.perf_counter() - t0)
+    return statistics.median(samples)
+
+
 def print_table(title: str, rows: Sequence[tuple[str, float]], reference: str) -> None:
     """Print ``rows`` of (name, seconds per call) with the ratio to the ``reference`` row."""
     ref = dict(rows)[reference]

@@ -13,13 +13,11 @@ Run: ``python benchmarks/batch_spec.py [REPEATS]`` (default 5).
 from __future__ import annotations
 
 import functools
-import statistics
 import sys
-import time
 import tomllib
-from collections.abc import Callable
 from typing import Any
 
+from _common import median_seconds
 from wmr.batch import parse_batch
 
 #: (K_ps values, K_is values, m values) per spec: 10^3 to 10^6 runs.
@@ -48,15 +46,6 @@ def _eager(data: dict[str, Any]) -> list[Any]:
     return list(parse_batch(data).runs)
 
 
-def _median_s(fn: Callable[[], object], repeats: int) -> float:
-    samples = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        samples.append(time.perf_counter() - t0)
-    return statistics.median(samples)
-
-
 def main(argv: list[str]) -> None:
     repeats = int(argv[0]) if argv else 5
     parse_batch(_spec(2, 2, 2))  # imports (scipy) out of the timings
@@ -65,9 +54,9 @@ def main(argv: list[str]) -> None:
     for sizes in SIZES:
         data = _spec(*sizes)
         n = len(parse_batch(data).runs)
-        lazy_s = _median_s(functools.partial(parse_batch, data), repeats)
+        lazy_s = median_seconds(functools.partial(parse_batch, data), repeats)
         if n <= EAGER_MAX:
-            eager_s = _median_s(functools.partial(_eager, data), max(1, repeats // 2))
+            eager_s = median_seconds(functools.partial(_eager, data), max(1, repeats // 2))
             per_run_s = eager_s / n
             note = ""
         else:

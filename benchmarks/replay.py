@@ -12,17 +12,15 @@ and the ratio of each to ``send_columns``.
 
 from __future__ import annotations
 
-import statistics
 import sys
 import tempfile
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 from numpy.typing import NDArray
 
+from _common import median_seconds
 from wmr.closedloop import BLOCK_ROWS
 from wmr.fmu.plant import FmuPlant
 from wmr.mcaplog import read_run
@@ -54,17 +52,6 @@ def make_log(folder: Path) -> Path:
     print(f"log: {record['status']}, {record['steps']} steps, {path.stat().st_size / 1e6:.1f} MB",
           file=sys.stderr)
     return path
-
-
-def median_seconds(fn: Callable[[], None], repeats: int = REPEATS) -> float:
-    """Median wall time of ``fn()`` over ``repeats`` calls (after one warm-up call)."""
-    fn()
-    samples = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        samples.append(time.perf_counter() - t0)
-    return statistics.median(samples)
 
 
 def file_recording(path: Path) -> rr.RecordingStream:
@@ -137,12 +124,12 @@ def main() -> None:
             rec.disconnect()
 
         rows = [
-            ("read_run (MCAP decode only)", median_seconds(do_read)),
-            ("wmr replay (read + send_columns + .rrd)", median_seconds(do_replay)),
-            ("send_columns, whole series", median_seconds(do_columns)),
-            ("LiveViewSink, 100-row blocks", median_seconds(do_live)),
+            ("read_run (MCAP decode only)", median_seconds(do_read, REPEATS)),
+            ("wmr replay (read + send_columns + .rrd)", median_seconds(do_replay, REPEATS)),
+            ("send_columns, whole series", median_seconds(do_columns, REPEATS)),
+            ("LiveViewSink, 100-row blocks", median_seconds(do_live, REPEATS)),
             ("per-row rr.log", median_seconds(do_rows, repeats=3)),
-            ("(static part alone)", median_seconds(do_static_only)),
+            ("(static part alone)", median_seconds(do_static_only, REPEATS)),
         ]
     ref = dict(rows)["send_columns, whole series"]
     width = max(len(name) for name, _ in rows)
