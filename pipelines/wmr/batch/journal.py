@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -49,44 +49,78 @@ class Journal:
         self.path = path
         self._checked = False
 
+    def scan(self) -> Iterator[tuple[int, dict[str, Any]]]:
+        """Each well-formed line, with the byte offset where it starts, in file order; cut or
+        garbled lines are skipped.  One line in memory at a time."""
+        try:
+            stream = open(self.path, "rb")
+        except FileNotFoundError:
+            return
+        with stream:
+            offset = 0
+            for line in stream:
+                start, offset = offset, offset + len(line)
+                row = _parse(line)
+                if row is not None:
+                    yield start, row
+
+    def read_at(self, offsets: Iterable[int]) -> Iterator[dict[str, Any]]:
+        """The lines starting at ``offsets`` (from :meth:`scan` or :meth:`append`).
+
+        Raises
+        ------
+        ValueError
+            No well-formed line starts at an offset (the file changed under the batch).
+        """
+        with open(self.path, "rb") as stream:
+            for offset in offsets:
+                stream.seek(offset)
+                row = _parse(stream.readline())
+                if row is None:
+                    raise ValueError(f"{self.path}: no journal line at byte {offset}")
+                yield row
+
     def load(self) -> dict[str, dict[str, Any]]:
         """Rows by run id; the last whole line of an id wins, cut or garbled lines are skipped."""
-        rows: dict[str, dict[str, Any]] = {}
-        try:
-            data = self.path.read_bytes()
-        except FileNotFoundError:
-            return rows
-        for line in data.split(b"\n"):
-            if not line.strip():
-                continue
-            try:
-                row = json.loads(line)
-            except ValueError:
-                continue
-            if isinstance(row, dict) and isinstance(row.get("run_id"), str) \
-                    and isinstance(row.get("record"), dict):
-                rows[row["run_id"]] = row
-        return rows
+        return {row["run_id"]: row for _, row in self.scan()}
 
-    def append(self, row: Mapping[str, Any]) -> None:
+    def append(self, row: Mapping[str, Any]) -> int:
         """Append ``row`` as one line (a short write is continued, a full disk raises
-        :class:`~wmr.errors.DiskFullError`)."""
+        :class:`~wmr.errors.DiskFullError`); return the byte offset where it starts (the
+        batch folder's lock makes the parent the only writer)."""
         line = (json.dumps(row, allow_nan=False, separators=(",", ":")) + "\n").encode()
         fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         try:
+            size = os.fstat(fd).st_size
             # a line that a previous batch cut short must not swallow this one
             if not self._checked:
                 self._checked = True
-                if os.fstat(fd).st_size and not self._ends_with_newline():
+                if size and not self._ends_with_newline():
                     line = b"\n" + line
+                    size += 1
             write_all(fd, line, self.path)  # os.write may write less than asked: loop
         finally:
             os.close(fd)
+        return size
 
     def _ends_with_newline(self) -> bool:
         with open(self.path, "rb") as f:
             f.seek(-1, os.SEEK_END)
             return f.read(1) == b"\n"
+
+
+def _parse(line: bytes) -> dict[str, Any] | None:
+    """A journal line's row, ``None`` if the line is cut, garbled or not a row."""
+    if not line.strip():
+        return None
+    try:
+        row = json.loads(line)
+    except ValueError:
+        return None
+    if isinstance(row, dict) and isinstance(row.get("run_id"), str) \
+            and isinstance(row.get("record"), dict):
+        return row
+    return None
 
 
 __all__ = ["JOURNAL", "Journal", "log_complete"]

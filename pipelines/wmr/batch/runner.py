@@ -17,19 +17,22 @@ from __future__ import annotations
 
 import fcntl
 import hashlib
+import itertools
 import json
+import math
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping
+from array import array
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
 from wmr.batch.journal import JOURNAL, Journal, log_complete
 from wmr.batch.local import LocalPool, Outcome
-from wmr.batch.spec import BatchSpec, spec_digest
-from wmr.batch.summary import SummaryRow, status_counts, summary_table, write_summary
+from wmr.batch.spec import BatchRun, BatchSpec, spec_digest
+from wmr.batch.summary import STATUSES, SummaryRow, summary_table, write_summary
 from wmr.batch.worker import DISK_FULL, FAULTS, Task
 from wmr.durable import AtomicFile, partial_path, storage_error
 from wmr.errors import ConfigError, DiskFullError, WmrError
@@ -189,14 +192,14 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     lock = _Lock(out)
     try:
         journal = Journal(out / JOURNAL)
-        records, rows = _resume(batch, journal.load(), fmu_sha, runs_dir, progress)
-        result = BatchOutcome(out_dir=out, total=len(batch.runs), skipped=len(records))
+        ledger = _resume(batch, journal, fmu_sha, runs_dir, progress)
+        result = BatchOutcome(out_dir=out, total=len(batch.runs), skipped=ledger.n_done)
         attachment = None
         if batch.path is not None and batch.source:
             attachment = out / f"spec-{batch.path.name}"
             if not attachment.exists() or attachment.read_bytes() != batch.source:
                 _write_atomic(attachment, batch.source)
-        tasks = _Tasks(batch, records, rows, run_timeout_s, faults or {})
+        tasks = _Tasks(batch, ledger, run_timeout_s, faults or {})
         if not tasks:
             stream: Iterator[Outcome] = iter(())
         elif scheduler is not None or client is not None:
@@ -212,11 +215,10 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                                                                           0.1 * run_timeout_s)
             stream = LocalPool(fmu, runs_dir, n, hard_limit_s=hard, attachment=attachment,
                                log_dir=out / "logs", var_map=var_map).run(tasks)
-        statuses = [str(r.get("status")) for r in records.values()]
-        bar = tqdm(total=len(batch.runs), initial=len(records), unit="run", file=sys.stderr,
+        bar = tqdm(total=len(batch.runs), initial=ledger.n_done, unit="run", file=sys.stderr,
                    disable=_bar_off(progress), smoothing=0.05,
                    dynamic_ncols=True, desc=batch.name)
-        counts = status_counts(statuses)
+        counts = ledger.counts()
 
         def show() -> None:
             bar.set_postfix_str(f"ok {counts['converged']}, timeout {counts['timeout']}, "
@@ -234,12 +236,13 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                     _write_atomic(runs_dir / f"{outcome.run_id}.mcap", outcome.log)
                 elif outcome.killed:
                     _recover_partial(runs_dir / f"{outcome.run_id}.mcap")
-                journal.append({"run_id": outcome.run_id,
-                                "digest": tasks.digests.pop(outcome.run_id),
-                                "fmu_sha256": fmu_sha, "killed": outcome.killed,
-                                "wall_s": round(outcome.wall_s, 6), "worker": outcome.worker,
-                                "record": outcome.record})
-                records[outcome.run_id] = outcome.record
+                digest, row = tasks.in_flight.pop(outcome.run_id)
+                offset = journal.append({"run_id": outcome.run_id, "digest": digest,
+                                         "fmu_sha256": fmu_sha, "killed": outcome.killed,
+                                         "wall_s": round(outcome.wall_s, 6),
+                                         "worker": outcome.worker, "row": row,
+                                         "record": outcome.record})
+                ledger.mark(_index(outcome.run_id), offset, outcome.record.get("status"))
                 result.executed.append(outcome.run_id)
                 if outcome.record.get("status") != "failed" or outcome.record.get("steps"):
                     started = True
@@ -256,7 +259,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                 if on_outcome is not None:
                     on_outcome(outcome)
                 if stop_after is not None and len(result.executed) >= stop_after \
-                        and len(records) < len(batch.runs):
+                        and ledger.n_done < len(batch.runs):
                     raise KeyboardInterrupt
         except KeyboardInterrupt:
             result.interrupted = True
@@ -267,11 +270,11 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             if close is not None:
                 close()  # stops the workers
             bar.close()
-            table = summary_table(rows.values(), batch.input_columns, records)
-            result.counts = status_counts(table.column("status").to_pylist())
+            result.counts = ledger.counts()
             result.wall_s = time.perf_counter() - t0
             try:
-                _finish(out, table, result, batch, scheduler, client, workers, fmu, fmu_sha)
+                _finish(out, _summary_chunks(batch, journal, ledger), result, batch, scheduler,
+                        client, workers, fmu, fmu_sha)
             except DiskFullError as exc:
                 full = full or exc
         if full is not None:
@@ -283,44 +286,47 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     return result
 
 
-def _resume(batch: BatchSpec, journal: Mapping[str, Mapping[str, Any]], fmu_sha: str,
-            runs_dir: Path, progress: bool | None
-            ) -> tuple[dict[str, dict[str, Any]], dict[str, SummaryRow]]:
-    """The journal's records still valid for ``batch``, and their summary rows, by run id.
+class _Ledger:
+    """Which runs of a batch are finished, and where their journal lines are: 9 bytes a run
+    (a million-run batch keeps 9 MB, not its records), whatever the records hold.
 
-    A line counts when its run is the spec's run of that id (same inputs: same digest), was
-    run by the same FMU, and was killed by its executor or has a complete log.  Each line's
-    run is made again to compare its digest (about 0.1 ms a run): only the runs done are
-    made, not the spec.
+    The journal line of a finished run holds its record and its summary row: the summary is
+    read back from the journal (:func:`_summary_chunks`), a block of rows at a time.
     """
-    from tqdm import tqdm
 
-    runs = batch.runs
-    index_of = getattr(runs, "index_of", None)
-    records: dict[str, dict[str, Any]] = {}
-    rows: dict[str, SummaryRow] = {}
-    quick = len(journal) < 10_000  # under 2 s: no bar
-    for run_id, line in tqdm(journal.items(), desc="checking the journal", unit="run",
-                             file=sys.stderr, leave=False,
-                             disable=True if quick else _bar_off(progress)):
-        digest = line.get("digest")
-        if line.get("fmu_sha256") != fmu_sha or not isinstance(digest, str) \
-                or not run_id.endswith("-" + digest[:8]):
-            continue
-        if index_of is not None:
-            i = index_of(run_id)
-        else:  # any sequence of runs: ids start with their index
-            head = run_id.partition("-")[0]
-            i = int(head) if head.isdigit() and int(head) < len(runs) else None
-        if i is None:
-            continue
-        run = runs[i]
-        if run.run_id != run_id or (run.digest or spec_digest(run.spec)) != digest:
-            continue
-        if line.get("killed") or log_complete(runs_dir / f"{run_id}.mcap"):
-            records[run_id] = dict(line["record"])
-            rows[run_id] = SummaryRow.of(run)
-    return records, rows
+    _CODES: Final = {status: k + 1 for k, status in enumerate(STATUSES)}
+
+    def __init__(self, n_runs: int) -> None:
+        self.offsets = array("q", [-1]) * n_runs
+        self._status = bytearray(n_runs)
+        self.n_done = 0
+
+    def done(self, index: int) -> bool:
+        return self.offsets[index] >= 0
+
+    def mark(self, index: int, offset: int, status: object) -> None:
+        """Run ``index`` finished, with ``status``; its journal line starts at ``offset``."""
+        if self.offsets[index] < 0:
+            self.n_done += 1
+        self.offsets[index] = offset
+        self._status[index] = self._CODES.get(str(status), 0)
+
+    def unmark(self, index: int) -> None:
+        if self.offsets[index] >= 0:
+            self.n_done -= 1
+        self.offsets[index] = -1
+        self._status[index] = 0
+
+    def counts(self) -> dict[str, int]:
+        """Finished runs per status (the three statuses always present)."""
+        counts = dict.fromkeys(STATUSES, 0)
+        for status, code in self._CODES.items():
+            counts[status] = self._status.count(code)
+        return counts
+
+    def finished(self) -> Iterator[tuple[int, int]]:
+        """``(index, journal offset)`` of each finished run, in index (= run id) order."""
+        return ((i, off) for i, off in enumerate(self.offsets) if off >= 0)
 
 
 def _bar_off(progress: bool | None) -> bool | None:
@@ -328,36 +334,123 @@ def _bar_off(progress: bool | None) -> bool | None:
     return None if progress is None else not progress
 
 
-class _Tasks:
-    """The runs of ``batch`` not in ``records``, made one by one as the executor asks.
+def _index(run_id: str) -> int:
+    """A run's index: the number its id starts with."""
+    return int(run_id.partition("-")[0])
 
-    Each made run's summary row goes into ``rows`` and its digest into :attr:`digests` (until
-    its journal line is written), so that nothing is made twice.
+
+def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, runs_dir: Path,
+            progress: bool | None) -> _Ledger:
+    """The runs of ``batch`` that the journal says are done, as a :class:`_Ledger`.
+
+    A line counts when its run is the spec's run of that id (same inputs: same digest), was
+    run by the same FMU, and was killed by its executor or has a complete log; the last line
+    of a run wins.  Each line's run is made again to compare its digest (about 0.2 ms a run):
+    only the runs done are made, not the spec.
+    """
+    from tqdm import tqdm
+
+    runs = batch.runs
+    ledger = _Ledger(len(runs))
+    try:
+        size = journal.path.stat().st_size
+    except FileNotFoundError:
+        return ledger
+    # over about 10,000 lines (2 s) the check gets its own bar
+    bar = tqdm(total=size, desc="checking the journal", unit="B", unit_scale=True,
+               file=sys.stderr, leave=False,
+               disable=True if size < 10_000_000 else _bar_off(progress))
+    with bar:
+        for offset, line in journal.scan():
+            bar.update(offset - bar.n)
+            head, dash, _ = str(line["run_id"]).partition("-")
+            if not dash or not head.isdigit() or int(head) >= len(runs):
+                continue
+            i = int(head)
+            if _valid(runs[i], line, fmu_sha, runs_dir):
+                ledger.mark(i, offset, line["record"].get("status"))
+            else:
+                ledger.unmark(i)
+    return ledger
+
+
+def _valid(run: BatchRun, line: Mapping[str, Any], fmu_sha: str, runs_dir: Path) -> bool:
+    """Whether journal ``line`` is a finished run of ``run``."""
+    digest = line.get("digest")
+    if line.get("run_id") != run.run_id or line.get("fmu_sha256") != fmu_sha \
+            or digest != (run.digest or spec_digest(run.spec)):
+        return False
+    return bool(line.get("killed")) or log_complete(runs_dir / f"{run.run_id}.mcap")
+
+
+def _row_json(run: BatchRun) -> dict[str, Any]:
+    """A run's summary row as a journal line holds it (NaN as null: the journal is JSON)."""
+    return {"name": run.spec.name, "base": run.base, "variant": run.variant,
+            "inputs": {k: None if isinstance(v, float) and math.isnan(v) else v
+                       for k, v in run.inputs.items()}}
+
+
+def _row_of(line: Mapping[str, Any], runs: Sequence[BatchRun]) -> SummaryRow:
+    """The summary row of a journal line (made again from the spec for a line written before
+    lines held their rows)."""
+    row = line.get("row")
+    run_id = str(line["run_id"])
+    if not isinstance(row, dict):
+        return SummaryRow.of(runs[_index(run_id)])
+    inputs = {k: math.nan if v is None else v for k, v in row["inputs"].items()}
+    return SummaryRow(run_id, row["name"], row["base"], row["variant"], inputs)
+
+
+#: Rows of the summary built (and written) at a time.
+SUMMARY_BLOCK: Final = 10_000
+
+
+def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger) -> Iterator[Any]:
+    """The summary of the finished runs as Arrow tables of up to :data:`SUMMARY_BLOCK` rows,
+    in run-id order, read back from the journal (at least one table, maybe empty)."""
+    finished = ledger.finished()
+    first = True
+    while True:
+        block = list(itertools.islice(finished, SUMMARY_BLOCK))
+        if not block and not first:
+            return
+        first = False
+        lines = list(journal.read_at(off for _, off in block))
+        records = {str(line["run_id"]): line["record"] for line in lines}
+        yield summary_table([_row_of(line, batch.runs) for line in lines],
+                            batch.input_columns, records)
+        if len(block) < SUMMARY_BLOCK:
+            return
+
+
+class _Tasks:
+    """The runs of ``batch`` not done in ``ledger``, made one by one as the executor asks.
+
+    Each made run's digest and summary row wait in :attr:`in_flight` until its journal line
+    is written: nothing is made twice, and only the runs in flight are held.
     """
 
-    def __init__(self, batch: BatchSpec, records: Mapping[str, Any],
-                 rows: dict[str, SummaryRow], run_timeout_s: float | None,
+    def __init__(self, batch: BatchSpec, ledger: _Ledger, run_timeout_s: float | None,
                  faults: Mapping[str, str]) -> None:
         self._runs = batch.runs
-        self._done = {int(run_id.partition("-")[0]) for run_id in records}
-        self._rows = rows
+        self._ledger = ledger
+        self._n = len(self._runs) - ledger.n_done
         self._timeout, self._faults = run_timeout_s, faults
-        self.digests: dict[str, str] = {}
+        self.in_flight: dict[str, tuple[str, dict[str, Any]]] = {}
 
     def __len__(self) -> int:
-        return len(self._runs) - len(self._done)
+        return self._n
 
     def __iter__(self) -> Iterator[Task]:
         for i in range(len(self._runs)):
-            if i in self._done:
+            if self._ledger.done(i):
                 continue
             try:
                 run = self._runs[i]
             except ConfigError as exc:  # a run made late, e.g. a sample drawn out of range
                 raise ConfigError(exc.field, exc.problem, f"{exc.fix}; the runs finished are "
                                   "kept: rerun the same command after the fix") from None
-            self.digests[run.run_id] = run.digest or spec_digest(run.spec)
-            self._rows[run.run_id] = SummaryRow.of(run)
+            self.in_flight[run.run_id] = (run.digest or spec_digest(run.spec), _row_json(run))
             yield Task(run.run_id, run.spec, self._timeout, self._faults.get(run.run_id))
 
 
@@ -379,11 +472,12 @@ def _recover_partial(log: Path) -> None:
     killed.unlink()
 
 
-def _finish(out: Path, table: Any, result: BatchOutcome, batch: BatchSpec, scheduler: str | None,
-            client: Any, workers: int | None, fmu: Path, fmu_sha: str) -> None:
+def _finish(out: Path, chunks: Iterator[Any], result: BatchOutcome, batch: BatchSpec,
+            scheduler: str | None, client: Any, workers: int | None, fmu: Path,
+            fmu_sha: str) -> None:
     """Write the summary and ``batch.json``; a full disk is one :class:`DiskFullError`."""
     try:
-        write_summary(table, out)
+        write_summary(chunks, out)
         _write_atomic(out / "batch.json", (json.dumps({
                 "spec": str(batch.path) if batch.path else batch.name, "total": result.total,
                 "finished": result.finished, "skipped": result.skipped,

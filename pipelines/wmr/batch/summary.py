@@ -8,7 +8,7 @@ the journal only.
 from __future__ import annotations
 
 import csv
-import io
+import itertools
 import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
@@ -124,28 +124,39 @@ def _csv_cell(value: object) -> str:
     return str(value)
 
 
-def write_summary(table: pa.Table, out_dir: Path) -> tuple[Path, Path]:
-    """Write ``table`` as ``summary.parquet`` and ``summary.csv`` (each atomically).
+def write_summary(tables: pa.Table | Iterable[pa.Table], out_dir: Path) -> tuple[Path, Path]:
+    """Write the summary, a table or the consecutive blocks of one (one schema, the first
+    block maybe empty), as ``summary.parquet`` and ``summary.csv``, each atomically and a
+    block at a time: the summary of a million runs is never whole in memory.
 
     Returns
     -------
     tuple of Path
         The Parquet and the CSV file.
     """
-    parquet = out_dir / SUMMARY_PARQUET
-    tmp = parquet.with_suffix(".parquet.tmp")
-    pq.write_table(table, tmp, compression="zstd", write_statistics=False)
-    os.replace(tmp, parquet)
-    text = io.StringIO()
-    writer = csv.writer(text, lineterminator="\n")
-    writer.writerow(table.column_names)
-    columns = [table.column(i).to_pylist() for i in range(table.num_columns)]
-    for row in zip(*columns, strict=True):
-        writer.writerow([_csv_cell(v) for v in row])
-    csv_path = out_dir / SUMMARY_CSV
-    tmp = csv_path.with_suffix(".csv.tmp")
-    tmp.write_text(text.getvalue(), encoding="utf-8")
-    os.replace(tmp, csv_path)
+    blocks = iter([tables] if isinstance(tables, pa.Table) else tables)
+    first = next(blocks)
+    parquet, csv_path = out_dir / SUMMARY_PARQUET, out_dir / SUMMARY_CSV
+    tmp_parquet = parquet.with_suffix(".parquet.tmp")
+    tmp_csv = csv_path.with_suffix(".csv.tmp")
+    try:
+        with pq.ParquetWriter(tmp_parquet, first.schema, compression="zstd",
+                              write_statistics=False) as pw, \
+                open(tmp_csv, "w", encoding="utf-8", newline="") as stream:
+            writer = csv.writer(stream, lineterminator="\n")
+            writer.writerow(first.column_names)
+            for table in itertools.chain([first], blocks):
+                if table.num_rows:
+                    pw.write_table(table)
+                columns = [table.column(i).to_pylist() for i in range(table.num_columns)]
+                writer.writerows([_csv_cell(v) for v in row]
+                                 for row in zip(*columns, strict=True))
+    except BaseException:  # a full disk, Ctrl-C: the summary before stays, no debris
+        tmp_parquet.unlink(missing_ok=True)
+        tmp_csv.unlink(missing_ok=True)
+        raise
+    os.replace(tmp_parquet, parquet)
+    os.replace(tmp_csv, csv_path)
     return parquet, csv_path
 
 
