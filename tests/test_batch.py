@@ -429,6 +429,30 @@ def test_the_summary_is_read_back_from_the_journal_in_blocks(
         pq.read_table(reference / "summary.parquet"))
 
 
+def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
+        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A log with the size and time journalled for it, still ending with the MCAP magic, is
+    not parsed again; one zeroed in place (what a crash before the data reached the disk can
+    leave), its time put back, is read, found unfinished, and its run done again."""
+    import mcap.reader
+
+    out = tmp_path / "copy"
+    shutil.copytree(reference, out, copy_function=shutil.copy2)  # keeps the times
+    batch = load_batch(spec20)
+    with monkeypatch.context() as m:
+        m.setattr(mcap.reader, "make_reader", lambda *a, **k: pytest.fail("a log was parsed"))
+        again = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
+    assert again.skipped == 20 and again.executed == []
+    victim = out / "runs" / f"{batch.runs[4].run_id}.mcap"
+    st = victim.stat()
+    victim.write_bytes(bytes(st.st_size))
+    os.utime(victim, ns=(st.st_atime_ns, st.st_mtime_ns))
+    third = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
+    assert third.executed == [batch.runs[4].run_id] and third.skipped == 19
+    assert _summary_bytes(out) == _summary_bytes(reference)
+
+
 def test_a_resumed_batch_keeps_9_bytes_a_finished_run(tmp_path: Path) -> None:
     """The parent's state of a finished run is its journal offset and status (the records
     stay in the journal): checked on 5,000 journalled runs of a 10,000-run spec."""

@@ -17,17 +17,40 @@ from pathlib import Path
 from typing import Any
 
 from wmr.durable import write_all
+from wmr.mcaplog.writer import MAGIC
 
 JOURNAL = "journal.jsonl"
 
 
-def log_complete(path: Path) -> bool:
+def log_stamp(path: Path) -> dict[str, int] | None:
+    """Size and modification time of the log at ``path`` (journalled with its run), ``None``
+    if there is none."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def log_complete(path: Path, stamp: Mapping[str, Any] | None = None) -> bool:
     """Whether ``path`` is a finished MCAP log with a ``result`` metadata record.
 
-    Reads the footer and the summary section only (about 1 ms), not the messages.
+    With the ``stamp`` journalled when the run finished (:func:`log_stamp`), a log of the same
+    size and modification time that still ends with the MCAP magic is the log the batch
+    wrote (a stat and an 8-byte read, about 20 µs: a resume of a million runs checks in
+    seconds).  Otherwise, or when those differ, the footer and the summary section are read
+    (about 0.5 ms, not the messages).
     """
     from mcap.reader import make_reader
 
+    if stamp is not None and log_stamp(path) == stamp:
+        try:
+            with open(path, "rb") as stream:
+                stream.seek(-len(MAGIC), os.SEEK_END)
+                if stream.read() == MAGIC:
+                    return True
+        except OSError:
+            return False
     try:
         with open(path, "rb") as stream:
             summary = make_reader(stream).get_summary()
@@ -123,4 +146,4 @@ def _parse(line: bytes) -> dict[str, Any] | None:
     return None
 
 
-__all__ = ["JOURNAL", "Journal", "log_complete"]
+__all__ = ["JOURNAL", "Journal", "log_complete", "log_stamp"]

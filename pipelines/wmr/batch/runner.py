@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-from wmr.batch.journal import JOURNAL, Journal, log_complete
+from wmr.batch.journal import JOURNAL, Journal, log_complete, log_stamp
 from wmr.batch.local import LocalPool, Outcome
 from wmr.batch.spec import BatchRun, BatchSpec, spec_digest
 from wmr.batch.summary import STATUSES, SummaryRow, summary_table, write_summary
@@ -241,6 +241,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                                          "fmu_sha256": fmu_sha, "killed": outcome.killed,
                                          "wall_s": round(outcome.wall_s, 6),
                                          "worker": outcome.worker, "row": row,
+                                         "log": log_stamp(runs_dir / f"{outcome.run_id}.mcap"),
                                          "record": outcome.record})
                 ledger.mark(_index(outcome.run_id), offset, outcome.record.get("status"))
                 result.executed.append(outcome.run_id)
@@ -380,7 +381,9 @@ def _valid(run: BatchRun, line: Mapping[str, Any], fmu_sha: str, runs_dir: Path)
     if line.get("run_id") != run.run_id or line.get("fmu_sha256") != fmu_sha \
             or digest != (run.digest or spec_digest(run.spec)):
         return False
-    return bool(line.get("killed")) or log_complete(runs_dir / f"{run.run_id}.mcap")
+    stamp = line.get("log")
+    return bool(line.get("killed")) or log_complete(runs_dir / f"{run.run_id}.mcap",
+                                                    stamp if isinstance(stamp, dict) else None)
 
 
 def _row_json(run: BatchRun) -> dict[str, Any]:
