@@ -429,6 +429,21 @@ def test_the_summary_is_read_back_from_the_journal_in_blocks(
         pq.read_table(reference / "summary.parquet"))
 
 
+def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
+        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path) -> None:
+    """A one-value grid axis equal to the base's value changes no run (same ids, nothing
+    redone) but adds a column: the rows read back from the journal must fill it."""
+    out = tmp_path / "copy"
+    shutil.copytree(reference, out, copy_function=shutil.copy2)
+    edited = _write(tmp_path, SPEC20 + "[grid]\nmax_time_s = [15.0]\n", "t20.toml")
+    batch = load_batch(edited)
+    assert [r.run_id for r in batch.runs] == [r.run_id for r in load_batch(spec20).runs]
+    again = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
+    assert again.skipped == 20 and again.executed == []
+    table = pq.read_table(out / "summary.parquet")
+    assert table.column("max_time_s").to_pylist() == [15.0] * 20
+
+
 def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
         monkeypatch: pytest.MonkeyPatch) -> None:

@@ -24,7 +24,7 @@ import os
 import sys
 import time
 from array import array
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -393,13 +393,14 @@ def _row_json(run: BatchRun) -> dict[str, Any]:
                        for k, v in run.inputs.items()}}
 
 
-def _row_of(line: Mapping[str, Any], runs: Sequence[BatchRun]) -> SummaryRow:
-    """The summary row of a journal line (made again from the spec for a line written before
-    lines held their rows)."""
+def _row_of(line: Mapping[str, Any], batch: BatchSpec) -> SummaryRow:
+    """The summary row of a journal line; made again from the spec when the line has none
+    (written before lines held their rows) or other input columns (the spec was edited without
+    changing the run, e.g. a one-value grid axis added: the new column must not be empty)."""
     row = line.get("row")
     run_id = str(line["run_id"])
-    if not isinstance(row, dict):
-        return SummaryRow.of(runs[_index(run_id)])
+    if not isinstance(row, dict) or set(row["inputs"]) != set(batch.input_columns):
+        return SummaryRow.of(batch.runs[_index(run_id)])
     inputs = {k: math.nan if v is None else v for k, v in row["inputs"].items()}
     return SummaryRow(run_id, row["name"], row["base"], row["variant"], inputs)
 
@@ -420,7 +421,7 @@ def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger) -> Iter
         first = False
         lines = list(journal.read_at(off for _, off in block))
         records = {str(line["run_id"]): line["record"] for line in lines}
-        yield summary_table([_row_of(line, batch.runs) for line in lines],
+        yield summary_table([_row_of(line, batch) for line in lines],
                             batch.input_columns, records)
         if len(block) < SUMMARY_BLOCK:
             return
