@@ -65,6 +65,13 @@ def _parse(text: str) -> BatchSpec:
     return parse_batch(tomllib.loads(text))
 
 
+def _gains_grid(n: int) -> str:
+    """A spec of n x n runs: a grid of n K_ps by n K_is values (more [grid.*] may follow)."""
+    values = ", ".join(f"{0.1 + 0.01 * i:.2f}" for i in range(n))
+    return ('start = [1.0, 0.0, 0.0]\ngoal = [0.0, 0.0, 0.0]\n'
+            f"[grid.gains]\nK_ps = [{values}]\nK_is = [{values}]\n")
+
+
 def _summary_bytes(out: Path) -> tuple[bytes, bytes]:
     return (out / "summary.csv").read_bytes(), (out / "summary.parquet").read_bytes()
 
@@ -173,19 +180,11 @@ def test_a_million_run_spec_loads_lazily(monkeypatch: pytest.MonkeyPatch) -> Non
         return original(self, index)
 
     monkeypatch.setattr(RunList, "_make", spy)
-    values = ", ".join(f"{0.1 + 0.01 * i:.2f}" for i in range(100))
     masses = ", ".join(f"{20.0 + 0.1 * i:.1f}" for i in range(100))
+    text = _gains_grid(100) + f"[grid.params]\nm = [{masses}]\n"
     tracemalloc.start()
     try:
-        batch = _parse(f"""
-            start = [1.0, 0.0, 0.0]
-            goal = [0.0, 0.0, 0.0]
-            [grid.gains]
-            K_ps = [{values}]
-            K_is = [{values}]
-            [grid.params]
-            m = [{masses}]
-        """)
+        batch = _parse(text)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -471,14 +470,7 @@ def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
 def test_a_resumed_batch_keeps_9_bytes_a_finished_run(tmp_path: Path) -> None:
     """The parent's state of a finished run is its journal offset and status (the records
     stay in the journal): checked on 5,000 journalled runs of a 10,000-run spec."""
-    values = ", ".join(f"{0.1 + 0.01 * i:.2f}" for i in range(100))
-    batch = _parse(f"""
-        start = [1.0, 0.0, 0.0]
-        goal = [0.0, 0.0, 0.0]
-        [grid.gains]
-        K_ps = [{values}]
-        K_is = [{values}]
-    """)
+    batch = _parse(_gains_grid(100))
     journal = Journal(tmp_path / "journal.jsonl")
     record = {"status": "timeout", "message": "m" * 100,
               **{f"value_{k}": 0.5 + k for k in range(12)}}
