@@ -408,8 +408,9 @@ def test_a_cut_journal_line_is_ignored_and_redone(spec20: Path, fmu3: Path,
 def test_the_summary_is_read_back_from_the_journal_in_blocks(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """Blocks of 3 rows (7 blocks), and journal lines written before lines held their rows
-    (the rows made again from the spec), give the reference's summary byte for byte."""
+    """Blocks of 3 rows (7 blocks), journal lines written before lines held their rows and
+    lines whose row is damaged (those rows made again from the spec) give the reference's
+    summary byte for byte."""
     out = tmp_path / "copy"
     shutil.copytree(reference, out)
     journal = out / "journal.jsonl"
@@ -417,6 +418,9 @@ def test_the_summary_is_read_back_from_the_journal_in_blocks(
     assert all(set(line["row"]) == {"name", "base", "variant", "inputs"} for line in lines)
     for line in lines[::2]:
         del line["row"]
+    lines[1]["row"] = "garbled"  # rows a hand or a disk damaged are made again, not trusted
+    lines[3]["row"]["inputs"] = 5
+    lines[5]["row"]["inputs"]["params.m"] = [1.0]
     journal.write_text("".join(json.dumps(line) + "\n" for line in lines))
     for name in ("summary.csv", "summary.parquet"):
         (out / name).unlink()

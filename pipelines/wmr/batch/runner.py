@@ -24,7 +24,7 @@ import os
 import sys
 import time
 from array import array
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -399,10 +399,24 @@ def _row_of(line: Mapping[str, Any], batch: BatchSpec) -> SummaryRow:
     changing the run, e.g. a one-value grid axis added: the new column must not be empty)."""
     row = line.get("row")
     run_id = str(line["run_id"])
-    if not isinstance(row, dict) or set(row["inputs"]) != set(batch.input_columns):
+    if not isinstance(row, dict) or not _row_fits(row, batch.input_columns):
         return SummaryRow.of(batch.runs[_index(run_id)])
-    inputs = {k: math.nan if v is None else v for k, v in row["inputs"].items()}
-    return SummaryRow(run_id, row["name"], row["base"], row["variant"], inputs)
+    return SummaryRow(run_id, row["name"], row["base"], row["variant"],
+                      {k: math.nan if v is None else v if isinstance(v, str) else float(v)
+                       for k, v in row["inputs"].items()})
+
+
+def _row_fits(row: Mapping[str, Any], columns: Sequence[str]) -> bool:
+    """Whether a journal line's summary row has the spec's input columns and sound values (an
+    edited or damaged line is not trusted)."""
+    inputs = row.get("inputs")
+    if not isinstance(inputs, dict) or set(inputs) != set(columns):
+        return False
+    if not all(isinstance(row.get(k), str) for k in ("name", "base", "variant")):
+        return False
+    return all(v is None or isinstance(v, str)
+               or (isinstance(v, int | float) and not isinstance(v, bool))
+               for v in inputs.values())
 
 
 #: Rows of the summary built (and written) at a time.
@@ -419,7 +433,11 @@ def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger) -> Iter
         if not block and not first:
             return
         first = False
-        lines = list(journal.read_at(off for _, off in block))
+        try:
+            lines = list(journal.read_at(off for _, off in block))
+        except ValueError as exc:
+            raise WmrError(f"{exc}: the journal changed while the batch ran; rerun the same "
+                           "command to check it again and rewrite the summary") from None
         records = {str(line["run_id"]): line["record"] for line in lines}
         yield summary_table([_row_of(line, batch) for line in lines],
                             batch.input_columns, records)
