@@ -26,7 +26,7 @@ import wmr.batch.runner as runner_module
 from wmr.batch import BatchSpec, load_batch, parse_batch, run_batch
 from wmr.batch.journal import Journal, log_complete
 from wmr.batch.report import write_report
-from wmr.batch.spec import RunList
+from wmr.batch.spec import RunList, run_index
 from wmr.cli import main
 from wmr.errors import ConfigError
 from wmr.mcaplog import read_run
@@ -159,7 +159,7 @@ def test_lazy_runs_are_the_product_in_index_order(axes: list[int], n_list: int,
     assert [r.run_id for r in made] == [runs[i].run_id for i in range(len(runs))]
     for i, (run, combo) in enumerate(zip(made, expected, strict=True)):
         base, *grid_values, entry, _ = combo
-        assert run.base == base and runs.index_of(run.run_id) == i  # type: ignore[attr-defined]
+        assert run.base == base and run_index(run.run_id) == i
         got = {"max_time_s": run.spec.t_max_s, "gains.K_ps": run.spec.gains.K_ps,
                "params.m": run.spec.params.m}
         assert [got[f] for f in fields] == grid_values

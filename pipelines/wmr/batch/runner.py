@@ -31,7 +31,7 @@ from typing import Any, Final
 
 from wmr.batch.journal import JOURNAL, Journal, log_complete, log_stamp
 from wmr.batch.local import LocalPool, Outcome
-from wmr.batch.spec import BatchRun, BatchSpec, spec_digest
+from wmr.batch.spec import BatchRun, BatchSpec, run_index
 from wmr.batch.summary import STATUSES, SummaryRow, summary_table, write_summary
 from wmr.batch.worker import DISK_FULL, FAULTS, Task
 from wmr.durable import AtomicFile, partial_path, storage_error
@@ -236,14 +236,14 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                     _write_atomic(runs_dir / f"{outcome.run_id}.mcap", outcome.log)
                 elif outcome.killed:
                     _recover_partial(runs_dir / f"{outcome.run_id}.mcap")
-                digest, row = tasks.in_flight.pop(outcome.run_id)
+                index, digest, row = tasks.in_flight.pop(outcome.run_id)
                 offset = journal.append({"run_id": outcome.run_id, "digest": digest,
                                          "fmu_sha256": fmu_sha, "killed": outcome.killed,
                                          "wall_s": round(outcome.wall_s, 6),
                                          "worker": outcome.worker, "row": row,
                                          "log": log_stamp(runs_dir / f"{outcome.run_id}.mcap"),
                                          "record": outcome.record})
-                ledger.mark(_index(outcome.run_id), offset, outcome.record.get("status"))
+                ledger.mark(index, offset, outcome.record.get("status"))
                 result.executed.append(outcome.run_id)
                 if outcome.record.get("status") != "failed" or outcome.record.get("steps"):
                     started = True
@@ -335,11 +335,6 @@ def _bar_off(progress: bool | None) -> bool | None:
     return None if progress is None else not progress
 
 
-def _index(run_id: str) -> int:
-    """A run's index: the number its id starts with."""
-    return int(run_id.partition("-")[0])
-
-
 def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, runs_dir: Path,
             progress: bool | None) -> _Ledger:
     """The runs of ``batch`` that the journal says are done, as a :class:`_Ledger`.
@@ -364,10 +359,9 @@ def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, runs_dir: Path,
     with bar:
         for offset, line in journal.scan():
             bar.update(offset - bar.n)
-            head, dash, _ = str(line["run_id"]).partition("-")
-            if not dash or not head.isdigit() or int(head) >= len(runs):
+            i = run_index(str(line["run_id"]))
+            if i is None or i >= len(runs):
                 continue
-            i = int(head)
             if _valid(runs[i], line, fmu_sha, runs_dir):
                 ledger.mark(i, offset, line["record"].get("status"))
             else:
@@ -377,9 +371,8 @@ def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, runs_dir: Path,
 
 def _valid(run: BatchRun, line: Mapping[str, Any], fmu_sha: str, runs_dir: Path) -> bool:
     """Whether journal ``line`` is a finished run of ``run``."""
-    digest = line.get("digest")
     if line.get("run_id") != run.run_id or line.get("fmu_sha256") != fmu_sha \
-            or digest != (run.digest or spec_digest(run.spec)):
+            or line.get("digest") != run.digest:
         return False
     stamp = line.get("log")
     return bool(line.get("killed")) or log_complete(runs_dir / f"{run.run_id}.mcap",
@@ -393,15 +386,14 @@ def _row_json(run: BatchRun) -> dict[str, Any]:
                        for k, v in run.inputs.items()}}
 
 
-def _row_of(line: Mapping[str, Any], batch: BatchSpec) -> SummaryRow:
+def _row_of(index: int, line: Mapping[str, Any], batch: BatchSpec) -> SummaryRow:
     """The summary row of a journal line; made again from the spec when the line has none
     (written before lines held their rows) or other input columns (the spec was edited without
     changing the run, e.g. a one-value grid axis added: the new column must not be empty)."""
     row = line.get("row")
-    run_id = str(line["run_id"])
     if not isinstance(row, dict) or not _row_fits(row, batch.input_columns):
-        return SummaryRow.of(batch.runs[_index(run_id)])
-    return SummaryRow(run_id, row["name"], row["base"], row["variant"],
+        return SummaryRow.of(batch.runs[index])
+    return SummaryRow(str(line["run_id"]), row["name"], row["base"], row["variant"],
                       {k: math.nan if v is None else v if isinstance(v, str) else float(v)
                        for k, v in row["inputs"].items()})
 
@@ -427,19 +419,16 @@ def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger) -> Iter
     """The summary of the finished runs as Arrow tables of up to :data:`SUMMARY_BLOCK` rows,
     in run-id order, read back from the journal (at least one table, maybe empty)."""
     finished = ledger.finished()
-    first = True
     while True:
         block = list(itertools.islice(finished, SUMMARY_BLOCK))
-        if not block and not first:
-            return
-        first = False
         try:
             lines = list(journal.read_at(off for _, off in block))
         except ValueError as exc:
             raise WmrError(f"{exc}: the journal changed while the batch ran; rerun the same "
                            "command to check it again and rewrite the summary") from None
         records = {str(line["run_id"]): line["record"] for line in lines}
-        yield summary_table([_row_of(line, batch) for line in lines],
+        yield summary_table([_row_of(i, line, batch) for (i, _), line in zip(block, lines,
+                                                                              strict=True)],
                             batch.input_columns, records)
         if len(block) < SUMMARY_BLOCK:
             return
@@ -448,8 +437,8 @@ def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger) -> Iter
 class _Tasks:
     """The runs of ``batch`` not done in ``ledger``, made one by one as the executor asks.
 
-    Each made run's digest and summary row wait in :attr:`in_flight` until its journal line
-    is written: nothing is made twice, and only the runs in flight are held.
+    Each made run's index, digest and summary row wait in :attr:`in_flight` until its journal
+    line is written: nothing is made twice, and only the runs in flight are held.
     """
 
     def __init__(self, batch: BatchSpec, ledger: _Ledger, run_timeout_s: float | None,
@@ -458,7 +447,7 @@ class _Tasks:
         self._ledger = ledger
         self._n = len(self._runs) - ledger.n_done
         self._timeout, self._faults = run_timeout_s, faults
-        self.in_flight: dict[str, tuple[str, dict[str, Any]]] = {}
+        self.in_flight: dict[str, tuple[int, str, dict[str, Any]]] = {}
 
     def __len__(self) -> int:
         return self._n
@@ -472,7 +461,7 @@ class _Tasks:
             except ConfigError as exc:  # a run made late, e.g. a sample drawn out of range
                 raise ConfigError(exc.field, exc.problem, f"{exc.fix}; the runs finished are "
                                   "kept: rerun the same command after the fix") from None
-            self.in_flight[run.run_id] = (run.digest or spec_digest(run.spec), _row_json(run))
+            self.in_flight[run.run_id] = (i, run.digest, _row_json(run))
             yield Task(run.run_id, run.spec, self._timeout, self._faults.get(run.run_id))
 
 

@@ -151,7 +151,7 @@ class BatchRun:
     variant: str
     inputs: dict[str, float | str]
     #: :func:`spec_digest` of ``spec`` (its first 8 hex digits end the id).
-    digest: str = ""
+    digest: str
 
     @property
     def name(self) -> str:
@@ -394,6 +394,12 @@ def _random(table: Mapping[str, Any], max_runs: int = MAX_RUNS
     return n, dists, sources
 
 
+def run_index(run_id: str) -> int | None:
+    """The index a run id ``NNNN-hhhhhhhh`` starts with, ``None`` if it is not a run id."""
+    head, dash, _ = run_id.partition("-")
+    return int(head) if dash and head.isdigit() else None
+
+
 def _sample(seed: int, i: int, dists: Sequence[tuple[str, _Dist]]) -> dict[str, Value]:
     """Sample ``i``: field ``f`` drawn from a generator seeded by ``(seed, i, crc32(f))``."""
     return {field: d.sample(np.random.default_rng([seed, i, zlib.crc32(field.encode())]))
@@ -561,7 +567,8 @@ class RunList(Sequence[BatchRun]):
         self._bases = tuple(bases)
         self._axes = tuple(tuple(a) for a in axes)
         self._entries = tuple(entries)
-        self._seed, self._n_samples, self._dists = seed, n_samples, tuple(dists)
+        self._n_samples = n_samples
+        self._dists = tuple(dists)
         self._columns = tuple(columns)
         self._sources = dict(sources)
         self._n_points = math.prod(len(a) for a in self._axes)
@@ -569,7 +576,8 @@ class RunList(Sequence[BatchRun]):
         self._total = len(self._bases) * self._n_variants
         self._width = max(4, len(str(self._total - 1)))
         # a grid sweeps its samples once per point: keep them (a few kB each) while they last
-        self._draw = functools.lru_cache(maxsize=4096)(self._sample)
+        self._draw = functools.lru_cache(maxsize=4096)(
+            functools.partial(_sample, seed, dists=self._dists))
 
     def __len__(self) -> int:
         return self._total
@@ -594,15 +602,6 @@ class RunList(Sequence[BatchRun]):
         for i in range(self._total):
             yield self._make(i)
 
-    def index_of(self, run_id: str) -> int | None:
-        """The index that ``run_id`` names (its number), ``None`` if it names none; the
-        digest part is not checked (compare :attr:`BatchRun.run_id`)."""
-        number, dash, _ = run_id.partition("-")
-        if not dash or len(number) != self._width or not number.isdigit():
-            return None
-        i = int(number)
-        return i if i < self._total else None
-
     def probes(self) -> list[int]:
         """Indices that together try every grid value, every list entry and the first
         :data:`CHECK_SAMPLES` samples with every base run (each with the first of the rest)."""
@@ -622,9 +621,6 @@ class RunList(Sequence[BatchRun]):
         with a spec is said when it is loaded, not hours into its batch."""
         for i in range(self._total) if self._total <= CHECK_ALL_RUNS else self.probes():
             self._make(i)
-
-    def _sample(self, i: int) -> dict[str, Value]:
-        return _sample(self._seed, i, self._dists)
 
     def _values(self, i: int) -> tuple[int, str, dict[str, Value]]:
         """Run ``i``'s base index, list entry name and values (grid, entry, sample)."""
@@ -735,4 +731,5 @@ def load_batch(name_or_path: str | Path, max_runs: int = MAX_RUNS) -> BatchSpec:
     return parse_batch(data, source=str(path), path=path, raw=raw, max_runs=max_runs)
 
 
-__all__ = ["BatchRun", "BatchSpec", "RunList", "load_batch", "parse_batch", "spec_digest"]
+__all__ = ["BatchRun", "BatchSpec", "RunList", "load_batch", "parse_batch", "run_index",
+           "spec_digest"]

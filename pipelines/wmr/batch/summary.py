@@ -165,14 +165,6 @@ def read_summary(out_dir: Path) -> pa.Table:
     return pq.read_table(out_dir / SUMMARY_PARQUET)
 
 
-def status_counts(statuses: Sequence[str]) -> dict[str, int]:
-    """Runs per status, the three statuses always present."""
-    counts = dict.fromkeys(STATUSES, 0)
-    for s in statuses:
-        counts[s] = counts.get(s, 0) + 1
-    return counts
-
-
 __all__ = [
     "RESULT_COLUMNS",
     "SUMMARY_CSV",
@@ -180,7 +172,6 @@ __all__ = [
     "SummaryRow",
     "log_relpath",
     "read_summary",
-    "status_counts",
     "summary_table",
     "write_summary",
 ]
