@@ -27,6 +27,7 @@ from wmr.batch import BatchSpec, load_batch, parse_batch, run_batch
 from wmr.batch.journal import Journal, log_complete
 from wmr.batch.report import write_report
 from wmr.batch.spec import RunList, run_index
+from wmr.batch.summary import write_summary
 from wmr.cli import main
 from wmr.errors import ConfigError
 from wmr.mcaplog import read_run
@@ -469,6 +470,18 @@ def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
     third = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
     assert third.executed == [batch.runs[4].run_id] and third.skipped == 19
     assert _summary_bytes(out) == _summary_bytes(reference)
+
+
+def test_a_batch_stopped_before_its_first_run_writes_an_empty_summary(
+        spec20: Path, tmp_path: Path) -> None:
+    """No run finished, so there is no journal: the summary is its header alone."""
+    batch = load_batch(spec20)
+    ledger = runner_module._Ledger(len(batch.runs))
+    chunks = runner_module._summary_chunks(batch, Journal(tmp_path / "journal.jsonl"), ledger)
+    write_summary(chunks, tmp_path)
+    assert pq.read_table(tmp_path / "summary.parquet").num_rows == 0
+    header = (tmp_path / "summary.csv").read_text().splitlines()
+    assert len(header) == 1 and header[0].startswith("run_id,name,base,variant,start.x_m")
 
 
 def test_a_resumed_batch_keeps_9_bytes_a_finished_run(tmp_path: Path) -> None:

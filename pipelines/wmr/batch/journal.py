@@ -10,6 +10,7 @@ run had written, are all there is).
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 from collections.abc import Iterable, Iterator, Mapping
@@ -95,8 +96,12 @@ class Journal:
         ValueError
             No well-formed line starts at an offset (the file changed under the batch).
         """
+        pending = iter(offsets)
+        first = next(pending, None)
+        if first is None:  # no line asked for: a batch stopped before its first run has none
+            return
         with open(self.path, "rb") as stream:
-            for offset in offsets:
+            for offset in itertools.chain([first], pending):
                 stream.seek(offset)
                 row = _parse(stream.readline())
                 if row is None:
