@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from wmr.cli.run import add_fmu_choice
 from wmr.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -152,12 +153,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--max-runs", type=int, metavar="N",
                    help="refuse a spec of more runs than this (default one million; counted "
                         "before anything is expanded)")
-    p.add_argument("--fmi", type=int, choices=(2, 3), default=3,
-                   help="FMI version of the FMU to drive (default 3)")
-    p.add_argument("--fmu", metavar="FILE.fmu",
-                   help="drive this FMU instead of the project's own build")
-    p.add_argument("--map", metavar="FILE.toml",
-                   help="variable map of an FMU made by another tool (docs/fmu_map.md)")
+    add_fmu_choice(p)
     p.add_argument("--check", action="store_true",
                    help="make every run of the spec and stop: the first invalid one is named "
                         "(loading checks every grid value and list entry at once, and every "

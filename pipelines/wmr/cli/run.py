@@ -46,6 +46,11 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stop-radius", type=float, metavar="M",
                         help="stop radius epsilon, m")
     parser.add_argument("--max-time", type=float, metavar="S", help="time limit of a run, s")
+    add_fmu_choice(parser)
+
+
+def add_fmu_choice(parser: argparse.ArgumentParser) -> None:
+    """``--fmi``, ``--fmu`` and ``--map``: which robot FMU ``wmr run`` and ``wmr batch`` drive."""
     parser.add_argument("--fmi", type=int, choices=(2, 3), default=3,
                         help="FMI version of the FMU to drive (default 3)")
     parser.add_argument("--fmu", metavar="FILE.fmu",
