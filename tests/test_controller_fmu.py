@@ -699,18 +699,9 @@ def test_model_exchange_is_refused_and_not_declared(built: BuildResult, version:
 
     try:
         if version == 2:
-            from fmpy import calloc, free
-            from fmpy.fmi2 import (
-                fmi2CallbackAllocateMemoryTYPE,
-                fmi2CallbackFreeMemoryTYPE,
-                fmi2CallbackFunctions,
-                fmi2CallbackLoggerTYPE,
-            )
+            from wmr.fmu.plant import fmi2_callbacks
 
-            callbacks = fmi2CallbackFunctions()
-            callbacks.logger = fmi2CallbackLoggerTYPE(logger)
-            callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-            callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+            callbacks = fmi2_callbacks(logger)
             fmu2 = FMU2Model(guid=md.guid, unzipDirectory=unzipdir,
                              modelIdentifier="wmr_controller", instanceName="me")
             with pytest.raises(Exception, match="Failed to instantiate"):

@@ -20,6 +20,7 @@ import os
 import shutil
 import sys
 import tempfile
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -73,30 +74,43 @@ def _fmi2_log(component: object, instance: bytes, status: int, category: bytes,
 _FMI2_CALLBACKS: list[Any] = []
 
 
-def _fmi2_callbacks() -> Any:
-    """fmpy's default FMI 2 callbacks with the logger on stderr (one set per process)."""
-    if not _FMI2_CALLBACKS:
-        from ctypes import byref
+def fmi2_callbacks(log: Callable[..., None], *, format_messages: bool = False) -> Any:
+    """fmpy's default FMI 2 callbacks (its ``calloc`` and ``free``) with ``log`` as the logger.
 
-        from fmpy import calloc, free
-        from fmpy.fmi2 import (
-            fmi2CallbackAllocateMemoryTYPE,
-            fmi2CallbackFreeMemoryTYPE,
-            fmi2CallbackFunctions,
-            fmi2CallbackLoggerTYPE,
-        )
+    ``log`` gets ``(component, instance, status, category, message)``.  The caller keeps the
+    result alive while any instance made with it lives.  ``format_messages`` formats the
+    variadic message in C through fmpy's logger proxy, which is one for the whole process:
+    only the process-wide callbacks of :func:`_fmi2_callbacks` use it.
+    """
+    from fmpy import calloc, free
+    from fmpy.fmi2 import (
+        fmi2CallbackAllocateMemoryTYPE,
+        fmi2CallbackFreeMemoryTYPE,
+        fmi2CallbackFunctions,
+        fmi2CallbackLoggerTYPE,
+    )
 
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(_fmi2_log)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        try:  # formats the variadic message in C, as fmpy does for its own logger
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(log)
+    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    if format_messages:
+        try:
+            from ctypes import byref
+
             from fmpy.logging import addLoggerProxy
 
             addLoggerProxy(byref(cb))
-        except Exception:  # no proxy: messages arrive unformatted, still on stderr
+        except Exception:  # no proxy: messages arrive unformatted, still logged
             pass
-        _FMI2_CALLBACKS.append(cb)
+    return cb
+
+
+def _fmi2_callbacks() -> Any:
+    """The FMI 2 callbacks of every :class:`FmuPlant`: the logger on stderr, messages
+    formatted (one set per process)."""
+    if not _FMI2_CALLBACKS:
+        _FMI2_CALLBACKS.append(fmi2_callbacks(_fmi2_log, format_messages=True))
     return _FMI2_CALLBACKS[0]
 
 
