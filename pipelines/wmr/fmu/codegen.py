@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import re
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -226,12 +227,17 @@ def unity_source(model: FlatModel | ControllerModel, fmi_version: int) -> str:
 
 def write_model_core(model: FlatModel, token: str, out_dir: Path) -> list[Path]:
     """Write the three generated files into ``out_dir``; return their paths."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    files = {
+    return write_files(out_dir, {
         "model_sizes.h": sizes_header(model),
         "model_variables.c": variables_source(model, token),
         "model_generated.c": model_source(model),
-    }
+    })
+
+
+def write_files(out_dir: Path, files: Mapping[str, str]) -> list[Path]:
+    """Write each ``name: text`` of ``files`` into ``out_dir`` (made if missing); return the
+    paths, in order."""
+    out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for name, text in files.items():
         path = out_dir / name

@@ -31,7 +31,7 @@ from typing import Final
 
 from wmr.control.stabiliser import Gains, Limits
 from wmr.errors import BuildError
-from wmr.fmu.codegen import sizes_header, variables_source
+from wmr.fmu.codegen import sizes_header, variables_source, write_files
 from wmr.fmu.flatten import ModelInterface, Variable
 from wmr.plant import RobotParams
 from wmr.signals import CONTROL_SIGNALS
@@ -191,18 +191,11 @@ def controller_sources() -> list[Path]:
 
 def write_controller_core(model: ControllerModel, token: str, out_dir: Path) -> list[Path]:
     """Write the generated files (sizes, indices, variable table) into ``out_dir``."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    files = {
+    return write_files(out_dir, {
         "model_sizes.h": sizes_header(model),
         "model_indices.h": indices_header(model),
         "model_variables.c": variables_source(model, token),
-    }
-    written = []
-    for name, text in files.items():
-        path = out_dir / name
-        path.write_text(text)
-        written.append(path)
-    return written
+    })
 
 
 def index_html(model: ControllerModel) -> str:
