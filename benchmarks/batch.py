@@ -21,9 +21,9 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from wmr.batch import BatchSpec, load_batch, run_batch
-from wmr.paths import scenarios_dir
-from wmr.run import default_fmu
+from wmr.apps.batch import BatchSpec, load_batch, run_batch
+from wmr.apps.run import default_fmu
+from wmr.infra.paths import scenarios_dir
 
 
 def _timed(batch: BatchSpec, go: Callable[[BatchSpec, Path], None]) -> float:

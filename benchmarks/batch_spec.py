@@ -18,7 +18,7 @@ import tomllib
 from typing import Any
 
 from _common import median_seconds
-from wmr.batch import parse_batch
+from wmr.apps.batch import parse_batch
 
 #: (K_ps values, K_is values, m values) per spec: 10^3 to 10^6 runs.
 SIZES = ((10, 10, 10), (10, 10, 100), (100, 10, 100), (100, 100, 100))

@@ -25,14 +25,14 @@ from collections.abc import Callable
 from pathlib import Path
 
 from _common import print_table
-from wmr.closedloop import run_closed_loop
-from wmr.control import Controller
-from wmr.fmu.build import build_fmus
-from wmr.fmu.fmu_controller import FmuController
-from wmr.fmu.plant import FmuPlant
-from wmr.mcaplog import RunLogWriter, read_run
-from wmr.run import run_to_log
-from wmr.scenario import load_scenario
+from wmr.adapters.fmi.controller import FmuController
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.mcap import RunLogWriter, read_run
+from wmr.apps.run import run_to_log
+from wmr.build.fmus import build_fmus
+from wmr.config.scenario import load_scenario
+from wmr.core.closedloop import run_closed_loop
+from wmr.core.control import Controller
 
 REPEATS = 7
 

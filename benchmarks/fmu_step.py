@@ -1,8 +1,8 @@
 """Cost of one 10 ms co-simulation step of the robot FMU, three ways, measured side by side.
 
 1. through fmpy's own API (``setReal``/``doStep``/``getReal``, its checked wrappers),
-2. raw ctypes calls into the same shared library: :meth:`wmr.fmu.plant.FmuPlant.step`, whose
-   prebound calls check each status themselves,
+2. raw ctypes calls into the same shared library: :meth:`wmr.adapters.fmi.robot.FmuPlant.step`,
+whose    prebound calls check each status themselves,
 3. the same physics and integrator in a pure C loop (the FMU's own sources, no FMI calls).
 
 Run: ``python benchmarks/fmu_step.py``.  Prints medians and ratios to the pure C loop.
@@ -18,9 +18,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from _common import median_time_per_call, print_table
-from wmr.fmu.build import build_fmus
-from wmr.fmu.plant import FmuPlant
-from wmr.plant import Pose, RobotParams
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.build.fmus import build_fmus
+from wmr.core.plant import Pose, RobotParams
 
 H = 0.01
 N_STEPS = 2000

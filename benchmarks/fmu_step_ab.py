@@ -1,8 +1,8 @@
 """Cost of one 10 ms co-simulation step of this tree's FMUs against those of a git revision.
 
 Both sets of FMUs are stepped in turn (2000 steps each, 30 rounds), through fmpy's API and
-through :meth:`wmr.fmu.plant.FmuPlant.step`, and timed in process CPU time, so that a loaded
-machine (other processes taking the cores) biases neither side.  Prints medians and the ratio
+through :meth:`wmr.adapters.fmi.robot.FmuPlant.step`, and timed in process CPU time, so that a
+loaded machine (other processes taking the cores) biases neither side.  Prints medians and the ratio
 this tree / revision.
 
 Run: ``python benchmarks/fmu_step_ab.py [REVISION]`` (default ``main``).
@@ -21,10 +21,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from fmu_step import H, _fmpy_stepper
-from wmr import paths
-from wmr.fmu.build import build_fmus
-from wmr.fmu.plant import FmuPlant
-from wmr.plant import Pose, RobotParams
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.build.fmus import build_fmus
+from wmr.core.plant import Pose, RobotParams
+from wmr.infra import paths
 
 N_STEPS, ROUNDS = 2000, 30
 
@@ -41,7 +41,7 @@ def build_at(revision: str, tmp: Path) -> Path:
         tar.extractall(tree, filter="data")
     env = {**os.environ, "PYTHONPATH": str(tree / "pipelines")}
     subprocess.run([sys.executable, "-c",
-                    f"from wmr.fmu.build import build_fmus; build_fmus({str(tmp / 'fmu')!r})"],
+                    f"from wmr.build.fmus import build_fmus; build_fmus({str(tmp / 'fmu')!r})"],
                    check=True, cwd=tree, env=env)
     return tmp / "fmu"
 

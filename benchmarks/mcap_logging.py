@@ -30,10 +30,10 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 from numpy.typing import NDArray
 
-from wmr.mcaplog import RunLogWriter
-from wmr.mcaplog.schemas import STEP_TOPICS, RowEncoder, file_descriptor_set, message_class
-from wmr.mcaplog.writer import Compression
-from wmr.signals import COLUMN, SIGNALS
+from wmr.adapters.mcap import RunLogWriter
+from wmr.adapters.mcap.schemas import STEP_TOPICS, RowEncoder, file_descriptor_set, message_class
+from wmr.adapters.mcap.writer import Compression
+from wmr.core.signals import COLUMN, SIGNALS
 
 STEP_NS = 10_000_000
 BLOCK = 100

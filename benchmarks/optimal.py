@@ -15,7 +15,7 @@ import math
 import statistics
 import time
 
-from wmr.optimal import DEFAULT_INTERVALS, DEFAULT_RK_SUBSTEPS, _nlp, fig9_cases, solve_optimal
+from wmr.adapters.ocp import DEFAULT_INTERVALS, DEFAULT_RK_SUBSTEPS, _nlp, fig9_cases, solve_optimal
 
 
 def _median_solve(start: object, goal: object, warm: bool, repeats: int,

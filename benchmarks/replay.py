@@ -4,7 +4,8 @@
 2. ``wmr replay``: read the log, send everything with ``send_columns``, write the ``.rrd``;
 3. ``send_columns`` of the already-read rows (what ``wmr replay`` does after reading);
 4. per-row ``rr.log`` of the same entities and components (the naive way);
-5. the live view: :class:`wmr.replay.LiveViewSink` fed 100-row blocks as the master loop does.
+5. the live view: :class:`wmr.adapters.rerun.replay.LiveViewSink` fed 100-row blocks as the master
+loop does.
 
 Run: ``PYTHONPATH=pipelines python benchmarks/replay.py``.  Prints medians, rows per second
 and the ratio of each to ``send_columns``.
@@ -21,10 +22,9 @@ import rerun as rr
 from numpy.typing import NDArray
 
 from _common import median_seconds
-from wmr.closedloop import BLOCK_ROWS
-from wmr.fmu.plant import FmuPlant
-from wmr.mcaplog import read_run
-from wmr.replay import (
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.mcap import read_run
+from wmr.adapters.rerun.replay import (
     APPLICATION_ID,
     PANELS,
     TIMELINE,
@@ -34,9 +34,10 @@ from wmr.replay import (
     run_entity,
     send_run_columns,
 )
-from wmr.run import default_fmu, run_to_log
-from wmr.scenario import load_scenario, with_overrides
-from wmr.signals import COLUMN
+from wmr.apps.run import default_fmu, run_to_log
+from wmr.config.scenario import load_scenario, with_overrides
+from wmr.core.closedloop import BLOCK_ROWS
+from wmr.core.signals import COLUMN
 
 REPEATS = 5
 NAME = "long"

@@ -19,11 +19,11 @@ from dataclasses import replace
 from pathlib import Path
 
 from _common import print_table
-from wmr.closedloop import run_closed_loop
-from wmr.fmu.build import build_fmus
-from wmr.fmu.plant import FmuPlant
-from wmr.scenario import load_scenario
-from wmr.sensing import Sensing, preset
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.build.fmus import build_fmus
+from wmr.config.scenario import load_scenario
+from wmr.core.closedloop import run_closed_loop
+from wmr.core.sensing import Sensing, preset
 
 REPEATS = 5
 

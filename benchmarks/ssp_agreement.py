@@ -3,8 +3,8 @@
 For every run of the given scenarios (default: fig11 fig9 fig10) the closed loop is exported
 (``wmr ssp export``, FMI 2.0 and 3.0), run in libcosim (``wmr ssp run``'s engine) and in
 fmpy's ``simulate_ssp``, and compared with ``wmr run`` at every control step
-(:mod:`wmr.ssp.agreement`): the worst distance in mm and heading difference in degrees, after
-the master's measured lag in steps.  FMI 3.0 packages are validated against the SSP 1.0 XSDs;
+(:mod:`wmr.adapters.ssp.agreement`): the worst distance in mm and heading difference in degrees,
+after the master's measured lag in steps.  FMI 3.0 packages are validated against the SSP 1.0 XSDs;
 neither master here runs FMI 3.0 (the row says why).
 
 Run: ``python benchmarks/ssp_agreement.py [SCENARIO ...]``.  Prints a Markdown table.
@@ -17,10 +17,16 @@ import sys
 import tempfile
 from pathlib import Path
 
-from wmr.fmu.build import build_fmus
-from wmr.scenario import load_scenario
-from wmr.ssp.agreement import deviation, fmpy_path, libcosim_path, measured_lag, wmr_run_path
-from wmr.ssp.export import export_ssp
+from wmr.adapters.ssp.agreement import (
+    deviation,
+    fmpy_path,
+    libcosim_path,
+    measured_lag,
+    wmr_run_path,
+)
+from wmr.adapters.ssp.export import export_ssp
+from wmr.build.fmus import build_fmus
+from wmr.config.scenario import load_scenario
 
 
 def main(scenarios: list[str]) -> None:

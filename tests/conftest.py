@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from wmr import paths
-from wmr.fmu.build import BuildResult, build_fmus
-from wmr.fmu.plant import FmuPlant
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.build.fmus import BuildResult, build_fmus
+from wmr.infra import paths
 
 os.environ.setdefault("MPLBACKEND", "Agg")  # headless: no figure ever opens a window
 

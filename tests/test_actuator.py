@@ -1,10 +1,10 @@
-"""Wheel speed servo (wmr.control.actuator)."""
+"""Wheel speed servo (wmr.core.control.actuator)."""
 
 from __future__ import annotations
 
 import pytest
 
-from wmr.control import WheelServo
+from wmr.core.control import WheelServo
 
 
 def _inertia_response(servo: WheelServo, ref: float, j: float, n: int) -> list[float]:

@@ -22,15 +22,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import wmr.batch.runner as runner_module
-from wmr.batch import BatchSpec, load_batch, parse_batch, run_batch
-from wmr.batch.journal import Journal, log_complete
-from wmr.batch.report import write_report
-from wmr.batch.spec import RunList, run_index
-from wmr.batch.summary import write_summary
+import wmr.apps.batch.runner as runner_module
+from wmr.adapters.mcap import read_run
+from wmr.apps.batch import BatchSpec, load_batch, parse_batch, run_batch
+from wmr.apps.batch.journal import Journal, log_complete
+from wmr.apps.batch.report import write_report
+from wmr.apps.batch.spec import RunList, run_index
+from wmr.apps.batch.summary import write_summary
 from wmr.cli import main
-from wmr.errors import ConfigError
-from wmr.mcaplog import read_run
+from wmr.infra.errors import ConfigError
 
 # 20 short runs (about 25 ms each): 2 list entries x 10 random samples, starts 0.5-1.5 m away.
 SPEC20 = """
@@ -214,7 +214,7 @@ def test_a_run_invalid_only_in_combination_stops_its_batch_and_the_fix_resumes(
         capsys: pytest.CaptureFixture[str]) -> None:
     """The probes try each grid value with the first of the others: a combination of two
     valid values (a long period with a stiff wheel servo) is found when the batch makes it."""
-    import wmr.batch.spec as spec_module
+    import wmr.apps.batch.spec as spec_module
 
     monkeypatch.setattr(spec_module, "CHECK_ALL_RUNS", 0)  # probe this 4-run spec as if large
     text = """
@@ -630,7 +630,7 @@ def _rows(out: Path) -> list[dict[str, Any]]:
 
 
 def test_each_batch_log_attaches_its_own_run_not_the_spec(reference: Path, spec20: Path) -> None:
-    from wmr.scenario import parse_scenario
+    from wmr.config.scenario import parse_scenario
 
     runs = load_batch(spec20).runs
     for r in (runs[0], runs[7]):

@@ -10,12 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from wmr.benchmark import CONTROLLERS, FIELDS, OPTIMAL, run_benchmark, run_optimal
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.mcap import read_run
+from wmr.apps.benchmark import CONTROLLERS, FIELDS, OPTIMAL, run_benchmark, run_optimal
 from wmr.cli import main
-from wmr.closedloop import run_closed_loop
-from wmr.fmu.plant import FmuPlant
-from wmr.mcaplog import read_run
-from wmr.scenario import load_scenario
+from wmr.config.scenario import load_scenario
+from wmr.core.closedloop import run_closed_loop
 
 REQUIRED = {"case", "controller", "time_to_goal_s", "path_length_m", "final_heading_error_rad"}
 

@@ -1,4 +1,4 @@
-"""The co-simulation master (wmr.closedloop) on the reference physics."""
+"""The co-simulation master (wmr.core.closedloop) on the reference physics."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from wmr.closedloop import BLOCK_ROWS, run_closed_loop
-from wmr.physics import ReferencePlant
-from wmr.plant import Pose, RobotParams
-from wmr.scenario import RunSpec, expand, load_scenario, with_overrides
-from wmr.signals import COLUMN, SIGNALS
+from wmr.config.scenario import RunSpec, expand, load_scenario, with_overrides
+from wmr.core.closedloop import BLOCK_ROWS, run_closed_loop
+from wmr.core.physics import ReferencePlant
+from wmr.core.plant import Pose, RobotParams
+from wmr.core.signals import COLUMN, SIGNALS
 
 POS_BAR_M = 0.05
 HEAD_BAR_RAD = math.radians(2.0)

@@ -2,7 +2,7 @@
 
 The C core (``fmu/src/controller/controller.c``) is compiled with a test-only loop over
 arrays, so that 100,000 random controller states run in one call; the Python reference is
-:class:`wmr.control.Controller` (PointStabiliser and two WheelServos) with its state set
+:class:`wmr.core.control.Controller` (PointStabiliser and two WheelServos) with its state set
 slot by slot.  The built FMUs are then checked as FMUs: validation, the refused step size,
 NaN measurements, names and defaults.
 """
@@ -23,13 +23,10 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 from mcap.reader import make_reader
 
-from wmr import paths
-from wmr.cli import main
-from wmr.closedloop import run_closed_loop
-from wmr.control import ALIGN, Controller, Gains, Limits
-from wmr.errors import ConfigError, FmuError
-from wmr.fmu.build import BuildResult
-from wmr.fmu.controller import (
+from wmr.adapters.fmi.controller import FmuController
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.mcap import read_run
+from wmr.build.controller_interface import (
     INPUTS,
     SIGNAL_OUTPUTS,
     STATES,
@@ -37,13 +34,16 @@ from wmr.fmu.controller import (
     controller_sources,
     write_controller_core,
 )
-from wmr.fmu.fmu_controller import FmuController
-from wmr.fmu.plant import FmuPlant
-from wmr.fmu.platforms import CFLAGS
-from wmr.mcaplog import read_run
-from wmr.plant import Pose, RobotParams
-from wmr.scenario import RunSpec, load_scenario
-from wmr.signals import COLUMN, CONTROL_SIGNALS, SIGNALS
+from wmr.build.fmus import BuildResult
+from wmr.build.platforms import CFLAGS
+from wmr.cli import main
+from wmr.config.scenario import RunSpec, load_scenario
+from wmr.core.closedloop import run_closed_loop
+from wmr.core.control import ALIGN, Controller, Gains, Limits
+from wmr.core.plant import Pose, RobotParams
+from wmr.core.signals import COLUMN, CONTROL_SIGNALS, SIGNALS
+from wmr.infra import paths
+from wmr.infra.errors import ConfigError, FmuError
 
 N_SETS = 200  # parameter sets
 N_PER_SET = 500  # states and inputs per parameter set: 100,000 samples in all
@@ -324,7 +324,7 @@ def test_output_order_follows_the_log_columns() -> None:
 
 
 def test_parameters_carry_the_scenario_names_and_defaults() -> None:
-    from wmr.scenario import (
+    from wmr.config.scenario import (
         DEFAULT_HEADING_TOLERANCE_DEG,
         DEFAULT_PERIOD_S,
         DEFAULT_STOP_RADIUS_M,
@@ -549,7 +549,7 @@ def test_the_variables_table_of_docs_control_md_matches_the_code() -> None:
 
 def test_a_batch_with_the_controller_fmu_key_logs_the_python_paths(tmp_path: Path,
                                                                    built: BuildResult) -> None:
-    from wmr.batch import load_batch, run_batch
+    from wmr.apps.batch import load_batch, run_batch
 
     spec = ('name = "b"\nstart = [0.0, 0.0, 0.0]\ngoal = [1.5, 0.5, 20.0]\n{key}'
             '[grid]\ngoal = [[1.5, 0.5, 20.0], [-1.0, 1.0, 90.0]]\n')
@@ -629,7 +629,7 @@ def test_run_ids_of_python_runs_do_not_move_and_fmu_runs_get_their_own() -> None
     import json
     from dataclasses import asdict, replace
 
-    from wmr.batch.spec import _canonical, spec_digest
+    from wmr.apps.batch.spec import _canonical, spec_digest
 
     spec = load_scenario("fig11").runs[0]
     before = asdict(spec)
@@ -699,7 +699,7 @@ def test_model_exchange_is_refused_and_not_declared(built: BuildResult, version:
 
     try:
         if version == 2:
-            from wmr.fmu.plant import fmi2_callbacks
+            from wmr.adapters.fmi.robot import fmi2_callbacks
 
             callbacks = fmi2_callbacks(logger)
             fmu2 = FMU2Model(guid=md.guid, unzipDirectory=unzipdir,

@@ -1,4 +1,4 @@
-"""Issue 11, defect 3: one energy definition (wmr.energy) and one key set in the results of
+"""Issue 11, defect 3: one energy definition (wmr.core.energy) and one key set in the results of
 ``wmr run``, ``wmr optimal``, ``wmr benchmark`` and the batch summaries."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wmr.batch.summary import RESULT_COLUMNS
-from wmr.benchmark import FIELDS
+from wmr.adapters.mcap import read_run
+from wmr.apps.batch.summary import RESULT_COLUMNS
+from wmr.apps.benchmark import FIELDS
 from wmr.cli import main
-from wmr.energy import ENERGY_KEYS, step_work, wheel_work
-from wmr.mcaplog import read_run
+from wmr.core.energy import ENERGY_KEYS, step_work, wheel_work
 
 
 def _last_json(capsys: pytest.CaptureFixture[str]) -> dict[str, object]:

@@ -13,8 +13,9 @@ import pytest
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from wmr.cli import main
-from wmr.figures import (
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.mcap import RunData, read_run
+from wmr.apps.figures import (
     PNG_NAMES,
     compute_roa,
     fig9_paths,
@@ -24,10 +25,9 @@ from wmr.figures import (
     make_figures,
     roa_figure,
 )
-from wmr.fmu.plant import FmuPlant
-from wmr.mcaplog import RunData, read_run
-from wmr.run import run_to_log
-from wmr.scenario import load_scenario
+from wmr.apps.run import run_to_log
+from wmr.cli import main
+from wmr.config.scenario import load_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -11,11 +11,11 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
+from wmr.adapters.fmi.archive import check_archive
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.build.fmus import BuildResult, build_fmus
 from wmr.cli import main
-from wmr.errors import FmuError
-from wmr.fmu.archive import check_archive
-from wmr.fmu.build import BuildResult, build_fmus
-from wmr.fmu.plant import FmuPlant
+from wmr.infra.errors import FmuError
 
 INTERFACE = {  # the public interface (docs/formats.md)
     "tau_r": ("input", "N.m"), "tau_l": ("input", "N.m"),

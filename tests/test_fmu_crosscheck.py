@@ -13,9 +13,9 @@ from fmpy.cross_check.validate_vendor_repo import validate_test_fmu
 from fmpy.util import read_csv, read_ref_opt_file
 
 from wmr import __version__
+from wmr.build.crosscheck import REFERENCE_OUTPUTS
+from wmr.build.fmus import BuildResult, summarize
 from wmr.cli import main
-from wmr.fmu.build import BuildResult, summarize
-from wmr.fmu.crosscheck import REFERENCE_OUTPUTS
 
 
 @pytest.fixture(scope="module")

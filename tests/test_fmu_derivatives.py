@@ -17,10 +17,10 @@ import pytest
 from fmpy import extract, instantiate_fmu, read_model_description
 from fmpy.fmi1 import FMICallException
 
-from wmr import paths
-from wmr.fmu.build import BuildResult
-from wmr.fmu.codegen import jacobian_function
-from wmr.fmu.flatten import FlatModel, flatten
+from wmr.build.codegen import jacobian_function
+from wmr.build.flatten import FlatModel, flatten
+from wmr.build.fmus import BuildResult
+from wmr.infra import paths
 
 Array = npt.NDArray[np.float64]
 START = {"b_f": 0.02, "tau_c": 0.05, "l": 0.1}  # friction and offset centre of gravity

@@ -12,8 +12,8 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
-from wmr.fmu.archive import safe_extract
-from wmr.fmu.build import BuildResult
+from wmr.adapters.fmi.archive import safe_extract
+from wmr.build.fmus import BuildResult
 
 N_STEPS, STEP_S = 100, 0.05
 

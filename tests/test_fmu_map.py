@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.fmi.varmap import load_map, parse_map
+from wmr.adapters.mcap.reader import read_run
+from wmr.build.fmus import BuildResult
 from wmr.cli import main
-from wmr.errors import ConfigError
-from wmr.fmu.build import BuildResult
-from wmr.fmu.plant import FmuPlant
-from wmr.fmu.varmap import load_map, parse_map
-from wmr.mcaplog.reader import read_run
-from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.infra.errors import ConfigError
 
 OTHER = Path(__file__).parent / "other_fmus"
 MAP = OTHER / "compass_unicycle.toml"
@@ -165,14 +165,14 @@ def test_the_documented_map_is_the_tested_one() -> None:
     assert documented[0].unmapped == tested.unmapped
     keys = tomllib.loads(next(b for b in blocks if "fmu_map =" in b))
     assert set(keys) == {"fmu", "fmu_map"}  # the scenario keys the docs name exist
-    from wmr.scenario import TOP_FIELDS
+    from wmr.config.scenario import TOP_FIELDS
 
     assert set(keys) <= set(TOP_FIELDS)
 
 
 def test_a_batch_spec_names_the_fmu_and_its_map(tmp_path: Path, unicycle_fmu: Path) -> None:
     """The same keys in a batch spec: every run of the batch drives the mapped FMU."""
-    from wmr.batch import load_batch, run_batch
+    from wmr.apps.batch import load_batch, run_batch
 
     shutil.copy(unicycle_fmu, tmp_path / "robot.fmu")
     shutil.copy(MAP, tmp_path / "robot.toml")
@@ -196,10 +196,10 @@ def test_an_ssp_of_the_other_fmu_runs_in_libcosim_with_its_units(
     our controller FMU on the pythonfmu unicycle and traces ``wmr run --map``."""
     from fmpy.ssp.ssd import get_connections, read_ssd
 
-    from wmr.scenario import load_scenario
-    from wmr.ssp.agreement import deviation, libcosim_path, wmr_run_path
-    from wmr.ssp.export import export_ssp
-    from wmr.ssp.package import read_package
+    from wmr.adapters.ssp.agreement import deviation, libcosim_path, wmr_run_path
+    from wmr.adapters.ssp.export import export_ssp
+    from wmr.adapters.ssp.package import read_package
+    from wmr.config.scenario import load_scenario
 
     spec = next(iter(load_scenario("fig11").runs))
     var_map = load_map(MAP)
@@ -245,8 +245,8 @@ def test_our_robot_renamed_by_fmu_manipulation_toolbox_gives_the_same_path(
     variables), driven through a map, gives our robot's path bit for bit."""
     from fmu_manipulation_toolbox.operations import FMU, OperationRenameFromCSV
 
-    from wmr.closedloop import run_closed_loop
-    from wmr.scenario import load_scenario
+    from wmr.config.scenario import load_scenario
+    from wmr.core.closedloop import run_closed_loop
 
     csv_file = tmp_path / "rename.csv"
     csv_file.write_text("".join(f"{a};{b}\n" for a, b in _RENAMED.items()))

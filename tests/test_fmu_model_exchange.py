@@ -12,7 +12,7 @@ import pytest
 from fmpy import extract, instantiate_fmu, read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
 
-from wmr.fmu.build import BuildResult
+from wmr.build.fmus import BuildResult
 
 # Torque steps fall on communication points (multiples of 0.01 s): Co-Simulation holds each
 # value over a step, Model Exchange sees them as input events, so both integrate the same ODE.

@@ -13,9 +13,9 @@ import casadi as ca
 import pytest
 from fmpy import extract, instantiate_fmu, read_model_description
 
-from wmr import paths
-from wmr.fmu.build import BuildResult
-from wmr.fmu.flatten import FlatModel, flatten
+from wmr.build.flatten import FlatModel, flatten
+from wmr.build.fmus import BuildResult
+from wmr.infra import paths
 
 
 @pytest.fixture(scope="module")

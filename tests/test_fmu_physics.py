@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from wmr.errors import FmuError
-from wmr.fmu.plant import FmuPlant
-from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.infra.errors import FmuError
 
 IDX = {n: i for i, n in enumerate(OUTPUT_NAMES)}
 P = RobotParams()
@@ -86,7 +86,7 @@ def test_x_G_is_l_ahead_of_B(plant: FmuPlant) -> None:
 
 
 def test_fmu_agrees_with_the_reference_implementation(plant: FmuPlant) -> None:
-    from wmr.physics import ReferencePlant
+    from wmr.core.physics import ReferencePlant
 
     rng = np.random.default_rng(7)
     torques = [tuple(x) for x in rng.uniform(-3, 3, size=(400, 2))]

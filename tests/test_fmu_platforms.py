@@ -15,9 +15,8 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from wmr.errors import BuildError
-from wmr.fmu.build import BuildResult, build_digest, build_fmus, summarize
-from wmr.fmu.platforms import (
+from wmr.build.fmus import BuildResult, build_digest, build_fmus, summarize
+from wmr.build.platforms import (
     CFLAGS,
     PLATFORM_BY_NAME,
     PLATFORMS,
@@ -27,6 +26,7 @@ from wmr.fmu.platforms import (
     host_platform,
     zig_compiler,
 )
+from wmr.infra.errors import BuildError
 
 ALL = tuple(p.name for p in PLATFORMS)
 HARNESS = Path(__file__).parent / "data" / "fmu_harness.c"
@@ -77,7 +77,7 @@ def test_fmus_are_readable_by_everyone_and_carry_documentation(built: BuildResul
 
 
 def test_errata_in_the_fmu_documentation_match_docs_model_md() -> None:
-    from wmr.fmu.documentation import ERRATA
+    from wmr.build.documentation import ERRATA
 
     text = (Path(__file__).parents[1] / "docs" / "model.md").read_text()
     table = text.split("## Corrections", 1)[1].split("\n\n", 2)[1]

@@ -13,11 +13,11 @@ from pathlib import Path
 import pytest
 from fmpy import read_model_description
 
-from wmr.errors import BuildError
-from wmr.fmu.build import BuildResult
-from wmr.fmu.codegen import internal_linkage
-from wmr.fmu.plant import FmuPlant
-from wmr.plant import Pose, RobotParams
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.build.codegen import internal_linkage
+from wmr.build.fmus import BuildResult
+from wmr.core.plant import Pose, RobotParams
+from wmr.infra.errors import BuildError
 
 N_STEPS, H, TAU = 100, 0.01, (1.0, 0.8)
 

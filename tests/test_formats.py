@@ -10,14 +10,14 @@ from pathlib import Path
 
 import pytest
 
-from wmr.control.stabiliser import Gains, Limits
-from wmr.fmu.build import BuildResult
-from wmr.fmu.plant import FmuPlant
-from wmr.mcaplog.schemas import STEP_TOPICS, TORQUE_TOPIC
-from wmr.paths import _REPO_ROOT
-from wmr.plant import Pose, RobotParams
-from wmr.run import run_metadata, run_to_log
-from wmr.scenario import RUN_FIELDS, TOP_FIELDS, RunSpec
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.mcap.schemas import STEP_TOPICS, TORQUE_TOPIC
+from wmr.apps.run import run_metadata, run_to_log
+from wmr.build.fmus import BuildResult
+from wmr.config.scenario import RUN_FIELDS, TOP_FIELDS, RunSpec
+from wmr.core.control.stabiliser import Gains, Limits
+from wmr.core.plant import Pose, RobotParams
+from wmr.infra.paths import _REPO_ROOT
 
 DOCS = _REPO_ROOT / "docs"
 UNITS = {"_m": "m", "_rad": "rad", "_mps": "m/s", "_radps": "rad/s", "_nm": "N m", "_J": "J"}

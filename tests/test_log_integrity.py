@@ -18,12 +18,12 @@ from mcap.reader import NonSeekingReader, SeekingReader, make_reader
 from mcap.records import DataEnd
 from mcap.stream_reader import StreamReader
 
+from wmr.adapters.mcap import RunData, RunLogWriter, read_run
+from wmr.adapters.mcap.recover import recover_log
 from wmr.cli import main
-from wmr.durable import partial_path
-from wmr.errors import LogError
-from wmr.mcaplog import RunData, RunLogWriter, read_run
-from wmr.mcaplog.recover import recover_log
-from wmr.signals import SIGNALS
+from wmr.core.signals import SIGNALS
+from wmr.infra.durable import partial_path
+from wmr.infra.errors import LogError
 
 N_SIG = len(SIGNALS)
 STEP_NS = 10_000_000
@@ -174,7 +174,7 @@ def _killed_writer(path: Path) -> None:
     script = textwrap.dedent(f"""
         import os
         import numpy as np
-        from wmr.mcaplog import RunLogWriter
+        from wmr.adapters.mcap import RunLogWriter
         w = RunLogWriter({str(path)!r}, run={{"scenario": "k"}}, goal=(1.0, 2.0, 0.0),
                          attachments={{"s.toml": ("application/toml", b"a = 1")}})
         t = np.arange(350, dtype=np.int64) * {STEP_NS}

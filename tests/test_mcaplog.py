@@ -23,10 +23,8 @@ from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
-from wmr.durable import partial_path
-from wmr.errors import LogError
-from wmr.mcaplog import RunLogWriter, read_run
-from wmr.mcaplog.schemas import (
+from wmr.adapters.mcap import RunLogWriter, read_run
+from wmr.adapters.mcap.schemas import (
     SRC_QW,
     SRC_QZ,
     STEP_TOPICS,
@@ -35,8 +33,10 @@ from wmr.mcaplog.schemas import (
     file_descriptor_set,
     message_class,
 )
-from wmr.mcaplog.writer import LIBRARY
-from wmr.signals import COLUMN, SIGNALS
+from wmr.adapters.mcap.writer import LIBRARY
+from wmr.core.signals import COLUMN, SIGNALS
+from wmr.infra.durable import partial_path
+from wmr.infra.errors import LogError
 
 N_SIG = len(SIGNALS)
 STEP_NS = 10_000_000  # 100 Hz
@@ -370,7 +370,7 @@ def test_killed_writer_leaves_whole_seconds(tmp_path: Path) -> None:
         f"""
         import os
         import numpy as np
-        from wmr.mcaplog import RunLogWriter
+        from wmr.adapters.mcap import RunLogWriter
         w = RunLogWriter({str(path)!r}, run={{"scenario": "k"}}, goal=(1.0, 2.0, 0.0))
         t = np.arange(350, dtype=np.int64) * {STEP_NS}
         x = np.tile(np.arange({N_SIG}, dtype=float), (350, 1)) + t[:, None] * 1e-9

@@ -1,4 +1,4 @@
-"""The CasADi/IPOPT optimal reference (:mod:`wmr.optimal`).
+"""The CasADi/IPOPT optimal reference (:mod:`wmr.adapters.ocp`).
 
 The OCP must run on the Modelica model's own equations: the first tests integrate the flattened
 model (CVODES and the OCP's RK4) and the FMU from the same torques and compare every output.
@@ -18,10 +18,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wmr import optimal
-from wmr.errors import ConfigError
-from wmr.fmu.plant import FmuPlant
-from wmr.optimal import (
+from wmr.adapters import ocp as optimal
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.ocp import (
     OptimalLimits,
     OptimalResult,
     fig9_cases,
@@ -30,11 +29,13 @@ from wmr.optimal import (
     simulate,
     solve_optimal,
 )
-from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.infra.errors import ConfigError
 
 START = Pose(0.0, 0.0, 0.0)
 FIG11_GOAL = Pose(20.0, 10.0, 0.0)
-#: The closed loop's limits (wmr.control.Limits defaults), so that the limited paths are tested.
+#: The closed loop's limits (wmr.core.control.Limits defaults), so that the limited paths are
+#: tested.
 CLOSED_LOOP = {"torque_limit_nm": 8.0, "wheel_speed_limit_radps": 10.0, "speed_limit_mps": 1.0,
                "omega_limit_radps": 1.5}
 P = RobotParams()

@@ -13,19 +13,19 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from wmr.adapters.mcap import OPEN_LOOP_TOPICS, read_run
 from wmr.cli import main
-from wmr.mcaplog import OPEN_LOOP_TOPICS, read_run
-from wmr.scenario import parse_scenario
+from wmr.config.scenario import parse_scenario
 
 
 def test_a_far_goal_fails_fast_in_one_line_naming_the_option(
         capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
-    import wmr.optimal.solve
+    import wmr.adapters.ocp.solve
 
     def never(*_a: object) -> None:
         raise AssertionError("the NLP was built for a goal it cannot resolve (33 s of IPOPT)")
 
-    monkeypatch.setattr(wmr.optimal.solve, "_nlp", never)
+    monkeypatch.setattr(wmr.adapters.ocp.solve, "_nlp", never)
     assert main(["optimal", "--goal", "1000", "500", "0", "--json"]) == 1
     out, err = capfd.readouterr()
     lines = err.strip().splitlines()

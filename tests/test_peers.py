@@ -11,9 +11,11 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from wmr.closedloop import run_closed_loop
-from wmr.control import Gains, Limits
-from wmr.control.peers import (
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.config.scenario import RunSpec, load_scenario, parse_scenario, with_overrides
+from wmr.core.closedloop import run_closed_loop
+from wmr.core.control import Gains, Limits
+from wmr.core.control.peers import (
     AstolfiGains,
     AstolfiStabiliser,
     GracefulGains,
@@ -21,11 +23,9 @@ from wmr.control.peers import (
     PeerController,
     make_controller,
 )
-from wmr.errors import ConfigError
-from wmr.fmu.plant import FmuPlant
-from wmr.plant import Pose, RobotParams
-from wmr.scenario import RunSpec, load_scenario, parse_scenario, with_overrides
-from wmr.signals import COLUMN
+from wmr.core.plant import Pose, RobotParams
+from wmr.core.signals import COLUMN
+from wmr.infra.errors import ConfigError
 
 CASES = {
     "ahead": (Pose(0.0, 0.0, 0.0), Pose(8.0, 2.0, math.radians(20.0))),

@@ -1,4 +1,4 @@
-"""The hand-written physics (wmr.physics): conservation laws, exact solutions, derivation."""
+"""The hand-written physics (wmr.core.physics): conservation laws, exact solutions, derivation."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from wmr.physics import (
+from wmr.core.physics import (
     ReferencePlant,
     derivatives,
     equal_torque_solution,
@@ -19,7 +19,7 @@ from wmr.physics import (
     spin_solution,
     wheel_speeds,
 )
-from wmr.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
 
 P = RobotParams()
 
@@ -142,7 +142,7 @@ def test_eqs_18_to_24_follow_from_the_lagrangian_with_the_nonholonomic_constrain
 
     qd = S(q) eta with eta = (v, omega) encodes rolling without slip and no side slip
     (eq. 10); projecting on S removes the constraint forces.  The accelerations solved from it
-    must equal :func:`wmr.physics.derivatives`.
+    must equal :func:`wmr.core.physics.derivatives`.
     """
     p = replace(P, b_f=0.1, tau_c=0.2, w_c=0.3)
     rng = np.random.default_rng(1)

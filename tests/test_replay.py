@@ -16,12 +16,9 @@ import pytest
 import rerun.chunk as rrc
 from numpy.typing import NDArray
 
-from wmr.cli import main
-from wmr.closedloop import run_closed_loop
-from wmr.errors import LogError
-from wmr.fmu.plant import FmuPlant
-from wmr.mcaplog import read_run
-from wmr.replay import (
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.mcap import read_run
+from wmr.adapters.rerun.replay import (
     PANELS,
     TIMELINE,
     TeeSink,
@@ -31,9 +28,12 @@ from wmr.replay import (
     live_view_sink,
     replay,
 )
-from wmr.run import run_to_log
-from wmr.scenario import RunSpec, load_scenario, with_overrides
-from wmr.signals import SIGNALS
+from wmr.apps.run import run_to_log
+from wmr.cli import main
+from wmr.config.scenario import RunSpec, load_scenario, with_overrides
+from wmr.core.closedloop import run_closed_loop
+from wmr.core.signals import SIGNALS
+from wmr.infra.errors import LogError
 
 
 @dataclass

@@ -10,8 +10,8 @@ import pyarrow as pa
 import pytest
 import rerun.chunk as rrc
 
+from wmr.adapters.rerun.blueprint import signal_mappings
 from wmr.cli import main
-from wmr.rerun_blueprint import signal_mappings
 
 
 def test_the_blueprint_maps_every_field_rerun_loads(tmp_path: Path,

@@ -25,17 +25,17 @@ import pyarrow.parquet as pq
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
-from wmr.batch import load_batch, parse_batch, run_batch
-from wmr.batch.journal import Journal
-from wmr.batch.local import DIED_TWICE
+from wmr.adapters.fmi.robot import FmuPlant, remove_stale_folders
+from wmr.adapters.mcap import read_run
+from wmr.adapters.mcap.recover import recover_log
+from wmr.apps.batch import load_batch, parse_batch, run_batch
+from wmr.apps.batch.journal import Journal
+from wmr.apps.batch.local import DIED_TWICE
 from wmr.cli import main
-from wmr.durable import partial_path, write_all
-from wmr.errors import ConfigError, DiskFullError, FmuError
-from wmr.fmu.plant import FmuPlant, remove_stale_folders
-from wmr.mcaplog import read_run
-from wmr.mcaplog.recover import recover_log
-from wmr.paths import safe_filename, scenarios_dir
-from wmr.scenario import load_scenario
+from wmr.config.scenario import load_scenario
+from wmr.infra.durable import partial_path, write_all
+from wmr.infra.errors import ConfigError, DiskFullError, FmuError
+from wmr.infra.paths import safe_filename, scenarios_dir
 
 # a run of about 12000 steps: long enough to be killed in the middle
 LONG = ["--goal", "300", "300", "0", "--max-time", "120"]
@@ -114,7 +114,7 @@ def test_kill_9_of_wmr_run_many_seeds(tmp_path: Path, fmu3: Path) -> None:
 def test_fmu_folders_of_killed_processes_are_removed(tmp_path: Path, fmu3: Path,
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     tmp = tmp_path / "tmp"
-    code = (f"import os; from wmr.fmu.plant import FmuPlant; FmuPlant({str(fmu3)!r}); "
+    code = (f"import os; from wmr.adapters.fmi.robot import FmuPlant; FmuPlant({str(fmu3)!r}); "
             "os.kill(os.getpid(), 9)")
     subprocess.run([sys.executable, "-c", code], env=_env(tmp), check=False, timeout=60)
     [leaked] = tmp.glob("wmr-fmu-*")  # the killed process could not remove its folder
@@ -208,7 +208,8 @@ def _processes_with(marker: str) -> list[int]:
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and PR_SET_PDEATHSIG")
 def test_workers_die_with_a_killed_batch(tmp_path: Path, fmu3: Path) -> None:
     marker = f"WMR_TEST_{uuid.uuid4().hex}"
-    code = ("import sys; from pathlib import Path; from wmr.batch import load_batch, run_batch; "
+    code = ("import sys; from pathlib import Path; "
+            "from wmr.apps.batch import load_batch, run_batch; "
             f"b = load_batch({str(_spec(tmp_path))!r}); "
             f"run_batch(b, {str(tmp_path / 'o')!r}, workers=2, fmu_path={str(fmu3)!r}, "
             "progress=False, faults={r.run_id: 'hang' for r in b.runs})")

@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.mcap import read_run
+from wmr.apps.run import run_to_log
+from wmr.build.fmus import BuildResult
 from wmr.cli import main
-from wmr.errors import FmuError
-from wmr.fmu.build import BuildResult
-from wmr.fmu.plant import FmuPlant
-from wmr.mcaplog import read_run
-from wmr.plant import Pose, RobotParams
-from wmr.run import run_to_log
-from wmr.scenario import load_scenario
+from wmr.config.scenario import load_scenario
+from wmr.core.plant import Pose, RobotParams
+from wmr.infra.errors import FmuError
 
 RESULT_FIELDS = {"status", "final_position_error_m", "final_heading_error_rad",
                  "time_to_goal_s", "path_length_m", "mcap"}
@@ -168,7 +168,7 @@ def test_a_killed_run_leaves_a_log_readable_up_to_its_last_chunk(tmp_path: Path,
 
 @pytest.mark.parametrize("scenario", ["fig9", "fig10"])
 def test_every_paper_run_converges_on_the_fmu(scenario: str, built: BuildResult) -> None:
-    from wmr.closedloop import run_closed_loop
+    from wmr.core.closedloop import run_closed_loop
 
     failures = []
     with FmuPlant(built.fmus[3]) as plant:
@@ -185,7 +185,7 @@ def test_view_writes_a_live_recording_beside_the_log(tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
     import rerun.chunk as rrc
 
-    from wmr.replay import TIMELINE
+    from wmr.adapters.rerun.replay import TIMELINE
 
     out = tmp_path / "live.mcap"
     code, record = _run_json(capsys, "--view", "--out", str(out))

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from wmr.adapters.mcap import read_run
 from wmr.cli import main
-from wmr.mcaplog import read_run
-from wmr.naming import MAX_NAME_CHARS, fmu_tokens, run_name
-from wmr.scenario import load_scenario, with_overrides
-from wmr.scenario_file import run_spec_toml
+from wmr.config.naming import MAX_NAME_CHARS, fmu_tokens, run_name
+from wmr.config.scenario import load_scenario, with_overrides
+from wmr.config.scenario_file import run_spec_toml
 
 
 def _run_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict[str, object]]:
@@ -93,8 +93,8 @@ def test_the_log_attaches_the_effective_scenario_that_repeats_the_run_bit_for_bi
 def test_the_effective_scenario_reads_back_into_the_same_run_for_every_shipped_run() -> None:
     import tomllib
 
-    from wmr.batch import load_batch
-    from wmr.scenario import parse_scenario
+    from wmr.apps.batch import load_batch
+    from wmr.config.scenario import parse_scenario
 
     specs = [s for name in ("fig9", "fig10", "fig11") for s in load_scenario(name).runs]
     specs += [r.spec for r in load_batch("sensing_fig10").runs[:4]]  # runs with [sensors]

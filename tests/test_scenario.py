@@ -1,4 +1,4 @@
-"""Scenario files (wmr.scenario): loading, expansion, validation naming the field."""
+"""Scenario files (wmr.config.scenario): loading, expansion, validation naming the field."""
 
 from __future__ import annotations
 
@@ -9,9 +9,7 @@ from typing import Any
 
 import pytest
 
-from wmr.errors import ConfigError
-from wmr.plant import Pose
-from wmr.scenario import (
+from wmr.config.scenario import (
     RunSpec,
     expand,
     load_scenario,
@@ -19,6 +17,8 @@ from wmr.scenario import (
     resolve_scenario_path,
     with_overrides,
 )
+from wmr.core.plant import Pose
+from wmr.infra.errors import ConfigError
 
 BASE: dict[str, Any] = {"name": "t", "start": [0.0, 0.0, 0.0], "goal": [20.0, 10.0, 0.0]}
 

@@ -1,4 +1,4 @@
-"""Sensor models, the pose EKF, and the sensing hooks of the master loop (wmr.sensing)."""
+"""Sensor models, the pose EKF, and the sensing hooks of the master loop (wmr.core.sensing)."""
 
 from __future__ import annotations
 
@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from wmr.batch.spec import load_batch, parse_batch
-from wmr.batch.summary import summary_table
-from wmr.closedloop import run_closed_loop
-from wmr.errors import ConfigError
-from wmr.physics import ReferencePlant
-from wmr.plant import Pose, RobotParams
-from wmr.scenario import RunSpec, expand, load_scenario, parse_scenario, with_overrides
-from wmr.sensing import Sensing, SensorConfig, preset
-from wmr.sensing.ekf import PoseEKF
-from wmr.sensing.models import Encoders, Gps, Schedule, generators
+from wmr.apps.batch.spec import load_batch, parse_batch
+from wmr.apps.batch.summary import summary_table
+from wmr.config.scenario import RunSpec, expand, load_scenario, parse_scenario, with_overrides
+from wmr.core.closedloop import run_closed_loop
+from wmr.core.physics import ReferencePlant
+from wmr.core.plant import Pose, RobotParams
+from wmr.core.sensing import Sensing, SensorConfig, preset
+from wmr.core.sensing.ekf import PoseEKF
+from wmr.core.sensing.models import Encoders, Gps, Schedule, generators
+from wmr.infra.errors import ConfigError
 
 H = 0.01
 PARAMS = RobotParams()
@@ -349,7 +349,7 @@ def test_sensors_off_is_bit_identical_and_reports_true_errors() -> None:
     res2 = run_closed_loop(with_overrides(spec, sensors=exact), ReferencePlant(), rec2)
     assert np.array_equal(np.vstack(rec.blocks), np.vstack(rec2.blocks))
     assert res2.final_pose == res.final_pose
-    # the rows as the code before wmr.sensing wrote them (commit 9cba7f7, same machine class)
+    # the rows as the code before wmr.core.sensing wrote them (commit 9cba7f7, same machine class)
     digest = hashlib.sha256(np.vstack(rec.blocks).tobytes()).hexdigest()
     assert digest == "4ab553eef04d6fabd94e6a4f188e76785c81eaca7a300a2e5c09d6d7557278de"
 
@@ -395,9 +395,9 @@ def test_wmr_run_sensors_gps_logs_fixes_and_estimate(tmp_path: Path) -> None:
 
     import rerun.chunk as rrc
 
+    from wmr.adapters.mcap import read_run
+    from wmr.adapters.mcap.sensing import read_sensing
     from wmr.cli import main
-    from wmr.mcaplog import read_run
-    from wmr.sensing.log import read_sensing
 
     out = tmp_path / "gps.mcap"
     buf, err = io.StringIO(), io.StringIO()
@@ -420,7 +420,7 @@ def test_wmr_run_sensors_gps_logs_fixes_and_estimate(tmp_path: Path) -> None:
     assert 0.01 < float(np.std(d)) < 0.04
     from mcap.reader import make_reader
 
-    from wmr.sensing.log import COVARIANCE_TOPIC, PoseCovariance
+    from wmr.adapters.mcap.sensing import COVARIANCE_TOPIC, PoseCovariance
     with open(out, "rb") as f:
         cov = [PoseCovariance.FromString(m.data) for _, _, m in
                make_reader(f).iter_messages(topics=[COVARIANCE_TOPIC])]
@@ -477,7 +477,7 @@ def _fix_errors(spec: RunSpec) -> tuple[np.ndarray, np.ndarray]:
 def test_a_gains_variant_sees_the_noise_of_its_trip_not_of_its_name() -> None:
     """Common random numbers: ``fig11-K_ptheta=17`` (a variant named after its override)
     drives another path through the very same GPS noise as ``fig11``."""
-    from wmr.naming import run_name
+    from wmr.config.naming import run_name
 
     (base,) = expand(load_scenario("fig11"))
     base = with_overrides(replace(base, t_max_s=3.0), sensors=preset("gps"))
@@ -528,7 +528,7 @@ def test_study_epsilon_table_and_figure(tmp_path: Path) -> None:
     """The report's sensing section on a made-up summary: the epsilon needed per sigma."""
     import pyarrow as pa
 
-    from wmr.sensing.study import sensing_section, study
+    from wmr.apps.sensing_study import sensing_section, study
 
     rows = []
     for variant in ("raw", "ekf"):
@@ -562,7 +562,7 @@ def test_study_epsilon_table_and_figure(tmp_path: Path) -> None:
 def test_controller_fmu_acts_on_the_estimate_as_python_does(built: Any) -> None:
     """With sensors, the controller FMU gets the estimate, as the Python controller does: the
     same path (the C controller traces the Python one to 1e-9, docs/fmu.md)."""
-    from wmr.fmu.fmu_controller import FmuController
+    from wmr.adapters.fmi.controller import FmuController
 
     (spec,) = expand(load_scenario("fig11"))
     spec = with_overrides(replace(spec, t_max_s=10.0), sensors=preset("gps"))

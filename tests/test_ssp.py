@@ -16,15 +16,21 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from wmr.adapters.mcap.reader import read_run
+from wmr.adapters.ssp.agreement import (
+    deviation,
+    fmpy_path,
+    libcosim_path,
+    measured_lag,
+    wmr_run_path,
+)
+from wmr.adapters.ssp.cosim import simulate_libcosim
+from wmr.adapters.ssp.export import controller_parameters, export_ssp, robot_parameters
+from wmr.adapters.ssp.package import read_package
+from wmr.build.fmus import BuildResult
 from wmr.cli import main
-from wmr.fmu.build import BuildResult
-from wmr.mcaplog.reader import read_run
-from wmr.scenario import RunSpec, load_scenario
-from wmr.signals import SIGNALS
-from wmr.ssp.agreement import deviation, fmpy_path, libcosim_path, measured_lag, wmr_run_path
-from wmr.ssp.cosim import simulate_libcosim
-from wmr.ssp.export import controller_parameters, export_ssp, robot_parameters
-from wmr.ssp.package import read_package
+from wmr.config.scenario import RunSpec, load_scenario
+from wmr.core.signals import SIGNALS
 
 POSITION_TOL_M = 5e-3
 HEADING_TOL_RAD = math.radians(0.2)

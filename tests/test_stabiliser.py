@@ -1,4 +1,4 @@
-"""The paper's stabiliser (wmr.control.stabiliser): errors, PI, eq. 28, the singular cases."""
+"""The paper's stabiliser (wmr.core.control.stabiliser): errors, PI, eq. 28, the singular cases."""
 
 from __future__ import annotations
 
@@ -8,8 +8,16 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from wmr.control import ALIGN, APPROACH, Gains, Limits, PointStabiliser, unwrap_near, wrap_angle
-from wmr.errors import ConfigError
+from wmr.core.control import (
+    ALIGN,
+    APPROACH,
+    Gains,
+    Limits,
+    PointStabiliser,
+    unwrap_near,
+    wrap_angle,
+)
+from wmr.infra.errors import ConfigError
 
 finite = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False, allow_infinity=False)
 

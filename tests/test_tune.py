@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.apps.tune import PENALTY_S, case_cost, default_cases, evaluate, tune, with_gains
 from wmr.cli import main
-from wmr.closedloop import RunResult
-from wmr.fmu.plant import FmuPlant
-from wmr.plant import Pose
-from wmr.scenario import RunSpec
-from wmr.tune import PENALTY_S, case_cost, default_cases, evaluate, tune, with_gains
+from wmr.config.scenario import RunSpec
+from wmr.core.closedloop import RunResult
+from wmr.core.plant import Pose
 
 SMALL = """
 name = "small"

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from wmr.cli import main
-from wmr.errors import ConfigError
-from wmr.naming import plural
-from wmr.paths import _REPO_ROOT
+from wmr.config.naming import plural
+from wmr.infra.errors import ConfigError
+from wmr.infra.paths import _REPO_ROOT
 
 SHORT = '''name = "short"
 start = [0.0, 0.0, 0.0]
@@ -52,8 +52,8 @@ def test_nonsense_is_refused_with_a_reason_before_any_work(
 
 
 def test_the_sanity_limits_sit_where_the_physics_says() -> None:
-    from wmr.plant import Pose
-    from wmr.scenario import RunSpec
+    from wmr.config.scenario import RunSpec
+    from wmr.core.plant import Pose
 
     RunSpec("a", Pose(0, 0, 0), Pose(10, 0, 0), period_s=0.08)  # K_pw h / J = 1.92
     with pytest.raises(ConfigError, match="control_period_s"):
@@ -70,16 +70,16 @@ def _under_a_file(tmp_path: Path) -> Path:
 
 
 @pytest.mark.parametrize(("args", "option", "heavy"), [
-    (["run", "--out", "{f}/x.mcap"], "--out", "wmr.run.run_to_log"),
-    (["run", "--out", "{d}"], "--out", "wmr.run.run_to_log"),
-    (["optimal", "--out", "{f}/x.mcap"], "--out", "wmr.optimal.solve_optimal"),
-    (["fmu", "build", "--out", "{f}/fmus"], "--out", "wmr.fmu.build.build_fmus"),
-    (["figures", "--out", "{f}/figs"], "--out", "wmr.figures.make_figures"),
-    (["replay", "{d}", "--rrd", "{f}/x.rrd"], "--rrd", "wmr.replay.replay"),
-    (["batch", "fig9", "--out", "{f}/b"], "--out", "wmr.batch.run_batch"),
-    (["benchmark", "--out", "{f}/b"], "--out", "wmr.benchmark.run_benchmark"),
-    (["tune", "--save", "{f}/t.json"], "--save", "wmr.benchmark.run_optimal"),
-    (["tune", "--budget", "0"], "--budget", "wmr.benchmark.run_optimal"),
+    (["run", "--out", "{f}/x.mcap"], "--out", "wmr.apps.run.run_to_log"),
+    (["run", "--out", "{d}"], "--out", "wmr.apps.run.run_to_log"),
+    (["optimal", "--out", "{f}/x.mcap"], "--out", "wmr.adapters.ocp.solve_optimal"),
+    (["fmu", "build", "--out", "{f}/fmus"], "--out", "wmr.build.fmus.build_fmus"),
+    (["figures", "--out", "{f}/figs"], "--out", "wmr.apps.figures.make_figures"),
+    (["replay", "{d}", "--rrd", "{f}/x.rrd"], "--rrd", "wmr.adapters.rerun.replay.replay"),
+    (["batch", "fig9", "--out", "{f}/b"], "--out", "wmr.apps.batch.run_batch"),
+    (["benchmark", "--out", "{f}/b"], "--out", "wmr.apps.benchmark.run_benchmark"),
+    (["tune", "--save", "{f}/t.json"], "--save", "wmr.apps.benchmark.run_optimal"),
+    (["tune", "--budget", "0"], "--budget", "wmr.apps.benchmark.run_optimal"),
 ])
 def test_output_paths_are_checked_before_any_work(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
@@ -164,7 +164,7 @@ def test_scenario_mistakes_are_named(tmp_path: Path, capsys: pytest.CaptureFixtu
 
 
 def test_a_missing_random_seed_is_missing() -> None:
-    from wmr.batch import parse_batch
+    from wmr.apps.batch import parse_batch
 
     with pytest.raises(ConfigError, match=r"random\.seed: missing"):
         parse_batch({"name": "r", "start": [0.0, 0.0, 0.0], "goal": [1.0, 0.0, 0.0],

@@ -8,18 +8,26 @@ The notebook API (``docs/api.md``), loaded on first use so that ``import wmr`` s
     wmr.batch(spec, out, ...)        # many runs; the summary as a DataFrame -> BatchResult
     wmr.optimal(start, goal, ...)    # the optimal manoeuvre, replayed and logged -> RunResult
 
-``wmr.run``, ``wmr.batch`` and ``wmr.optimal`` are also the modules of those names (the
-library's); calling them calls the API function (:mod:`wmr._callable`).
+The package is layered, each layer importing only those below it (``docs/architecture.md``):
+:mod:`wmr.infra` < :mod:`wmr.core` < :mod:`wmr.config` < :mod:`wmr.build` < :mod:`wmr.adapters`
+< :mod:`wmr.apps` < :mod:`wmr.api` and :mod:`wmr.cli`.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ loads wmr.api
+    from wmr.api import BatchResult, Log, RunResult, batch, load_scenario, optimal, read_log, run
+
+__all__ = ["BatchResult", "Log", "RunResult", "__version__", "batch", "load_scenario", "optimal",
+           "read_log", "run"]
+
 __version__ = "0.1.0"
 
 #: Names of the API (wmr.api) that ``import wmr`` offers without importing it.
-_API = ("load_scenario", "read_log", "Log", "RunResult", "BatchResult")
-#: API functions that share their name with a module of the package (made callable).
-_CALLABLE_MODULES = ("run", "batch", "optimal")
+_API = ("load_scenario", "run", "read_log", "batch", "optimal", "Log", "RunResult",
+        "BatchResult")
 
 
 def __getattr__(name: str) -> object:
@@ -27,10 +35,8 @@ def __getattr__(name: str) -> object:
 
     if name in _API:
         return getattr(importlib.import_module("wmr.api"), name)
-    if name in _CALLABLE_MODULES:
-        return importlib.import_module(f"wmr.{name}")
     raise AttributeError(f"module 'wmr' has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted([*globals(), *_API, *_CALLABLE_MODULES])
+    return sorted([*globals(), *_API])

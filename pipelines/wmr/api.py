@@ -26,13 +26,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from wmr.errors import ConfigError
+from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:  # pandas and matplotlib load only when a result is used
     import pandas as pd
     from matplotlib.axes import Axes
 
-    from wmr.scenario import Scenario
+    from wmr.config.scenario import Scenario
 
 PoseLike = Sequence[float]
 #: Columns of :attr:`Log.path` (and :attr:`RunResult.path`).
@@ -63,7 +63,7 @@ class Log:
         The ``.mcap`` file.
     signals
         One row per control step, index ``t_s`` (simulation time, s), a column per signal of
-        :data:`wmr.signals.SIGNALS` (name with unit; NaN where the log has no such topic).
+        :data:`wmr.core.signals.SIGNALS` (name with unit; NaN where the log has no such topic).
     metadata
         ``run`` and ``result`` records, values decoded from JSON.
     attachments
@@ -129,8 +129,8 @@ def read_log(path: str | Path) -> Log:
     """Read a run log (``wmr run``, ``wmr batch``, ``wmr optimal``) into a :class:`Log`."""
     import pandas as pd
 
-    from wmr.mcaplog import read_run
-    from wmr.signals import SIGNALS
+    from wmr.adapters.mcap import read_run
+    from wmr.core.signals import SIGNALS
 
     data = read_run(path)
     frame = pd.DataFrame({name: data.signals[name] for name in SIGNALS},
@@ -197,8 +197,8 @@ class RunResult:
 
 def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
     """A scenario file (``"fig9"``, ``"fig10"``, ``"fig11"`` or a path), validated and
-    expanded (:func:`wmr.scenario.load_scenario`)."""
-    from wmr.scenario import load_scenario as _load
+    expanded (:func:`wmr.config.scenario.load_scenario`)."""
+    from wmr.config.scenario import load_scenario as _load
 
     return _load(name_or_path)
 
@@ -235,11 +235,11 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
     fmi, fmu
         The project's FMI 2 or 3 build, or another FMU file.
     """
-    from wmr.fmu.plant import FmuPlant
-    from wmr.naming import default_log_path, fmu_tokens, run_name, variant_name
-    from wmr.outputs import check_output
-    from wmr.run import default_fmu, run_to_log
-    from wmr.scenario import with_overrides
+    from wmr.adapters.fmi.robot import FmuPlant
+    from wmr.apps.run import default_fmu, run_to_log
+    from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
+    from wmr.config.scenario import with_overrides
+    from wmr.infra.outputs import check_output
 
     sc = load_scenario(scenario)
     runs = [r for r in sc.runs if run is None or r.name == run]
@@ -268,11 +268,11 @@ def optimal(start: PoseLike = (0.0, 0.0, 0.0), goal: PoseLike = (20.0, 10.0, 0.0
             fmi: int = 3, fmu: str | Path | None = None) -> RunResult:
     """The optimal manoeuvre, as ``wmr optimal`` makes it (solved, replayed on the FMU,
     logged); ``start`` and ``goal`` are ``(x_m, y_m, heading_deg)``."""
-    from wmr.naming import default_log_path, fmu_tokens, pose_token, variant_name
-    from wmr.optimal_case import optimal_to_log
-    from wmr.outputs import check_output
-    from wmr.plant import Pose
-    from wmr.run import default_fmu
+    from wmr.apps.optimal import optimal_to_log
+    from wmr.apps.run import default_fmu
+    from wmr.config.naming import default_log_path, fmu_tokens, pose_token, variant_name
+    from wmr.core.plant import Pose
+    from wmr.infra.outputs import check_output
 
     poses: list[Pose] = []
     tokens: list[str] = []
@@ -319,8 +319,8 @@ def batch(spec: str | Path, out: str | Path | None = None, *,
     summary as a DataFrame (``docs/batch.md``)."""
     import pyarrow.parquet as pq
 
-    from wmr.batch import DEFAULT_RUN_TIMEOUT_S, load_batch, run_batch
-    from wmr.outputs import check_output
+    from wmr.apps.batch import DEFAULT_RUN_TIMEOUT_S, load_batch, run_batch
+    from wmr.infra.outputs import check_output
 
     folder = check_output(out if out is not None else Path("batches") / Path(spec).stem, "out",
                           "dir")

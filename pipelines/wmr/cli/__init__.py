@@ -11,14 +11,14 @@ from types import FrameType
 from typing import Any
 
 from wmr import __version__
-from wmr.errors import ConfigError, DiskFullError, WmrError
+from wmr.infra.errors import ConfigError, DiskFullError, WmrError
 
 Handler = Callable[[argparse.Namespace], int]
 
 
 def _cmd_fmu_build(args: argparse.Namespace) -> int:
-    from wmr.fmu.build import build_fmus, summarize
-    from wmr.outputs import check_output
+    from wmr.build.fmus import build_fmus, summarize
+    from wmr.infra.outputs import check_output
 
     if args.out is not None:
         check_output(args.out, "--out", "dir")

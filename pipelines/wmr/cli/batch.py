@@ -12,10 +12,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from wmr.cli.run import add_fmu_choice
-from wmr.errors import ConfigError
+from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
-    from wmr.batch import BatchSpec
+    from wmr.apps.batch import BatchSpec
 
 
 def _default_out(spec: str) -> Path:
@@ -54,11 +54,11 @@ def check_scheduler(address: str, timeout_s: float = 3.0) -> str:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from wmr.batch import load_batch, run_batch
-    from wmr.batch.spec import MAX_RUNS
-    from wmr.fmu.varmap import load_map
-    from wmr.naming import plural
-    from wmr.outputs import check_output
+    from wmr.adapters.fmi.varmap import load_map
+    from wmr.apps.batch import load_batch, run_batch
+    from wmr.apps.batch.spec import MAX_RUNS
+    from wmr.config.naming import plural
+    from wmr.infra.outputs import check_output
 
     max_runs = MAX_RUNS if args.max_runs is None else args.max_runs
     if max_runs < 1:
@@ -108,7 +108,7 @@ def _check_runs(batch: BatchSpec, progress: bool | None) -> int:
     first invalid one) and say how many there are; nothing is run or written."""
     from tqdm import tqdm
 
-    from wmr.naming import plural
+    from wmr.config.naming import plural
 
     n = 0
     for _ in tqdm(batch.runs, desc=f"checking {batch.name}", unit="run", file=sys.stderr,
@@ -119,8 +119,8 @@ def _check_runs(batch: BatchSpec, progress: bool | None) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from wmr.batch.report import write_report
-    from wmr.outputs import check_output
+    from wmr.apps.batch.report import write_report
+    from wmr.infra.outputs import check_output
 
     if args.max_plots < 0:
         raise ConfigError("--max-plots", f"must be >= 0, got {args.max_plots}",

@@ -1,5 +1,5 @@
 """``wmr fmu crosscheck --out DIR``: the FMUs with reference results in the FMI Cross-Check
-layout (see :mod:`wmr.fmu.crosscheck`)."""
+layout (see :mod:`wmr.build.crosscheck`)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from pathlib import Path
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from wmr.fmu.build import build_fmus
-    from wmr.fmu.crosscheck import write_crosscheck
+    from wmr.build.crosscheck import write_crosscheck
+    from wmr.build.fmus import build_fmus
 
     entries = write_crosscheck(build_fmus(args.fmu_dir), Path(args.out))
     # One exported-FMU folder a line on standard output, as `wmr fmu build` prints its FMUs;

@@ -7,7 +7,7 @@ import sys
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    from wmr.mcaplog.recover import recover_log
+    from wmr.adapters.mcap.recover import recover_log
 
     rec = recover_log(args.file, args.out, overwrite=args.force)
     for line in rec.lost:

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from wmr.errors import ConfigError
+from wmr.infra.errors import ConfigError
 
 
 def _fmu_options(p: argparse.ArgumentParser) -> None:
@@ -21,7 +21,7 @@ def _fmu_options(p: argparse.ArgumentParser) -> None:
 
 
 def _fmu_path(args: argparse.Namespace) -> Path:
-    from wmr.run import default_fmu
+    from wmr.apps.run import default_fmu
 
     return Path(args.fmu) if args.fmu else default_fmu(args.fmi)
 
@@ -43,7 +43,7 @@ def _json_line(obj: Any) -> str:
 
 # ---------------------------------------------------------------------------------- optimal
 
-#: Arguments of wmr.optimal.solve_optimal -> the options of wmr optimal that give them.
+#: Arguments of wmr.adapters.ocp.solve_optimal -> the options of wmr optimal that give them.
 _FLAGS = {"final_time_s": "--final-time", "torque_limit_nm": "--torque-limit",
           "goal": "--goal", "start": "--start", "control_period_s": "--period"}
 
@@ -54,15 +54,15 @@ def _as_flag(exc: ConfigError) -> ConfigError:
     if flag is None:
         return exc
     fix = exc.fix.replace("raise n_intervals", "raise n_intervals in the Python API "
-                          "(wmr.optimal.solve_optimal)")
+                          "(wmr.adapters.ocp.solve_optimal)")
     return ConfigError(flag, exc.problem, fix)
 
 
 def _optimal_name(args: argparse.Namespace, default_start: tuple[float, float, float],
                   default_goal: tuple[float, float, float]) -> str:
-    """``optimal-time`` and a token per option that changes the manoeuvre (wmr.naming)."""
-    from wmr.naming import fmu_tokens, pose_token, variant_name
-    from wmr.plant import Pose
+    """``optimal-time`` and a token per option that changes the manoeuvre (wmr.config.naming)."""
+    from wmr.config.naming import fmu_tokens, pose_token, variant_name
+    from wmr.core.plant import Pose
 
     tokens = []
     for label, given, default in (("from", args.start, default_start),
@@ -81,10 +81,10 @@ def _optimal_name(args: argparse.Namespace, default_start: tuple[float, float, f
 
 
 def _cmd_optimal(args: argparse.Namespace) -> int:
-    from wmr.naming import default_log_path
-    from wmr.optimal_case import optimal_to_log
-    from wmr.outputs import check_output
-    from wmr.plant import Pose
+    from wmr.apps.optimal import optimal_to_log
+    from wmr.config.naming import default_log_path
+    from wmr.core.plant import Pose
+    from wmr.infra.outputs import check_output
 
     def pose(v: list[float] | None, default: tuple[float, float, float], name: str) -> Pose:
         x, y, h = default if v is None else v
@@ -129,7 +129,8 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
 
 
 def _cmd_benchmark(args: argparse.Namespace) -> int:
-    from wmr.benchmark import (
+    from wmr.adapters.fmi.robot import FmuPlant
+    from wmr.apps.benchmark import (
         CONTROLLERS,
         DEFAULT_SCENARIOS,
         benchmark_specs,
@@ -138,8 +139,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         run_benchmark,
         write_tables,
     )
-    from wmr.fmu.plant import FmuPlant
-    from wmr.outputs import check_output
+    from wmr.infra.outputs import check_output
 
     out = check_output(args.out if args.out else Path("runs") / "benchmark", "--out", "dir")
     specs = benchmark_specs(args.scenarios or list(DEFAULT_SCENARIOS))
@@ -169,11 +169,11 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:
-    from wmr.benchmark import run_optimal
-    from wmr.fmu.plant import FmuPlant
-    from wmr.outputs import check_output
-    from wmr.scenario import RunSpec, load_scenario
-    from wmr.tune import DEFAULT_BUDGET, default_cases, tune
+    from wmr.adapters.fmi.robot import FmuPlant
+    from wmr.apps.benchmark import run_optimal
+    from wmr.apps.tune import DEFAULT_BUDGET, default_cases, tune
+    from wmr.config.scenario import RunSpec, load_scenario
+    from wmr.infra.outputs import check_output
 
     budget = DEFAULT_BUDGET if args.budget is None else args.budget
     if budget < 1:

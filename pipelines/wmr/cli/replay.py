@@ -12,12 +12,12 @@ def _warn(line: str) -> None:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from wmr.errors import ConfigError
-    from wmr.outputs import check_output
-    from wmr.replay import replay
+    from wmr.adapters.rerun.replay import replay
+    from wmr.infra.errors import ConfigError
+    from wmr.infra.outputs import check_output
 
     if args.blueprint is not None:
-        from wmr.rerun_blueprint import APPLICATION_ID, write_blueprint
+        from wmr.adapters.rerun.blueprint import APPLICATION_ID, write_blueprint
 
         path = write_blueprint(check_output(args.blueprint, "--blueprint", suffix=".rbl"))
         print(path)
@@ -45,9 +45,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_figures(args: argparse.Namespace) -> int:
-    from wmr.errors import ConfigError
-    from wmr.figures import make_figures
-    from wmr.outputs import check_output
+    from wmr.apps.figures import make_figures
+    from wmr.infra.errors import ConfigError
+    from wmr.infra.outputs import check_output
 
     if args.roa_grid < 0 or args.roa_headings < 1:
         raise ConfigError("--roa-grid", "needs N >= 0 and --roa-headings K >= 1",
@@ -68,7 +68,7 @@ def _cmd_figures(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``replay`` and ``figures`` sub-commands."""
-    from wmr.figures import ROA_GRID, ROA_HEADINGS
+    from wmr.apps.figures import ROA_GRID, ROA_HEADINGS
 
     p = sub.add_parser(
         "replay", help="replay run logs in Rerun (a viewer, or an .rrd file)",

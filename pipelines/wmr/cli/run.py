@@ -10,10 +10,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from wmr.errors import ConfigError
+from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
-    from wmr.scenario import RunSpec, Scenario
+    from wmr.config.scenario import RunSpec, Scenario
 
 
 def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
@@ -94,12 +94,12 @@ def select_run(scenario: Scenario, name: str | None) -> RunSpec:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from wmr.fmu.plant import FmuPlant
-    from wmr.fmu.varmap import load_map
-    from wmr.naming import default_log_path, fmu_tokens, run_name, variant_name
-    from wmr.outputs import check_output
-    from wmr.run import default_controller_fmu, default_fmu, result_json, run_to_log
-    from wmr.scenario import load_scenario, with_overrides
+    from wmr.adapters.fmi.robot import FmuPlant
+    from wmr.adapters.fmi.varmap import load_map
+    from wmr.apps.run import default_controller_fmu, default_fmu, result_json, run_to_log
+    from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
+    from wmr.config.scenario import load_scenario, with_overrides
+    from wmr.infra.outputs import check_output
 
     scenario = load_scenario(args.scenario)
     run = select_run(scenario, args.run)
@@ -109,7 +109,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         params=_key_values(args.param, "--param"), period_s=args.period,
         stop_radius_m=args.stop_radius, t_max_s=args.max_time)
     if args.sensors is not None or args.sensor:
-        from wmr.sensing.config import command_line_sensors
+        from wmr.core.sensing.config import command_line_sensors
 
         spec = replace(spec, sensors=command_line_sensors(spec.sensors, args.sensors,
                                                           args.sensor))
@@ -144,13 +144,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     progress, finish = _progress_bar(spec.name, args.json)
     live = None
     if args.view:
-        from wmr.live_view import live_view_sink
+        from wmr.adapters.rerun.live_view import live_view_sink
 
         live = live_view_sink(spec.name, spec.goal, out.with_suffix(".rrd"))
     with FmuPlant(fmu_path, var_map=var_map) as plant, ExitStack() as stack:
         ctrl = None
         if ctrl_path is not None:
-            from wmr.fmu.fmu_controller import FmuController
+            from wmr.adapters.fmi.controller import FmuController
 
             ctrl = stack.enter_context(FmuController(ctrl_path))
         try:

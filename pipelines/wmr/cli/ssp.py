@@ -6,17 +6,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wmr.errors import ConfigError
-from wmr.paths import safe_filename
+from wmr.infra.errors import ConfigError
+from wmr.infra.paths import safe_filename
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
+    from wmr.adapters.fmi.varmap import load_map
+    from wmr.adapters.ssp.export import export_ssp
+    from wmr.build.fmus import build_fmus
     from wmr.cli.run import select_run
-    from wmr.fmu.build import build_fmus
-    from wmr.fmu.varmap import load_map
-    from wmr.outputs import check_output
-    from wmr.scenario import load_scenario, with_overrides
-    from wmr.ssp.export import export_ssp
+    from wmr.config.scenario import load_scenario, with_overrides
+    from wmr.infra.outputs import check_output
 
     scenario = load_scenario(args.scenario)
     spec = with_overrides(select_run(scenario, args.run), start=args.start, goal=args.goal)
@@ -36,11 +36,11 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from wmr.adapters.ssp.cosim import log_ssp_run, simulate_libcosim
+    from wmr.apps.run import result_json
     from wmr.cli.run import result_summary
-    from wmr.naming import default_log_path
-    from wmr.outputs import check_output
-    from wmr.run import result_json
-    from wmr.ssp.cosim import log_ssp_run, simulate_libcosim
+    from wmr.config.naming import default_log_path
+    from wmr.infra.outputs import check_output
 
     ssp = Path(args.ssp)
     out = check_output(args.out if args.out else default_log_path(ssp.stem), "--out",

@@ -1,0 +1,200 @@
+"""Rewrite a killed or damaged log as a finished, indexed MCAP file (``wmr log recover``).
+
+A run killed before its log was finished leaves ``NAME.mcap.partial``: records up to its last
+flushed chunk, no summary, no footer.  Our reader reads such a file, but other MCAP tools (the
+``mcap`` library's seeking reader, Foxglove, Rerun) need the summary and the footer.  Recovery
+reads every record that passes its checks (:func:`wmr.adapters.mcap.reader.scan_file`: chunk,
+attachment, data section and summary CRCs) and writes them again with
+:class:`wmr.adapters.mcap.writer.McapFile`: Schema, Channel, Metadata and Attachment records, each
+intact chunk's Message records byte for byte (channel ids renumbered if needed), then the
+summary.  A ``recovery`` Metadata record says what was read and what was lost.  The output is
+written like every log (``.partial``, fsync, rename): recovery never damages a file either.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+
+from wmr.adapters.mcap.reader import scan_file
+from wmr.adapters.mcap.writer import McapFile
+from wmr.infra.durable import PARTIAL_SUFFIX, AtomicFile, partial_path
+from wmr.infra.errors import LogError
+
+#: Name of the Metadata record that a recovered log carries.
+RECOVERY_RECORD: Final = "recovery"
+_MESSAGE: Final = 0x05
+_HEAD = struct.Struct("<BQ")
+_MSG = struct.Struct("<HIQ")
+
+
+@dataclass
+class Recovery:
+    """What :func:`recover_log` did.
+
+    Attributes
+    ----------
+    source, output
+        The file read and the file written.
+    messages
+        Messages written.
+    chunks
+        Chunks written.
+    dropped_messages
+        Messages left out because their channel or schema was lost.
+    lost
+        What could not be kept, one line each (the reader's warnings and the drops).
+    """
+
+    source: Path
+    output: Path
+    messages: int = 0
+    chunks: int = 0
+    dropped_messages: int = 0
+    lost: list[str] = field(default_factory=list)
+
+
+def default_output(source: str | os.PathLike[str]) -> Path:
+    """``X.mcap`` and ``X.mcap.partial`` recover to ``X.recovered.mcap``."""
+    name = Path(source).name
+    if name.endswith(PARTIAL_SUFFIX):
+        name = name[: -len(PARTIAL_SUFFIX)]
+    stem = name[: -len(".mcap")] if name.endswith(".mcap") else name
+    return Path(source).with_name(f"{stem}.recovered.mcap")
+
+
+def _messages(buf: bytes) -> list[tuple[int, int, bytes]]:
+    """``(channel id, log time, whole record)`` of the Message records of a checked chunk."""
+    out: list[tuple[int, int, bytes]] = []
+    pos, end = 0, len(buf)
+    while pos < end:
+        opcode, length = _HEAD.unpack_from(buf, pos)
+        nxt = pos + 9 + length
+        if opcode == _MESSAGE:
+            cid, _, log_time = _MSG.unpack_from(buf, pos + 9)
+            out.append((cid, log_time, buf[pos:nxt]))
+        pos = nxt
+    return out
+
+
+def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] | None = None,
+                *, overwrite: bool = False) -> Recovery:
+    """Write what is intact in ``source`` as a finished MCAP log at ``output``.
+
+    Parameters
+    ----------
+    source
+        A log, finished or not, damaged or not (``X.mcap``, ``X.mcap.partial``).
+    output
+        Where to write (default :func:`default_output`); never ``source`` itself.
+    overwrite
+        Replace ``output`` if it exists.
+
+    Returns
+    -------
+    Recovery
+        Counts and what was lost.
+
+    Raises
+    ------
+    LogError
+        ``source`` is not an MCAP file, ``output`` exists (without ``overwrite``) or is the
+        source, or cannot be written.
+    """
+    src = Path(source)
+    dst = Path(output) if output is not None else default_output(src)
+    if dst.exists() and src.exists() and os.path.samefile(src, dst):
+        raise LogError(f"{dst}: the recovered log cannot replace its source; give another "
+                       "output file")
+    if dst.exists() and not overwrite:
+        raise LogError(f"{dst}: exists; give another output file or allow overwriting "
+                       "(--force)")
+    if src.exists() and partial_path(dst).exists() and os.path.samefile(src, partial_path(dst)):
+        # X.mcap.partial -> X.mcap: the writer of X.mcap would empty its own source first;
+        # the source is kept, renamed
+        aside = src.with_name(src.name + ".recovering")
+        os.replace(src, aside)
+        src = aside
+    scan = scan_file(str(src))
+    rec = Recovery(source=src, output=dst, lost=list(scan.warnings))
+    if "result" not in scan.metadata:
+        rec.lost.append("no 'result' metadata record: the run did not finish")
+
+    file = McapFile(AtomicFile(dst, "log"))
+    try:
+        schema_ids = {0: 0}
+        for old in sorted(scan.schemas):
+            s = scan.schemas[old]
+            schema_ids[old] = file.add_schema(s.name, s.data, s.encoding)
+        channel_ids: dict[int, int] = {}
+        for old in sorted(scan.channels):
+            c = scan.channels[old]
+            if c.schema_id not in schema_ids:
+                rec.lost.append(f"channel {c.topic!r}: its schema {c.schema_id} is lost; "
+                                "its messages are left out")
+                continue
+            channel_ids[old] = file.add_channel(c.topic, schema_ids[c.schema_id],
+                                                c.message_encoding, c.metadata)
+        for name, data in scan.metadata.items():
+            file.add_metadata(name, data)
+        for name, blob in scan.attachments.items():
+            file.add_attachment(name, scan.media_types[name], blob)
+
+        loose = [(m.channel_id, m.log_time, _loose_record(m)) for m in scan.loose]
+        for messages in [*map(_messages, scan.chunks), loose]:
+            kept = [(channel_ids[c], t, r) for c, t, r in messages if c in channel_ids]
+            rec.dropped_messages += len(messages) - len(kept)
+            if kept:
+                _write_chunk(file, kept)
+                rec.chunks += 1
+                rec.messages += len(kept)
+        if rec.dropped_messages:
+            rec.lost.append(f"{rec.dropped_messages} messages of lost channels left out")
+        file.add_metadata(RECOVERY_RECORD, {
+            "source": src.name,
+            "source_bytes": str(src.stat().st_size),
+            "source_finished": json.dumps(scan.complete and not scan.damaged),
+            "messages": str(rec.messages),
+            "chunks": str(rec.chunks),
+            "lost": json.dumps(rec.lost),
+        })
+        file.finish()
+    except BaseException:
+        file.abort()
+        raise
+    return rec
+
+
+def _loose_record(message: object) -> bytes:
+    from mcap.data_stream import RecordBuilder
+
+    rb = RecordBuilder()
+    message.write(rb)  # type: ignore[attr-defined]
+    return bytes(rb.end())
+
+
+def _write_chunk(file: McapFile, messages: list[tuple[int, int, bytes]]) -> None:
+    """One chunk of whole Message records, sorted by log time, with their indexes."""
+    messages.sort(key=lambda m: m[1])  # stable: keeps the order of equal times
+    parts: list[bytes] = []
+    index: dict[int, tuple[list[int], list[int]]] = {}
+    pos = 0
+    for cid, log_time, record in messages:
+        if record[9:11] != struct.pack("<H", cid):  # renumbered channel
+            record = record[:9] + struct.pack("<H", cid) + record[11:]
+        times, offsets = index.setdefault(cid, ([], []))
+        times.append(log_time)
+        offsets.append(pos)
+        parts.append(record)
+        pos += len(record)
+    file.add_chunk(b"".join(parts), {cid: (np.array(t, np.int64), np.array(o, np.int64))
+                                     for cid, (t, o) in index.items()})
+
+
+__all__ = ["RECOVERY_RECORD", "Recovery", "default_output", "recover_log"]

@@ -1,0 +1,200 @@
+"""The sensing topics of a run log, and their replay.
+
+Only runs with sensors have them:
+
+===================================== ======================== =================================
+topic                                 schema                   content
+===================================== ======================== =================================
+``/sensors/gps``                      ``foxglove.PoseInFrame`` each position fix: log time = its
+                                                               arrival, ``timestamp`` = its
+                                                               measurement time, identity
+                                                               orientation (a fix has none)
+``/robot/pose_estimate``              ``foxglove.PoseInFrame`` what the stabiliser was given,
+                                                               every control step
+``/robot/pose_estimate/covariance``   ``wmr.PoseCovariance``   the EKF's ``xx_m2``, ``xy_m2``,
+                                                               ``yy_m2``, ``theta_theta_rad2``
+                                                               (estimator ``ekf`` only)
+===================================== ======================== =================================
+
+Foxglove's schemas (``foxglove-schemas-protobuf`` 0.4) have no pose with covariance (only the
+geodetic ``LocationFix`` carries one), hence the covariance on a topic of its own.  The true
+pose stays on ``/robot/pose``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Any, Final, Protocol
+
+import numpy as np
+import numpy.typing as npt
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
+
+from wmr.adapters.mcap.schemas import WORLD_FRAME, file_descriptor_set
+from wmr.core.sensing.estimator import SensingRecord
+
+GPS_TOPIC: Final = "/sensors/gps"
+ESTIMATE_TOPIC: Final = "/robot/pose_estimate"
+COVARIANCE_TOPIC: Final = "/robot/pose_estimate/covariance"
+POSE_SCHEMA: Final = "foxglove.PoseInFrame"
+COVARIANCE_SCHEMA: Final = "wmr.PoseCovariance"
+COVARIANCE_FIELDS: Final = ("xx_m2", "xy_m2", "yy_m2", "theta_theta_rad2")
+
+
+def _covariance_file() -> descriptor_pb2.FileDescriptorProto:
+    fdt = descriptor_pb2.FieldDescriptorProto
+    fdp = descriptor_pb2.FileDescriptorProto(
+        name="wmr/sensing.proto", package="wmr", syntax="proto3",
+        dependency=["google/protobuf/timestamp.proto"])
+    msg = fdp.message_type.add(name=COVARIANCE_SCHEMA.split(".", 1)[1])
+    msg.field.add(name="timestamp", number=1, type=fdt.TYPE_MESSAGE, label=fdt.LABEL_OPTIONAL,
+                  type_name=".google.protobuf.Timestamp")
+    for i, name in enumerate(COVARIANCE_FIELDS):
+        msg.field.add(name=name, number=i + 2, type=fdt.TYPE_DOUBLE, label=fdt.LABEL_OPTIONAL)
+    return fdp
+
+
+_POOL: Final = descriptor_pool.DescriptorPool()
+_POOL.AddSerializedFile(timestamp_pb2.DESCRIPTOR.serialized_pb)
+_POOL.Add(_covariance_file())
+PoseCovariance: Any = message_factory.GetMessageClass(
+    _POOL.FindMessageTypeByName(COVARIANCE_SCHEMA))
+
+
+def _covariance_schema() -> bytes:
+    fds = descriptor_pb2.FileDescriptorSet()
+    timestamp_pb2.DESCRIPTOR.CopyToProto(fds.file.add())
+    fds.file.add().CopyFrom(_covariance_file())
+    return fds.SerializeToString(deterministic=True)
+
+
+def _pose_bytes(t_ns: int, x: float, y: float, theta: float | None) -> bytes:
+    msg = PoseInFrame(frame_id=WORLD_FRAME)
+    msg.timestamp.FromNanoseconds(t_ns)
+    msg.pose.position.x = x
+    msg.pose.position.y = y
+    if theta is None:
+        msg.pose.orientation.w = 1.0
+    else:
+        msg.pose.orientation.z = math.sin(0.5 * theta)
+        msg.pose.orientation.w = math.cos(0.5 * theta)
+    return msg.SerializeToString()
+
+
+class MessageLog(Protocol):
+    """What :func:`write_sensing` needs of a log writer
+    (:class:`wmr.adapters.mcap.RunLogWriter`)."""
+
+    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                       t_ns: npt.ArrayLike, messages: list[bytes]) -> None:
+        """Log serialised messages on a topic of their own."""
+        ...
+
+
+def write_sensing(log: MessageLog, rec: SensingRecord) -> None:
+    """Write the fixes and estimates of ``rec`` to ``log`` (a :class:`RunLogWriter`)."""
+    pose_schema = file_descriptor_set(POSE_SCHEMA)
+    log.write_messages(GPS_TOPIC, POSE_SCHEMA, pose_schema, rec.gps_arrival_ns,
+                       [_pose_bytes(int(t), float(x), float(y), None)
+                        for t, (x, y) in zip(rec.gps_t_ns, rec.gps_xy_m, strict=True)])
+    log.write_messages(ESTIMATE_TOPIC, POSE_SCHEMA, pose_schema, rec.est_t_ns,
+                       [_pose_bytes(int(t), float(p[0]), float(p[1]), float(p[2]))
+                        for t, p in zip(rec.est_t_ns, rec.est_pose, strict=True)])
+    if len(rec.est_cov) and np.isfinite(rec.est_cov).all():
+        msgs = []
+        for t, c in zip(rec.est_t_ns.tolist(), rec.est_cov.tolist(), strict=True):
+            m = PoseCovariance(**dict(zip(COVARIANCE_FIELDS, c, strict=True)))
+            m.timestamp.FromNanoseconds(t)
+            msgs.append(m.SerializeToString())
+        log.write_messages(COVARIANCE_TOPIC, COVARIANCE_SCHEMA, _covariance_schema(),
+                           rec.est_t_ns, msgs)
+
+
+@dataclass(frozen=True)
+class SensingTrace:
+    """The sensing topics of a log, as read back.
+
+    Attributes
+    ----------
+    gps_t_ns, gps_xy_m
+        Measurement time (ns) and position (m) of each fix, ``(k,)`` and ``(k, 2)``.
+    est_t_ns, est_pose
+        Time (ns) and ``(x_m, y_m, theta_rad)`` of each estimate.
+    """
+
+    gps_t_ns: npt.NDArray[np.int64]
+    gps_xy_m: npt.NDArray[np.float64]
+    est_t_ns: npt.NDArray[np.int64]
+    est_pose: npt.NDArray[np.float64]
+
+
+def read_sensing(path: str | os.PathLike[str]) -> SensingTrace | None:
+    """The sensing topics of the log at ``path``; ``None`` when it has none."""
+    from mcap.reader import make_reader
+
+    gps: list[tuple[int, float, float]] = []
+    est: list[tuple[int, float, float, float]] = []
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        for _schema, channel, message in reader.iter_messages(
+                topics=[GPS_TOPIC, ESTIMATE_TOPIC]):
+            msg = PoseInFrame.FromString(message.data)
+            t = msg.timestamp.ToNanoseconds()
+            p = msg.pose
+            if channel.topic == GPS_TOPIC:
+                gps.append((t, p.position.x, p.position.y))
+            else:
+                theta = 2.0 * math.atan2(p.orientation.z, p.orientation.w)
+                est.append((t, p.position.x, p.position.y, theta))
+    if not gps and not est:
+        return None
+    g = np.array(gps, dtype=np.float64).reshape(-1, 3)
+    e = np.array(est, dtype=np.float64).reshape(-1, 4)
+    return SensingTrace(gps_t_ns=np.array([r[0] for r in gps], np.int64), gps_xy_m=g[:, 1:3],
+                        est_t_ns=np.array([r[0] for r in est], np.int64),
+                        est_pose=e[:, 1:4])
+
+
+def replay_sensing(rec: Any, root: str, path: str | os.PathLike[str],
+                   color: tuple[int, int, int]) -> bool:
+    """Draw a log's fixes and estimated path next to its true path in Rerun.
+
+    Parameters
+    ----------
+    rec
+        The ``rerun.RecordingStream``.
+    root
+        The run's entity (``runs/<run>``, :func:`wmr.adapters.rerun.replay.run_entity`).
+    path
+        The log.
+    color
+        The run's colour: the estimate is drawn in a darker shade, the fixes as points.
+
+    Returns
+    -------
+    bool
+        Whether the log had sensing topics.
+    """
+    import rerun as rr
+
+    trace = read_sensing(path)
+    if trace is None:
+        return False
+    dark = tuple(int(0.55 * c) for c in color)
+    world = f"{root}/world"
+    if len(trace.gps_xy_m):
+        rec.log(f"{world}/gps", rr.Points2D(trace.gps_xy_m, colors=[dark], radii=[0.04],
+                                            labels=["GPS fixes"], show_labels=False),
+                static=True)
+    if len(trace.est_pose):
+        rec.log(f"{world}/estimate",
+                rr.LineStrips2D([trace.est_pose[:, :2]], colors=[dark], radii=[0.015],
+                                labels=["estimate"], show_labels=False), static=True)
+    return True
+
+
+__all__ = ["COVARIANCE_TOPIC", "ESTIMATE_TOPIC", "GPS_TOPIC", "PoseCovariance", "SensingTrace",
+           "read_sensing", "replay_sensing", "write_sensing"]

@@ -1,0 +1,623 @@
+"""Write the MCAP log of a closed-loop run, fast and reproducibly.
+
+The MCAP container is written here rather than through :class:`mcap.writer.Writer`, whose
+``add_message`` costs about 7 us per message in pure Python (45 us per control step for six
+topics).  Records other than messages are serialised with :mod:`mcap.records`, so they follow
+the library's encoding; the Message records of a chunk, and their Message Index records, are
+built vectorised by :class:`wmr.adapters.mcap.schemas.RowEncoder` and numpy.
+
+Layout of a file: magic, Header, Schema and Channel records, the ``run`` Metadata record, the
+Attachments, a chunk holding the ``/goal`` message, then one chunk per second of simulation
+time (each followed by its Message Index records and flushed to the OS, so a killed run loses at
+most the chunk in progress), the ``result`` Metadata record, Data End, the summary (schemas,
+channels, statistics, chunk, attachment and metadata indexes, summary offsets), Footer, magic.
+Nothing in the file depends on the wall clock or on the host: the same inputs give the same
+bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import zlib
+from collections.abc import Mapping
+from importlib.metadata import PackageNotFoundError, version
+from types import TracebackType
+from typing import Any, Final, Literal, Protocol
+
+import numpy as np
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    Message,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+from numpy.typing import ArrayLike, NDArray
+
+import wmr
+from wmr.adapters.mcap.schemas import (
+    GOAL_SCHEMA,
+    GOAL_TOPIC,
+    STEP_TOPICS,
+    WORLD_FRAME,
+    RowEncoder,
+    TopicLayout,
+    file_descriptor_set,
+    message_class,
+)
+from wmr.core.signals import SIGNALS
+from wmr.infra.durable import AtomicFile
+from wmr.infra.errors import LogError
+
+_OP_MESSAGE: Final = int(Opcode.MESSAGE)
+MAGIC: Final = bytes([137, 77, 67, 65, 80, 48, 13, 10])
+Compression = Literal["zstd", "lz4", ""]
+
+try:
+    _MCAP_VERSION = version("mcap")
+except PackageNotFoundError:  # pragma: no cover - installed from source
+    _MCAP_VERSION = "unknown"
+#: Header ``library`` field: software versions only, no host, no time.
+LIBRARY: Final = f"wmr-cosim/{wmr.__version__} mcap-python/{_MCAP_VERSION}"
+
+
+def _compressor(kind: Compression) -> Any:
+    if kind == "zstd":
+        import zstandard
+
+        return zstandard.ZstdCompressor(level=1).compress
+    if kind == "lz4":
+        import lz4.frame
+
+        return lz4.frame.compress
+    if kind == "":
+        return None
+    raise LogError(f"unknown MCAP chunk compression {kind!r} (use 'zstd', 'lz4' or '')")
+
+
+class Sink(Protocol):
+    """What :class:`McapFile` writes to: a binary file, or a
+    :class:`wmr.infra.durable.AtomicFile`."""
+
+    def write(self, data: bytes, /) -> object: ...
+    def flush(self) -> None: ...
+    def close(self) -> None: ...
+
+
+class McapFile:
+    """Minimal chunked MCAP writer with a vectorised message path.
+
+    Parameters
+    ----------
+    stream
+        Binary stream opened for writing, positioned at 0; closed by :meth:`finish`.
+    compression
+        Chunk compression: ``"zstd"`` (default, level 1), ``"lz4"`` or ``""``.  On the Fig. 11
+        log zstd-1 takes 393 bytes per control step against lz4's 468 (16 % smaller) for
+        1.6 us of compression per step against 0.8 us; level 3 saves 1.5 % more for 10 us.
+    library
+        Header ``library`` field.
+    """
+
+    def __init__(
+        self, stream: Sink, compression: Compression = "zstd", library: str = LIBRARY
+    ) -> None:
+        self._stream = stream
+        self._compression = compression
+        self._compress = _compressor(compression)
+        self._rb = RecordBuilder()
+        self._pos = 0
+        self._schemas: list[Schema] = []
+        self._channels: list[Channel] = []
+        self._chunk_indexes: list[ChunkIndex] = []
+        self._attachment_indexes: list[AttachmentIndex] = []
+        self._metadata_indexes: list[MetadataIndex] = []
+        self._counts: dict[int, int] = {}
+        self._n_messages = 0
+        self._t_first = 0
+        self._t_last = 0
+        self._crc = 0  # of the data section: every byte before Data End, magic included
+        self._write(MAGIC)
+        Header(profile="", library=library).write(self._rb)
+        self._flush_records()
+
+    def _write(self, data: bytes) -> None:
+        self._stream.write(data)
+        self._pos += len(data)
+        self._crc = zlib.crc32(data, self._crc)
+
+    def _flush_records(self) -> int:
+        """Write the records built so far; return their length."""
+        data = self._rb.end()
+        self._write(data)
+        return len(data)
+
+    def add_schema(self, name: str, data: bytes, encoding: str = "protobuf") -> int:
+        """Write a Schema record (protobuf by default); return its id (1, 2, ...)."""
+        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
+        self._schemas.append(schema)
+        schema.write(self._rb)
+        self._flush_records()
+        return schema.id
+
+    def add_channel(self, topic: str, schema_id: int, message_encoding: str = "protobuf",
+                    metadata: Mapping[str, str] | None = None) -> int:
+        """Write a Channel record (protobuf by default); return its id (1, 2, ...)."""
+        channel = Channel(
+            id=len(self._channels) + 1,
+            topic=topic,
+            message_encoding=message_encoding,
+            schema_id=schema_id,
+            metadata=dict(metadata or {}),
+        )
+        self._channels.append(channel)
+        self._counts[channel.id] = 0
+        channel.write(self._rb)
+        self._flush_records()
+        return channel.id
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """Write a Metadata record (and remember its index)."""
+        offset = self._pos
+        Metadata(name=name, metadata=data).write(self._rb)
+        length = self._flush_records()
+        self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
+
+    def add_attachment(self, name: str, media_type: str, data: bytes) -> None:
+        """Write an Attachment record, log and create time 0."""
+        offset = self._pos
+        Attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data).write(
+            self._rb
+        )
+        length = self._flush_records()
+        self._attachment_indexes.append(
+            AttachmentIndex(
+                offset=offset,
+                length=length,
+                log_time=0,
+                create_time=0,
+                data_size=len(data),
+                name=name,
+                media_type=media_type,
+            )
+        )
+
+    def add_chunk(
+        self,
+        records: bytes,
+        index: Mapping[int, tuple[NDArray[np.int64], NDArray[np.int64]]],
+    ) -> None:
+        """Write a chunk of already serialised Message records, then its Message Indexes.
+
+        Parameters
+        ----------
+        records
+            Concatenated Message records, in log-time order.
+        index
+            Channel id -> (log times in ns, byte offsets of the records in ``records``).
+        """
+        n = sum(len(t) for t, _ in index.values())
+        if n == 0:
+            return
+        t_first = min(int(t[0]) for t, _ in index.values() if len(t))
+        t_last = max(int(t[-1]) for t, _ in index.values() if len(t))
+        data = records if self._compress is None else self._compress(records)
+        chunk_start = self._pos
+        Chunk(
+            compression=self._compression,
+            data=data,
+            message_start_time=t_first,
+            message_end_time=t_last,
+            uncompressed_crc=zlib.crc32(records),
+            uncompressed_size=len(records),
+        ).write(self._rb)
+        chunk_length = self._flush_records()
+        offsets: dict[int, int] = {}
+        parts: list[bytes] = []
+        index_start = self._pos
+        pos = index_start
+        for cid, (times, rec_offsets) in index.items():
+            m = len(times)
+            if m == 0:
+                continue
+            entries = np.empty((m, 2), "<u8")
+            entries[:, 0] = times
+            entries[:, 1] = rec_offsets
+            body = entries.tobytes()
+            head = struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 6 + len(body), cid, len(body))
+            offsets[cid] = pos
+            parts += [head, body]
+            pos += len(head) + len(body)
+            self._counts[cid] += m
+        self._write(b"".join(parts))
+        self._chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=t_first,
+                message_end_time=t_last,
+                chunk_start_offset=chunk_start,
+                chunk_length=chunk_length,
+                message_index_offsets=offsets,
+                message_index_length=pos - index_start,
+                compression=self._compression,
+                compressed_size=len(data),
+                uncompressed_size=len(records),
+            )
+        )
+        if self._n_messages == 0:
+            self._t_first = t_first
+        self._t_first = min(self._t_first, t_first)
+        self._t_last = max(self._t_last, t_last)
+        self._n_messages += n
+        self._stream.flush()
+
+    def abort(self) -> None:
+        """Close the stream without a summary (the file stays readable up to its last chunk)."""
+        self._stream.close()
+
+    def finish(self) -> None:
+        """Write Data End, the summary section and the Footer; close the stream.
+
+        A stream with a ``commit`` method (:class:`wmr.infra.durable.AtomicFile`) is committed
+        instead of closed: the finished file then replaces the one at its final path.
+        """
+        DataEnd(data_section_crc=self._crc).write(self._rb)
+        self._flush_records()
+        summary_start = self._pos
+        rb = RecordBuilder()
+        offsets: list[SummaryOffset] = []
+
+        def group(opcode: Opcode, records: list[Any]) -> None:
+            if not records:
+                return
+            start = rb.count
+            for r in records:
+                r.write(rb)
+            offsets.append(SummaryOffset(opcode, summary_start + start, rb.count - start))
+
+        group(Opcode.SCHEMA, self._schemas)
+        group(Opcode.CHANNEL, self._channels)
+        group(
+            Opcode.STATISTICS,
+            [
+                Statistics(
+                    message_count=self._n_messages,
+                    schema_count=len(self._schemas),
+                    channel_count=len(self._channels),
+                    attachment_count=len(self._attachment_indexes),
+                    metadata_count=len(self._metadata_indexes),
+                    chunk_count=len(self._chunk_indexes),
+                    message_start_time=self._t_first,
+                    message_end_time=self._t_last,
+                    channel_message_counts=dict(self._counts),
+                )
+            ],
+        )
+        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.ATTACHMENT_INDEX, self._attachment_indexes)
+        group(Opcode.METADATA_INDEX, self._metadata_indexes)
+        summary_offset_start = summary_start + rb.count
+        for off in offsets:
+            off.write(rb)
+        summary = rb.end()
+        crc = zlib.crc32(summary)
+        crc = zlib.crc32(
+            struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc
+        )
+        self._write(summary)
+        Footer(
+            summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc
+        ).write(self._rb)
+        self._flush_records()
+        self._write(MAGIC)
+        commit = getattr(self._stream, "commit", None)
+        if commit is not None:
+            commit()
+        else:
+            self._stream.close()
+
+
+def _as_str(value: object) -> str:
+    """Metadata values are strings: keep strings, JSON-encode anything else."""
+    if isinstance(value, str):
+        return value
+    try:
+        return json.dumps(value, sort_keys=True, allow_nan=True)
+    except (TypeError, ValueError) as exc:
+        raise LogError(f"metadata value {value!r} is not JSON-serialisable: {exc}") from exc
+
+
+def _str_dict(name: str, data: Mapping[str, object]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for key, value in data.items():
+        if not isinstance(key, str):
+            raise LogError(f"metadata record {name!r}: key {key!r} is not a string")
+        out[key] = _as_str(value)
+    return out
+
+
+def yaw_quaternion(theta_rad: float) -> tuple[float, float, float, float]:
+    """Unit quaternion ``(x, y, z, w)`` of a rotation by ``theta_rad`` about z."""
+    return (0.0, 0.0, math.sin(0.5 * theta_rad), math.cos(0.5 * theta_rad))
+
+
+def goal_message(x_m: float, y_m: float, theta_rad: float, t_ns: int = 0) -> bytes:
+    """The ``/goal`` message: ``foxglove.PoseInFrame`` in frame ``world``.
+
+    Parameters
+    ----------
+    x_m, y_m
+        Goal position in the world frame, m.
+    theta_rad
+        Desired heading, rad.
+    t_ns
+        Timestamp, ns from run start.
+    """
+    msg = message_class(GOAL_SCHEMA)(frame_id=WORLD_FRAME)
+    msg.timestamp.seconds, msg.timestamp.nanos = divmod(t_ns, 1_000_000_000)
+    msg.pose.position.x = x_m
+    msg.pose.position.y = y_m
+    qx, qy, qz, qw = yaw_quaternion(theta_rad)
+    q = msg.pose.orientation
+    q.x, q.y, q.z, q.w = qx, qy, qz, qw
+    return bytes(msg.SerializeToString(deterministic=True))
+
+
+class RunLogWriter:
+    """The MCAP log of one closed-loop run; a context manager.
+
+    Topics, schemas and layout are described in :mod:`wmr.adapters.mcap`.  Rows given to
+    :meth:`write_block` are buffered and written as one chunk per ``chunk_period_ns`` of
+    simulation time (chunk boundaries at multiples of the period, so the bytes do not depend on
+    how the caller batches rows).  Leaving the ``with`` block by an exception writes a
+    ``result`` record with status ``failed`` and the error, and finishes the file.
+
+    Parameters
+    ----------
+    path
+        Output file.  Written as ``path + ".partial"`` (locked: a second writer to the same
+        path is refused) and renamed over ``path`` once finished and fsynced, so that a killed
+        run leaves the previous log at ``path`` whole and its own prefix in the ``.partial``
+        file (readable; ``wmr log recover`` makes it a finished log).
+    run
+        The ``run`` metadata record: scenario, start, goal, params, gains, FMU hash, FMI version,
+        software version, ...; string values are kept, others are JSON-encoded.
+    goal
+        ``(x_m, y_m, theta_rad)`` of the goal, logged once on ``/goal`` at t = 0.
+    attachments
+        Name -> ``(media_type, data)``, e.g. ``{"scenario.toml": ("application/toml", b"...")}``
+        and ``{"modelDescription.xml": ("application/xml", b"...")}``.
+    compression
+        Chunk compression, ``"zstd"`` (default: 16 % smaller than ``"lz4"``), ``"lz4"``
+        (fastest) or ``""``.
+    chunk_period_ns
+        Simulation time per chunk, ns (default 1 s).
+    topics
+        The per-step topics: ``STEP_TOPICS`` (default) or ``OPEN_LOOP_TOPICS`` (no controller).
+    durable
+        fsync the finished log before its rename (default); off, a power loss (not a kill)
+        may damage a finished log.
+
+    Raises
+    ------
+    LogError
+        The file cannot be created or is being written by another process, or the metadata
+        is not string-convertible.
+    DiskFullError
+        No space left on the device (from any method that writes).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        run: Mapping[str, object],
+        goal: tuple[float, float, float],
+        attachments: Mapping[str, tuple[str, bytes]] | None = None,
+        compression: Compression = "zstd",
+        chunk_period_ns: int = 1_000_000_000,
+        topics: tuple[TopicLayout, ...] = STEP_TOPICS,
+        durable: bool = True,
+    ) -> None:
+        self.path = os.fspath(path)
+        if chunk_period_ns <= 0:
+            raise LogError(f"chunk_period_ns must be positive, got {chunk_period_ns}")
+        run_record = _str_dict("run", run)
+        # committed by McapFile.finish, or abandoned
+        stream = AtomicFile(self.path, "log", durable=durable)
+        self._period = int(chunk_period_ns)
+        self._pending_t: list[NDArray[np.int64]] = []
+        self._pending_x: list[NDArray[np.float64]] = []
+        self._pending_rows = 0
+        self._last_t = -1
+        self._boundary = self._period
+        self._rows = 0
+        self._closed = False
+        try:
+            self._file = McapFile(stream, compression)
+            schema_ids: dict[str, int] = {}
+            for name in dict.fromkeys([GOAL_SCHEMA, *(t.schema_name for t in topics)]):
+                schema_ids[name] = self._file.add_schema(name, file_descriptor_set(name))
+            channel_ids = tuple(
+                self._file.add_channel(t.topic, schema_ids[t.schema_name]) for t in topics
+            )
+            goal_channel = self._file.add_channel(GOAL_TOPIC, schema_ids[GOAL_SCHEMA])
+            self._file.add_metadata("run", run_record)
+            for name, (media_type, data) in (attachments or {}).items():
+                self._file.add_attachment(name, media_type, bytes(data))
+            self._encoder = RowEncoder(channel_ids, topics)
+            self._channel_ids = channel_ids
+            self._write_goal(goal_channel, goal)
+        except BaseException:
+            stream.close()
+            raise
+
+    # -- context manager ---------------------------------------------------------------------
+    def __enter__(self) -> RunLogWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if self._closed:
+            return
+        if exc is None:
+            self.close({"status": "failed", "error": "the run ended without a result"})
+            return
+        try:
+            self.close({"status": "failed", "error": f"{type(exc).__name__}: {exc}"})
+        except Exception:  # never hide the run's own exception behind a logging one
+            self._file.abort()
+
+    # -- writing -----------------------------------------------------------------------------
+    def _write_goal(self, channel: int, goal: tuple[float, float, float]) -> None:
+        x, y, theta = (float(v) for v in goal)
+        data = goal_message(x, y, theta)
+        record = RecordBuilder()
+        Message(channel_id=channel, log_time=0, publish_time=0, sequence=0, data=data).write(record)
+        zero = np.zeros(1, np.int64)
+        self._file.add_chunk(record.end(), {channel: (zero, zero)})
+
+    @property
+    def rows_written(self) -> int:
+        """Rows given to :meth:`write_block` so far (buffered or on disk)."""
+        return self._rows + self._pending_rows
+
+    def write_block(self, t_ns: ArrayLike, block: ArrayLike) -> None:
+        """Log rows of the run: every per-step topic, one message per row.
+
+        Parameters
+        ----------
+        t_ns
+            Simulation time of each row, ns from run start, integer, shape ``(n,)``,
+            non-negative and non-decreasing across calls.
+        block
+            Signal values, shape ``(n, len(SIGNALS))``, columns as in
+            :data:`wmr.core.signals.SIGNALS`.  Copied: the caller may reuse its buffer.
+
+        Raises
+        ------
+        LogError
+            Wrong shape or dtype, time going backwards or negative, or the writer is closed.
+        """
+        if self._closed:
+            raise LogError(f"{self.path}: write_block after close")
+        t = np.array(t_ns, dtype=None, copy=True)
+        x = np.array(block, dtype=np.float64, copy=True)
+        if t.ndim != 1 or t.dtype.kind not in "iu":
+            raise LogError(f"t_ns must be a 1-D integer array of ns, got {t.dtype} {t.shape}")
+        n = t.shape[0]
+        if x.shape != (n, len(SIGNALS)):
+            raise LogError(f"block must have shape ({n}, {len(SIGNALS)}), got {x.shape}")
+        if n == 0:
+            return
+        t = t.astype(np.int64)
+        if t[0] < self._last_t or t[0] < 0 or (n > 1 and bool(np.any(t[1:] < t[:-1]))):
+            raise LogError(
+                f"t_ns must be non-negative and non-decreasing (got {t[0]} after {self._last_t})"
+            )
+        self._last_t = int(t[-1])
+        self._pending_t.append(t)
+        self._pending_x.append(x)
+        self._pending_rows += n
+        if self._last_t >= self._boundary:
+            self._flush_chunks(final=False)
+
+    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                       t_ns: ArrayLike, messages: list[bytes]) -> None:
+        """Log serialised protobuf ``messages`` on a topic of their own, as one chunk.
+
+        For topics that are not one message per control step (sensor fixes, estimates: see
+        :mod:`wmr.adapters.mcap.sensing`).  Call before :meth:`close`.
+
+        Parameters
+        ----------
+        topic
+            The new channel's topic (one call per topic).
+        schema_name, schema_data
+            Protobuf message name and its serialised ``FileDescriptorSet``.
+        t_ns
+            Log time of each message, ns, non-decreasing, shape ``(len(messages),)``.
+        messages
+            The message bodies.
+        """
+        if self._closed:
+            raise LogError(f"{self.path}: write_messages after close")
+        t = np.asarray(t_ns, dtype=np.int64)
+        if t.shape != (len(messages),) or (len(t) > 1 and bool(np.any(t[1:] < t[:-1]))):
+            raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
+        schema_id = self._file.add_schema(schema_name, schema_data)
+        cid = self._file.add_channel(topic, schema_id)
+        head = struct.Struct("<BQHIQQ")
+        parts: list[bytes] = []
+        offsets = np.zeros(len(messages), np.int64)
+        pos = 0
+        for i, (ti, data) in enumerate(zip(t.tolist(), messages, strict=True)):
+            offsets[i] = pos
+            parts += [head.pack(_OP_MESSAGE, 2 + 4 + 8 + 8 + len(data), cid, i, ti, ti), data]
+            pos += head.size + len(data)
+        self._file.add_chunk(b"".join(parts), {cid: (t, offsets)})
+
+    def _flush_chunks(self, final: bool) -> None:
+        if not self._pending_rows:
+            return
+        t = np.concatenate(self._pending_t) if len(self._pending_t) > 1 else self._pending_t[0]
+        x = np.concatenate(self._pending_x) if len(self._pending_x) > 1 else self._pending_x[0]
+        while len(t):
+            cut = int(np.searchsorted(t, self._boundary, side="left"))
+            if cut == len(t) and not final:
+                break
+            if cut:
+                self._write_chunk(t[:cut], x[:cut])
+                t, x = t[cut:], x[cut:]
+            if len(t):
+                self._boundary = (int(t[0]) // self._period + 1) * self._period
+        self._pending_t = [t] if len(t) else []
+        self._pending_x = [x] if len(t) else []
+        self._pending_rows = len(t)
+
+    def _write_chunk(self, t: NDArray[np.int64], x: NDArray[np.float64]) -> None:
+        records, offsets = self._encoder.encode(t, x)
+        self._file.add_chunk(
+            records, {cid: (t, offsets[:, k]) for k, cid in enumerate(self._channel_ids)}
+        )
+        self._rows += len(t)
+
+    def close(self, result: Mapping[str, object]) -> None:
+        """Write the buffered rows, the ``result`` metadata record, and finish the file.
+
+        Parameters
+        ----------
+        result
+            The fields of ``wmr run --json`` (``status``, ``final_position_error_m``, ...);
+            string values are kept, others are JSON-encoded.
+        """
+        if self._closed:
+            raise LogError(f"{self.path}: closed twice")
+        self._closed = True
+        try:
+            self._flush_chunks(final=True)
+            self._file.add_metadata("result", _str_dict("result", result))
+            self._file.finish()
+        except BaseException:
+            self._file.abort()
+            raise
+
+
+__all__ = ["LIBRARY", "McapFile", "RunLogWriter", "goal_message", "yaw_quaternion"]

@@ -1,0 +1,92 @@
+"""How closely a master we did not write follows ``wmr run`` on an exported package.
+
+The paths compared are ``(x, y, theta)`` at every control step.  ``wmr run`` is our master
+loop driving the Python stabiliser on the robot FMU (FMI 2.0, as in the package);
+:func:`libcosim_path` and :func:`fmpy_path` run the package in libcosim and in fmpy's SSP
+simulator.  A master that passes connection values one step late gets its path compared
+``lag`` steps later (:func:`deviation`); :func:`measured_lag` finds that shift.
+``tests/test_ssp.py`` holds the bars, ``benchmarks/ssp_agreement.py`` prints the table.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.fmi.varmap import VariableMap
+from wmr.adapters.ssp.cosim import simulate_libcosim
+from wmr.adapters.ssp.package import fmpy_parameter_set, read_package
+from wmr.config.scenario import RunSpec
+from wmr.core.closedloop import run_closed_loop
+from wmr.core.signals import COLUMN
+
+_POSE = [COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]]
+
+
+class _Rows:
+    def __init__(self) -> None:
+        self.blocks: list[npt.NDArray[np.float64]] = []
+
+    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
+        self.blocks.append(block[:, _POSE].copy())
+
+
+def wmr_run_path(spec: RunSpec, robot_fmu: str | os.PathLike[str],
+                 var_map: VariableMap | None = None) -> tuple[str, npt.NDArray[np.float64]]:
+    """``wmr run``'s status and ``(x, y, theta)`` rows of ``spec`` on ``robot_fmu`` (through
+    ``var_map`` for a robot FMU of another tool)."""
+    rows = _Rows()
+    with FmuPlant(Path(robot_fmu), var_map=var_map) as plant:
+        result = run_closed_loop(spec, plant, sink=rows)
+    return result.status, np.vstack(rows.blocks)
+
+
+def libcosim_path(ssp: str | os.PathLike[str]) -> tuple[str, npt.NDArray[np.float64]]:
+    """libcosim's status and ``(x, y, theta)`` rows
+    (:func:`wmr.adapters.ssp.cosim.simulate_libcosim`)."""
+    run = simulate_libcosim(ssp)
+    return run.status, run.block[:, _POSE]
+
+
+def fmpy_path(ssp: str | os.PathLike[str], stop_time_s: float
+              ) -> tuple[bool, npt.NDArray[np.float64]]:
+    """fmpy's ``simulate_ssp`` on the package with its own parameter sets.
+
+    Returns whether the controller's ``converged`` flag rose, and ``(x, y, theta)`` at
+    ``t_0, t_1, ...``: fmpy's row ``k`` holds the values after its step from ``t_k`` (the
+    robot at ``t_{k+1}``), so row 0 here is the start pose of the package.
+    """
+    from fmpy.ssp.simulation import simulate_ssp
+
+    package = read_package(Path(ssp))
+    robot = package.components["robot"].parameters
+    h = package.step_size_s
+    out = simulate_ssp(str(ssp), stop_time=stop_time_s, step_size=h,
+                       parameter_set=fmpy_parameter_set(package))
+    start = np.array([[robot["x0"], robot["y0"], robot["theta0"]]])
+    path = np.vstack([start, np.column_stack([out["robot.x"], out["robot.y"],
+                                              out["robot.theta"]])])
+    return bool((out["controller.converged"] >= 0.5).any()), path
+
+
+def deviation(path: npt.NDArray[np.float64], ref: npt.NDArray[np.float64], lag: int = 0
+              ) -> tuple[float, float]:
+    """Worst distance (m) and heading difference (rad) of ``path[k + lag]`` from ``ref[k]``
+    over the samples both have."""
+    n = min(len(path) - lag, len(ref))
+    a, b = path[lag:lag + n], ref[:n]
+    return (float(np.hypot(a[:, 0] - b[:, 0], a[:, 1] - b[:, 1]).max()),
+            float(np.abs(a[:, 2] - b[:, 2]).max()))
+
+
+def measured_lag(path: npt.NDArray[np.float64], ref: npt.NDArray[np.float64],
+                 max_lag: int = 2) -> int:
+    """The shift in steps (0 ... ``max_lag``) that brings ``path`` closest to ``ref``."""
+    return min(range(max_lag + 1), key=lambda lag: deviation(path, ref, lag)[0])
+
+
+__all__ = ["deviation", "fmpy_path", "libcosim_path", "measured_lag", "wmr_run_path"]

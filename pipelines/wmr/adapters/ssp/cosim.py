@@ -1,0 +1,305 @@
+"""``wmr ssp run``: an SSP package of the closed loop in libcosim, logged like ``wmr run``.
+
+libcosim (DNV's Open Simulation Platform master, through ``libcosimpy``) loads the package,
+applies its parameter sets and steps both FMUs with its fixed-step algorithm at the package's
+``baseStepSize``.  A time-series observer records every Real variable of both components at
+every step; the run stops at the controller's ``converged`` flag (as ``wmr run`` does) or at
+the default experiment's stop time.
+
+Timing.  libcosim steps its components side by side (Jacobi): before the step from ``t_k`` it
+sets every input from the outputs read after the step before, and reads the outputs after the
+step.  Its initialisation passes the controller's first sample ``u_0`` to the robot, so the
+robot's first step is on time.  After its step from ``t_k`` (on the measurement ``y_k``) the
+controller's outputs are ``g(z_{k+1}, y_k)``: its new discrete state on the measurement it was
+given (docs/control.md); the robot holds those torques over ``[t_{k+1}, t_{k+2})``, so the
+measurement reaches the robot's torques one period late.  A log row ``k`` is the robot's
+outputs at ``t_k`` and the controller's outputs observed after its step from ``t_k`` (computed
+from ``y_k``, the torques the robot holds next).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from wmr.adapters.fmi.varmap import PARAMETER_NAMES, MapEntry
+from wmr.adapters.ssp.package import CONTROLLER, ROBOT, SspPackage, read_package
+from wmr.build.controller_interface import SIGNAL_OUTPUTS
+from wmr.core.plant import OUTPUT_NAMES
+from wmr.core.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
+from wmr.infra.errors import ConfigError, FmuError
+
+#: The controller FMU's output of each :data:`wmr.core.signals.CONTROL_SIGNALS` column.
+CONTROL_OUTPUTS = SIGNAL_OUTPUTS
+_STEPS_PER_CHECK = 100
+
+
+@dataclass
+class SspRunData:
+    """One SSP run: the rows in :data:`wmr.core.signals.SIGNALS` layout and every variable.
+
+    ``variables[component][name]`` holds the variable at every communication point
+    ``0 .. steps`` (index ``s`` is ``t_s``); ``block`` row ``k`` pairs the robot at ``t_k``
+    with the controller's outputs after its step from ``t_k``.
+    """
+
+    package: SspPackage
+    t_ns: npt.NDArray[np.int64]
+    block: npt.NDArray[np.float64]
+    variables: dict[str, dict[str, npt.NDArray[np.float64]]]
+    status: str
+    message: str
+    master: str = "libcosim"
+    time_to_goal_s: float | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _require_libcosim() -> None:
+    try:
+        import libcosimpy  # noqa: F401
+    except ImportError:
+        raise ConfigError("libcosimpy", "not installed: wmr ssp run needs libcosim",
+                          "pip install 'wmr-cosim[ssp]'") from None
+
+
+def _quiet_libcosim() -> None:
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+
+    log_output_level(CosimLogLevel.ERROR)  # its default (debug) prints every FMI call
+
+
+def _libcosim_version() -> str:
+    from importlib.metadata import version
+
+    return f"libcosimpy {version('libcosimpy')}"
+
+
+def simulate_libcosim(ssp_path: str | os.PathLike[str], *, stop_time_s: float | None = None,
+                      stop_at_convergence: bool = True) -> SspRunData:
+    """Run a package of ``wmr ssp export`` in libcosim.
+
+    Parameters
+    ----------
+    ssp_path
+        The ``.ssp`` file.
+    stop_time_s
+        End of the run, s; default the package's default experiment (``max_time_s``).
+    stop_at_convergence
+        End at the first sample whose ``converged`` output is 1, like ``wmr run``.
+
+    Raises
+    ------
+    ConfigError, FmuError
+        The package is missing, incomplete (an FMU absent), not FMI 2.0, or libcosim
+        refuses it.
+    """
+    _require_libcosim()
+    from libcosimpy.CosimEnums import CosimVariableType
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimObserver import CosimObserver
+
+    package = read_package(Path(ssp_path))
+    robot, ctrl = package.component(ROBOT), package.component(CONTROLLER)
+    for component in (robot, ctrl):
+        if not component.fmi_version.startswith("2"):
+            raise FmuError(f"{package.path}: component {component.name} is FMI "
+                           f"{component.fmi_version}; "
+                           f"libcosim ({_libcosim_version()}) runs FMI 2.0 FMUs only: export "
+                           "the package with --fmi 2")
+    h = package.step_size_s or ctrl.parameters.get("control_period_s")
+    if h is None or not h > 0:
+        raise FmuError(f"{package.path}: no step size (no OSP FixedStepAlgorithm and no "
+                       "control_period_s): export it again with 'wmr ssp export'")
+    period = ctrl.parameters.get("control_period_s", h)
+    if abs(period - h) > 1e-12 * max(1.0, h):
+        raise FmuError(f"{package.path}: the controller's control_period_s = {period:g} s but "
+                       f"the package steps at {h:g} s, and the controller FMU refuses any other "
+                       "step: export the package again with 'wmr ssp export'")
+    stop = stop_time_s if stop_time_s is not None else package.stop_time_s
+    if stop is None:
+        raise FmuError(f"{package.path}: no stop time: give one")
+    n_max = max(1, round((stop - package.start_time_s) / h))
+    _quiet_libcosim()
+    try:
+        execution = CosimExecution.from_ssp_file(str(Path(ssp_path).resolve()),
+                                                 step_size=round(h * 1e9))
+    except AssertionError:
+        raise FmuError(f"{package.path}: libcosim cannot load the package (run with a "
+                       "libcosim log level of debug to see why)") from None
+    index = {name: execution.slave_index_from_instance_name(name) for name in (ROBOT, CONTROLLER)}
+    refs: dict[str, dict[str, int]] = {}
+    series = CosimObserver.create_time_series(buffer_size=n_max + 2)
+    last = CosimObserver.create_last_value()
+    execution.add_observer(series)
+    execution.add_observer(last)
+    for comp, slave in index.items():
+        refs[comp] = {v.name.decode(): v.reference for v in execution.slave_variables(slave)
+                      if v.type == CosimVariableType.REAL.value}
+        for ref in refs[comp].values():
+            series.start_time_series(slave, ref, CosimVariableType.REAL)
+    converged_ref = refs[CONTROLLER]["converged"]
+    steps = 0
+    converged = False
+    while steps < n_max and not converged:
+        n = min(_STEPS_PER_CHECK, n_max - steps)
+        if not execution.step(n):
+            raise FmuError(f"{package.path}: libcosim failed to step at t = {steps * h:g} s "
+                           "(an FMU returned an error)")
+        steps += n
+        if stop_at_convergence:
+            converged = last.last_real_values(index[CONTROLLER], [converged_ref])[0] >= 0.5
+    variables = {comp: {name: _samples(series, index[comp], ref, steps)
+                        for name, ref in refs[comp].items()} for comp in (ROBOT, CONTROLLER)}
+    return _rows(package, variables, steps, h, stop_at_convergence)
+
+
+
+def _samples(series: Any, slave: int, ref: int, steps: int) -> npt.NDArray[np.float64]:
+    """The variable at communication points ``0 .. steps``.
+
+    libcosimpy drops a sample whose step number is 0 from the end of what it returns (it
+    counts the zeros of the step numbers as unfilled), so step 0 is read on its own.
+    """
+    _, _, first = series.time_series_real_samples(slave, ref, 0, 2)
+    _, step_numbers, rest = series.time_series_real_samples(slave, ref, 1, steps)
+    if len(first) != 1 or len(rest) != steps or list(step_numbers[:1]) != [1]:
+        raise FmuError(f"libcosim's observer returned {len(first) + len(rest)} samples of "
+                       f"{steps + 1}: enlarge its buffer")
+    return np.array([first[0], *rest], dtype=np.float64)
+
+
+def _in_our_names(package: SspPackage, values: dict[str, Any],
+                  names: tuple[str, ...]) -> dict[str, Any]:
+    """The robot's ``values`` (by its names, in its units) under our ``names`` and units,
+    through the package's variable map; an unmapped name is NaN, an absent one left out."""
+    vm = package.robot_map
+    if vm is None:
+        return {n: values[n] for n in names if n in values}
+    out: dict[str, Any] = {}
+    for n in names:
+        entry = vm.entries.get(n, MapEntry(n))
+        if n in vm.unmapped:
+            out[n] = math.nan
+        elif entry.name in values:
+            out[n] = entry.scale * values[entry.name] + entry.offset
+    return out
+
+
+def _rows(package: SspPackage, variables: dict[str, dict[str, npt.NDArray[np.float64]]],
+          steps: int, h: float, stop_at_convergence: bool) -> SspRunData:
+    robot = _in_our_names(package, variables[ROBOT], OUTPUT_NAMES)
+    ctrl = variables[CONTROLLER]
+    missing = [n for n in OUTPUT_NAMES if n not in robot] + \
+        [n for n in (*CONTROL_OUTPUTS, "converged") if n not in ctrl]
+    if missing:
+        raise FmuError(f"{package.path}: the components lack the outputs {', '.join(missing)}")
+    # row k: robot at t_k (index k), the controller after its step from t_k (index k + 1)
+    n_rows = steps
+    flags = ctrl["converged"][1:steps + 1]
+    hit = np.flatnonzero(flags >= 0.5)
+    status, message, time_to_goal = "timeout", f"not converged within {steps * h:g} s", None
+    if stop_at_convergence and hit.size:
+        n_rows = int(hit[0]) + 1
+        time_to_goal = hit[0] * h
+        status, message = "converged", f"converged at t = {time_to_goal:.2f} s"
+    block = np.empty((n_rows, len(SIGNALS)), dtype=np.float64)
+    for i, name in enumerate(OUTPUT_NAMES):
+        values = robot[name]  # NaN (a float) where the map leaves the output unmapped
+        block[:, COLUMN[PLANT_SIGNALS[i]]] = values[:n_rows] if np.ndim(values) else values
+    for col, name in zip(CONTROL_SIGNALS, CONTROL_OUTPUTS, strict=True):
+        block[:, COLUMN[col]] = ctrl[name][1:n_rows + 1]
+    if status == "converged":
+        # as in wmr run: the last row shows the robot at rest with zero torque
+        block[-1, COLUMN["tau_r_nm"]] = block[-1, COLUMN["tau_l_nm"]] = 0.0
+    t_ns = np.round(np.arange(n_rows) * h * 1e9).astype(np.int64)
+    return SspRunData(package=package, t_ns=t_ns, block=block, variables=variables,
+                      status=status, message=message, master=_libcosim_version(),
+                      time_to_goal_s=time_to_goal)
+
+
+def _goal(package: SspPackage) -> tuple[float, float, float]:
+    p = package.component(CONTROLLER).parameters
+    return (p.get("goal.x_m", math.nan), p.get("goal.y_m", math.nan),
+            math.radians(p.get("goal.heading_deg", math.nan)))
+
+
+def run_record(run: SspRunData) -> dict[str, object]:
+    """The ``run`` metadata record of the log: the package's parameters under the names of
+    ``wmr run``'s record, and the master."""
+    package = run.package
+    rp = _in_our_names(package, package.component(ROBOT).parameters, PARAMETER_NAMES)
+    cp = package.component(CONTROLLER).parameters
+    goal = _goal(package)
+
+    def section(prefix: str) -> dict[str, float]:
+        return {k[len(prefix) + 1:]: v for k, v in cp.items() if k.startswith(prefix + ".")}
+
+    return {
+        "name": package.name,
+        "scenario": package.name,
+        "start": {"x_m": rp.get("x0"), "y_m": rp.get("y0"), "heading_rad": rp.get("theta0")},
+        "goal": {"x_m": goal[0], "y_m": goal[1], "heading_rad": goal[2]},
+        "params": {k: v for k, v in rp.items() if math.isfinite(v) and k not in (
+            "x0", "y0", "theta0", "v0", "omega0")},
+        "gains": section("gains"),
+        "controller": "pi",
+        "limits": section("limits"),
+        "control_period_s": cp.get("control_period_s"),
+        "stop_radius_m": cp.get("stop_radius_m"),
+        "heading_tolerance_rad": math.radians(cp.get("heading_tolerance_deg", math.nan)),
+        "ssp_file": package.path.name,
+        "ssp_sha256": hashlib.sha256(package.path.read_bytes()).hexdigest(),
+        "fmi_version": package.component(ROBOT).fmi_version,
+        "master": run.master,
+        "lag_steps": 1,
+    }
+
+
+def result_record(run: SspRunData, mcap: Path) -> dict[str, object]:
+    """The ``result`` record: the fields of ``wmr run --json`` the rows determine."""
+    b = run.block
+    x, y, theta = b[:, COLUMN["x_m"]], b[:, COLUMN["y_m"]], b[:, COLUMN["theta_rad"]]
+    gx, gy, gth = _goal(run.package)
+    head = math.remainder(float(theta[-1]) - gth, 2 * math.pi)
+    return {
+        "name": run.package.name,
+        "status": run.status,
+        "message": run.message,
+        "final_position_error_m": math.hypot(gx - float(x[-1]), gy - float(y[-1])),
+        "final_heading_error_rad": abs(head),
+        "time_to_goal_s": run.time_to_goal_s,
+        "path_length_m": float(np.hypot(np.diff(x), np.diff(y)).sum()),
+        "steps": int(b.shape[0]),
+        "master": run.master,
+        "mcap": str(mcap),
+    }
+
+
+def log_ssp_run(run: SspRunData, mcap_path: str | os.PathLike[str]) -> dict[str, object]:
+    """Write ``run`` to an MCAP log of ``wmr run``'s layout; return the result record."""
+    from wmr.adapters.mcap import RunLogWriter
+
+    path = Path(mcap_path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(run.package.path) as zf:
+        attachments = {n: ("application/xml", zf.read(n)) for n in zf.namelist()
+                       if n.endswith((".ssd", ".ssv"))}
+        attachments.update({Path(n).name: ("application/toml", zf.read(n))
+                            for n in zf.namelist() if n.endswith(".toml")})
+    record = result_record(run, path)
+    with RunLogWriter(path, run=run_record(run), goal=_goal(run.package),
+                      attachments=attachments) as log:
+        log.write_block(run.t_ns, run.block)
+        log.close(record)
+    return record
+
+
+__all__ = ["CONTROL_OUTPUTS", "SspRunData", "log_ssp_run", "simulate_libcosim"]

@@ -1,0 +1,268 @@
+"""``wmr ssp export``: one closed-loop run as an SSP 1.0 package.
+
+The package (a zip, ``FILE.ssp``) holds::
+
+    SystemStructure.ssd            the system: two components, their connectors, the
+                                   connections, the default experiment
+    resources/wmr_robot-fmiN.fmu   the robot (inputs tau_r, tau_l; outputs x, y, theta, ...)
+    resources/wmr_controller-fmiN.fmu
+                                   the paper's stabiliser, sampled at control_period_s
+    resources/robot.ssv            the robot's parameters: params.* and the start pose
+                                   (x0, y0, theta0, v0, omega0)
+    resources/controller.ssv       the controller's: goal, gains, limits, params.r/L/...,
+                                   control_period_s, stop_radius_m, heading_tolerance_deg
+    resources/SCENARIO.toml        the scenario file it came from (provenance, if any)
+    resources/fmu_map.toml         the robot's variable map, for a robot FMU of another tool
+                                   (its unit conversions are also on the connections)
+
+Connections: every robot output the controller has an input of the same name for (the
+measured pose, speeds and wheel speeds), and the controller's ``tau_r``, ``tau_l`` to the
+robot's.  The parameter sets are bound to their component (``ParameterBinding source=``),
+named with the FMU's own variable names, because libcosim ignores a binding's ``prefix``.
+The default experiment runs ``[0, max_time_s]``; an OSP annotation gives libcosim the fixed
+step ``control_period_s``, the only step the controller FMU accepts.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Final
+
+from wmr.adapters.fmi.controller import controller_parameters
+from wmr.adapters.fmi.varmap import INPUT_NAMES, ResolvedMap, VariableMap, resolve
+from wmr.config.scenario import RunSpec
+from wmr.core.plant import OUTPUT_NAMES
+from wmr.infra.errors import ConfigError, FmuError
+
+ROBOT: Final = "robot"
+CONTROLLER: Final = "controller"
+SSD_NAME: Final = "SystemStructure.ssd"
+#: The robot's variable map in a package of a robot FMU made by another tool.
+MAP_NAME: Final = "resources/fmu_map.toml"
+
+NS: Final = {
+    "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
+    "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
+    "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
+    "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+}
+for _prefix, _uri in NS.items():
+    # libcosim reads the SSD with literal "ssd:", "ssc:", "ssv:" and "osp:" prefixes
+    ET.register_namespace(_prefix, _uri)
+
+
+def _q(tag: str) -> str:
+    prefix, local = tag.split(":")
+    return f"{{{NS[prefix]}}}{local}"
+
+
+def _num(value: float) -> str:
+    """Shortest text that reads back as the same double (the XSD's xs:double)."""
+    return repr(float(value))
+
+
+def robot_parameters(spec: RunSpec) -> dict[str, float]:
+    """The robot FMU's parameter values of a run: ``params.*`` and the start pose (rad)."""
+    values = spec.params.as_dict()
+    values.update(x0=spec.start.x_m, y0=spec.start.y_m, theta0=spec.start.heading_rad,
+                  v0=0.0, omega0=0.0)
+    return values
+
+
+def _model_description(fmu: Path) -> Any:
+    from fmpy import read_model_description
+
+    if not fmu.is_file():
+        raise FmuError(f"{fmu}: no such FMU (run 'wmr fmu build' or give an existing file)")
+    try:
+        md = read_model_description(str(fmu))
+    except Exception as exc:
+        raise FmuError(f"{fmu}: unreadable model description: {exc}") from exc
+    if md.coSimulation is None:
+        raise FmuError(f"{fmu}: not a co-simulation FMU")
+    return md
+
+
+def _float_variables(md: Any, causality: str) -> list[Any]:
+    return [v for v in md.modelVariables
+            if v.causality == causality and v.type in ("Real", "Float64")]
+
+
+def _bound(md: Any, values: Mapping[str, float], fmu: Path) -> dict[str, float]:
+    """``values`` restricted to the FMU's parameters; every parameter must have a value."""
+    params = [v.name for v in _float_variables(md, "parameter")]
+    missing = [n for n in params if n not in values]
+    if missing:
+        raise FmuError(f"{fmu.name}: parameter {missing[0]} has no value in the scenario "
+                       f"(the FMU is of another version than wmr: rebuild it with "
+                       "'wmr fmu build --force')")
+    return {n: values[n] for n in params}
+
+
+def _connectors(parent: ET.Element, md: Any) -> None:
+    connectors = ET.SubElement(parent, _q("ssd:Connectors"))
+    for causality in ("input", "output", "parameter"):
+        for v in _float_variables(md, causality):
+            c = ET.SubElement(connectors, _q("ssd:Connector"), name=v.name, kind=causality)
+            ET.SubElement(c, _q("ssc:Real"))
+
+
+def _component(elements: ET.Element, name: str, source: str, md: Any, ssv: str) -> None:
+    comp = ET.SubElement(elements, _q("ssd:Component"), name=name,
+                         type="application/x-fmu-sharedlibrary", source=source,
+                         implementation="CoSimulation")
+    _connectors(comp, md)
+    bindings = ET.SubElement(comp, _q("ssd:ParameterBindings"))
+    ET.SubElement(bindings, _q("ssd:ParameterBinding"), source=ssv)
+
+
+def parameter_set_xml(name: str, values: Mapping[str, float]) -> bytes:
+    """An SSV file: one ``ssv:Real`` per value."""
+    root = ET.Element(_q("ssv:ParameterSet"), version="1.0", name=name)
+    params = ET.SubElement(root, _q("ssv:Parameters"))
+    for pname, value in values.items():
+        p = ET.SubElement(params, _q("ssv:Parameter"), name=pname)
+        ET.SubElement(p, _q("ssv:Real"), value=_num(value))
+    ET.indent(root)
+    return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+#: A connection: start element and connector, end element and connector, and the linear
+#: transformation ``end = factor * start + offset`` (SSP's ``ssc:LinearTransformation``).
+Link = tuple[str, str, str, str, float, float]
+
+
+def closed_loop_links(ctrl_md: Any, robot_map: ResolvedMap) -> list[Link]:
+    """The connections: each controller input from the robot output that ``robot_map`` gives
+    for it (our names: the measured pose and speeds), and the controller's torques to the
+    robot's inputs, each with the map's unit conversion."""
+    links: list[Link] = []
+    for v in _float_variables(ctrl_md, "input"):
+        if v.name not in OUTPUT_NAMES:
+            raise FmuError(f"controller input {v.name} is none of the robot's outputs "
+                           f"({', '.join(OUTPUT_NAMES)})")
+        found = robot_map.outputs[OUTPUT_NAMES.index(v.name)]
+        if found is None:
+            raise FmuError(f"controller input {v.name} has no robot output: the map leaves "
+                           "it unmapped")
+        entry = found[1]
+        links.append((ROBOT, entry.name, CONTROLLER, v.name, entry.scale, entry.offset))
+    ctrl_out = {v.name for v in _float_variables(ctrl_md, "output")}
+    for ours, (_, entry) in zip(INPUT_NAMES, robot_map.inputs, strict=True):
+        if ours not in ctrl_out:
+            raise FmuError(f"the controller FMU has no output {ours} for the robot's input")
+        links.append((CONTROLLER, ours, ROBOT, entry.name, 1.0 / entry.scale,
+                      -entry.offset / entry.scale))
+    return links
+
+
+def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tuple[str, Any],
+                         ssv: Mapping[str, str], links: list[Link]) -> bytes:
+    """The SSD of the closed loop: ``robot`` and ``controller`` are ``(source, model
+    description)``; ``ssv`` names each component's parameter set file."""
+    robot_md, ctrl_md = robot[1], controller[1]
+    root = ET.Element(_q("ssd:SystemStructureDescription"), version="1.0", name=spec.name)
+    system = ET.SubElement(root, _q("ssd:System"), name="closed_loop",
+                           description="the paper's PI stabiliser on the robot (wmr-cosim)")
+    elements = ET.SubElement(system, _q("ssd:Elements"))
+    _component(elements, ROBOT, robot[0], robot_md, ssv[ROBOT])
+    _component(elements, CONTROLLER, controller[0], ctrl_md, ssv[CONTROLLER])
+    connections = ET.SubElement(system, _q("ssd:Connections"))
+    for start_el, start, end_el, end, factor, offset in links:
+        c = ET.SubElement(connections, _q("ssd:Connection"), startElement=start_el,
+                          startConnector=start, endElement=end_el, endConnector=end)
+        if factor != 1.0 or offset != 0.0:
+            ET.SubElement(c, _q("ssc:LinearTransformation"), factor=_num(factor),
+                          offset=_num(offset))
+    experiment = ET.SubElement(root, _q("ssd:DefaultExperiment"), startTime="0.0",
+                               stopTime=_num(spec.t_max_s))
+    annotations = ET.SubElement(experiment, _q("ssd:Annotations"))
+    osp = ET.SubElement(annotations, _q("ssc:Annotation"), type="com.opensimulationplatform")
+    algorithm = ET.SubElement(osp, _q("osp:Algorithm"))
+    ET.SubElement(algorithm, _q("osp:FixedStepAlgorithm"), baseStepSize=_num(spec.period_s))
+    ET.indent(root)
+    return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.PathLike[str],
+               controller_fmu: str | os.PathLike[str], *,
+               scenario_file: Path | None = None, var_map: VariableMap | None = None) -> Path:
+    """Write the SSP package of run ``spec`` to ``out``; return its path.
+
+    ``var_map`` maps our names to those of a robot FMU made by another tool
+    (:mod:`wmr.adapters.fmi.varmap`): the connections then carry its unit conversions as SSP linear
+    transformations, and its parameter set holds the mapped parameters in its units (the
+    others keep the FMU's values).
+
+    The file is written beside ``out`` and renamed into place, so an interrupted export
+    never leaves a half-written package.
+
+    Raises
+    ------
+    ConfigError
+        ``out`` does not end in ``.ssp``, or the run uses a controller the FMU does not have.
+    FmuError
+        An FMU is missing, unreadable, or does not fit the other.
+    """
+    target = Path(out)
+    if target.suffix != ".ssp":
+        raise ConfigError("--out", f"{target} does not end in .ssp", "give FILE.ssp")
+    if spec.controller != "pi":
+        raise ConfigError("controller", f"the controller FMU is the paper's PI stabiliser, "
+                          f"not {spec.controller!r}", 'export a scenario with controller = "pi"')
+    if spec.sensors is not None:
+        raise ConfigError("sensors", "the package connects the robot's outputs to the "
+                          "controller directly (perfect measurements): it has no sensor models",
+                          "export the run without sensors (--sensors off or no [sensors])")
+    robot_path, ctrl_path = Path(robot_fmu), Path(controller_fmu)
+    robot_md, ctrl_md = _model_description(robot_path), _model_description(ctrl_path)
+    if robot_md.fmiVersion != ctrl_md.fmiVersion:
+        raise FmuError(f"{robot_path.name} is FMI {robot_md.fmiVersion} but "
+                       f"{ctrl_path.name} is FMI {ctrl_md.fmiVersion}: give one version")
+    robot_map = resolve(var_map, robot_md, robot_path.name)
+    if var_map is None:
+        robot_values = _bound(robot_md, robot_parameters(spec), robot_path)
+    else:
+        ours = robot_parameters(spec)
+        robot_values = {e.name: e.to_theirs(ours[n]) for n, (_, e) in
+                        robot_map.parameters.items()}
+    robot_src = f"resources/{robot_path.name}"
+    ctrl_src = f"resources/{ctrl_path.name}"
+    ssv = {ROBOT: "resources/robot.ssv", CONTROLLER: "resources/controller.ssv"}
+    links = closed_loop_links(ctrl_md, robot_map)
+    members: dict[str, bytes] = {
+        SSD_NAME: system_structure_xml(spec, (robot_src, robot_md), (ctrl_src, ctrl_md), ssv,
+                                       links),
+        ssv[ROBOT]: parameter_set_xml(spec.name, robot_values),
+        ssv[CONTROLLER]: parameter_set_xml(
+            spec.name, _bound(ctrl_md, controller_parameters(spec), ctrl_path)),
+    }
+    if var_map is not None:
+        members[MAP_NAME] = var_map.to_toml().encode()
+    files = {robot_src: robot_path, ctrl_src: ctrl_path}
+    if scenario_file is not None:
+        files[f"resources/{scenario_file.name}"] = scenario_file
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    os.close(fd)
+    try:
+        with zipfile.ZipFile(tmp_name, "w", zipfile.ZIP_DEFLATED) as zf:
+            for name, data in members.items():
+                zf.writestr(name, data)
+            for name, path in files.items():
+                # the FMUs are zips already: stored, not deflated again
+                zf.write(path, name, compress_type=zipfile.ZIP_STORED
+                         if path.suffix == ".fmu" else zipfile.ZIP_DEFLATED)
+        os.replace(tmp_name, target)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return target
+
+
+__all__ = ["CONTROLLER", "ROBOT", "controller_parameters", "export_ssp", "robot_parameters"]

@@ -1,0 +1,317 @@
+"""Local execution: a pool of worker processes, one FMU instance each.
+
+Not :class:`concurrent.futures.ProcessPoolExecutor`: a run that hangs must be killable on its
+own, and a worker that dies (a crash in the FMU's C code, the OOM killer) must cost its run
+only, not the pool: the run is given once more to a fresh worker, then recorded ``failed``.
+Each worker has its own pipe; the parent hands out one run at a time, kills a worker whose run
+passes the hard wall-clock limit, and starts a new one in its place.  Workers come from a
+``forkserver`` that has imported the simulation code once, so a replacement starts in
+milliseconds and no worker inherits the parent's threads.  Workers ignore SIGINT and SIGTERM:
+the parent alone stops them; and they end as soon as it is gone, even killed outright.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import select
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from multiprocessing.process import BaseProcess
+from pathlib import Path
+from typing import Any
+
+import wmr.apps.run  # noqa: F401 - preloaded by the forkserver, so that workers start fast
+from wmr.adapters.fmi.varmap import VariableMap
+from wmr.apps.batch.worker import PlantHolder, Task, TaskSource, wall_limit_message
+from wmr.core.energy import ENERGY_KEYS
+from wmr.infra.errors import FmuError, WmrError
+
+#: Exit code of a worker that could not open the FMU.
+_INIT_FAILED = 3
+#: Exit code of a worker whose batch process is gone.
+_ORPHANED = 4
+
+
+@dataclass
+class Outcome:
+    """A finished run as an executor reports it.
+
+    Attributes
+    ----------
+    run_id
+        The run.
+    record
+        Its result record (:func:`wmr.apps.run.run_to_log`), or one made up by the executor when the
+        worker was killed or died.
+    wall_s
+        Wall time of the run on its worker, s.
+    killed
+        The executor stopped the run from outside (its log has no ``result`` record).
+    log
+        The log's bytes when the worker sent them back (Dask), else ``None``.
+    worker
+        Who ran it (process id or Dask worker address).
+    """
+
+    run_id: str
+    record: dict[str, Any]
+    wall_s: float
+    killed: bool = False
+    log: bytes | None = None
+    worker: str = ""
+
+
+#: Message of a run whose worker process died on it twice (the same on every executor).
+DIED_TWICE = "the worker process died during the run, and again when it was retried"
+
+
+def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
+    """The result record of a run that produced none (killed, or its worker died)."""
+    return {"name": run_id, "status": status, "message": message,
+            "final_position_error_m": None, "final_heading_error_rad": None,
+            "time_to_goal_s": None, "path_length_m": None,
+            **dict.fromkeys(ENERGY_KEYS),
+            "torque_sq_integral_n2m2s": None, "peak_torque_nm": None, "steps": None,
+            "mcap": None}
+
+
+def _die_with(batch_pid: int) -> None:
+    """End this worker as soon as the batch process ``batch_pid`` is gone, even killed by
+    SIGKILL: an orphan must not go on writing into a folder that a resumed batch uses.
+
+    The worker's parent is the forkserver, not the batch process, and the forkserver outlives
+    the batch while workers hold its liveness pipe, so ``PR_SET_PDEATHSIG`` cannot do this.
+    A daemon thread waits on a pidfd of the batch process (Linux >= 5.3), else polls it.
+    """
+    def watch() -> None:
+        try:
+            fd = os.pidfd_open(batch_pid)
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            select.select([fd], [], [])  # readable when the process has ended
+        else:
+            while True:
+                time.sleep(0.5)
+                try:
+                    os.kill(batch_pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:  # alive, someone else's: cannot be ours
+                    continue
+        os._exit(_ORPHANED)
+
+    threading.Thread(target=watch, name="wmr-die-with-batch", daemon=True).start()
+
+
+def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str | None,
+                 log_file: str | None, batch_pid: int,
+                 var_map: VariableMap | None = None) -> None:
+    """A worker process: open the FMU once, then run what the pipe brings until ``None``."""
+    _die_with(batch_pid)
+    # Ctrl-C and SIGTERM reach the whole process group: the parent alone decides what stops
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if log_file is not None:  # the FMU's own messages go to a file, not over the progress bar
+        fd = os.open(log_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        os.close(fd)
+    try:
+        holder = PlantHolder(Path(fmu_path), var_map)
+    except Exception as exc:
+        conn.send(("init_error", f"{type(exc).__name__}: {exc}"))
+        conn.close()
+        os._exit(_INIT_FAILED)
+    conn.send(("ready",))
+    att = Path(attachment) if attachment else None
+    runs = Path(runs_dir)
+    try:
+        while True:
+            try:
+                task: Task | None = conn.recv()
+            except EOFError:
+                break
+            if task is None:
+                break
+            t0 = time.perf_counter()
+            record = holder.run(task, runs / f"{task.run_id}.mcap", att)
+            conn.send(("done", task.run_id, record, time.perf_counter() - t0))
+    finally:
+        holder.close()
+        conn.close()
+
+
+@dataclass
+class _Slot:
+    number: int
+    proc: BaseProcess
+    conn: Connection
+    task: Task | None = None
+    started: float = 0.0
+    ready: bool = False
+
+
+class LocalPool:
+    """Worker processes on this machine.
+
+    Parameters
+    ----------
+    fmu_path
+        The FMU, built once by the caller.
+    runs_dir
+        Where the workers write ``<run_id>.mcap``.
+    workers
+        Number of processes.
+    hard_limit_s
+        A run still going after this wall time is killed with its worker (``None``: never).
+    attachment
+        File attached to every log (the spec).
+    log_dir
+        Folder for the workers' stdout/stderr (``worker-<n>.log``); ``None`` keeps them on the
+        terminal.
+    """
+
+    def __init__(self, fmu_path: Path, runs_dir: Path, workers: int, *,
+                 hard_limit_s: float | None = None, attachment: Path | None = None,
+                 log_dir: Path | None = None, var_map: VariableMap | None = None) -> None:
+        self.fmu_path = fmu_path
+        self.var_map = var_map
+        self.runs_dir = runs_dir
+        self.workers = max(1, int(workers))
+        self.hard_limit_s = hard_limit_s
+        self.attachment = attachment
+        self.log_dir = log_dir
+        self._ctx = mp.get_context("forkserver")
+        self._ctx.set_forkserver_preload(["wmr.apps.batch.local"])
+
+    def _spawn(self, number: int) -> _Slot:
+        parent, child = self._ctx.Pipe(duplex=True)
+        log_file = str(self.log_dir / f"worker-{number}.log") if self.log_dir else None
+        proc = self._ctx.Process(
+            target=_worker_main, name=f"wmr-batch-{number}", daemon=True,
+            args=(child, str(self.fmu_path), str(self.runs_dir),
+                  str(self.attachment) if self.attachment else None, log_file, os.getpid(),
+                  self.var_map))
+        proc.start()
+        child.close()
+        return _Slot(number, proc, parent)
+
+    @staticmethod
+    def _stop(slot: _Slot, kill: bool) -> None:
+        if kill or slot.task is not None:
+            slot.proc.kill()
+        else:
+            try:
+                slot.conn.send(None)
+            except OSError:
+                slot.proc.kill()
+        slot.proc.join(2.0)
+        if slot.proc.is_alive():
+            slot.proc.kill()
+            slot.proc.join(2.0)
+        slot.conn.close()
+
+    def run(self, tasks: TaskSource) -> Iterator[Outcome]:
+        """Run ``tasks``; yield each :class:`Outcome` as it finishes (in finishing order).
+
+        Closing the iterator early (Ctrl-C in the consumer) kills the workers.
+
+        Raises
+        ------
+        FmuError
+            A worker cannot open the FMU.
+        """
+        source = iter(tasks)  # taken one at a time: a large batch's runs are made as they go
+        again: deque[Task] = deque()
+        retried: set[str] = set()
+        slots: list[_Slot] = []
+        spawned = 0
+        try:
+            for _ in range(min(self.workers, len(tasks))):
+                slots.append(self._spawn(spawned))
+                spawned += 1
+            while True:
+                for slot in slots:
+                    if slot.task is None:
+                        slot.task = again.popleft() if again else next(source, None)
+                        if slot.task is None:
+                            continue
+                        slot.started = time.monotonic()
+                        try:
+                            slot.conn.send(slot.task)
+                        except OSError:  # the worker is gone: wait() reports it below
+                            pass
+                busy = [s for s in slots if s.task is not None]
+                if not busy:
+                    return
+                timeout = 0.5
+                if self.hard_limit_s is not None:
+                    first = min(s.started for s in busy) + self.hard_limit_s
+                    timeout = max(0.0, min(timeout, first - time.monotonic()))
+                ready = wait([s.conn for s in busy], timeout)
+                for slot in busy:
+                    if slot.conn not in ready:
+                        continue
+                    try:
+                        msg = slot.conn.recv()
+                    except (EOFError, OSError):
+                        msg = None
+                    if msg is not None and msg[0] == "ready":
+                        slot.ready = True
+                        continue
+                    if msg is not None and msg[0] == "done":
+                        _, run_id, record, wall = msg
+                        slot.task = None
+                        yield Outcome(run_id, record, wall, worker=str(slot.proc.pid))
+                        continue
+                    if msg is not None and msg[0] == "init_error":
+                        raise FmuError(f"a batch worker cannot open {self.fmu_path}: {msg[1]}")
+                    # the worker died during its run
+                    task = slot.task
+                    assert task is not None
+                    slot.proc.join(2.0)
+                    code = slot.proc.exitcode
+                    if not slot.ready:
+                        log = (f"; see {self.log_dir / f'worker-{slot.number}.log'}"
+                               if self.log_dir else "")
+                        raise WmrError(f"a batch worker process died while starting (exit "
+                                       f"code {code}){log}")
+                    wall = time.monotonic() - slot.started
+                    slot.task = None
+                    self._stop(slot, kill=True)
+                    slots[slots.index(slot)] = self._spawn(spawned)
+                    spawned += 1
+                    if task.run_id not in retried:  # e.g. the OOM killer: once more, then failed
+                        retried.add(task.run_id)
+                        again.appendleft(task)
+                        continue
+                    yield Outcome(task.run_id, made_up_record(task.run_id, "failed", DIED_TWICE),
+                                  wall, killed=True,
+                                  worker=f"{slot.proc.pid} (died, exit code {code})")
+                if self.hard_limit_s is not None:
+                    now = time.monotonic()
+                    for i, slot in enumerate(slots):
+                        if slot.task is None or now - slot.started < self.hard_limit_s:
+                            continue
+                        task, wall = slot.task, now - slot.started
+                        self._stop(slot, kill=True)
+                        slots[i] = self._spawn(spawned)
+                        spawned += 1
+                        yield Outcome(task.run_id, made_up_record(
+                            task.run_id, "timeout",
+                            wall_limit_message(task.wall_limit_s or self.hard_limit_s)
+                            + "; the worker was killed"),
+                            wall, killed=True, worker=str(slot.proc.pid))
+        finally:
+            for slot in slots:
+                self._stop(slot, kill=slot.task is not None)
+
+
+__all__ = ["DIED_TWICE", "LocalPool", "Outcome", "made_up_record"]

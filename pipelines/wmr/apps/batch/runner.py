@@ -1,0 +1,504 @@
+"""``wmr batch``: run every run of a spec, resumably, locally or on Dask.
+
+Layout of the output folder::
+
+    OUT/runs/<run_id>.mcap   one log per run
+    OUT/journal.jsonl        one line per finished run (with its wall time and worker)
+    OUT/summary.parquet      one row per finished run, sorted by run id (see summary.py)
+    OUT/summary.csv          the same as CSV
+    OUT/batch.json           counts and timings of the last invocation
+    OUT/logs/worker-<n>.log  the FMU's messages (local workers)
+
+Rerunning the same command skips the runs that are done (:mod:`wmr.apps.batch.journal`) and redoes
+the others, half-written logs included; a run is never reported twice.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import itertools
+import json
+import math
+import os
+import sys
+import time
+from array import array
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+from wmr.adapters.fmi.archive import file_sha256
+from wmr.adapters.fmi.varmap import VariableMap, load_map
+from wmr.apps.batch.journal import JOURNAL, Journal, log_complete, log_stamp
+from wmr.apps.batch.local import LocalPool, Outcome
+from wmr.apps.batch.spec import BatchRun, BatchSpec, run_index
+from wmr.apps.batch.summary import STATUSES, SummaryRow, summary_table, write_summary
+from wmr.apps.batch.worker import DISK_FULL, FAULTS, Task
+from wmr.infra.durable import AtomicFile, partial_path, storage_error
+from wmr.infra.errors import ConfigError, DiskFullError, WmrError
+
+#: Default per-run wall-clock limit, s: generous (a 120 s simulated run takes about 1 s).
+DEFAULT_RUN_TIMEOUT_S: Final = 600.0
+#: A batch whose first runs (this many, or all) fail before their first step stops: the FMU
+#: or the setup is broken, not the runs.
+EARLY_STOP_RUNS: Final = 4
+
+
+@dataclass
+class BatchOutcome:
+    """What :func:`run_batch` did.
+
+    Attributes
+    ----------
+    out_dir
+        The batch folder.
+    total
+        Runs in the spec.
+    skipped
+        Runs already done by an earlier invocation.
+    executed
+        Run ids executed by this invocation, in finishing order.
+    counts
+        Runs per status over the whole summary (done earlier or now).
+    interrupted
+        Stopped early (Ctrl-C or ``stop_after``); the summary holds the finished runs.
+    wall_s
+        Wall time of this invocation, s.
+    """
+
+    out_dir: Path
+    total: int
+    skipped: int
+    executed: list[str] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    interrupted: bool = False
+    wall_s: float = 0.0
+
+    @property
+    def finished(self) -> int:
+        """Runs in the summary."""
+        return sum(self.counts.values())
+
+
+class _Lock:
+    """An exclusive lock on the batch folder: two batches must not share a journal."""
+
+    def __init__(self, out_dir: Path) -> None:
+        self._fd = os.open(out_dir / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(self._fd)
+            raise ConfigError("--out", f"another batch is running in {out_dir}",
+                              "wait for it or give another --out folder") from None
+
+    def release(self) -> None:
+        fcntl.flock(self._fd, fcntl.LOCK_UN)
+        os.close(self._fd)
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    """Write ``path`` whole or not at all (fsynced; a full disk is a DiskFullError)."""
+    out = AtomicFile(path, "file")
+    try:
+        out.write(data)
+        out.commit()
+    finally:
+        out.abandon()
+
+
+def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
+              workers: int | None = None, scheduler: str | None = None, client: Any = None,
+              run_timeout_s: float | None = DEFAULT_RUN_TIMEOUT_S,
+              fmu_path: str | os.PathLike[str] | None = None, fmi_version: int = 3,
+              progress: bool | None = None, stop_after: int | None = None,
+              faults: Mapping[str, str] | None = None, dask_ship_logs: bool = False,
+              var_map: VariableMap | None = None,
+              on_outcome: Callable[[Outcome], None] | None = None) -> BatchOutcome:
+    """Run the runs of ``batch`` not done yet into ``out_dir``; write the summary.
+
+    Parameters
+    ----------
+    batch
+        The expanded spec (:func:`wmr.apps.batch.load_batch`).
+    out_dir
+        The batch folder (created).
+    workers
+        Local worker processes (default: one per core).  Ignored on Dask.
+    scheduler, client
+        A Dask scheduler address, or a :class:`distributed.Client`: run there.
+    run_timeout_s
+        Wall-clock limit per run, s; a run past it is a ``timeout`` row ("wall-clock limit").
+        Local workers still busy ``max(1 s, 10 %)`` later are killed.  ``None``: no limit.
+    fmu_path, fmi_version
+        The FMU to drive; by default the spec's ``fmu``, else the project's own, built (or
+        reused) once, here.
+    var_map
+        The FMU's variable map (:mod:`wmr.adapters.fmi.varmap`); by default the spec's ``fmu_map``.
+    progress
+        tqdm bar on stderr: ``None`` shows it on a terminal only.
+    stop_after
+        Test hook: behave as if Ctrl-C came after this many runs of this invocation.
+    faults
+        Test hook: run id -> ``"hang"`` or ``"crash"``.
+    dask_ship_logs
+        On Dask, have every worker send its logs back, as workers on other hosts do.
+    on_outcome
+        Called with each finished run (after its journal line is written).
+
+    Returns
+    -------
+    BatchOutcome
+        Counts and run ids; ``interrupted`` when Ctrl-C (or ``stop_after``) stopped it.
+
+    Raises
+    ------
+    ConfigError
+        Bad arguments, or the folder is in use by another batch.
+    FmuError
+        The workers cannot open the FMU.
+    """
+    from tqdm import tqdm
+
+    from wmr.apps.run import default_fmu
+
+    t0 = time.perf_counter()
+    if workers is not None and workers < 1:
+        raise ConfigError("--workers", f"must be >= 1, got {workers}", "give e.g. --workers 2")
+    if run_timeout_s is not None and not run_timeout_s > 0:
+        raise ConfigError("--run-timeout", f"must be > 0, got {run_timeout_s}",
+                          "give seconds, e.g. --run-timeout 600")
+    for run_id, fault in (faults or {}).items():
+        if fault not in FAULTS:
+            raise ConfigError("faults", f"{run_id}: unknown fault {fault!r}",
+                              f"use one of {FAULTS}")
+    out = Path(out_dir)
+    runs_dir = out / "runs"
+    try:
+        runs_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError("--out", f"cannot create {runs_dir}: {exc.strerror}",
+                          "give a writable folder") from None
+    fmu = Path(fmu_path) if fmu_path is not None else batch.fmu or default_fmu(fmi_version)
+    if var_map is None and batch.fmu_map is not None:
+        var_map = load_map(batch.fmu_map)
+    fmu_sha = file_sha256(fmu)
+    if var_map is not None:
+        # a run through another map is another run: the journal must not reuse it
+        fmu_sha += "+map:" + hashlib.sha256(
+            json.dumps(var_map.as_dict(), sort_keys=True).encode()).hexdigest()[:16]
+    lock = _Lock(out)
+    try:
+        journal = Journal(out / JOURNAL)
+        ledger = _resume(batch, journal, fmu_sha, runs_dir, progress)
+        result = BatchOutcome(out_dir=out, total=len(batch.runs), skipped=ledger.n_done)
+        attachment = None
+        if batch.path is not None and batch.source:
+            attachment = out / f"spec-{batch.path.name}"
+            if not attachment.exists() or attachment.read_bytes() != batch.source:
+                _write_atomic(attachment, batch.source)
+        tasks = _Tasks(batch, ledger, run_timeout_s, faults or {})
+        if not tasks:
+            stream: Iterator[Outcome] = iter(())
+        elif scheduler is not None or client is not None:
+            from wmr.apps.batch.dask_exec import DaskExecutor
+
+            stream = DaskExecutor(fmu, out, scheduler=scheduler, client=client,
+                                  attachment=attachment, ship_logs=dask_ship_logs,
+                                  var_map=var_map).run(tasks)
+        else:
+            n = workers if workers is not None else (os.cpu_count() or 1)
+            (out / "logs").mkdir(exist_ok=True)
+            hard = None if run_timeout_s is None else run_timeout_s + max(1.0,
+                                                                          0.1 * run_timeout_s)
+            stream = LocalPool(fmu, runs_dir, n, hard_limit_s=hard, attachment=attachment,
+                               log_dir=out / "logs", var_map=var_map).run(tasks)
+        bar = tqdm(total=len(batch.runs), initial=ledger.n_done, unit="run", file=sys.stderr,
+                   disable=_bar_off(progress), smoothing=0.05,
+                   dynamic_ncols=True, desc=batch.name)
+        counts = ledger.counts()
+
+        def show() -> None:
+            bar.set_postfix_str(f"ok {counts['converged']}, timeout {counts['timeout']}, "
+                                f"failed {counts['failed']}", refresh=False)
+
+        show()
+        full: DiskFullError | None = None
+        started = False  # a run of this invocation got past its first step
+        unstarted = 0  # runs of this invocation that failed before it
+        try:
+            for outcome in stream:
+                if outcome.record.get(DISK_FULL):
+                    raise DiskFullError(str(outcome.record.get("message")))
+                if outcome.log is not None:
+                    _write_atomic(runs_dir / f"{outcome.run_id}.mcap", outcome.log)
+                elif outcome.killed:
+                    _recover_partial(runs_dir / f"{outcome.run_id}.mcap")
+                index, digest, row = tasks.in_flight.pop(outcome.run_id)
+                offset = journal.append({"run_id": outcome.run_id, "digest": digest,
+                                         "fmu_sha256": fmu_sha, "killed": outcome.killed,
+                                         "wall_s": round(outcome.wall_s, 6),
+                                         "worker": outcome.worker, "row": row,
+                                         "log": log_stamp(runs_dir / f"{outcome.run_id}.mcap"),
+                                         "record": outcome.record})
+                ledger.mark(index, offset, outcome.record.get("status"))
+                result.executed.append(outcome.run_id)
+                if outcome.record.get("status") != "failed" or outcome.record.get("steps"):
+                    started = True
+                elif not outcome.killed:
+                    unstarted += 1
+                    if not started and unstarted >= min(EARLY_STOP_RUNS, len(tasks)):
+                        raise WmrError(
+                            f"the first {unstarted} runs all failed before their first step, "
+                            f"stopping the batch: {outcome.record.get('message')}")
+                status = str(outcome.record.get("status"))
+                counts[status] = counts.get(status, 0) + 1
+                show()
+                bar.update(1)
+                if on_outcome is not None:
+                    on_outcome(outcome)
+                if stop_after is not None and len(result.executed) >= stop_after \
+                        and ledger.n_done < len(batch.runs):
+                    raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            result.interrupted = True
+        except DiskFullError as exc:
+            full = exc
+        finally:
+            close = getattr(stream, "close", None)
+            if close is not None:
+                close()  # stops the workers
+            bar.close()
+            result.counts = ledger.counts()
+            result.wall_s = time.perf_counter() - t0
+            try:
+                _finish(out, _summary_chunks(batch, journal, ledger), result, batch, scheduler,
+                        client, workers, fmu, fmu_sha)
+            except DiskFullError as exc:
+                full = full or exc
+        if full is not None:
+            raise DiskFullError(f"{full}; {result.finished} of {result.total} runs finished "
+                                "and are in the journal; free some space and rerun the same "
+                                "command to finish the batch") from full
+    finally:
+        lock.release()
+    return result
+
+
+class _Ledger:
+    """Which runs of a batch are finished, and where their journal lines are: 9 bytes a run
+    (a million-run batch keeps 9 MB, not its records), whatever the records hold.
+
+    The journal line of a finished run holds its record and its summary row: the summary is
+    read back from the journal (:func:`_summary_chunks`), a block of rows at a time.
+    """
+
+    _CODES: Final = {status: k + 1 for k, status in enumerate(STATUSES)}
+
+    def __init__(self, n_runs: int) -> None:
+        self.offsets = array("q", [-1]) * n_runs
+        self._status = bytearray(n_runs)
+        self.n_done = 0
+
+    def done(self, index: int) -> bool:
+        return self.offsets[index] >= 0
+
+    def mark(self, index: int, offset: int, status: object) -> None:
+        """Run ``index`` finished, with ``status``; its journal line starts at ``offset``."""
+        if self.offsets[index] < 0:
+            self.n_done += 1
+        self.offsets[index] = offset
+        self._status[index] = self._CODES.get(str(status), 0)
+
+    def unmark(self, index: int) -> None:
+        if self.offsets[index] >= 0:
+            self.n_done -= 1
+        self.offsets[index] = -1
+        self._status[index] = 0
+
+    def counts(self) -> dict[str, int]:
+        """Finished runs per status (the three statuses always present)."""
+        counts = dict.fromkeys(STATUSES, 0)
+        for status, code in self._CODES.items():
+            counts[status] = self._status.count(code)
+        return counts
+
+    def finished(self) -> Iterator[tuple[int, int]]:
+        """``(index, journal offset)`` of each finished run, in index (= run id) order."""
+        return ((i, off) for i, off in enumerate(self.offsets) if off >= 0)
+
+
+def _bar_off(progress: bool | None) -> bool | None:
+    """tqdm's ``disable``: ``None`` shows the bar on a terminal only."""
+    return None if progress is None else not progress
+
+
+def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, runs_dir: Path,
+            progress: bool | None) -> _Ledger:
+    """The runs of ``batch`` that the journal says are done, as a :class:`_Ledger`.
+
+    A line counts when its run is the spec's run of that id (same inputs: same digest), was
+    run by the same FMU, and was killed by its executor or has a complete log; the last line
+    of a run wins.  Each line's run is made again to compare its digest (about 0.2 ms a run):
+    only the runs done are made, not the spec.
+    """
+    from tqdm import tqdm
+
+    runs = batch.runs
+    ledger = _Ledger(len(runs))
+    try:
+        size = journal.path.stat().st_size
+    except FileNotFoundError:
+        return ledger
+    # over about 10,000 lines (2 s) the check gets its own bar
+    bar = tqdm(total=size, desc="checking the journal", unit="B", unit_scale=True,
+               file=sys.stderr, leave=False,
+               disable=True if size < 10_000_000 else _bar_off(progress))
+    with bar:
+        for offset, line in journal.scan():
+            bar.update(offset - bar.n)
+            i = run_index(str(line["run_id"]))
+            if i is None or i >= len(runs):
+                continue
+            if _valid(runs[i], line, fmu_sha, runs_dir):
+                ledger.mark(i, offset, line["record"].get("status"))
+            else:
+                ledger.unmark(i)
+    return ledger
+
+
+def _valid(run: BatchRun, line: Mapping[str, Any], fmu_sha: str, runs_dir: Path) -> bool:
+    """Whether journal ``line`` is a finished run of ``run``."""
+    if line.get("run_id") != run.run_id or line.get("fmu_sha256") != fmu_sha \
+            or line.get("digest") != run.digest:
+        return False
+    stamp = line.get("log")
+    return bool(line.get("killed")) or log_complete(runs_dir / f"{run.run_id}.mcap",
+                                                    stamp if isinstance(stamp, dict) else None)
+
+
+def _row_json(run: BatchRun) -> dict[str, Any]:
+    """A run's summary row as a journal line holds it (NaN as null: the journal is JSON)."""
+    return {"name": run.spec.name, "base": run.base, "variant": run.variant,
+            "inputs": {k: None if isinstance(v, float) and math.isnan(v) else v
+                       for k, v in run.inputs.items()}}
+
+
+def _row_of(index: int, line: Mapping[str, Any], batch: BatchSpec) -> SummaryRow:
+    """The summary row of a journal line; made again from the spec when the line has none
+    (written before lines held their rows) or other input columns (the spec was edited without
+    changing the run, e.g. a one-value grid axis added: the new column must not be empty)."""
+    row = line.get("row")
+    if not isinstance(row, dict) or not _row_fits(row, batch.input_columns):
+        return SummaryRow.of(batch.runs[index])
+    return SummaryRow(str(line["run_id"]), row["name"], row["base"], row["variant"],
+                      {k: math.nan if v is None else v if isinstance(v, str) else float(v)
+                       for k, v in row["inputs"].items()})
+
+
+def _row_fits(row: Mapping[str, Any], columns: Sequence[str]) -> bool:
+    """Whether a journal line's summary row has the spec's input columns and sound values (an
+    edited or damaged line is not trusted)."""
+    inputs = row.get("inputs")
+    if not isinstance(inputs, dict) or set(inputs) != set(columns):
+        return False
+    if not all(isinstance(row.get(k), str) for k in ("name", "base", "variant")):
+        return False
+    return all(v is None or isinstance(v, str)
+               or (isinstance(v, int | float) and not isinstance(v, bool))
+               for v in inputs.values())
+
+
+#: Rows of the summary built (and written) at a time.
+SUMMARY_BLOCK: Final = 10_000
+
+
+def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger) -> Iterator[Any]:
+    """The summary of the finished runs as Arrow tables of up to :data:`SUMMARY_BLOCK` rows,
+    in run-id order, read back from the journal (at least one table, maybe empty)."""
+    finished = ledger.finished()
+    while True:
+        block = list(itertools.islice(finished, SUMMARY_BLOCK))
+        try:
+            lines = list(journal.read_at(off for _, off in block))
+        except ValueError as exc:
+            raise WmrError(f"{exc}: the journal changed while the batch ran; rerun the same "
+                           "command to check it again and rewrite the summary") from None
+        records = {str(line["run_id"]): line["record"] for line in lines}
+        yield summary_table([_row_of(i, line, batch) for (i, _), line in zip(block, lines,
+                                                                              strict=True)],
+                            batch.input_columns, records)
+        if len(block) < SUMMARY_BLOCK:
+            return
+
+
+class _Tasks:
+    """The runs of ``batch`` not done in ``ledger``, made one by one as the executor asks.
+
+    Each made run's index, digest and summary row wait in :attr:`in_flight` until its journal
+    line is written: nothing is made twice, and only the runs in flight are held.
+    """
+
+    def __init__(self, batch: BatchSpec, ledger: _Ledger, run_timeout_s: float | None,
+                 faults: Mapping[str, str]) -> None:
+        self._runs = batch.runs
+        self._ledger = ledger
+        self._n = len(self._runs) - ledger.n_done
+        self._timeout, self._faults = run_timeout_s, faults
+        self.in_flight: dict[str, tuple[int, str, dict[str, Any]]] = {}
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __iter__(self) -> Iterator[Task]:
+        for i in range(len(self._runs)):
+            if self._ledger.done(i):
+                continue
+            try:
+                run = self._runs[i]
+            except ConfigError as exc:  # a run made late, e.g. a sample drawn out of range
+                raise ConfigError(exc.field, exc.problem, f"{exc.fix}; the runs finished are "
+                                  "kept: rerun the same command after the fix") from None
+            self.in_flight[run.run_id] = (i, run.digest, _row_json(run))
+            yield Task(run.run_id, run.spec, self._timeout, self._faults.get(run.run_id))
+
+
+def _recover_partial(log: Path) -> None:
+    """A run killed by its executor leaves ``<id>.mcap.partial``: make it a finished log
+    (what was lost is recorded in it), so that every tool reads the run's last seconds."""
+    from wmr.adapters.mcap.recover import recover_log
+
+    partial = partial_path(log)
+    killed = log.with_name(log.name + ".killed")  # out of the way of the recovered log's own
+    try:
+        os.replace(partial, killed)
+    except FileNotFoundError:
+        return
+    try:
+        recover_log(killed, log, overwrite=True)
+    except WmrError:  # nothing readable: the journal line says the run was killed
+        return
+    killed.unlink()
+
+
+def _finish(out: Path, chunks: Iterator[Any], result: BatchOutcome, batch: BatchSpec,
+            scheduler: str | None, client: Any, workers: int | None, fmu: Path,
+            fmu_sha: str) -> None:
+    """Write the summary and ``batch.json``; a full disk is one :class:`DiskFullError`."""
+    try:
+        write_summary(chunks, out)
+        _write_atomic(out / "batch.json", (json.dumps({
+                "spec": str(batch.path) if batch.path else batch.name, "total": result.total,
+                "finished": result.finished, "skipped": result.skipped,
+                "executed": len(result.executed), "counts": result.counts,
+                "interrupted": result.interrupted, "wall_s": round(result.wall_s, 3),
+                "executor": (f"dask {scheduler or 'client'}" if scheduler or client
+                             else f"local, {workers or os.cpu_count()} workers"),
+                "fmu": fmu.name, "fmu_sha256": fmu_sha}, indent=1) + "\n").encode())
+    except OSError as exc:
+        raise storage_error(exc, out) from exc
+
+
+__all__ = ["DEFAULT_RUN_TIMEOUT_S", "BatchOutcome", "run_batch"]

@@ -1,0 +1,177 @@
+"""The summary of a batch: one row per finished run, sorted by run id, as Parquet and CSV.
+
+Nothing in it depends on the execution (no timings, no worker, no host, logs by relative path),
+so the same spec gives the same bytes with any number of workers or on Dask.  Wall times go to
+the journal only.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from wmr.apps.batch.spec import NAME_COLUMNS, BatchRun
+
+SUMMARY_PARQUET: Final = "summary.parquet"
+SUMMARY_CSV: Final = "summary.csv"
+ID_COLUMNS: Final = ("run_id", "name", "base", "variant")
+#: Result columns: name -> Arrow type.
+RESULT_COLUMNS: Final[dict[str, pa.DataType]] = {
+    "status": pa.string(),
+    "message": pa.string(),
+    "final_position_error_m": pa.float64(),
+    "final_heading_error_rad": pa.float64(),
+    "time_to_goal_s": pa.float64(),
+    "path_length_m": pa.float64(),
+    "energy_net_j": pa.float64(),  # wmr.core.energy
+    "energy_positive_j": pa.float64(),
+    "energy_abs_j": pa.float64(),
+    "torque_sq_integral_n2m2s": pa.float64(),
+    "peak_torque_nm": pa.float64(),
+    "steps": pa.int64(),
+    "estimated_final_position_error_m": pa.float64(),
+    "estimated_final_heading_error_rad": pa.float64(),
+    "mcap": pa.string(),
+}
+STATUSES: Final = ("converged", "timeout", "failed")
+
+
+def log_relpath(run_id: str) -> str:
+    """A run's log, relative to the batch folder."""
+    return f"runs/{run_id}.mcap"
+
+
+def _float(value: object) -> float | None:
+    if value is None or isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    v = float(value)
+    return v if math.isfinite(v) else None
+
+
+@dataclass(frozen=True)
+class SummaryRow:
+    """What the summary says of a run besides its result: a :class:`BatchRun` without its
+    :class:`~wmr.config.scenario.RunSpec` (the summary of a large batch holds many)."""
+
+    run_id: str
+    name: str
+    base: str
+    variant: str
+    inputs: Mapping[str, float | str]
+
+    @classmethod
+    def of(cls, run: BatchRun) -> SummaryRow:
+        return cls(run.run_id, run.spec.name, run.base, run.variant, run.inputs)
+
+
+def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence[str],
+                  records: Mapping[str, Mapping[str, Any]]) -> pa.Table:
+    """The summary of the runs of ``runs`` that have a record, sorted by run id.
+
+    Parameters
+    ----------
+    runs
+        The batch's runs, or the summary rows of some of them (at least those with a record).
+    input_columns
+        Input columns (:attr:`wmr.apps.batch.spec.BatchSpec.input_columns`).
+    records
+        Result records (:func:`wmr.apps.run.run_to_log`) by run id.
+    """
+    done = sorted((r for r in runs if r.run_id in records), key=lambda r: r.run_id)
+    cols: dict[str, list[Any]] = {c: [] for c in (*ID_COLUMNS, *input_columns,
+                                                  *RESULT_COLUMNS)}
+    for run in done:
+        rec = records[run.run_id]
+        cols["run_id"].append(run.run_id)
+        cols["name"].append(run.name)
+        cols["base"].append(run.base)
+        cols["variant"].append(run.variant)
+        for c in input_columns:
+            v = run.inputs.get(c, math.nan)
+            cols[c].append(v if isinstance(v, str) else None if math.isnan(v) else v)
+        for c, kind in RESULT_COLUMNS.items():
+            if c == "mcap":
+                cols[c].append(log_relpath(run.run_id))
+            elif kind == pa.string():
+                cols[c].append(str(rec.get(c) or ""))
+            elif kind == pa.int64():
+                steps = rec.get(c)
+                cols[c].append(int(steps) if isinstance(steps, int) else None)
+            else:
+                cols[c].append(_float(rec.get(c)))
+    fields = [pa.field(c, pa.string(), nullable=False) for c in ID_COLUMNS]
+    fields += [pa.field(c, pa.string() if c in NAME_COLUMNS else pa.float64())
+               for c in input_columns]
+    fields += [pa.field(c, t) for c, t in RESULT_COLUMNS.items()]
+    schema = pa.schema(fields)
+    return pa.table({f.name: pa.array(cols[f.name], f.type) for f in fields}, schema=schema)
+
+
+def _csv_cell(value: object) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return repr(value)  # shortest text that reads back to the same double
+    return str(value)
+
+
+def write_summary(tables: pa.Table | Iterable[pa.Table], out_dir: Path) -> tuple[Path, Path]:
+    """Write the summary, a table or the consecutive blocks of one (one schema, the first
+    block maybe empty), as ``summary.parquet`` and ``summary.csv``, each atomically and a
+    block at a time: the summary of a million runs is never whole in memory.
+
+    Returns
+    -------
+    tuple of Path
+        The Parquet and the CSV file.
+    """
+    blocks = iter([tables] if isinstance(tables, pa.Table) else tables)
+    first = next(blocks)
+    parquet, csv_path = out_dir / SUMMARY_PARQUET, out_dir / SUMMARY_CSV
+    tmp_parquet = parquet.with_suffix(".parquet.tmp")
+    tmp_csv = csv_path.with_suffix(".csv.tmp")
+    try:
+        with pq.ParquetWriter(tmp_parquet, first.schema, compression="zstd",
+                              write_statistics=False) as pw, \
+                open(tmp_csv, "w", encoding="utf-8", newline="") as stream:
+            writer = csv.writer(stream, lineterminator="\n")
+            writer.writerow(first.column_names)
+            for table in itertools.chain([first], blocks):
+                if table.num_rows:
+                    pw.write_table(table)
+                columns = [table.column(i).to_pylist() for i in range(table.num_columns)]
+                writer.writerows([_csv_cell(v) for v in row]
+                                 for row in zip(*columns, strict=True))
+    except BaseException:  # a full disk, Ctrl-C: the summary before stays, no debris
+        tmp_parquet.unlink(missing_ok=True)
+        tmp_csv.unlink(missing_ok=True)
+        raise
+    os.replace(tmp_parquet, parquet)
+    os.replace(tmp_csv, csv_path)
+    return parquet, csv_path
+
+
+def read_summary(out_dir: Path) -> pa.Table:
+    """The summary table of a batch folder (Parquet)."""
+    return pq.read_table(out_dir / SUMMARY_PARQUET)
+
+
+__all__ = [
+    "RESULT_COLUMNS",
+    "SUMMARY_CSV",
+    "SUMMARY_PARQUET",
+    "SummaryRow",
+    "log_relpath",
+    "read_summary",
+    "summary_table",
+    "write_summary",
+]

@@ -1,0 +1,273 @@
+"""The worker side of a batch: one :class:`~wmr.adapters.fmi.robot.FmuPlant` per process (or
+thread), reused for every run it is given.
+
+Both executors call :func:`execute`: the local pool from its worker processes, Dask from its
+worker threads (:func:`dask_run`, with the FMU shipped once per worker by
+:class:`wmr.apps.batch.dask_exec.FmuPlugin`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.fmi.varmap import VariableMap
+from wmr.config.scenario import RunSpec
+from wmr.infra.errors import DiskFullError
+
+#: Key of a result record whose log could not be written for lack of space.
+DISK_FULL = "disk_full"
+#: ``fault`` values understood by :func:`execute`, for tests of the executors only.
+FAULTS = ("hang", "crash", "crash-once")
+
+
+class WallClockLimit(Exception):
+    """Raised from the progress callback when a run passes its wall-clock limit."""
+
+
+@dataclass(frozen=True)
+class Task:
+    """One run as sent to a worker.
+
+    Attributes
+    ----------
+    run_id
+        The run's id (its log is ``runs/<run_id>.mcap``).
+    spec
+        The run.
+    wall_limit_s
+        Wall-clock limit of the run, s (checked every 100 control steps), ``None``: none.
+    fault
+        Test hook: ``"hang"`` sleeps for ever, ``"crash"`` kills the worker process,
+        ``"crash-once"`` kills it on the first attempt only.
+    """
+
+    run_id: str
+    spec: RunSpec
+    wall_limit_s: float | None = None
+    fault: str | None = None
+
+
+class TaskSource(Protocol):
+    """The runs for an executor: their count at once, the runs themselves as it takes them
+    (a list, or the runs of a large batch made one by one)."""
+
+    def __len__(self) -> int: ...
+
+    def __iter__(self) -> Iterator[Task]: ...
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """The spec file, attached to every run's log (name and bytes, so that remote workers
+    need no shared file system)."""
+
+    name: str
+    data: bytes
+
+
+def wall_limit_message(limit_s: float) -> str:
+    """The message of a run stopped by its wall-clock limit."""
+    return f"wall-clock limit of {limit_s:g} s exceeded"
+
+
+_TMP = threading.Lock()
+_files: dict[str, Path] = {}
+
+
+def materialise(name: str, data: bytes) -> Path:
+    """Write ``data`` once per process to a private temp folder as ``name``; return the path.
+
+    Keeps the file's own name, which the logs record (``fmu_file``), so that a log written
+    by a Dask worker is identical to one written locally.
+    """
+    digest = hashlib.sha256(data).hexdigest()
+    key = f"{digest}/{name}"
+    with _TMP:
+        path = _files.get(key)
+        if path is None or not path.exists():
+            folder = Path(tempfile.mkdtemp(prefix=f"wmr-batch-{digest[:12]}-"))
+            path = folder / name
+            path.write_bytes(data)
+            _files[key] = path
+        return path
+
+
+def execute(task: Task, plant: FmuPlant, mcap_path: Path,
+            attachment: Path | None) -> dict[str, Any]:
+    """Run ``task`` on ``plant`` into ``mcap_path``; return the result record of
+    :func:`wmr.apps.run.run_to_log`.
+
+    A run past its wall-clock limit ends with status ``timeout`` and the message of
+    :func:`wall_limit_message` (its log says ``failed``: it was stopped from outside the loop).
+    """
+    from wmr.apps.run import run_to_log
+
+    if task.fault == "crash":
+        os._exit(70)
+    if task.fault == "crash-once":  # dies on the first attempt only (a marker beside the log)
+        marker = mcap_path.with_name(f"{task.run_id}.crashed")
+        if not marker.exists():
+            marker.touch()
+            os._exit(70)
+        marker.unlink()
+    if task.fault == "hang":
+        while True:
+            time.sleep(3600)
+    progress = None
+    limit = task.wall_limit_s
+    if limit is not None:
+        deadline = time.monotonic() + limit
+        raised: list[bool] = []
+
+        def progress(t_s: float, t_max_s: float) -> None:
+            # once only: the loop's final progress call, after it ended, must not raise
+            if not raised and time.monotonic() > deadline:
+                raised.append(True)
+                raise WallClockLimit(wall_limit_message(limit))
+
+    with ExitStack() as stack:
+        ctrl = None
+        if task.spec.controller_fmu is not None:  # the scenario key controller_fmu
+            from wmr.adapters.fmi.controller import FmuController
+            from wmr.apps.run import default_controller_fmu
+
+            ctrl_path = task.spec.controller_fmu or default_controller_fmu(
+                int(plant.fmi_version[0]))
+            ctrl = stack.enter_context(FmuController(ctrl_path))
+        # no fsync per log: the resume checks every log, and redoes one a power loss damaged
+        record = run_to_log(task.spec, mcap_path, plant, scenario_file=attachment,
+                            progress=progress, controller_fmu=ctrl, durable=False)
+    if limit is not None and record["status"] == "failed" \
+            and str(record["message"]).startswith(WallClockLimit.__name__):
+        record["status"] = "timeout"
+        record["message"] = wall_limit_message(limit)
+    return record
+
+
+class PlantHolder:
+    """An :class:`FmuPlant` reopened after a failed run (an FMU left in its error state may
+    refuse the next reset)."""
+
+    def __init__(self, fmu_path: Path, var_map: VariableMap | None = None) -> None:
+        self.fmu_path = fmu_path
+        self.var_map = var_map
+        self.plant = FmuPlant(fmu_path, var_map=var_map)
+
+    def run(self, task: Task, mcap_path: Path, attachment: Path | None) -> dict[str, Any]:
+        """:func:`execute` on the held plant; a fresh plant after a failure.
+
+        An exception outside the run itself (the log cannot be created, ...) is a ``failed``
+        record, never the end of the worker.
+        """
+        try:
+            record = execute(task, self.plant, mcap_path, attachment)
+        except DiskFullError as exc:  # not the run's fault: the batch stops, the run is redone
+            return {"name": task.spec.name, "status": "failed", "message": str(exc),
+                    "mcap": str(mcap_path), DISK_FULL: True}
+        except Exception as exc:
+            record = {"name": task.spec.name, "status": "failed",
+                      "message": f"{type(exc).__name__}: {exc}", "mcap": str(mcap_path)}
+        if record["status"] == "failed":
+            self.plant.close()
+            self.plant = FmuPlant(self.fmu_path, var_map=self.var_map)
+        return record
+
+    def close(self) -> None:
+        self.plant.close()
+
+
+# -- Dask --------------------------------------------------------------------------------------
+
+#: FMU files shipped by :class:`wmr.apps.batch.dask_exec.FmuPlugin`, by SHA-256 (one per worker).
+_FMUS: dict[str, Path] = {}
+_local = threading.local()
+
+
+def _holder(sha256: str, var_map: VariableMap | None = None) -> PlantHolder:
+    """This thread's plant of the FMU ``sha256`` (FmuPlant is not thread-safe)."""
+    holders: dict[tuple[str, str], PlantHolder] | None = getattr(_local, "holders", None)
+    if holders is None:
+        holders = _local.holders = {}
+    key = (sha256, "" if var_map is None else json.dumps(var_map.as_dict(), sort_keys=True))
+    holder = holders.get(key)
+    if holder is None:
+        path = _FMUS.get(sha256)
+        if path is None:
+            raise RuntimeError(f"FMU {sha256[:12]} was not shipped to this worker "
+                               "(FmuPlugin not registered)")
+        holder = holders[key] = PlantHolder(path, var_map)
+    return holder
+
+
+_shared: dict[tuple[str, str], bool] = {}
+
+
+def sees_folder(out_dir: str, token: str) -> bool:
+    """Whether this process sees the client's batch folder (it holds the client's token)."""
+    key = (out_dir, token)
+    if key not in _shared:
+        try:
+            _shared[key] = (Path(out_dir) / TOKEN_FILE).read_text() == token
+        except OSError:
+            _shared[key] = False
+    return _shared[key]
+
+
+#: File of the batch folder that tells a worker it shares the client's file system.
+TOKEN_FILE = ".dask-token"
+
+
+def dask_run(task: Task, fmu_sha256: str, attachment: Attachment | None, out_dir: str,
+             token: str, var_map: VariableMap | None = None
+             ) -> tuple[str, dict[str, Any], bytes | None, float]:
+    """A Dask task: run ``task``; return its id, record, log bytes (or ``None``) and wall time.
+
+    A worker that sees the batch folder (same host or shared file system: it holds the
+    client's ``token``) writes the log there, atomically; any other writes it to a private
+    temp file and sends its bytes back for the client to write.
+    """
+    t0 = time.perf_counter()
+    holder = _holder(fmu_sha256, var_map)
+    att = materialise(attachment.name, attachment.data) if attachment is not None else None
+    if sees_folder(out_dir, token):
+        final = Path(out_dir) / "runs" / f"{task.run_id}.mcap"
+        part = final.with_name(f"{final.name}.{os.getpid()}.{threading.get_ident()}.part")
+        try:
+            record = holder.run(task, part, att)
+            os.replace(part, final)
+        finally:
+            part.unlink(missing_ok=True)
+        record["mcap"] = str(final)
+        return task.run_id, record, None, time.perf_counter() - t0
+    folder = Path(tempfile.mkdtemp(prefix="wmr-run-"))
+    try:
+        path = folder / f"{task.run_id}.mcap"
+        record = holder.run(task, path, att)
+        data = path.read_bytes() if path.exists() else b""
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    return task.run_id, record, data, time.perf_counter() - t0
+
+
+def dask_run_many(tasks: list[Task], fmu_sha256: str, attachment: Attachment | None,
+                  out_dir: str, token: str, var_map: VariableMap | None = None
+                  ) -> list[tuple[str, dict[str, Any], bytes | None, float]]:
+    """A Dask task of several runs (:func:`dask_run` each): fewer, longer tasks cost the
+    scheduler less."""
+    return [dask_run(t, fmu_sha256, attachment, out_dir, token, var_map) for t in tasks]
+
+
+__all__ = ["FAULTS", "Attachment", "PlantHolder", "Task", "WallClockLimit",
+           "dask_run", "dask_run_many", "execute", "materialise", "wall_limit_message"]

@@ -1,0 +1,260 @@
+r"""Gain tuning of the PI stabiliser and of the peers by numerical optimisation (``wmr tune``).
+
+The objective is the mean cost of a scenario set, every run on the same FMU plant:
+
+.. math::
+
+    J(k) = \frac1N \sum_{i=1}^N c_i(k),\qquad
+    c_i = \begin{cases}
+        t_{goal,i} + w_\theta |\Delta\theta_i| & \text{converged}\\
+        t_{max,i} + w_r \Delta r_i + w_\theta |\Delta\theta_i| + P & \text{timeout}\\
+        2 t_{max,i} + P & \text{failed, or gains outside their admissible set}
+    \end{cases}
+
+with :math:`t_{goal}` the time to convergence (stop radius, 0.5 deg heading, at rest), s;
+:math:`w_\theta` = 10 s/rad, :math:`w_r` = 10 s/m, :math:`P` = 100 s.
+
+Search: Nelder-Mead (``scipy.optimize.minimize``) in the logarithm of the gains' magnitudes
+(every tuned gain keeps its sign; steps are relative), from the default gains, with an initial
+simplex of +30 % steps in each gain and a budget of objective evaluations.  Nelder-Mead is
+deterministic, so a tuning is reproducible; the best point seen is returned, hence the tuned
+objective is never worse than the starting one.
+
+The default scenario set (:data:`DEFAULT_CASES`) is a subset of Figs. 9 and 10 that spans the
+headings and the start directions, to keep a tuning to about a minute.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, Final
+
+import numpy as np
+from scipy.optimize import minimize
+
+from wmr.config.scenario import RunSpec, load_scenario, with_overrides
+from wmr.core.closedloop import RunResult, run_closed_loop
+from wmr.core.control.peers import CONTROLLER_NAMES
+from wmr.core.plant import Plant
+from wmr.infra.errors import ConfigError
+
+#: Tuned gains per controller: name -> (gain, initial value, lower bound, upper bound).
+#: The PI's four gains of eq. 29 (the servos stay as designed); Astolfi's three; the graceful
+#: law's two curvature gains and the speed-law coefficient beta.
+TUNABLE: Final[dict[str, tuple[tuple[str, float, float, float], ...]]] = {
+    "pi": (("K_ps", 0.5, 0.05, 5.0), ("K_is", 0.025, 1e-4, 1.0),
+           ("K_ptheta", 2.0, 0.2, 20.0), ("K_itheta", 0.4, 1e-3, 10.0)),
+    "astolfi": (("k_rho", 3.0, 0.1, 30.0), ("k_alpha", 8.0, 0.2, 60.0),
+                ("k_beta", -1.5, -30.0, -0.01)),
+    "graceful": (("k_phi", 2.0, 0.05, 20.0), ("k_delta", 1.0, 0.05, 20.0),
+                 ("beta", 0.4, 1e-3, 5.0)),
+}
+
+#: Default tuning set: Fig. 9 with theta_d = -90, -45, 0, 45, 90 deg and Fig. 10 from 0, 60,
+#: 120, 240 and 270 deg (the set is mirror-symmetric about the x axis otherwise).
+DEFAULT_CASES: Final = (
+    ("fig9", "fig9-thd-090"), ("fig9", "fig9-thd-045"), ("fig9", "fig9-thd+000"),
+    ("fig9", "fig9-thd+045"), ("fig9", "fig9-thd+090"),
+    ("fig10", "fig10-from000deg"), ("fig10", "fig10-from060deg"),
+    ("fig10", "fig10-from120deg"), ("fig10", "fig10-from240deg"),
+    ("fig10", "fig10-from270deg"),
+)
+DEFAULT_BUDGET: Final = 60
+W_HEADING_S_PER_RAD: Final = 10.0
+W_DISTANCE_S_PER_M: Final = 10.0
+PENALTY_S: Final = 100.0
+
+#: Tuned gains measured with ``wmr tune --controller C`` (default set, budget 60); see
+#: ``docs/benchmark.md``.  Used by ``wmr benchmark`` for the ``*-tuned`` rows unless a file
+#: from ``wmr tune --save`` is given.
+TUNED_GAINS: Final[dict[str, dict[str, float]]] = {
+    "pi": {"K_ps": 0.418, "K_is": 0.282, "K_ptheta": 17.0, "K_itheta": 0.297},
+    "astolfi": {"k_rho": 3.88, "k_alpha": 7.57, "k_beta": -1.65},
+    "graceful": {"k_phi": 0.330, "k_delta": 19.7, "beta": 0.0288},
+}
+
+
+def default_cases() -> list[RunSpec]:
+    """The runs of :data:`DEFAULT_CASES`, loaded from the shipped scenarios."""
+    loaded: dict[str, dict[str, RunSpec]] = {}
+    out = []
+    for scen, name in DEFAULT_CASES:
+        if scen not in loaded:
+            loaded[scen] = {r.name: r for r in load_scenario(scen).runs}
+        out.append(loaded[scen][name])
+    return out
+
+
+def with_gains(spec: RunSpec, controller: str, gains: Mapping[str, float]) -> RunSpec:
+    """``spec`` run by ``controller`` with ``gains`` (the PI's go to ``[gains]``).
+
+    Raises
+    ------
+    ConfigError
+        Unknown controller or gain, or gains outside their admissible set.
+    """
+    if controller == "pi":
+        return with_overrides(replace(spec, controller="pi", controller_gains=()),
+                              gains=dict(gains))
+    return with_overrides(spec, controller=controller, controller_gains=dict(gains))
+
+
+def case_cost(result: RunResult, spec: RunSpec) -> float:
+    r"""Cost :math:`c_i` of one run, s (module docstring)."""
+    head = result.final_heading_error_rad
+    head = 0.0 if not math.isfinite(head) else head
+    if result.status == "converged" and result.time_to_goal_s is not None:
+        return result.time_to_goal_s + W_HEADING_S_PER_RAD * head
+    if result.status == "timeout":
+        dist = result.final_position_error_m
+        dist = 1e3 if not math.isfinite(dist) else dist
+        return spec.t_max_s + W_DISTANCE_S_PER_M * dist + W_HEADING_S_PER_RAD * head + PENALTY_S
+    return 2.0 * spec.t_max_s + PENALTY_S
+
+
+def evaluate(controller: str, gains: Mapping[str, float], specs: Sequence[RunSpec],
+             plant: Plant) -> tuple[float, list[RunResult | None]]:
+    """Objective :math:`J` (s) of ``gains`` over ``specs`` and the run results.
+
+    Gains outside the admissible set (a ``ConfigError``) cost :math:`2 t_{max} + P` per run
+    and give ``None`` results.
+    """
+    try:
+        tuned = [with_gains(s, controller, gains) for s in specs]
+    except ConfigError:
+        return float(np.mean([2.0 * s.t_max_s + PENALTY_S for s in specs])), [None] * len(specs)
+    results: list[RunResult | None] = []
+    costs = []
+    for s in tuned:
+        r = run_closed_loop(s, plant)
+        results.append(r)
+        costs.append(case_cost(r, s))
+    return float(np.mean(costs)), results
+
+
+@dataclass
+class TuneResult:
+    """Outcome of a tuning.
+
+    Attributes
+    ----------
+    controller
+        ``pi``, ``astolfi`` or ``graceful``.
+    start_gains, gains
+        Initial and tuned gains by name.
+    start_cost_s, cost_s
+        Objective J at the start and at the tuned gains, s.
+    evaluations
+        Objective evaluations used (each = one run per case).
+    wall_time_s
+        Wall time of the tuning, s.
+    results
+        The runs at the tuned gains, one per case.
+    """
+
+    controller: str
+    start_gains: dict[str, float]
+    gains: dict[str, float]
+    start_cost_s: float
+    cost_s: float
+    evaluations: int
+    wall_time_s: float
+    results: list[RunResult | None] = field(default_factory=list)
+
+
+def tune(controller: str, specs: Sequence[RunSpec], plant: Plant,
+         budget: int = DEFAULT_BUDGET, start: Mapping[str, float] | None = None,
+         progress: Callable[[int, float, float], None] | None = None) -> TuneResult:
+    r"""Tune ``controller``'s gains on ``specs`` by Nelder-Mead in :math:`\log|k|`.
+
+    Parameters
+    ----------
+    controller
+        One of :data:`wmr.core.control.peers.CONTROLLER_NAMES`.
+    specs
+        The scenario set (their own ``controller`` fields are overridden).
+    plant
+        One plant for every run (the FMU).
+    budget
+        Maximum objective evaluations (>= 1; the first is the starting point).
+    start
+        Initial gains (default: the controller's defaults, :data:`TUNABLE`).
+    progress
+        ``progress(evaluation, cost_s, best_cost_s)`` after each evaluation.
+
+    Returns
+    -------
+    TuneResult
+        The best gains seen (never worse than ``start``).
+    """
+    if controller not in CONTROLLER_NAMES:
+        raise ConfigError("--controller", f"unknown controller {controller!r}",
+                          f"one of: {', '.join(CONTROLLER_NAMES)}")
+    if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
+        raise ConfigError("--budget", f"must be an integer >= 1, got {budget!r}")
+    if not specs:
+        raise ConfigError("scenarios", "the tuning set is empty", "give a scenario with runs")
+    table = TUNABLE[controller]
+    names = [t[0] for t in table]
+    x_start = dict(zip(names, (t[1] for t in table), strict=True))
+    if start:
+        unknown = set(start) - set(names)
+        if unknown:
+            raise ConfigError("start", f"not tunable for {controller}: {sorted(unknown)}",
+                              f"tunable: {', '.join(names)}")
+        x_start.update({k: float(v) for k, v in start.items()})
+    signs = np.array([math.copysign(1.0, x_start[n]) for n in names])
+    lo = np.log(np.array([min(abs(t[2]), abs(t[3])) for t in table]))
+    hi = np.log(np.array([max(abs(t[2]), abs(t[3])) for t in table]))
+    z0 = np.log(np.array([abs(x_start[n]) for n in names]))
+
+    def gains_of(z: np.ndarray) -> dict[str, float]:
+        return {n: float(s * math.exp(v)) for n, s, v in zip(names, signs, z, strict=True)}
+
+    t0 = time.perf_counter()
+    best: dict[str, Any] = {"cost": math.inf, "z": z0, "n": 0, "results": []}
+    first: list[float] = []
+
+    def f(z: np.ndarray) -> float:
+        if best["n"] >= budget:  # hard budget: Nelder-Mead may overshoot maxfev by a few
+            return math.inf
+        best["n"] += 1
+        zc = np.clip(z, lo, hi)
+        cost, results = evaluate(controller, gains_of(zc), specs, plant)
+        cost += 10.0 * float(np.sum(np.abs(z - zc)))  # leave the box: pay for it
+        if not first:
+            first.append(cost)
+        if cost < best["cost"]:
+            best.update(cost=cost, z=zc, results=results)
+        if progress is not None:
+            progress(best["n"], cost, best["cost"])
+        return cost
+
+    f(z0)
+    if budget > 1:
+        simplex = np.vstack([z0] + [z0 + 0.262 * np.eye(len(names))[i]
+                                    for i in range(len(names))])  # +30 % per gain
+        minimize(f, z0, method="Nelder-Mead",
+                 options={"maxfev": budget - 1, "initial_simplex": simplex,
+                          "xatol": 1e-3, "fatol": 1e-3})
+    return TuneResult(controller=controller, start_gains=gains_of(z0),
+                      gains=gains_of(best["z"]), start_cost_s=first[0], cost_s=best["cost"],
+                      evaluations=best["n"], wall_time_s=time.perf_counter() - t0,
+                      results=best["results"])
+
+
+__all__ = [
+    "DEFAULT_BUDGET",
+    "DEFAULT_CASES",
+    "TUNABLE",
+    "TUNED_GAINS",
+    "TuneResult",
+    "case_cost",
+    "default_cases",
+    "evaluate",
+    "tune",
+    "with_gains",
+]

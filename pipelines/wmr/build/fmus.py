@@ -1,0 +1,380 @@
+"""``wmr fmu build``: Modelica source -> pymoca -> explicit ODE -> CasADi C -> zig/gcc -> .fmu.
+
+One FMI 2.0 and one FMI 3.0 FMU are built from the same generated model core and the same FMI
+layer (``fmu/src``); only ``fmi2.c`` or ``fmi3.c`` and the model description differ.  With Zig's
+C compiler (the ``ziglang`` package) each FMU carries binaries for every platform the FMI
+standard names (:mod:`wmr.build.platforms`); with the host's gcc, for the host only.  The
+compiles run concurrently.  A build is skipped when a digest over every input (Modelica
+sources, C sources, this build code, the tool and compiler versions, the flags and the target
+platforms) matches the digest of the FMUs already there.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import zipfile
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from wmr import __version__
+from wmr.build.platforms import (
+    CFLAGS,
+    GLIBC_FLOOR,
+    PLATFORMS,
+    Compiler,
+    Platform,
+    check_binary,
+    find_compiler,
+)
+from wmr.infra import paths
+from wmr.infra.errors import BuildError
+
+FMI_VERSIONS = (2, 3)
+_STAMP = ".wmr-build.json"
+_ZIP_DATE = (2020, 1, 1, 0, 0, 0)  # fixed, so that identical inputs give identical archives
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    """The FMUs of one build and whether they were reused."""
+
+    fmus: dict[int, Path]
+    digest: str
+    reused: bool
+    #: FMI 3 names of the platforms the binaries were built for, in :data:`PLATFORMS` order.
+    platforms: tuple[str, ...] = ()
+    #: The controller FMUs (:mod:`wmr.build.controller_interface`) by FMI version.
+    controllers: dict[int, Path] = field(default_factory=dict)
+
+
+def fmu_name(fmi_version: int) -> str:
+    return f"wmr_robot-fmi{fmi_version}.fmu"
+
+
+def controller_fmu_name(fmi_version: int) -> str:
+    return f"wmr_controller-fmi{fmi_version}.fmu"
+
+
+def _products(out_dir: Path) -> dict[str, Path]:
+    """Every FMU of a build by stamp key: the robot's ``"2"``, the controller's ``"c2"``."""
+    fmus = {str(v): out_dir / fmu_name(v) for v in FMI_VERSIONS}
+    fmus.update({f"c{v}": out_dir / controller_fmu_name(v) for v in FMI_VERSIONS})
+    return fmus
+
+
+def _fmi_headers() -> Path:
+    import fmpy
+
+    headers = Path(fmpy.__file__).parent / "c-code"
+    if not (headers / "fmi2Functions.h").exists() or not (headers / "fmi3Functions.h").exists():
+        raise BuildError(f"the FMI headers are missing from fmpy ({headers}); reinstall fmpy")
+    return headers
+
+
+def _hand_written_sources() -> list[Path]:
+    src = paths.fmu_src_dir()
+    files = sorted(p for p in src.iterdir() if p.suffix in {".c", ".h"})
+    needed = {"model.h", "fmi_layer.c", "fmi_layer.h", "solver.c", "solver.h", "fmi2.c", "fmi3.c"}
+    missing = needed - {p.name for p in files}
+    if missing:
+        raise BuildError(f"{src} lacks {', '.join(sorted(missing))}")
+    return files
+
+
+def build_digest(compiler: Compiler | None = None,
+                 platforms: Sequence[Platform] | None = None) -> str:
+    """SHA-256 over everything that goes into an FMU."""
+    compiler = compiler if compiler is not None else find_compiler()
+    platforms = platforms if platforms is not None else compiler.platforms()
+    import casadi
+    import pymoca
+
+    from wmr.build.flatten import source_digest
+
+    h = hashlib.sha256()
+    h.update(source_digest(paths.modelica_dir()).encode())
+    for path in _hand_written_sources():
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    for path in sorted((paths.fmu_src_dir() / "controller").iterdir()):
+        h.update(f"controller/{path.name}".encode())
+        h.update(path.read_bytes())
+    for module in sorted(Path(__file__).parent.glob("*.py")):
+        h.update(module.name.encode())
+        h.update(module.read_bytes())
+    h.update(" ".join([casadi.__version__, pymoca.__version__, __version__, compiler.version,
+                       *CFLAGS]).encode())
+    h.update(" ".join(f"{p.name}={p.zig_target if compiler.cross else 'host'}"
+                      for p in platforms).encode())
+    return h.hexdigest()
+
+
+@contextmanager
+def _locked(out_dir: Path) -> Iterator[None]:
+    """Serialise builds into one folder (batch workers may all ask for the FMUs at once)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with open(out_dir / ".wmr-build.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _reusable(out_dir: Path, digest: str) -> dict[str, Path] | None:
+    stamp = out_dir / _STAMP
+    fmus = _products(out_dir)
+    if not stamp.exists() or not all(p.exists() for p in fmus.values()):
+        return None
+    try:
+        recorded = json.loads(stamp.read_text())
+    except (OSError, ValueError):
+        return None
+    if recorded.get("digest") != digest:
+        return None
+    for key, p in fmus.items():
+        if recorded.get("sha256", {}).get(key) != hashlib.sha256(p.read_bytes()).hexdigest():
+            return None
+    return fmus
+
+
+def _compile(compiler: Compiler, target: Platform, sources: list[Path],
+             include_dirs: list[Path], output: Path) -> None:
+    """Compile one shared library; its own folder, since zig puts a ``.lib`` beside a DLL."""
+    output.parent.mkdir(parents=True, exist_ok=True)
+    cmd = compiler.argv(target, sources, include_dirs, output)
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=output.parent)
+    if proc.returncode != 0:
+        raise BuildError(f"the C compiler failed for {target.name}:\n{' '.join(cmd)}\n"
+                         f"{proc.stderr.strip()}")
+    if proc.stderr.strip():
+        raise BuildError(f"the C sources must compile without warnings ({target.name}):\n"
+                         f"{proc.stderr.strip()}")
+    problems = check_binary(output, target, GLIBC_FLOOR if compiler.cross else None)
+    if problems:
+        raise BuildError("; ".join(problems))
+
+
+def _write_zip(target: Path, members: dict[str, bytes]) -> None:
+    """Write the archive next to ``target`` and move it into place atomically."""
+    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".", suffix=".fmu.part")
+    os.close(fd)
+    try:
+        os.chmod(tmp, 0o644)  # mkstemp's 0600 would keep the FMU from other users
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+            for name in sorted(members):
+                info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
+                info.compress_type = zipfile.ZIP_DEFLATED
+                info.external_attr = 0o644 << 16
+                zf.writestr(info, members[name])
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = False,
+               cc: str | None = None, validate: bool = True,
+               on_build: Callable[[str], None] | None = None) -> BuildResult:
+    """Build (or reuse) the FMI 2.0 and FMI 3.0 FMUs into ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir
+        Folder for the two ``.fmu`` files; :func:`wmr.infra.paths.default_fmu_dir` by default.
+    force
+        Rebuild even when the digest of the inputs matches the existing FMUs.
+    cc
+        The C compiler: ``"zig"`` (every platform), a host compiler such as ``"gcc"`` (the host
+        platform only), or None for zig when the ``ziglang`` package is installed, else gcc.
+    validate
+        Run fmpy's ``validate_fmu`` on each new FMU and fail on any problem.
+    on_build
+        Called with a one-line notice when the FMUs must be built rather than reused (a first
+        build takes minutes: Zig builds its C libraries for every platform once per machine).
+
+    Raises
+    ------
+    BuildError
+        With the failing step and what to do.
+    """
+    compiler = find_compiler(cc)
+    targets = compiler.platforms()
+    out = Path(out_dir) if out_dir is not None else paths.default_fmu_dir()
+    digest = build_digest(compiler, targets)
+    names = tuple(t.name for t in targets)
+    with _locked(out):
+        if not force:
+            reused = _reusable(out, digest)
+            if reused is not None:
+                return _result(reused, digest, True, names)
+        if on_build is not None:
+            on_build(f"building the robot and controller FMUs for {', '.join(names)} into {out} "
+                     "(the first build on a machine takes a few minutes)")
+        fmus = _build(out, digest, compiler, targets)
+        controllers = _build(out, digest, compiler, targets, "controller")
+        if validate:
+            _validate(fmus)
+            _validate(controllers)
+        products = _products(out)
+        stamp = {"digest": digest, "compiler": compiler.version, "platforms": list(names),
+                 "sha256": {key: hashlib.sha256(p.read_bytes()).hexdigest()
+                            for key, p in products.items()}}
+        (out / _STAMP).write_text(json.dumps(stamp, indent=1) + "\n")
+    return _result(products, digest, False, names)
+
+
+def _result(products: dict[str, Path], digest: str, reused: bool,
+            platforms: tuple[str, ...]) -> BuildResult:
+    return BuildResult({v: products[str(v)] for v in FMI_VERSIONS}, digest, reused,
+                       platforms=platforms,
+                       controllers={v: products[f"c{v}"] for v in FMI_VERSIONS})
+
+
+def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platform],
+           product: str = "robot") -> dict[int, Path]:
+    """Build one product, ``robot`` or ``controller``, for every FMI version and platform."""
+    from wmr.build.codegen import MODEL_IDENTIFIER, unity_source, write_model_core
+    from wmr.build.controller_interface import ControllerModel
+    from wmr.build.documentation import index_html, license_files
+    from wmr.build.flatten import FlatModel
+    from wmr.build.modeldesc import (
+        fmi2_model_description,
+        fmi3_build_description,
+        fmi3_model_description,
+        token_from_digest,
+    )
+
+    model: FlatModel | ControllerModel
+    extra: list[Path] = []  # hand-written C of the product's model core
+    if product == "robot":
+        from wmr.build.flatten import flatten
+
+        model = flatten(paths.modelica_dir())
+        identifier, name = MODEL_IDENTIFIER, fmu_name
+        token = token_from_digest(digest)
+    else:
+        from wmr.build.controller_interface import controller_model, controller_sources
+
+        model = controller_model()
+        identifier, name, extra = model.model_identifier, controller_fmu_name, \
+            controller_sources()
+        # its own token: an importer must not pair the robot's description with this binary
+        token = token_from_digest(hashlib.sha256(f"{identifier}:{digest}".encode()).hexdigest())
+    headers = _fmi_headers()
+    hand = _hand_written_sources() + extra
+    result: dict[int, Path] = {}
+    with tempfile.TemporaryDirectory(prefix="wmr-fmu-") as tmp:
+        gen_dir = Path(tmp) / "generated"
+        if isinstance(model, ControllerModel):
+            from wmr.build.controller_interface import write_controller_core
+
+            generated = write_controller_core(model, token, gen_dir)
+        else:
+            generated = write_model_core(model, token, gen_dir)
+        # One translation unit per FMI version includes all the others, so that only the fmi*
+        # entry points are global symbols (fmu/src/README.md).
+        unity: dict[int, Path] = {}
+        for v in FMI_VERSIONS:
+            unity[v] = Path(tmp) / f"fmi{v}" / f"{identifier}.c"
+            unity[v].parent.mkdir()
+            unity[v].write_text(unity_source(model, v))
+        sources = {v: [p for p in hand if p.name != ("fmi3.c" if v == 2 else "fmi2.c")]
+                   + generated + [unity[v]] for v in FMI_VERSIONS}
+        # One job per FMI version and platform; FMI 2 has no folder name for aarch64.
+        jobs = [(v, t, Path(tmp) / f"fmi{v}" / t.name / f"{identifier}{t.extension}")
+                for v in FMI_VERSIONS for t in targets if t.folder(v) is not None]
+        include = [gen_dir, paths.fmu_src_dir(), headers,
+                   *sorted({p.parent for p in extra})]
+        with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
+            futures = [pool.submit(_compile, compiler, t, [unity[v]], include, lib)
+                       for v, t, lib in jobs]
+            for future in futures:
+                future.result()
+        if isinstance(model, ControllerModel):
+            from wmr.build.controller_interface import index_html as controller_index
+
+            page = controller_index(model)
+        else:
+            page = index_html(model)
+        docs = {"documentation/index.html": page.encode(), **license_files()}
+        readme = paths.fmu_src_dir() / "README.md"
+        if readme.exists():
+            docs["documentation/README.md"] = readme.read_bytes()
+        for version in FMI_VERSIONS:
+            c_names = [unity[version].name]
+            members = {f"sources/{p.name}": p.read_bytes() for p in sources[version]}
+            members.update(docs)
+            for v, t, lib in jobs:
+                if v == version:
+                    members[f"binaries/{t.folder(v)}/{lib.name}"] = lib.read_bytes()
+            if version == 2:
+                members["modelDescription.xml"] = fmi2_model_description(model, token, c_names)
+            else:
+                members["modelDescription.xml"] = fmi3_model_description(model, token)
+                members["sources/buildDescription.xml"] = fmi3_build_description(c_names,
+                                                                                  identifier)
+            target = out / name(version)
+            _write_zip(target, members)
+            result[version] = target
+    return result
+
+
+def _validate(fmus: dict[int, Path]) -> None:
+    from fmpy.validation import validate_fmu
+
+    for version, path in fmus.items():
+        problems = validate_fmu(str(path))
+        if problems:
+            raise BuildError(f"fmpy rejects the FMI {version} FMU {path}: " + "; ".join(problems))
+
+
+@dataclass(frozen=True)
+class FmuSummary:
+    """What one FMU file offers, read back from the archive itself."""
+
+    path: Path
+    fmi_version: str
+    interfaces: tuple[str, ...]  # "co-simulation", "model exchange", "scheduled execution"
+    platforms: tuple[str, ...]  # folder names under binaries/, in PLATFORMS order
+
+    def line(self) -> str:
+        """``<file name>: FMI 3.0, co-simulation, x86_64-linux aarch64-linux ...``; for FMI 2
+        also what it cannot carry."""
+        text = (f"{self.path.name}: FMI {self.fmi_version}, {' + '.join(self.interfaces)}, "
+                f"binaries for {' '.join(self.platforms) or 'no platform'}")
+        if self.fmi_version.startswith("2"):
+            missing = [p.name for p in PLATFORMS if p.fmi2 is None]
+            text += f" (FMI 2.0 names no platform for {', '.join(missing)})"
+        return text
+
+
+def summarize(path: Path) -> FmuSummary:
+    """Read the FMI version, interfaces and binary platforms of the FMU at ``path``."""
+    from fmpy import read_model_description
+
+    md = read_model_description(str(path))
+    interfaces = tuple(name for name, present in (
+        ("co-simulation", md.coSimulation), ("model exchange", md.modelExchange),
+        ("scheduled execution", getattr(md, "scheduledExecution", None))) if present)
+    with zipfile.ZipFile(path) as zf:
+        folders = {n.split("/")[1] for n in zf.namelist()
+                   if n.startswith("binaries/") and n.count("/") == 2 and not n.endswith("/")}
+    order = [f for p in PLATFORMS for f in (p.name, p.fmi2) if f]
+    platforms = tuple(sorted(folders, key=lambda f: order.index(f) if f in order else len(order)))
+    return FmuSummary(path, md.fmiVersion, interfaces, platforms)
+
+
+def copy_fmus(result: BuildResult, dest: Path) -> dict[int, Path]:
+    """Copy built FMUs into ``dest`` (e.g. next to a batch's logs)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    return {v: Path(shutil.copy2(p, dest / p.name)) for v, p in result.fmus.items()}

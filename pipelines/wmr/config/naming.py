@@ -1,0 +1,110 @@
+"""The one place that names a run and its default log from what makes it differ.
+
+A run started from a scenario with overrides (``--start``, ``--goal``, ``--param``, ``--gain``,
+``--limit``, ``--period``, ``--stop-radius``, ``--max-time``, another controller, another FMU
+or FMI version) is named after its differences from the scenario's own run, so that its log
+never overwrites the scenario's (``runs/fig11.mcap``) nor passes for it in its ``run`` record:
+``fig11-m=40-K_ps=0.3-to_5_5_30deg``.  A run that does not differ keeps the scenario's name.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+
+from wmr.config.scenario import RunSpec
+from wmr.core.plant import Pose
+from wmr.infra.paths import safe_filename
+
+#: Longest name kept whole; a longer one is cut and ends in a hash of the whole.
+MAX_NAME_CHARS = 120
+
+
+def pose_token(label: str, pose: Pose) -> str:
+    """``to_20_10_0deg``: a pose as typed on the command line (heading in degrees)."""
+    return (f"{label}_{pose.x_m:.10g}_{pose.y_m:.10g}_"
+            f"{math.degrees(pose.heading_rad):.10g}deg")
+
+
+def _value_tokens(base: Mapping[str, float], new: Mapping[str, float]) -> list[str]:
+    return [f"{k}={v:.10g}" for k, v in new.items() if base.get(k) != v]
+
+
+def spec_tokens(base: RunSpec, spec: RunSpec) -> list[str]:
+    """One token per field in which ``spec`` differs from ``base``, in a fixed order."""
+    tokens: list[str] = []
+    if spec.controller != base.controller:
+        tokens.append(spec.controller)
+    tokens += _value_tokens(base.params.as_dict(), spec.params.as_dict())
+    tokens += _value_tokens(base.gains.as_dict(), spec.gains.as_dict())
+    tokens += _value_tokens(base.limits.as_dict(), spec.limits.as_dict())
+    base_peer = dict(base.controller_gains) if spec.controller == base.controller else {}
+    tokens += _value_tokens(base_peer, dict(spec.controller_gains))
+    for label, old, new in (("period", base.period_s, spec.period_s),
+                            ("stop", base.stop_radius_m, spec.stop_radius_m),
+                            ("tmax", base.t_max_s, spec.t_max_s)):
+        if old != new:
+            tokens.append(f"{label}={new:.10g}")
+    if spec.heading_tolerance_rad != base.heading_tolerance_rad:
+        tokens.append(f"htol={math.degrees(spec.heading_tolerance_rad):.10g}deg")
+    if spec.controller_fmu != base.controller_fmu:
+        tokens.append("controller_fmu" if spec.controller_fmu is not None
+                      else "controller_python")
+    if spec.sensors != base.sensors:
+        if spec.sensors is None:
+            tokens.append("sensors_off")
+        else:
+            from dataclasses import asdict
+
+            from wmr.core.sensing.config import SensorConfig
+
+            before = asdict(base.sensors if base.sensors is not None else SensorConfig())
+            tokens.append("sensors")
+            tokens += [f"{k}={v:.10g}" if isinstance(v, float) else f"{k}={v}"
+                       for k, v in asdict(spec.sensors).items() if before.get(k) != v]
+    if spec.start != base.start:
+        tokens.append(pose_token("from", spec.start))
+    if spec.goal != base.goal:
+        tokens.append(pose_token("to", spec.goal))
+    return tokens
+
+
+def fmu_tokens(fmi_version: int, fmu: str | Path | None, default_fmi: int = 3) -> list[str]:
+    """Tokens for a plant other than the project's own FMI ``default_fmi`` build."""
+    tokens = []
+    if fmu is not None:
+        tokens.append(f"fmu_{Path(fmu).stem}")
+    elif fmi_version != default_fmi:
+        tokens.append(f"fmi{fmi_version}")
+    return tokens
+
+
+def variant_name(base_name: str, tokens: Iterable[str]) -> str:
+    """``base_name`` followed by ``tokens``, joined by ``-``; cut to :data:`MAX_NAME_CHARS`
+    with a hash of the whole so that two long names stay apart."""
+    name = "-".join([base_name, *tokens])
+    if len(name) <= MAX_NAME_CHARS:
+        return name
+    digest = hashlib.sha256(name.encode()).hexdigest()[:10]
+    return f"{name[:MAX_NAME_CHARS - 11]}~{digest}"
+
+
+def run_name(base: RunSpec, spec: RunSpec, extra: Sequence[str] = ()) -> str:
+    """Name of ``spec``, a variant of the scenario's run ``base`` (itself if no change)."""
+    return variant_name(base.name, [*spec_tokens(base, spec), *extra])
+
+
+def default_log_path(name: str, folder: str | Path = "runs") -> Path:
+    """``runs/NAME.mcap``: where a run's log goes when no ``--out`` is given."""
+    return Path(folder) / f"{safe_filename(name)}.mcap"
+
+
+def plural(n: int, noun: str) -> str:
+    """``1 run``, ``2 runs``, ``0 runs``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+__all__ = ["default_log_path", "fmu_tokens", "plural", "pose_token", "run_name", "spec_tokens",
+           "variant_name"]

@@ -1,0 +1,461 @@
+"""Scenario files (TOML): what to run, validated, expanded into :class:`RunSpec` s.
+
+A scenario file::
+
+    name = "fig11"
+    description = "Fig. 11: (0, 0, 0 deg) to (20, 10, 0 deg)"
+    start = [0.0, 0.0, 0.0]          # x_m, y_m, heading_deg
+    goal = [20.0, 10.0, 0.0]         # x_m, y_m, heading_deg
+    control_period_s = 0.01          # default 0.01
+    stop_radius_m = 0.05             # epsilon of Section 4, default 0.05
+    heading_tolerance_deg = 0.5      # final alignment tolerance, default 0.5
+    max_time_s = 120.0               # default 120
+    controller = "pi"                # pi (default), astolfi or graceful (wmr.core.control.peers)
+    fmu = "other_robot.fmu"          # optional: drive this robot FMU (path relative to here)
+    fmu_map = "other_robot.toml"     # optional: its variable map (docs/fmu_map.md)
+    controller_fmu = true            # run the PI law in the controller FMU (or a path to one)
+
+    [controller_gains]               # a peer's own gains (astolfi: k_rho, k_alpha, ...)
+    k_rho = 3.0
+
+    [gains]                          # any of wmr.core.control.Gains
+    K_ps = 0.5
+    [limits]                         # any of wmr.core.control.Limits
+    torque_max_nm = 8.0
+    [params]                         # any of wmr.core.plant.RobotParams
+    m = 25.0
+
+    [sensors]                        # optional: noisy, late fixes instead of the true state
+    estimator = "ekf"                # (wmr.core.sensing.config; absent: perfect state feedback)
+    gps_sigma_m = 0.02
+
+    [[runs]]                         # optional: a set of runs (Figs. 9 and 10); each may
+    name = "theta_d=+30"             # give name, start, goal, max_time_s, and inherits
+    goal = [20.0, 10.0, 30.0]        # the top-level start and goal otherwise
+
+Every error is a :class:`~wmr.infra.errors.ConfigError` that names the field.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from wmr.core.control.peers import controller_gains
+from wmr.core.control.stabiliser import Gains, Limits
+from wmr.core.plant import Pose, RobotParams
+from wmr.core.sensing.config import SensorConfig, sensor_config
+from wmr.infra.errors import ConfigError
+from wmr.infra.paths import scenarios_dir
+
+DEFAULT_SCENARIO = "fig11"
+DEFAULT_PERIOD_S = 0.01
+DEFAULT_STOP_RADIUS_M = 0.05
+DEFAULT_HEADING_TOLERANCE_DEG = 0.5
+DEFAULT_MAX_TIME_S = 120.0
+#: Upper bound on the number of control steps of one run (keeps a typo from hanging a run).
+MAX_STEPS = 10_000_000
+
+TOP_FIELDS = ("name", "description", "start", "goal", "runs", "gains", "limits", "params",
+              "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s",
+              "controller", "controller_gains", "controller_fmu", "sensors", "fmu", "fmu_map")
+RUN_FIELDS = ("name", "start", "goal", "max_time_s")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything one closed-loop run needs.  Angles in rad, SI units."""
+
+    name: str
+    start: Pose
+    goal: Pose
+    params: RobotParams = field(default_factory=RobotParams)
+    gains: Gains = field(default_factory=Gains)
+    limits: Limits = field(default_factory=Limits)
+    period_s: float = DEFAULT_PERIOD_S
+    stop_radius_m: float = DEFAULT_STOP_RADIUS_M
+    t_max_s: float = DEFAULT_MAX_TIME_S
+    heading_tolerance_rad: float = math.radians(DEFAULT_HEADING_TOLERANCE_DEG)
+    scenario: str = ""
+    #: ``pi`` (the paper's), ``astolfi`` or ``graceful`` (:mod:`wmr.core.control.peers`).
+    controller: str = "pi"
+    #: A peer's own gains as ``(name, value)`` pairs; empty: its published defaults.
+    controller_gains: tuple[tuple[str, float], ...] = ()
+    #: ``None``: the Python controller; ``""``: the built controller FMU; else its path.
+    controller_fmu: str | None = None
+    #: The sensors and estimator (:mod:`wmr.core.sensing`); ``None``: perfect state feedback.
+    sensors: SensorConfig | None = None
+
+    def __post_init__(self) -> None:
+        controller_gains(self.controller, dict(self.controller_gains))
+        if self.sensors is not None:
+            self.sensors.check(self.period_s)
+        _positive("control_period_s", self.period_s)
+        _positive("stop_radius_m", self.stop_radius_m)
+        _positive("max_time_s", self.t_max_s)
+        _positive("heading_tolerance_deg", self.heading_tolerance_rad)
+        if self.t_max_s < self.period_s:
+            raise ConfigError("max_time_s", f"{self.t_max_s!r} s is shorter than one control "
+                              f"period ({self.period_s!r} s)", "give a longer max_time_s")
+        if self.t_max_s / self.period_s > MAX_STEPS:
+            raise ConfigError("max_time_s", f"{self.t_max_s / self.period_s:.3g} control steps "
+                              f"is more than {MAX_STEPS}",
+                              "shorten max_time_s or lengthen control_period_s")
+        for label, pose in (("start", self.start), ("goal", self.goal)):
+            for f in fields(pose):
+                _finite(f"{label}.{f.name}", getattr(pose, f.name))
+        _check_sanity(self)
+
+    @property
+    def n_steps_max(self) -> int:
+        """Number of control periods in ``t_max_s`` (rounded to the nearest step)."""
+        return max(1, round(self.t_max_s / self.period_s))
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A loaded scenario file: its runs, already expanded."""
+
+    name: str
+    description: str
+    runs: tuple[RunSpec, ...]
+    path: Path | None = None
+    #: The robot FMU to drive and its variable map (:mod:`wmr.adapters.fmi.varmap`); ``None``: the
+    #: project's own FMU, our names.
+    fmu: Path | None = None
+    fmu_map: Path | None = None
+
+
+def _check_sanity(spec: RunSpec) -> None:
+    """Refuse settings that are valid numbers but cannot give a meaningful run.
+
+    * The period against the wheel servos: seen from a wheel the robot is an inertia J
+      (``docs/control.md``: the smaller of the common mode r^2 M11 / 2 and the differential
+      mode r^2 M22 / (2 L^2)); the sampled P loop of gain K_pw on it is stable only for
+      K_pw h / J < 2.
+    * The stop radius against the trip: a radius that reaches the start makes the run
+      "converge" where it stands.
+    """
+    from wmr.core.physics import mass_matrix_diag
+
+    p = spec.params
+    m11, m22 = mass_matrix_diag(p)
+    if m22 <= 0.0:
+        raise ConfigError("params.Ig", "the platform has no inertia about its vertical axis "
+                          "(Ig + m l^2 + 2 L^2 Iwm / r^2 = 0): the mass matrix of eq. 24 is "
+                          "singular", "give Ig > 0")
+    j_min = min(p.r**2 * m11 / 2.0, p.r**2 * m22 / (2.0 * p.L**2))
+    loop = spec.gains.K_pw * spec.period_s / j_min
+    if loop >= 2.0:
+        raise ConfigError("control_period_s",
+                          f"{spec.period_s:g} s is too long for the wheel servos: K_pw h / J = "
+                          f"{loop:.3g} >= 2 (K_pw = {spec.gains.K_pw:g} N m s/rad, wheel "
+                          f"inertia J = {j_min:.3g} kg m^2) makes the sampled servo unstable",
+                          f"give a period below {2.0 * j_min / spec.gains.K_pw:.3g} s, or a "
+                          "smaller K_pw")
+    distance = math.hypot(spec.goal.x_m - spec.start.x_m, spec.goal.y_m - spec.start.y_m)
+    if spec.stop_radius_m > DEFAULT_STOP_RADIUS_M and spec.stop_radius_m >= distance > 0.0:
+        raise ConfigError("stop_radius_m",
+                          f"{spec.stop_radius_m:g} m reaches the start, {distance:.3g} m from "
+                          "the goal: the run would count as converged where it stands",
+                          f"give a stop radius below {distance:.3g} m (default "
+                          f"{DEFAULT_STOP_RADIUS_M:g})")
+
+
+def _finite(field: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(field, f"must be a number, got {value!r}", "write a plain number")
+    if not math.isfinite(value):
+        raise ConfigError(field, f"must be finite, got {value!r}",
+                          "replace nan/inf by a finite number")
+    return float(value)
+
+
+def _positive(field: str, value: object) -> float:
+    v = _finite(field, value)
+    if v <= 0.0:
+        raise ConfigError(field, f"must be > 0, got {value!r}", "give a positive value")
+    return v
+
+
+def _check_keys(table: Mapping[str, Any], allowed: tuple[str, ...], where: str) -> None:
+    for key in table:
+        if key not in allowed:
+            field = f"{where}.{key}" if where else key
+            raise ConfigError(field, "unknown field",
+                              f"allowed fields: {', '.join(allowed)}")
+
+
+def _pose(value: object, field: str) -> Pose:
+    if not isinstance(value, list | tuple) or len(value) != 3:
+        raise ConfigError(field, f"must be [x_m, y_m, heading_deg], got {value!r}",
+                          "write three numbers, e.g. [20.0, 10.0, 0.0]")
+    x = _finite(f"{field}.x_m", value[0])
+    y = _finite(f"{field}.y_m", value[1])
+    h = _finite(f"{field}.heading_deg", value[2])
+    return Pose(x, y, math.radians(h))
+
+
+def _table(data: Mapping[str, Any], key: str) -> Mapping[str, Any]:
+    value = data.get(key, {})
+    if not isinstance(value, Mapping):
+        raise ConfigError(key, f"must be a table, got {value!r}", f"write [{key}] with fields")
+    return value
+
+
+def _build(cls: type[Any], values: Mapping[str, Any], section: str, base: Any = None) -> Any:
+    allowed = tuple(f.name for f in fields(cls))
+    _check_keys(values, allowed, section)
+    checked = {k: _finite(f"{section}.{k}", v) for k, v in values.items()}
+    try:
+        return cls(**checked) if base is None else replace(base, **checked)
+    except ConfigError as exc:
+        if exc.fix:
+            raise
+        raise ConfigError(exc.field, exc.problem, "give a value within the bound") from None
+
+
+def _peer_gains(controller: str, values: Mapping[str, Any]) -> tuple[tuple[str, float], ...]:
+    """Validated ``controller_gains`` of ``controller`` as ``(name, value)`` pairs."""
+    out: list[tuple[str, float]] = []
+    for k, v in values.items():
+        out.append((k, float(v) if isinstance(v, bool) else _finite(f"controller_gains.{k}", v)))
+    controller_gains(controller, dict(out))
+    return tuple(out)
+
+
+#: Tables of a batch spec (docs/batch.md) that a scenario file does not have.
+BATCH_TABLES = ("grid", "list", "random", "sweep")
+
+
+def _controller_fmu(value: object, path: Path | None) -> str | None:
+    """``controller_fmu``: true (the built FMU, ``""``), false (``None``) or a path; a relative
+    path is read from the scenario file's folder."""
+    if isinstance(value, bool):
+        return "" if value else None
+    if not isinstance(value, str) or not value:
+        raise ConfigError("controller_fmu", f"must be true, false or a path, got {value!r}",
+                          'write controller_fmu = true or controller_fmu = "FILE.fmu"')
+    fmu = Path(value)
+    if not fmu.is_absolute() and path is not None:
+        fmu = path.parent / fmu
+    return str(fmu)
+
+
+def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
+                   path: Path | None = None) -> Scenario:
+    """Validate a scenario's parsed TOML ``data`` and expand it into runs."""
+    for key in BATCH_TABLES:
+        if key in data:
+            raise ConfigError(key, f"{source} is a batch spec (it has [{key}]), not a scenario",
+                              f"run it with 'wmr batch {source}'")
+    _check_keys(data, TOP_FIELDS, "")
+    name = data.get("name", Path(source).stem)
+    if not isinstance(name, str) or not name:
+        raise ConfigError("name", f"must be a non-empty string, got {name!r}",
+                          'write e.g. name = "fig11"')
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise ConfigError("description", f"must be a string, got {description!r}",
+                          "quote the text")
+    gains = _build(Gains, _table(data, "gains"), "gains")
+    limits = _build(Limits, _table(data, "limits"), "limits")
+    params = _build(RobotParams, _table(data, "params"), "params")
+    period = _positive("control_period_s", data.get("control_period_s", DEFAULT_PERIOD_S))
+    eps = _positive("stop_radius_m", data.get("stop_radius_m", DEFAULT_STOP_RADIUS_M))
+    tol = _positive("heading_tolerance_deg",
+                    data.get("heading_tolerance_deg", DEFAULT_HEADING_TOLERANCE_DEG))
+    t_max = _positive("max_time_s", data.get("max_time_s", DEFAULT_MAX_TIME_S))
+    controller = data.get("controller", "pi")
+    if not isinstance(controller, str):
+        raise ConfigError("controller", f"must be a string, got {controller!r}",
+                          'write e.g. controller = "astolfi"')
+    peer_gains = _peer_gains(controller, _table(data, "controller_gains"))
+    controller_fmu = _controller_fmu(data.get("controller_fmu", False), path)
+    if controller_fmu is not None and controller != "pi":
+        raise ConfigError("controller_fmu", f"the controller FMU is the PI stabiliser, but "
+                          f"controller = {controller!r}", "drop controller_fmu or use pi")
+    sensors = sensor_config(_table(data, "sensors")) if "sensors" in data else None
+    start = _pose(data["start"], "start") if "start" in data else None
+    goal = _pose(data["goal"], "goal") if "goal" in data else None
+
+    raw_runs = data.get("runs")
+    if raw_runs is None:
+        raw_runs = [{}]
+    elif not isinstance(raw_runs, list) or not raw_runs:
+        raise ConfigError("runs", "must be a non-empty array of tables",
+                          'write [[runs]] blocks, each with start and/or goal')
+    runs: list[RunSpec] = []
+    for i, run in enumerate(raw_runs):
+        where = f"runs[{i}]"
+        if not isinstance(run, Mapping):
+            raise ConfigError(where, f"must be a table, got {run!r}", "write a [[runs]] block")
+        _check_keys(run, RUN_FIELDS, where)
+        run_start = _pose(run["start"], f"{where}.start") if "start" in run else start
+        run_goal = _pose(run["goal"], f"{where}.goal") if "goal" in run else goal
+        if run_start is None:
+            raise ConfigError("start" if raw_runs == [{}] else f"{where}.start", "missing",
+                              "give start = [x_m, y_m, heading_deg]")
+        if run_goal is None:
+            raise ConfigError("goal" if raw_runs == [{}] else f"{where}.goal", "missing",
+                              "give goal = [x_m, y_m, heading_deg]")
+        run_name = run.get("name", name if len(raw_runs) == 1 else f"{name}-{i:02d}")
+        if not isinstance(run_name, str) or not run_name:
+            raise ConfigError(f"{where}.name", f"must be a non-empty string, got {run_name!r}",
+                              "quote the name")
+        earlier = [j for j, r in enumerate(runs) if r.name == run_name]
+        if earlier:
+            raise ConfigError(f"{where}.name", f"{run_name!r} is already the name of "
+                              f"runs[{earlier[0]}]: the second could not be picked with --run",
+                              "give each run its own name")
+        run_t_max = _positive(f"{where}.max_time_s", run.get("max_time_s", t_max))
+        runs.append(RunSpec(name=run_name, start=run_start, goal=run_goal, params=params,
+                            gains=gains, limits=limits, period_s=period, stop_radius_m=eps,
+                            t_max_s=run_t_max, heading_tolerance_rad=math.radians(tol),
+                            scenario=name, controller=controller,
+                            controller_gains=peer_gains, controller_fmu=controller_fmu,
+                            sensors=sensors))
+    return Scenario(name=name, description=description, runs=tuple(runs), path=path,
+                    fmu=_file_field(data, "fmu", path), fmu_map=_file_field(data, "fmu_map", path))
+
+
+def _file_field(data: Mapping[str, Any], key: str, path: Path | None) -> Path | None:
+    """A file named by the scenario, relative to the scenario file's folder."""
+    value = data.get(key)
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value:
+        raise ConfigError(key, f"must be a file path, got {value!r}",
+                          f'write e.g. {key} = "robot.{"fmu" if key == "fmu" else "toml"}"')
+    p = Path(value).expanduser()
+    return p if p.is_absolute() or path is None else path.parent / p
+
+
+def resolve_scenario_path(name_or_path: str | Path | None = None) -> Path:
+    """A file path as is; a bare name (``"fig9"``) from the shipped scenarios folder."""
+    if name_or_path is None:
+        name_or_path = DEFAULT_SCENARIO
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists() or len(p.parts) > 1:
+        return p
+    return scenarios_dir() / f"{p.name}.toml"
+
+
+def read_toml(path: Path, field: str = "scenario") -> tuple[dict[str, Any], bytes]:
+    """The parsed TOML of ``path`` and its bytes; every failure is one :class:`ConfigError`
+    line naming ``field`` (missing, unreadable, not UTF-8, not TOML, nested too deeply)."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        shipped = ", ".join(sorted(p.stem for p in scenarios_dir().glob("*.toml")))
+        raise ConfigError(field, f"no such file: {path}",
+                          f"give a path to a .toml file or one of: {shipped}") from None
+    except OSError as exc:
+        raise ConfigError(field, f"cannot read {path}: {exc.strerror}",
+                          "check the path and its permissions") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(field, f"{path} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at "
+                          f"offset {exc.start})", "save the file as UTF-8") from None
+    try:
+        return tomllib.loads(text), raw
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(field, f"{path} is not valid TOML: {exc}", "fix the syntax") from None
+    except RecursionError:
+        raise ConfigError(field, f"{path} nests arrays or tables too deeply",
+                          "flatten the file") from None
+
+
+def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
+    """Read, validate and expand a scenario file (default: ``fig11``)."""
+    path = resolve_scenario_path(name_or_path)
+    data, _ = read_toml(path)
+    return parse_scenario(data, source=str(path), path=path)
+
+
+def expand(scenario: Scenario) -> list[RunSpec]:
+    """The runs of a scenario, one :class:`RunSpec` each."""
+    return list(scenario.runs)
+
+
+def _pose_override(value: Pose | tuple[float, float, float] | list[float] | None,
+                   field: str) -> Pose | None:
+    """A Pose as is; a sequence as ``(x_m, y_m, heading_deg)`` (the command line's form)."""
+    if value is None or isinstance(value, Pose):
+        return value
+    return _pose(list(value), field)
+
+
+def with_overrides(spec: RunSpec, start: Pose | tuple[float, float, float] | list[float] | None
+                   = None, goal: Pose | tuple[float, float, float] | list[float] | None = None,
+                   *, name: str | None = None, gains: Mapping[str, float] | None = None,
+                   limits: Mapping[str, float] | None = None,
+                   params: Mapping[str, float] | None = None, period_s: float | None = None,
+                   stop_radius_m: float | None = None, t_max_s: float | None = None,
+                   heading_tolerance_deg: float | None = None, controller: str | None = None,
+                   controller_gains: Mapping[str, float] | None = None,
+                   sensors: Mapping[str, Any] | SensorConfig | None = None) -> RunSpec:
+    """Merge command-line overrides into a run.
+
+    ``start`` and ``goal`` are a :class:`~wmr.core.plant.Pose` (heading in rad) or a sequence
+    ``(x_m, y_m, heading_deg)`` as typed on the command line; ``gains``, ``limits`` and
+    ``params`` replace the named fields only; ``controller`` selects another controller
+    (its ``controller_gains`` then start from its defaults), ``controller_gains`` replace the
+    named gains of the (new) controller; ``sensors`` is a whole
+    :class:`~wmr.core.sensing.config.SensorConfig` or fields replacing the run's (or the defaults',
+    when the run has none).  ``None`` keeps the run's value.
+    """
+    changes: dict[str, Any] = {}
+    new_start = _pose_override(start, "start")
+    new_goal = _pose_override(goal, "goal")
+    if new_start is not None:
+        changes["start"] = new_start
+    if new_goal is not None:
+        changes["goal"] = new_goal
+    if name is not None:
+        changes["name"] = name
+    if gains:
+        changes["gains"] = _build(Gains, gains, "gains", spec.gains)
+    if limits:
+        changes["limits"] = _build(Limits, limits, "limits", spec.limits)
+    if params:
+        changes["params"] = _build(RobotParams, params, "params", spec.params)
+    if period_s is not None:
+        changes["period_s"] = _positive("control_period_s", period_s)
+    if stop_radius_m is not None:
+        changes["stop_radius_m"] = _positive("stop_radius_m", stop_radius_m)
+    if t_max_s is not None:
+        changes["t_max_s"] = _positive("max_time_s", t_max_s)
+    if heading_tolerance_deg is not None:
+        changes["heading_tolerance_rad"] = math.radians(
+            _positive("heading_tolerance_deg", heading_tolerance_deg))
+    if controller is not None and controller != spec.controller:
+        changes["controller"] = controller
+        changes["controller_gains"] = ()
+    if controller_gains:
+        base = dict(() if "controller_gains" in changes else spec.controller_gains)
+        base.update(controller_gains)
+        changes["controller_gains"] = _peer_gains(changes.get("controller", spec.controller),
+                                                  base)
+    if isinstance(sensors, SensorConfig):
+        changes["sensors"] = sensors
+    elif sensors:
+        changes["sensors"] = sensor_config(sensors, spec.sensors)
+    return replace(spec, **changes)
+
+
+__all__ = [
+    "DEFAULT_SCENARIO",
+    "RunSpec",
+    "Scenario",
+    "expand",
+    "load_scenario",
+    "parse_scenario",
+    "resolve_scenario_path",
+    "with_overrides",
+]

@@ -1,0 +1,222 @@
+"""Writing files so that a crash, a second writer or a full disk never damages a finished one.
+
+A finished file is replaced only by another finished file: :class:`AtomicFile` writes to
+``NAME.partial`` in the same folder (locked against a second writer), and :meth:`commit
+<AtomicFile.commit>` fsyncs it and renames it over ``NAME`` (then fsyncs the folder), the way
+SQLite and rosbag2 keep a committed file whole.  A process killed before the commit leaves
+``NAME`` as it was and its own data in ``NAME.partial``, which ``wmr log recover`` reads.
+
+Every write checks its result: :func:`write_all` loops over short writes of ``os.write``, and
+a full disk (``ENOSPC``, ``EDQUOT``) becomes one :class:`~wmr.infra.errors.DiskFullError` line
+naming the device and the file.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import fcntl
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Final
+
+from wmr.infra.errors import DiskFullError, LogError
+
+#: Suffix of a file being written (or left by a killed writer).
+PARTIAL_SUFFIX: Final = ".partial"
+_FULL: Final = (errno.ENOSPC, errno.EDQUOT)
+
+
+def partial_path(path: str | os.PathLike[str]) -> Path:
+    """Where :class:`AtomicFile` writes ``path`` until it is complete."""
+    p = Path(path)
+    return p.with_name(p.name + PARTIAL_SUFFIX)
+
+
+def mount_point(path: str | os.PathLike[str]) -> str:
+    """The mount point holding ``path`` (the device a full disk is named by)."""
+    p = Path(os.path.abspath(path))
+    while not os.path.ismount(p) and p != p.parent:
+        p = p.parent
+    return str(p)
+
+
+def storage_error(exc: OSError, path: str | os.PathLike[str]) -> OSError | DiskFullError:
+    """``exc`` as a :class:`DiskFullError` when the disk is full, else ``exc`` itself."""
+    # pyarrow raises OSError without an errno, with the C library's message
+    if exc.errno in _FULL or os.strerror(errno.ENOSPC) in str(exc):
+        err = DiskFullError(f"no space left on {mount_point(path)} while writing {path}")
+        err.__cause__ = exc
+        return err
+    return exc
+
+
+def write_all(fd: int, data: bytes, path: str | os.PathLike[str]) -> None:
+    """Write all of ``data`` to ``fd``: ``os.write`` may write less than it was given.
+
+    Raises
+    ------
+    DiskFullError
+        The disk is full (nothing is retried: a full disk does not free itself).
+    OSError
+        Any other write error.
+    """
+    view = memoryview(data)
+    while view:
+        try:
+            n = os.write(fd, view)
+        except OSError as exc:
+            raise storage_error(exc, path) from exc
+        if n <= 0:  # a regular file never does this except on a full disk
+            raise DiskFullError(f"no space left on {mount_point(path)} while writing {path}")
+        view = view[n:]
+
+
+def _writeback_starter() -> Callable[[int], object] | None:
+    """Linux ``sync_file_range(fd, 0, 0, SYNC_FILE_RANGE_WRITE)``: start writing the dirty
+    pages of a file to disk without waiting, so that the ``fsync`` of the commit has little
+    left to do (a few ms instead of tens for a log of a few MB)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).sync_file_range
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes = [ctypes.c_int, ctypes.c_int64, ctypes.c_int64, ctypes.c_uint]
+    fn.restype = ctypes.c_int
+    return lambda fd: fn(fd, 0, 0, 2)  # a hint: its failure changes nothing
+
+
+_start_writeback = _writeback_starter()
+
+
+def fsync_dir(folder: str | os.PathLike[str]) -> None:
+    """Make a rename in ``folder`` durable (a no-op where folders cannot be opened)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # some file systems refuse fsync on a folder; the rename still happened
+        pass
+    finally:
+        os.close(fd)
+
+
+class AtomicFile:
+    """A binary output that appears at ``path`` only when complete.
+
+    Writes go to ``path + ".partial"``, opened without truncation, locked (``flock``), then
+    emptied: a second writer to the same ``path`` is refused while the first one lives, and
+    cannot cut its file short.  :meth:`commit` makes the file durable and renames it into
+    place; :meth:`abandon` (or a crash) leaves it as ``.partial``.
+
+    Parameters
+    ----------
+    path
+        The final file.
+    what
+        What the file is, for messages (``"log"``).
+    buffer_bytes
+        Write buffer, bytes; :meth:`flush` hands it to the OS.
+    durable
+        fsync the file (and its folder) at :meth:`commit`, so that the rename survives a power
+        loss, not only a killed process.  Off where a later check redoes what a power loss
+        would damage (a batch's resume checks every log).
+
+    Raises
+    ------
+    LogError
+        The file cannot be created, or another process is writing it.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], what: str = "file",
+                 buffer_bytes: int = 1 << 20, durable: bool = True) -> None:
+        self.path = Path(path)
+        self.durable = durable
+        self.partial = partial_path(self.path)
+        self._what = what
+        for _ in range(10):
+            try:
+                fd = os.open(self.partial, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            except OSError as exc:
+                raise LogError(f"{self.path}: cannot create the {what}: {exc.strerror}") from exc
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                raise LogError(f"{self.path}: another process is writing this {what} "
+                               f"({self.partial.name} is locked); wait for it or choose "
+                               "another output") from None
+            # The previous holder may have renamed this very file into place between our
+            # open and our lock: then it is a finished file, not ours to empty.  Retry.
+            try:
+                same = os.path.samestat(os.fstat(fd), os.stat(self.partial))
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        else:  # pragma: no cover - ten finished writers in a row
+            raise LogError(f"{self.path}: the {what} keeps being replaced by another process")
+        try:
+            os.ftruncate(fd, 0)
+        except OSError as exc:
+            os.close(fd)
+            raise storage_error(exc, self.partial) from exc
+        self._fd = fd
+        # C buffered writer: continues short writes itself; its OSError is mapped below
+        self._file = open(fd, "wb", buffering=buffer_bytes, closefd=False)
+        self.closed = False
+
+    def write(self, data: bytes) -> int:
+        """Buffer ``data`` (written out when the buffer is full)."""
+        try:
+            return self._file.write(data)
+        except OSError as exc:
+            raise storage_error(exc, self.partial) from exc
+
+    def flush(self) -> None:
+        """Hand the buffered bytes to the OS (a killed process keeps them)."""
+        try:
+            self._file.flush()
+        except OSError as exc:
+            raise storage_error(exc, self.partial) from exc
+        if self.durable and _start_writeback is not None:
+            _start_writeback(self._fd)
+
+    def commit(self) -> None:
+        """Write out, fsync, rename ``.partial`` over the final path, fsync the folder."""
+        if self.closed:
+            raise LogError(f"{self.path}: {self._what} committed after close")
+        try:
+            self.flush()
+            if self.durable:
+                try:
+                    os.fsync(self._fd)
+                except OSError as exc:
+                    raise storage_error(exc, self.partial) from exc
+            os.replace(self.partial, self.path)  # still locked: nobody can reopen it meanwhile
+        finally:
+            self.abandon()
+        if self.durable:
+            fsync_dir(self.path.parent)
+
+    def abandon(self) -> None:
+        """Stop writing; what was flushed stays in ``.partial``.  Idempotent."""
+        if not self.closed:
+            self.closed = True
+            try:
+                self._file.close()  # writes what is buffered, if it can
+            except OSError:  # a full disk: what was flushed before stays
+                pass
+            os.close(self._fd)  # releases the lock
+
+    close = abandon
+
+
+__all__ = ["PARTIAL_SUFFIX", "AtomicFile", "fsync_dir", "mount_point", "partial_path",
+           "storage_error", "write_all"]
