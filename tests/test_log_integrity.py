@@ -155,6 +155,25 @@ def test_damaged_metadata_or_attachment_is_reported(tmp_path: Path, target: byte
     assert any("CRC" in w for w in run.warnings), run.warnings
 
 
+def test_a_damaged_attachment_is_left_out_and_named(tmp_path: Path) -> None:
+    """docs/reliability.md: a damaged attachment is left out, never given back as good data.
+    The data-section CRC fails too (the attachment lies in it), so a warning that only says
+    "CRC" proves nothing: the attachment's own warning, and its absence, are the promise."""
+    path = tmp_path / "run.mcap"
+    write_log(path, compression="")
+    data = bytearray(path.read_bytes())
+    at = bytes(data).index(b"x_m = 20")
+    data[at + 1] ^= 0x01
+    path.write_bytes(bytes(data))
+    run = read_run(path)
+    assert run.truncated
+    assert any("attachment 'scenario.toml'" in w and "CRC" in w for w in run.warnings), \
+        run.warnings
+    assert "scenario.toml" not in run.attachments
+    assert set(run.attachments) == set(ATTACH) - {"scenario.toml"}  # the intact ones stay
+    assert run.n_steps == 350  # the messages are not in the attachment: all read
+
+
 def test_data_after_the_closing_magic_is_reported(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     write_log(path)
