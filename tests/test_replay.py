@@ -139,8 +139,14 @@ def test_replay_rrd_holds_path_pose_goal_and_every_series(fig11_log: Path,
     np.testing.assert_allclose(trans[:, 0], run.signals["x_m"], atol=1e-5)
     np.testing.assert_allclose(trans[:, 1], run.signals["y_m"], atol=1e-5)
     quat = np.array([row[0] for row in robot.column("Transform3D:quaternion")])
-    yaw = 2.0 * np.arctan2(quat[:, 2], quat[:, 3])
-    np.testing.assert_allclose(np.cos(yaw), np.cos(run.signals["theta_rad"]), atol=1e-5)
+    # the robot's forward axis (body x) rotated by each quaternion must point along the logged
+    # heading (cos theta, sin theta): the sine's sign tells a mirrored heading apart
+    qx, qy, qz, qw = quat.T
+    forward = np.column_stack([1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy + qw * qz)])
+    theta = run.signals["theta_rad"]
+    np.testing.assert_allclose(forward, np.column_stack([np.cos(theta), np.sin(theta)]),
+                               atol=1e-5)
+    assert np.max(np.abs(np.sin(theta))) > 0.1  # turns enough to tell a mirror apart
     times = np.concatenate([np.asarray(t.cast(pa.int64())) for t in robot.times])
     np.testing.assert_array_equal(times, run.t_ns)
     # the goal
