@@ -174,3 +174,23 @@ def test_angle_integral_stays_bounded_while_saturated_for_long() -> None:
         out = s.update(0.0, 0.0, -math.radians(170.0))  # far off heading: u_theta saturated
     assert out[7] == _W
     assert s.i_theta == 0.0
+
+
+# -- the reference plant's own defaults (survivors of the physics mutation run) -------------
+
+
+def test_the_reference_plant_at_its_defaults_is_the_exact_solution() -> None:
+    """From the default start (the origin, at rest: no ``v0`` given), equal torques move the
+    robot along x as the closed form says, to 1e-9: the plant's default tolerances make it a
+    reference (it kills surviving mutants of the physics run: docs/testing.md)."""
+    from wmr.core.physics import equal_torque_solution
+    from wmr.core.plant import Pose
+
+    params = RobotParams()
+    plant = ReferencePlant()
+    out = plant.reset(params, Pose(0.0, 0.0, 0.0))
+    np.testing.assert_array_equal(out[:5], [0.0, 0.0, 0.0, 0.0, 0.0])
+    for k in range(1, 51):
+        out = plant.step(2.0, 2.0, 0.02)
+        exact = equal_torque_solution(0.02 * k, 2.0, params)
+        np.testing.assert_allclose(out[:5], exact[:5], rtol=0.0, atol=1e-9)
