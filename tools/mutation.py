@@ -1,0 +1,258 @@
+"""Mutation testing of the modules that carry the promises (docs/testing.md).
+
+Each module is mutated by mutmut 3 against only the test modules that cover it, in a scratch
+copy of the project (``--work``, default ``$TMPDIR/wmr-mutation``), one module at a time: the
+worktree is never changed.  mutmut forks one process per mutant from a warmed-up pytest and
+runs only the tests that reach the mutated function, so a mutant costs milliseconds to
+seconds rather than a fresh interpreter.
+
+Usage::
+
+    python tools/mutation.py                 # every module (long: see docs/testing.md)
+    python tools/mutation.py physics energy  # some of them
+    python tools/mutation.py --sample        # the small fixed sample that CI runs
+    python tools/mutation.py --list          # the modules, their tests and functions
+
+Prints a table (module, mutants, killed, survived, equivalent, no tests, timeout) and the
+surviving mutants not known to be equivalent; exits 1 when any is left (or, with
+``--min-score``, when a module's score is below it).  A survivor is either killed by a new
+test or explained in :data:`EQUIVALENT` (and in docs/testing.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Target:
+    """One module under mutation and the tests that must kill its mutants."""
+
+    source: str  # under pipelines/wmr
+    tests: tuple[str, ...]  # test modules (or node ids) that cover it
+    #: fnmatch patterns of mutant names for ``--sample`` (empty: not in the sample)
+    sample: tuple[str, ...] = ()
+    #: extra pytest arguments (e.g. a -k selection)
+    pytest_args: tuple[str, ...] = ()
+    #: fnmatch patterns of the mutants to run (empty: every function of the module); for the
+    #: large modules whose promise lives in a few functions
+    functions: tuple[str, ...] = ()
+
+
+#: The modules that carry the physics, the control law, the energy and effort integrals, the
+#: MCAP reader's integrity checks, the batch journal and resume, the archive checks and the
+#: build digest (issue 23), each with the one or two test modules that cover it.
+TARGETS: dict[str, Target] = {
+    "physics": Target("core/physics.py", ("tests/test_physics.py",)),
+    "stabiliser": Target("core/control/stabiliser.py",
+                         ("tests/test_stabiliser.py", "tests/test_promises_core.py")),
+    "energy": Target("core/energy.py", ("tests/test_energy.py::test_the_integrals_of_a_known_power",
+                                        "tests/test_promises_core.py"),
+                     sample=("wmr.core.energy.x_step_work__mutmut_*",)),
+    "ocp_result": Target("adapters/ocp/result.py", ("tests/test_optimal.py",),
+                         pytest_args=("-m", "not slow")),
+    "mcap_reader": Target("adapters/mcap/reader.py", ("tests/test_log_integrity.py",),
+                          pytest_args=("-m", "not slow")),
+    "batch_journal": Target("apps/batch/journal.py", ("tests/test_batch.py",),
+                            pytest_args=("-m", "not slow", "-k", "resume or journal or cut")),
+    "batch_resume": Target("apps/batch/runner.py",
+                           ("tests/test_promises_batch.py", "tests/test_batch.py"),
+                           pytest_args=("-m", "not slow", "-k", "resume or cut or stamped"),
+                           functions=("wmr.apps.batch.runner.x__valid__mutmut_*",
+                                      "wmr.apps.batch.runner.x__resume__mutmut_*",
+                                      "wmr.apps.batch.runner.x__recover_partial__mutmut_*")),
+    "archive": Target("adapters/fmi/archive.py", ("tests/test_fmu_build.py",),
+                      pytest_args=("-k", "hostile")),
+    "build_digest": Target("build/fmus.py",
+                           ("tests/test_promises_build.py", "tests/test_fmu_build.py"),
+                           pytest_args=("-k", "rebuil"),
+                           functions=("wmr.build.fmus.x_build_digest__mutmut_*",
+                                      "wmr.build.fmus.x__reusable__mutmut_*")),
+}
+
+#: Appended to the scratch copy's tests/conftest.py: the FMUs are built once into ``--work``
+#: and reused by every mutant's tests (each mutant's pytest session would otherwise build them
+#: into its own temporary folder, a minute each).
+_CONFTEST_FMUS = """
+
+@pytest.fixture(scope="session")
+def built(fmu_dir: Path) -> BuildResult:  # noqa: F811 - tools/mutation.py: shared FMUs
+    return build_fmus(os.environ["WMR_MUTATION_FMU_DIR"])
+"""
+
+#: Surviving mutants that are equivalent (no test can tell them from the original), with why.
+#: Keys are mutmut's mutant names.
+EQUIVALENT: dict[str, str] = {}
+
+#: mutmut's exit codes of a mutant's test run, as its own ``status_by_exit_code`` reads them.
+_KILLED = {1, 3, -9, -11, 37}
+_SURVIVED = {0}
+_NO_TESTS = {5, 33}
+_TIMEOUT = {24, -24, 36, 152, 255}
+
+
+def _scratch(work: Path, name: str, target: Target) -> Path:
+    """A copy of the project laid out as mutmut expects (``src/wmr``), for one target."""
+    root = work / name
+    if root.exists():
+        shutil.rmtree(root)
+    root.mkdir(parents=True)
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", ".mypy_cache")
+    shutil.copytree(ROOT / "pipelines" / "wmr", root / "src" / "wmr", ignore=ignore)
+    shutil.copytree(ROOT / "tests", root / "tests", ignore=ignore)
+    with open(root / "tests" / "conftest.py", "a") as conftest:
+        conftest.write(_CONFTEST_FMUS)
+    also = ["modelica", "fmu", "scenarios", "LICENSE"]
+    for item in also:
+        src = ROOT / item
+        if src.is_dir():
+            shutil.copytree(src, root / item, ignore=ignore)
+        elif src.exists():
+            shutil.copy2(src, root / item)
+    pytest_args = ["-p", "no:xdist", "-p", "no:cacheprovider", "-q", "-x",
+                   *target.pytest_args]
+    (root / "pyproject.toml").write_text(
+        "[tool.pytest.ini_options]\n"
+        'testpaths = ["tests"]\n'
+        'addopts = "--strict-markers"\n'
+        "timeout = 900\n"
+        'markers = ["slow: long runs"]\n\n'
+        "[tool.mutmut]\n"
+        'source_paths = ["src"]\n'
+        f'only_mutate = ["src/wmr/{target.source}"]\n'
+        f"also_copy = {json.dumps(also)}\n"
+        f"pytest_add_cli_args = {json.dumps(pytest_args)}\n"
+        f"pytest_add_cli_args_test_selection = {json.dumps(list(target.tests))}\n"
+        "use_git_change_detection = false\n")
+    return root
+
+
+@dataclass
+class Score:
+    name: str
+    mutants: int = 0
+    killed: int = 0
+    survived: int = 0
+    equivalent: int = 0
+    no_tests: int = 0
+    timeout: int = 0
+    other: int = 0
+    wall_s: float = 0.0
+
+    @property
+    def percent(self) -> float:
+        """Killed over the mutants that are not equivalent, %."""
+        n = self.mutants - self.equivalent
+        return 100.0 * self.killed / n if n else 100.0
+
+
+def _results(root: Path, name: str, target: Target) -> tuple[Score, list[str]]:
+    meta = root / "mutants" / "src" / "wmr" / (target.source + ".meta")
+    data = json.loads(meta.read_text())
+    score, survivors = Score(name), []
+    for mutant, code in sorted(data.get("exit_code_by_key", {}).items()):
+        if code is None:  # not run (outside the sample)
+            continue
+        score.mutants += 1
+        if code in _KILLED:
+            score.killed += 1
+        elif code in _SURVIVED or code in _NO_TESTS:
+            if mutant in EQUIVALENT:
+                score.equivalent += 1
+                continue
+            if code in _NO_TESTS:
+                score.no_tests += 1
+            else:
+                score.survived += 1
+            survivors.append(mutant)
+        elif code in _TIMEOUT:
+            score.timeout += 1  # an endless loop the tests stopped: counted as killed below
+            score.killed += 1
+        else:
+            score.other += 1
+            survivors.append(f"{mutant} (exit code {code})")
+    return score, survivors
+
+
+def run_target(name: str, target: Target, work: Path, sample: bool,
+               max_children: int) -> tuple[Score, list[str]]:
+    root = _scratch(work, name, target)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "MUTANT_UNDER_TEST")}
+    env["MPLBACKEND"] = "Agg"
+    env["WMR_MUTATION_FMU_DIR"] = str(work / "fmus")
+    cmd = [sys.executable, "-c", "from mutmut.__main__ import cli; cli()", "run",
+           "--max-children", str(max_children)]
+    if sample:
+        cmd += list(target.sample)
+    else:
+        cmd += list(target.functions)
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    (work / f"{name}.log").write_text(proc.stdout + proc.stderr)
+    if proc.returncode not in (0, 1) or not (root / "mutants").exists():
+        raise SystemExit(f"mutmut failed on {name} (exit {proc.returncode}); see "
+                         f"{work / (name + '.log')}:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
+    score, survivors = _results(root, name, target)
+    score.wall_s = wall
+    return score, survivors
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("modules", nargs="*", help=f"of {', '.join(TARGETS)} (default: all)")
+    parser.add_argument("--sample", action="store_true",
+                        help="only the fixed sample of mutants (what CI runs)")
+    parser.add_argument("--work", type=Path,
+                        default=Path(tempfile.gettempdir()) / "wmr-mutation",
+                        help="scratch folder (default: %(default)s)")
+    parser.add_argument("--max-children", type=int, default=1,
+                        help="mutants tested at once (default 1: a shared 2-core machine)")
+    parser.add_argument("--min-score", type=float, default=None,
+                        help="fail when a module scores below this %%")
+    parser.add_argument("--list", action="store_true", help="list the modules and exit")
+    args = parser.parse_args(argv)
+    if args.list:
+        for name, t in TARGETS.items():
+            print(f"{name:14} wmr/{t.source:30} {' '.join(t.tests)}")
+        return 0
+    unknown = [m for m in args.modules if m not in TARGETS]
+    if unknown:
+        parser.error(f"unknown module(s) {', '.join(unknown)}; give some of {', '.join(TARGETS)}")
+    names = args.modules or list(TARGETS)
+    if args.sample:
+        names = [n for n in names if TARGETS[n].sample]
+    rows: list[Score] = []
+    left: list[str] = []
+    for name in names:
+        score, survivors = run_target(name, TARGETS[name], args.work, args.sample,
+                                      args.max_children)
+        rows.append(score)
+        left += survivors
+    print("| module | mutants | killed | survived | equivalent | no tests | timeout | score | "
+          "wall s |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for s in rows:
+        print(f"| {s.name} | {s.mutants} | {s.killed} | {s.survived} | {s.equivalent} | "
+              f"{s.no_tests} | {s.timeout} | {s.percent:.1f} % | {s.wall_s:.0f} |")
+    for mutant in left:
+        print(f"survived: {mutant}")
+    low = [s.name for s in rows if args.min_score is not None and s.percent < args.min_score]
+    if low:
+        print(f"below {args.min_score} %: {', '.join(low)}")
+    return 1 if left or low else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
