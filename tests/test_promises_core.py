@@ -194,3 +194,24 @@ def test_the_reference_plant_at_its_defaults_is_the_exact_solution() -> None:
         out = plant.step(2.0, 2.0, 0.02)
         exact = equal_torque_solution(0.02 * k, 2.0, params)
         np.testing.assert_allclose(out[:5], exact[:5], rtol=0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize(("tau_r", "tau_l", "w_r0", "w_r1", "w_l0", "w_l1"), [
+    (0.0, 2.0, 0.0, 0.0, 1.0, 3.0),  # the left wheel alone, driving
+    (0.0, -2.0, 0.0, 0.0, 1.0, 3.0),  # the left wheel alone, braking
+    (2.0, 0.0, 1.0, 3.0, 0.0, 0.0),  # the right wheel alone
+    (1.5, -0.5, 2.0, -1.0, -0.5, 0.25),  # both, each with a sign change within the step
+])
+def test_step_work_is_the_trapezoid_of_each_wheels_power(
+        tau_r: float, tau_l: float, w_r0: float, w_r1: float, w_l0: float,
+        w_l1: float) -> None:
+    """The master loop's scalar energy step, by hand: each wheel's power at both ends of the
+    step, the positive part taken per wheel and per end (docs/results.md)."""
+    from wmr.core.energy import step_work
+
+    h = 0.01
+    powers = [tau_r * w_r0, tau_r * w_r1, tau_l * w_l0, tau_l * w_l1]
+    net, pos, absolute = step_work(h, tau_r, tau_l, w_r0, w_r1, w_l0, w_l1)
+    assert net == pytest.approx(h / 2 * sum(powers), rel=1e-15, abs=0.0)
+    assert pos == pytest.approx(h / 2 * sum(p for p in powers if p > 0), rel=1e-15, abs=0.0)
+    assert absolute == pytest.approx(h / 2 * sum(abs(p) for p in powers), rel=1e-15, abs=0.0)
