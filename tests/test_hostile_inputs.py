@@ -4,11 +4,15 @@ names the field or the file."""
 
 from __future__ import annotations
 
+import json
 import tomllib
+from pathlib import Path
 
 import pytest
 
 from wmr.apps.batch import parse_batch
+from wmr.cli import MAX_LINE_CHARS, main
+from wmr.config.naming import default_log_path, file_stem
 from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
 from wmr.infra.errors import ConfigError
 
@@ -41,3 +45,64 @@ def test_products_that_overflow_name_the_extreme_parameter() -> None:
     with pytest.raises(ConfigError) as err:
         with_overrides(load_scenario("fig11").runs[0], params={"m": 1e300, "l": 1e10})
     assert err.value.field == "params.m"
+
+
+# -- item 9: run names whose file name is too long once percent-encoded ---------------------------
+
+@pytest.mark.parametrize("name", ["é" * 60, "🤖" * 70, "a" * 119 + "é" * 60, "." + "\u202e" * 90])
+def test_a_long_run_name_gives_a_file_name_every_file_system_takes(name: str,
+                                                                    tmp_path: Path) -> None:
+    """The 120-character cap counted characters; ``é`` is 6 bytes once written ``%C3%A9``."""
+    path = default_log_path(name, tmp_path)
+    assert len(path.name.encode()) + len(".partial.recovering") <= 255
+    path.with_name(path.name + ".partial.recovering").touch()  # the longest sibling
+    assert default_log_path(name[:-1] + "x", tmp_path) != path  # long names stay apart
+    assert "%" not in path.name[-16:]  # cut at a character, not inside its escapes
+    assert file_stem("fig11-m=40") == "fig11-m=40"  # short names unchanged
+
+
+def test_wmr_run_of_a_scenario_named_in_emoji_writes_its_log(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scenario = tmp_path / "emoji.toml"
+    scenario.write_text(f'name = "{"🤖" * 70}"\nstart = [0.0, 0.0, 0.0]\n'
+                        'goal = [1.0, 0.0, 0.0]\nmax_time_s = 0.05\n', encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(scenario), "--json"]) == 3  # timeout: it ran
+    record = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert Path(record["mcap"]).is_file() and record["name"] == "🤖" * 70
+
+
+# -- item 10: error lines echo what they were given, cut and escaped -------------------------------
+
+@pytest.mark.parametrize("argv", [
+    ["run", "--param", "k" * 100_000 + "=1"],
+    ["run", "--param", "\x1b[31mred\x1b[0m=1"],
+    ["run", "--gain", "K_ps=\x1b[2J" + "9" * 5000],
+    ["run", "--start", "1", "2", "\x1b]0;owned\x07" + "k" * 5000],  # argparse's own error
+    ["run", "--out", "x" * 300 + ".mcap", "--max-time", "0.05"],  # too long for the disk
+], ids=["long-key", "esc-key", "esc-value", "argparse", "name-too-long"])
+def test_an_error_line_is_one_short_line_without_control_characters(
+        argv: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse
+        code = int(str(exc.code))
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code in (1, 2) and err.startswith(("wmr: error:", "wmr run: error:"))
+    assert "internal error" not in err
+    assert len(err) <= MAX_LINE_CHARS + 50
+    assert not any(ord(c) < 32 or 0x7F <= ord(c) <= 0x9F for c in err)
+    if "\x1b" in "".join(argv):
+        assert "\\x1b" in err  # escaped, still visible
+
+
+@pytest.mark.parametrize("stop", ["1e300", "inf", "nan", "0"])
+def test_ssp_run_refuses_a_stop_time_libcosim_cannot_buffer(
+        stop: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--stop-time 1e300`` reached libcosim, whose buffer message did not name the option."""
+    assert main(["ssp", "run", str(tmp_path / "loop.ssp"), "--stop-time", stop,
+                 "--out", str(tmp_path / "x.mcap")]) == 1
+    assert capsys.readouterr().err.startswith("wmr: error: --stop-time: must be > 0 and at most")
