@@ -5,11 +5,16 @@ names the field or the file."""
 from __future__ import annotations
 
 import json
+import shutil
+import subprocess
+import sys
 import tomllib
+import zipfile
 from pathlib import Path
 
 import pytest
 
+from wmr.adapters.mcap import read_run
 from wmr.apps.batch import parse_batch
 from wmr.cli import MAX_LINE_CHARS, main
 from wmr.config.naming import default_log_path, file_stem
@@ -106,3 +111,73 @@ def test_ssp_run_refuses_a_stop_time_libcosim_cannot_buffer(
     assert main(["ssp", "run", str(tmp_path / "loop.ssp"), "--stop-time", stop,
                  "--out", str(tmp_path / "x.mcap")]) == 1
     assert capsys.readouterr().err.startswith("wmr: error: --stop-time: must be > 0 and at most")
+
+
+# -- item 5: an FMU that returns fmi2Fatal is never called again -----------------------------------
+
+_OUTPUTS = ("x", "y", "theta", "v", "omega", "omega_r", "omega_l")
+
+
+def _fatal_robot(folder: Path) -> Path:
+    """``tests/other_fmus/fatal_robot.c`` as an FMI 2.0 co-simulation FMU (skips without cc)."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler")
+    root = folder / "fatal_robot"
+    binary = root / "binaries" / "linux64" / "fatal_robot.so"
+    binary.parent.mkdir(parents=True)
+    subprocess.run([cc, "-shared", "-fPIC", "-O1", "-o", str(binary),
+                    str(Path(__file__).parent / "other_fmus" / "fatal_robot.c"), "-lm"],
+                   check=True)
+    names = [("tau_r", 'causality="input" variability="continuous"', '<Real start="0"/>'),
+             ("tau_l", 'causality="input" variability="continuous"', '<Real start="0"/>')]
+    names += [(n, 'causality="output" variability="continuous" initial="exact"',
+               '<Real start="0"/>') for n in _OUTPUTS]
+    names += [(n, 'causality="parameter" variability="fixed" initial="exact"',
+               '<Real start="0"/>') for n in ("x0", "y0", "theta0")]
+    variables = "\n".join(f'<ScalarVariable name="{n}" valueReference="{i}" {a}>{t}'
+                          "</ScalarVariable>" for i, (n, a, t) in enumerate(names))
+    outputs = "".join(f'<Unknown index="{i + 3}"/>' for i in range(len(_OUTPUTS)))
+    (root / "modelDescription.xml").write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n<fmiModelDescription fmiVersion="2.0" '
+        'modelName="fatal_robot" guid="{fatal-robot}" variableNamingConvention="flat">'
+        '<CoSimulation modelIdentifier="fatal_robot"/><ModelVariables>'
+        f"{variables}</ModelVariables><ModelStructure><Outputs>{outputs}</Outputs>"
+        "</ModelStructure></fmiModelDescription>\n")
+    fmu = folder / "fatal_robot.fmu"
+    with zipfile.ZipFile(fmu, "w") as zf:
+        for path in root.rglob("*"):
+            if path.is_file():
+                zf.write(path, path.relative_to(root).as_posix())
+    return fmu
+
+
+@pytest.mark.parametrize("variable,scale", [("tau_r", "5e-324"), ("tau_r", "1e-308"),
+                                            ("x0", "5e-324")],
+                         ids=["torque-5e-324", "torque-1e-308", "start-pose"])
+def test_an_fmu_that_returned_fatal_is_left_alone_and_the_run_fails_cleanly(
+        variable: str, scale: str, tmp_path: Path) -> None:
+    """A map scale that makes an input inf (a torque while stepping, or the start pose while
+    initialising): the FMU says fmi2Fatal, and used to be sent fmi2Terminate (forbidden after
+    Fatal), which killed ``wmr run`` with SIGSEGV, exit 139, no JSON line.  Now: exit 1, the
+    JSON line (or the text line), and a finished log of status failed."""
+    fmu = _fatal_robot(tmp_path)
+    unmapped = '", "'.join(("phi_r", "phi_l", "x_G", "y_G", "E_kin", "v0", "omega0", "m", "r",
+                            "L", "l", "Ig", "Iwm", "b_f", "tau_c", "w_c"))
+    (tmp_path / "map.toml").write_text(f'unmapped = ["{unmapped}"]\n[variables]\n'
+                                       f'{variable} = {{ name = "{variable}", scale = {scale} }}\n')
+    log = tmp_path / "run.mcap"
+    argv = [sys.executable, "-m", "wmr.cli", "run", "--fmu", str(fmu), "--map",
+            str(tmp_path / "map.toml"), "--out", str(log), "--start", "1", "0", "0"]
+    for json_line in (True, False):
+        proc = subprocess.run(argv + ["--json"] * json_line, capture_output=True, text=True,
+                              timeout=300)
+        assert proc.returncode == 1, proc.stderr
+        assert "fmi2Terminate" not in proc.stderr and "internal error" not in proc.stderr
+        last = proc.stdout.splitlines()[-1]
+        if json_line:
+            record = json.loads(last)
+            assert record["status"] == "failed" and "fatal" in record["message"].lower()
+        else:
+            assert last.startswith("failed: ") and "fatal" in last.lower()
+        assert read_run(log).metadata["result"]["status"] == "failed"

@@ -102,7 +102,7 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from wmr.cli import crosscheck
 
-    parser = _Parser(
+    parser: argparse.ArgumentParser = _Parser(
         prog="wmr",
         description="Co-simulation and log analysis of a two-wheeled differential-drive robot.")
     parser.add_argument("--version", action="version", version=f"wmr-cosim {__version__}")
