@@ -11,11 +11,12 @@ import sys
 import tomllib
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from wmr.adapters.mcap import read_run
-from wmr.apps.batch import parse_batch
+from wmr.apps.batch import load_batch, parse_batch, run_batch
 from wmr.cli import MAX_LINE_CHARS, main
 from wmr.config.naming import default_log_path, file_stem
 from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
@@ -181,3 +182,113 @@ def test_an_fmu_that_returned_fatal_is_left_alone_and_the_run_fails_cleanly(
         else:
             assert last.startswith("failed: ") and "fatal" in last.lower()
         assert read_run(log).metadata["result"]["status"] == "failed"
+
+
+# -- item 8: journal lines are verified against the spec and the logs ------------------------------
+
+SPEC4 = """
+name = "t4"
+start = [1.0, 0.0, 0.0]
+goal = [0.0, 0.0, 180.0]
+max_time_s = 15.0
+[grid.gains]
+K_ps = [0.25, 0.5]
+K_is = [0.1, 0.2]
+"""
+
+
+@pytest.fixture(scope="module")
+def batch4(fmu3: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished 4-run batch (its folder is copied, never changed)."""
+    folder = tmp_path_factory.mktemp("batch4")
+    (folder / "t4.toml").write_text(SPEC4)
+    result = run_batch(load_batch(folder / "t4.toml"), folder / "out", workers=1,
+                       fmu_path=fmu3, progress=False)
+    assert result.counts["converged"] == 4
+    return folder
+
+
+def _copy(batch4: Path, tmp_path: Path) -> tuple[Path, list[dict[str, Any]]]:
+    out = tmp_path / "out"
+    shutil.copytree(batch4 / "out", out, copy_function=shutil.copy2)
+    lines = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()]
+    return out, lines
+
+
+def _rewrite(out: Path, lines: list[dict[str, Any]], extra: str = "") -> None:
+    (out / "journal.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines) + extra)
+
+
+@pytest.mark.parametrize("edit,field", [
+    (lambda x: x["row"]["inputs"].update({"gains.K_ps": 999}), "row.inputs.gains.K_ps"),
+    (lambda x: x["record"].update(status="failed"), "record.status"),
+    (lambda x: x["row"]["inputs"].update({"gains.K_is": "abc"}), "row.inputs.gains.K_is"),
+    (lambda x: x["record"].update(final_position_error_m=0.0), "record.final_position_error_m"),
+    (lambda x: x["record"].update(steps="695"), "record.steps"),
+    (lambda x: x["row"].update(name="other"), "row.name"),
+], ids=["input", "status", "text-input", "result", "type", "name"])
+def test_an_edited_journal_line_is_made_again_from_the_spec_and_the_log(
+        edit: Any, field: str, batch4: Path, fmu3: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``row.inputs."gains.K_ps"`` edited to 999 used to be in the summary, although the run
+    used 0.25; ``record.status`` edited to failed likewise; ``"abc"`` was ArrowInvalid."""
+    out, lines = _copy(batch4, tmp_path)
+    edit(lines[1])
+    _rewrite(out, lines)
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+                      progress=False)
+    assert again.executed == [] and again.counts["converged"] == 4  # nothing redone
+    assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
+    err = capsys.readouterr().err
+    assert f"1 line did not match the spec or the run's log (first: run {lines[1]['run_id']}, " \
+           f"{field})" in err
+    # the corrected line is sealed: the next resume trusts it, silently
+    run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3, progress=False)
+    assert "did not match" not in capsys.readouterr().err
+
+
+def test_garbage_journal_lines_are_skipped(batch4: Path, fmu3: Path, tmp_path: Path) -> None:
+    """A 5,000-digit run id was ValueError (int's digit limit); 100,000 ``[`` RecursionError;
+    a line without a seal (or an older journal's) is made again silently."""
+    out, lines = _copy(batch4, tmp_path)
+    del lines[0]["check"]
+    _rewrite(out, lines, '{"run_id": "' + "1" * 5000 + '-0a433d73", "record": {}}\n'
+             + "[" * 100_000 + "\n" + '{"run_id": "' + "7" * 60 + '", "record": {}}\n')
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+                      progress=False)
+    assert again.executed == [] and again.skipped == 4
+    assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
+
+
+def test_an_edited_line_of_a_killed_run_is_redone(batch4: Path, fmu3: Path,
+                                                  tmp_path: Path) -> None:
+    """A killed run's record was made up by the executor: no log record to make it again
+    from, so an edited one is not trusted but the run done again."""
+    out, lines = _copy(batch4, tmp_path)
+    lines[2].update(killed=True, record={**lines[2]["record"], "status": "timeout"})
+    _rewrite(out, lines)
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+                      progress=False)
+    assert again.executed == [lines[2]["run_id"]]
+    assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
+
+
+def test_records_made_again_from_logs_are_the_journalled_ones(fmu3: Path, tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]
+                                                              ) -> None:
+    """Runs stopped by their wall-clock limit (logged failed, journalled timeout) and finished
+    ones: every line unsealed, each is made again from its log, equal to what was written."""
+    spec = tmp_path / "t4.toml"
+    spec.write_text(SPEC4)
+    out = tmp_path / "out"
+    first = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False,
+                      run_timeout_s=0.02)
+    assert first.counts["timeout"] >= 1
+    lines = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()]
+    summary = (out / "summary.csv").read_bytes()
+    _rewrite(out, [{k: v for k, v in x.items() if k != "check"} for x in lines])
+    again = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    assert again.executed == [] and (out / "summary.csv").read_bytes() == summary
+    remade = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()][4:]
+    assert [x["record"] for x in remade] == [x["record"] for x in lines]
+    assert "did not match" not in capsys.readouterr().err
