@@ -20,7 +20,7 @@ from wmr.apps.batch import load_batch, parse_batch, run_batch
 from wmr.cli import MAX_LINE_CHARS, main
 from wmr.config.naming import default_log_path, file_stem
 from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
-from wmr.infra.errors import ConfigError
+from wmr.infra.errors import ConfigError, WmrError
 
 FIG11 = 'name = "h"\nstart = [0.0, 0.0, 0.0]\ngoal = [2.0, 1.0, 0.0]\n'
 
@@ -292,3 +292,17 @@ def test_records_made_again_from_logs_are_the_journalled_ones(fmu3: Path, tmp_pa
     remade = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()][4:]
     assert [x["record"] for x in remade] == [x["record"] for x in lines]
     assert "did not match" not in capsys.readouterr().err
+
+
+def test_a_batch_folder_removed_under_the_workers_is_one_error_not_a_traceback(
+        fmu3: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    """A worker (re)started after the folder went could not open its log file: it printed a
+    traceback; now the batch stops with one line saying so."""
+    from wmr.apps.batch.local import LocalPool
+    from wmr.apps.batch.worker import Task
+
+    spec = load_scenario("fig11").runs[0]
+    pool = LocalPool(fmu3, tmp_path / "runs", 1, log_dir=tmp_path / "gone")
+    with pytest.raises(WmrError, match=r"could not start: cannot open .*worker-0\.log"):
+        list(pool.run([Task("0000-x", spec)]))
+    assert "Traceback" not in capfd.readouterr().err
