@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import json
+import re
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -14,6 +16,68 @@ from wmr import __version__
 from wmr.infra.errors import ConfigError, DiskFullError, WmrError
 
 Handler = Callable[[argparse.Namespace], int]
+
+#: Longest field name (``--param`` key, TOML key, ...) an error line echoes.
+MAX_FIELD_CHARS = 80
+#: Longest error line; a longer one keeps its start and its end (the fix) around an ellipsis.
+MAX_LINE_CHARS = 600
+# C0 and C1 controls, DEL, line and paragraph separators, and the bidirectional overrides and
+# isolates (which reorder what a terminal shows): never written raw to a terminal
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069]")
+
+
+def _cut(text: str, limit: int) -> str:
+    """``text`` whole, or its start and end around an ellipsis saying how long it was."""
+    if len(text) <= limit:
+        return text
+    note = f"... ({len(text)} characters) ..."
+    head = (limit - len(note)) * 2 // 3
+    return f"{text[:head]}{note}{text[len(text) - (limit - len(note) - head):]}"
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line that reports ``exc``: its first line, the field of a
+    :class:`~wmr.infra.errors.ConfigError` cut to :data:`MAX_FIELD_CHARS`, control and
+    reordering characters escaped (``\\x1b``), the whole cut to :data:`MAX_LINE_CHARS`.
+
+    The one place where text a user (or a hostile file) gave reaches the terminal in an error.
+    """
+    if isinstance(exc, ConfigError):
+        text = f"{_cut(exc.field, MAX_FIELD_CHARS)}: {exc.problem}"
+        if exc.fix:
+            text += f" ({exc.fix})"
+    else:
+        text = str(exc)
+    lines = text.splitlines() or [type(exc).__name__]
+    more = " (run with --debug for details)" if len(lines) > 1 else ""
+    line = _UNPRINTABLE.sub(lambda m: ascii(m.group())[1:-1], lines[0])
+    return _cut(line, MAX_LINE_CHARS) + more
+
+
+def _environment_error(exc: OSError | MemoryError) -> str:
+    """An error of the machine, not of wmr (too many open files, no memory, a name too long for
+    the file system, a folder removed under it): one line saying which and what to do."""
+    if isinstance(exc, MemoryError):
+        return ("out of memory (a ulimit -v or the machine's memory): give the process more "
+                "memory, or run fewer --workers")
+    what = exc.strerror or type(exc).__name__
+    where = f"{exc.filename}: " if exc.filename is not None else ""
+    fix = {errno.EMFILE: "raise the limit (ulimit -n) or run fewer --workers",
+           errno.ENFILE: "close some programs or run fewer --workers",
+           errno.ENOMEM: "give the process more memory, or run fewer --workers",
+           errno.ENAMETOOLONG: "give a shorter file name",
+           errno.ENOENT: "check that the folder still exists"}.get(exc.errno or 0, "")
+    return f"{where}{what}" + (f" ({fix})" if fix else "")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, whose usage errors are one sanitised line (argparse echoes the
+    value it could not parse: a 100,000-character or escape-laden one must not reach the
+    terminal raw).  Sub-command parsers are made of the same class."""
+
+    def error(self, message: str) -> Any:  # argparse's signature: NoReturn
+        self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error: {error_line(Exception(message))}\n")
 
 
 def _cmd_fmu_build(args: argparse.Namespace) -> int:
@@ -38,7 +102,7 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from wmr.cli import crosscheck
 
-    parser = argparse.ArgumentParser(
+    parser: argparse.ArgumentParser = _Parser(
         prog="wmr",
         description="Co-simulation and log analysis of a two-wheeled differential-drive robot.")
     parser.add_argument("--version", action="version", version=f"wmr-cosim {__version__}")
@@ -154,17 +218,24 @@ def _dispatch(handler: Handler, args: argparse.Namespace) -> int:
     except WmrError as exc:
         if args.debug:
             raise
-        lines = str(exc).splitlines() or [type(exc).__name__]
-        more = " (run with --debug for details)" if len(lines) > 1 else ""
-        print(f"wmr: error: {lines[0]}{more}", file=sys.stderr)
-        _json_error(args, lines[0], exc)
+        line = error_line(exc)
+        print(f"wmr: error: {line}", file=sys.stderr)
+        _json_error(args, line, exc)
+        return 1
+    except (OSError, MemoryError) as exc:
+        if args.debug:
+            raise
+        line = error_line(Exception(_environment_error(exc)))
+        print(f"wmr: error: {line}", file=sys.stderr)
+        _json_error(args, line, exc)
         return 1
     except Exception as exc:
         if args.debug:
             raise
-        print(f"wmr: internal error: {type(exc).__name__}: {exc} (run with --debug for the "
-              "traceback)".replace("\n", " "), file=sys.stderr)
-        _json_error(args, f"internal error: {type(exc).__name__}: {exc}", exc)
+        line = error_line(Exception(f"{type(exc).__name__}: {exc}".replace("\n", " ")))
+        print(f"wmr: internal error: {line} (run with --debug for the traceback)",
+              file=sys.stderr)
+        _json_error(args, f"internal error: {line}", exc)
         return 2
 
 

@@ -70,9 +70,13 @@ def add_scenario_choice(parser: argparse.ArgumentParser, doing: str) -> None:
 
 def result_summary(record: Mapping[str, Any]) -> str:
     """The end of a run's one-line result: final errors, path length and the log file."""
-    return (f"final position error {record['final_position_error_m']:.4f} m, heading error "
-            f"{record['final_heading_error_rad']:.5f} rad, path "
-            f"{record['path_length_m']:.2f} m; log {record['mcap']}")
+    def num(key: str, digits: int) -> str:  # None: a run that failed before its first step
+        value = record.get(key)
+        return "n/a" if value is None else f"{value:.{digits}f}"
+
+    return (f"final position error {num('final_position_error_m', 4)} m, heading error "
+            f"{num('final_heading_error_rad', 5)} rad, path "
+            f"{num('path_length_m', 2)} m; log {record['mcap']}")
 
 
 def select_run(scenario: Scenario, name: str | None) -> RunSpec:

@@ -40,14 +40,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.apps.run import result_json
     from wmr.cli.run import result_summary
     from wmr.config.naming import default_log_path
+    from wmr.config.scenario import DEFAULT_PERIOD_S, MAX_STEPS
     from wmr.infra.outputs import check_output
 
     ssp = Path(args.ssp)
     out = check_output(args.out if args.out else default_log_path(ssp.stem), "--out",
                        suffix=".mcap")
-    if args.stop_time is not None and not args.stop_time > 0:
-        raise ConfigError("--stop-time", f"must be > 0, got {args.stop_time}",
-                          "give seconds, e.g. --stop-time 30")
+    # the longest run a scenario allows at the default period: libcosim sizes its buffers by it
+    longest_s = MAX_STEPS * DEFAULT_PERIOD_S
+    if args.stop_time is not None and not 0 < args.stop_time <= longest_s:
+        raise ConfigError("--stop-time", f"must be > 0 and at most {longest_s:g} s, got "
+                          f"{args.stop_time:g}", "give seconds, e.g. --stop-time 30")
     run = simulate_libcosim(ssp, stop_time_s=args.stop_time)
     record = log_ssp_run(run, out)
     if args.json:

@@ -20,6 +20,10 @@ from wmr.infra.paths import safe_filename
 
 #: Longest name kept whole; a longer one is cut and ends in a hash of the whole.
 MAX_NAME_CHARS = 120
+#: Longest file name stem made from a run name, in bytes *after* percent-encoding (one ``é`` is
+#: 6 bytes, ``%C3%A9``; one emoji 12): file systems allow 255 bytes (``NAME_MAX``), and the
+#: log's siblings add a suffix of up to 24 (``.mcap.partial.recovering``).
+MAX_STEM_BYTES = 200
 
 
 def pose_token(label: str, pose: Pose) -> str:
@@ -96,9 +100,30 @@ def run_name(base: RunSpec, spec: RunSpec, extra: Sequence[str] = ()) -> str:
     return variant_name(base.name, [*spec_tokens(base, spec), *extra])
 
 
+def file_stem(name: str) -> str:
+    """A file name stem for the run name ``name``: :func:`~wmr.infra.paths.safe_filename`,
+    cut to :data:`MAX_STEM_BYTES` bytes (at a character, never inside its ``%XX`` escapes) and
+    ended with ``~`` and a hash of the whole name when longer, so that two long names stay
+    apart (``safe_filename`` escapes ``~``: a cut stem is never another name's whole one)."""
+    stem = safe_filename(name)
+    if len(stem) <= MAX_STEM_BYTES:  # safe_filename's output is ASCII: chars are bytes
+        return stem
+    digest = hashlib.sha256(name.encode()).hexdigest()[:10]
+    budget = MAX_STEM_BYTES - len(digest) - 1
+    kept: list[str] = []
+    for i, char in enumerate(name):
+        piece = safe_filename(char) if i else safe_filename(name[0])
+        if budget < len(piece):
+            break
+        kept.append(piece)
+        budget -= len(piece)
+    return f"{''.join(kept)}~{digest}"
+
+
 def default_log_path(name: str, folder: str | Path = "runs") -> Path:
-    """``runs/NAME.mcap``: where a run's log goes when no ``--out`` is given."""
-    return Path(folder) / f"{safe_filename(name)}.mcap"
+    """``runs/NAME.mcap``: where a run's log goes when no ``--out`` is given (its name
+    :func:`file_stem`, short enough for any file system however the name is written)."""
+    return Path(folder) / f"{file_stem(name)}.mcap"
 
 
 def plural(n: int, noun: str) -> str:
@@ -106,5 +131,5 @@ def plural(n: int, noun: str) -> str:
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
-__all__ = ["default_log_path", "fmu_tokens", "plural", "pose_token", "run_name", "spec_tokens",
-           "variant_name"]
+__all__ = ["default_log_path", "file_stem", "fmu_tokens", "plural", "pose_token", "run_name",
+           "spec_tokens", "variant_name"]

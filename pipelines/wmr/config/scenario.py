@@ -143,12 +143,24 @@ def _check_sanity(spec: RunSpec) -> None:
     from wmr.core.physics import mass_matrix_diag
 
     p = spec.params
+    for name in ("r", "L", "l"):  # lengths whose squares eq. 24 and eq. 28 take
+        value = getattr(p, name)
+        if not math.isfinite(value * value):
+            raise ConfigError(f"params.{name}", f"{value:g} m is too large: its square "
+                              "overflows (inf) in the mass matrix of eq. 24",
+                              f"give {name} in metres, e.g. {getattr(RobotParams(), name):g}")
     m11, m22 = mass_matrix_diag(p)
+    j_min = min(p.r * p.r * m11 / 2.0, p.r * p.r * m22 / (2.0 * p.L * p.L))
+    if not all(math.isfinite(x) for x in (m11, m22, j_min)):
+        name = _most_extreme(p)
+        raise ConfigError(f"params.{name}", f"{getattr(p, name):g} overflows the mass matrix "
+                          f"of eq. 24 (M11 = {m11:g} kg, M22 = {m22:g} kg m^2, wheel inertia "
+                          f"{j_min:g} kg m^2)", f"give {name} in SI units, e.g. "
+                          f"{getattr(RobotParams(), name):g}")
     if m22 <= 0.0:
         raise ConfigError("params.Ig", "the platform has no inertia about its vertical axis "
                           "(Ig + m l^2 + 2 L^2 Iwm / r^2 = 0): the mass matrix of eq. 24 is "
                           "singular", "give Ig > 0")
-    j_min = min(p.r**2 * m11 / 2.0, p.r**2 * m22 / (2.0 * p.L**2))
     loop = spec.gains.K_pw * spec.period_s / j_min
     if loop >= 2.0:
         raise ConfigError("control_period_s",
@@ -164,6 +176,18 @@ def _check_sanity(spec: RunSpec) -> None:
                           "the goal: the run would count as converged where it stands",
                           f"give a stop radius below {distance:.3g} m (default "
                           f"{DEFAULT_STOP_RADIUS_M:g})")
+
+
+def _most_extreme(params: RobotParams) -> str:
+    """The parameter furthest from its default, in orders of magnitude (the likeliest cause of
+    an overflow that several parameters share)."""
+    default = RobotParams()
+
+    def distance(name: str) -> float:
+        value, ref = getattr(params, name), getattr(default, name)
+        return abs(math.log10(value / ref)) if value > 0.0 and ref > 0.0 else 0.0
+
+    return max(("m", "r", "L", "l", "Ig", "Iwm"), key=distance)
 
 
 def _finite(field: str, value: object) -> float:

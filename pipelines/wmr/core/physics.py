@@ -63,14 +63,19 @@ def mass_matrix_diag(params: RobotParams) -> tuple[float, float]:
         M_{11} = m + \frac{2 I_{wm}}{r^2}, \qquad
         M_{22} = I_g + m l^2 + \frac{2 L^2 I_{wm}}{r^2}
 
+    Products, not ``**``: a float power raises ``OverflowError`` where a product is ``inf``
+    (``r = 1e308``), and the caller (:func:`wmr.config.scenario`'s sanity check) refuses a
+    non-finite matrix naming the parameter.
+
     Returns
     -------
     tuple of float
-        ``(M11, M22)`` in kg and kg m^2.
+        ``(M11, M22)`` in kg and kg m^2 (``inf`` when they overflow).
     """
     p = params
-    m11 = p.m + 2.0 * p.Iwm / p.r**2
-    m22 = p.Ig + p.m * p.l**2 + 2.0 * p.L**2 * p.Iwm / p.r**2
+    r_sq = p.r * p.r
+    m11 = p.m + 2.0 * p.Iwm / r_sq
+    m22 = p.Ig + p.m * (p.l * p.l) + 2.0 * (p.L * p.L) * p.Iwm / r_sq
     return m11, m22
 
 

@@ -53,6 +53,8 @@ def _hold(folder: Path) -> int | None:
 
 
 _LABELS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
+#: fmi2Fatal and fmi3Fatal.
+_FATAL = 4
 
 
 def _log(status: int, message: bytes | None) -> None:
@@ -188,6 +190,9 @@ class FmuPlant:
             raise
         self.var_map = var_map
         self._fmu: Any = None
+        #: The FMU returned Fatal: FMI 2.0 (2.1.3) and 3.0 allow no further call to any of its
+        #: instances, not even Terminate or FreeInstance.
+        self._fatal = False
         self._t = self._t0 = self._h = 0.0
         self._n = 0
         self._instance_name = instance_name
@@ -278,6 +283,8 @@ class FmuPlant:
         """Raise for a status above fmiWarning of call ``which`` (0 set, 1 step, 2 get)."""
         if status <= 1:
             return
+        if status == _FATAL:
+            self._mark_fatal()
         name = ("OK", "Warning", "Discard", "Error", "Fatal")[status] if status < 5 else status
         raise FmuError(f"{self._names[which]} returned {name} at t = {self._t:g} s "
                        f"({self._in_names[0]} = {self._in_val[0]!r}, "
@@ -285,14 +292,36 @@ class FmuPlant:
                        "the FMU's log says why")
 
     def _call(self, what: str, fun: Any, *args: Any) -> Any:
+        self._usable()
         try:
             return fun(*args)
         except Exception as exc:
+            if getattr(exc, "status", None) == _FATAL:  # fmpy's FMICallException
+                self._mark_fatal()
             raise FmuError(f"{what} failed at t = {self._t:g} s: {exc}") from exc
+
+    def _mark_fatal(self) -> None:
+        """The FMU returned Fatal: the step's bound calls now refuse instead of calling it
+        (the check costs the hot path nothing)."""
+        self._fatal = True
+
+        def refuse(*args: Any) -> int:
+            self._usable()
+            return _FATAL
+
+        self._raw_set = self._raw_get = partial(refuse)
+        self._raw_step = refuse
+
+    def _usable(self) -> None:
+        """Refuse any call into an FMU that returned Fatal (the standard allows none)."""
+        if self._fatal:
+            raise FmuError(f"{self.fmu_path.name} returned Fatal earlier: FMI allows no "
+                           "further call to it; open the FMU again")
 
     def reset(self, params: RobotParams, start: Pose, v0_mps: float = 0.0,
               omega0_radps: float = 0.0) -> npt.NDArray[np.float64]:
         """Start a run at t = 0 from ``start`` with ``params``; return the outputs at t = 0."""
+        self._usable()
         if self._fmu is None:
             self._instantiate()
         else:
@@ -312,6 +341,8 @@ class FmuPlant:
             else:
                 fmu.setFloat64(vrs, theirs)
         except Exception as exc:
+            if getattr(exc, "status", None) == _FATAL:  # fmpy's FMICallException
+                self._mark_fatal()
             raise FmuError(f"setting the parameters {values} failed: {exc}") from exc
         self._in_val[0] = self._in_bias_r
         self._in_val[1] = self._in_bias_l
@@ -394,6 +425,15 @@ class FmuPlant:
         return (self._call("deserializeFMUState", de, blob), *clock)
 
     def close(self) -> None:
+        """Terminate and free the instance and remove the extraction folder.
+
+        After a Fatal status nothing is called (FMI 2.0, 2.1.3: "it is not possible to call
+        any other function for any of the FMU instances"; FMI 3.0 likewise): the instance
+        and its library are left as they are, a small leak where a call could crash the
+        process (a foreign FMU's fmi2Terminate after fmi2Fatal did, SIGSEGV).
+        """
+        if self._fatal:
+            self._fmu = None  # fmpy frees nothing by itself: the library stays loaded
         if self._fmu is not None:
             try:
                 self._fmu.terminate()

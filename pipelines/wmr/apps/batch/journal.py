@@ -10,6 +10,7 @@ run had written, are all there is).
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import json
 import os
@@ -21,6 +22,59 @@ from wmr.adapters.mcap.writer import MAGIC
 from wmr.infra.durable import write_all
 
 JOURNAL = "journal.jsonl"
+#: Longest journal line read, in bytes (a line is about 1.5 kB): a longer one is skipped
+#: unread, whatever a hand or a disk put there.
+MAX_LINE_BYTES = 1 << 20
+#: Longest run id taken (``NNNN-hhhhhhhh``): a 5,000-digit one is not a run of any spec.
+MAX_RUN_ID_CHARS = 64
+#: Record fields the log's ``result`` metadata keeps as text (the others are JSON).
+_TEXT_FIELDS = frozenset(("name", "status", "message", "mcap"))
+
+
+def line_check(row: Mapping[str, Any]) -> str:
+    """The seal of a journal line: a hash of everything else in it.  A line edited by hand
+    (or damaged) without it being recomputed is verified against the spec and its log."""
+    body = {k: v for k, v in row.items() if k != "check"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, allow_nan=False,
+                                     separators=(",", ":")).encode()).hexdigest()[:32]
+
+
+def logged_record(path: Path) -> dict[str, Any] | None:
+    """The result record a batch journals for the run logged at ``path``, made again from the
+    log's ``result`` metadata record; ``None`` if the log is missing, unfinished or damaged.
+
+    A run stopped by its wall-clock limit is logged ``failed`` with the ``WallClockLimit``
+    error (it was stopped from outside the loop) and journalled ``timeout``
+    (:func:`wmr.apps.batch.worker.execute`): the same mapping is made here.
+    """
+    from mcap.reader import make_reader
+
+    from wmr.apps.batch.worker import WallClockLimit
+
+    try:
+        with open(path, "rb") as stream:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            if summary is None or not any(m.name == "result" for m in summary.metadata_indexes):
+                return None
+            meta = next((dict(m.metadata) for m in reader.iter_metadata()
+                         if m.name == "result"), None)
+    except Exception:  # missing, cut or damaged: nothing to make the record from
+        return None
+    if meta is None:
+        return None
+    record: dict[str, Any] = {}
+    for key, text in meta.items():
+        try:
+            record[key] = text if key in _TEXT_FIELDS else json.loads(text)
+        except ValueError:
+            return None
+    message = str(record.get("message", ""))
+    if record.get("status") == "failed" and message.startswith(WallClockLimit.__name__):
+        record["status"] = "timeout"
+        record["message"] = message.partition(": ")[2]
+    record["mcap"] = str(path)
+    return record
 
 
 def log_stamp(path: Path) -> dict[str, int] | None:
@@ -82,8 +136,13 @@ class Journal:
             return
         with stream:
             offset = 0
-            for line in stream:
+            while line := stream.readline(MAX_LINE_BYTES + 1):
                 start, offset = offset, offset + len(line)
+                if len(line) > MAX_LINE_BYTES:  # skip the rest of an overlong line unread
+                    while line and not line.endswith(b"\n"):
+                        line = stream.readline(MAX_LINE_BYTES)
+                        offset += len(line)
+                    continue
                 row = _parse(line)
                 if row is not None:
                     yield start, row
@@ -103,7 +162,7 @@ class Journal:
         with open(self.path, "rb") as stream:
             for offset in itertools.chain([first], pending):
                 stream.seek(offset)
-                row = _parse(stream.readline())
+                row = _parse(stream.readline(MAX_LINE_BYTES + 1))
                 if row is None:
                     raise ValueError(f"{self.path}: no journal line at byte {offset}")
                 yield row
@@ -113,10 +172,11 @@ class Journal:
         return {row["run_id"]: row for _, row in self.scan()}
 
     def append(self, row: Mapping[str, Any]) -> int:
-        """Append ``row`` as one line (a short write is continued, a full disk raises
-        :class:`~wmr.infra.errors.DiskFullError`); return the byte offset where it starts (the
-        batch folder's lock makes the parent the only writer)."""
-        line = (json.dumps(row, allow_nan=False, separators=(",", ":")) + "\n").encode()
+        """Append ``row`` as one line, sealed (:func:`line_check`; a short write is continued,
+        a full disk raises :class:`~wmr.infra.errors.DiskFullError`); return the byte offset
+        where it starts (the batch folder's lock makes the parent the only writer)."""
+        sealed = {**row, "check": line_check(row)}
+        line = (json.dumps(sealed, allow_nan=False, separators=(",", ":")) + "\n").encode()
         fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         try:
             size = os.fstat(fd).st_size
@@ -139,16 +199,16 @@ class Journal:
 
 def _parse(line: bytes) -> dict[str, Any] | None:
     """A journal line's row, ``None`` if the line is cut, garbled or not a row."""
-    if not line.strip():
+    if not line.strip() or len(line) > MAX_LINE_BYTES:
         return None
     try:
         row = json.loads(line)
-    except ValueError:
+    except (ValueError, RecursionError):  # garbled, or nested deeper than Python recurses
         return None
     if isinstance(row, dict) and isinstance(row.get("run_id"), str) \
-            and isinstance(row.get("record"), dict):
+            and len(row["run_id"]) <= MAX_RUN_ID_CHARS and isinstance(row.get("record"), dict):
         return row
     return None
 
 
-__all__ = ["JOURNAL", "Journal", "log_complete", "log_stamp"]
+__all__ = ["JOURNAL", "Journal", "line_check", "log_complete", "log_stamp", "logged_record"]

@@ -119,7 +119,13 @@ def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     if log_file is not None:  # the FMU's own messages go to a file, not over the progress bar
-        fd = os.open(log_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        try:
+            fd = os.open(log_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        except OSError as exc:  # the batch folder removed or unwritable: one line, no traceback
+            conn.send(("setup_error", f"cannot open {log_file}: {exc.strerror} (was the batch "
+                       "folder removed?)"))
+            conn.close()
+            os._exit(_INIT_FAILED)
         os.dup2(fd, 1)
         os.dup2(fd, 2)
         os.close(fd)
@@ -273,6 +279,8 @@ class LocalPool:
                         continue
                     if msg is not None and msg[0] == "init_error":
                         raise FmuError(f"a batch worker cannot open {self.fmu_path}: {msg[1]}")
+                    if msg is not None and msg[0] == "setup_error":
+                        raise WmrError(f"a batch worker could not start: {msg[1]}")
                     # the worker died during its run
                     task = slot.task
                     assert task is not None

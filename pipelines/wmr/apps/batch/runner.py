@@ -31,11 +31,19 @@ from typing import Any, Final
 
 from wmr.adapters.fmi.archive import file_sha256
 from wmr.adapters.fmi.varmap import VariableMap, load_map
-from wmr.apps.batch.journal import JOURNAL, Journal, log_complete, log_stamp
+from wmr.apps.batch.journal import (
+    JOURNAL,
+    Journal,
+    line_check,
+    log_complete,
+    log_stamp,
+    logged_record,
+)
 from wmr.apps.batch.local import LocalPool, Outcome
 from wmr.apps.batch.spec import BatchRun, BatchSpec, run_index
 from wmr.apps.batch.summary import STATUSES, SummaryRow, summary_table, write_summary
 from wmr.apps.batch.worker import DISK_FULL, FAULTS, Task
+from wmr.config.naming import plural
 from wmr.infra.durable import AtomicFile, partial_path, storage_error
 from wmr.infra.errors import ConfigError, DiskFullError, WmrError
 
@@ -356,27 +364,92 @@ def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, runs_dir: Path,
     bar = tqdm(total=size, desc="checking the journal", unit="B", unit_scale=True,
                file=sys.stderr, leave=False,
                disable=True if size < 10_000_000 else _bar_off(progress))
+    remade: dict[int, tuple[dict[str, Any], str]] = {}  # by run index: the last line wins
     with bar:
         for offset, line in journal.scan():
             bar.update(offset - bar.n)
             i = run_index(str(line["run_id"]))
             if i is None or i >= len(runs):
                 continue
-            if _valid(runs[i], line, fmu_sha, runs_dir):
-                ledger.mark(i, offset, line["record"].get("status"))
-            else:
+            remade.pop(i, None)
+            checked, differs = _verified(runs[i], line, fmu_sha, runs_dir)
+            if checked is None:
                 ledger.unmark(i)
+            else:
+                ledger.mark(i, offset, checked["record"].get("status"))
+                if checked is not line:
+                    remade[i] = (checked, differs)
+    for i, (checked, _) in remade.items():  # written again, sealed: the summary reads them
+        ledger.mark(i, journal.append(checked), checked["record"].get("status"))
+    edited = [(runs[i].run_id, differs) for i, (_, differs) in remade.items() if differs]
+    if edited:
+        print(f"wmr: {journal.path}: {plural(len(edited), 'line')} did not match the spec or "
+              f"the run's log (first: run {edited[0][0]}, {edited[0][1]}): made again from "
+              "them, not trusted", file=sys.stderr)
     return ledger
 
 
-def _valid(run: BatchRun, line: Mapping[str, Any], fmu_sha: str, runs_dir: Path) -> bool:
-    """Whether journal ``line`` is a finished run of ``run``."""
+def _verified(run: BatchRun, line: dict[str, Any], fmu_sha: str, runs_dir: Path
+              ) -> tuple[dict[str, Any] | None, str]:
+    """Journal ``line`` checked as a finished run of ``run``.
+
+    Returns ``(line, "")`` when it holds (sealed, its row the spec's, its log unchanged);
+    ``(corrected, what)`` when its row or record had to be made again from the spec and the
+    log (``what`` names the first field that differed, ``""`` if only the seal was missing);
+    ``(None, "")`` when the run must be done again (another run, another FMU, no finished
+    log, or a killed run whose line was edited: there is no log record to make it from).
+    """
     if line.get("run_id") != run.run_id or line.get("fmu_sha256") != fmu_sha \
             or line.get("digest") != run.digest:
-        return False
-    stamp = line.get("log")
-    return bool(line.get("killed")) or log_complete(runs_dir / f"{run.run_id}.mcap",
-                                                    stamp if isinstance(stamp, dict) else None)
+        return None, ""
+    row = _row_json(run)
+    sealed = line.get("check") == line_check(line) \
+        and line["record"].get("status") in STATUSES
+    if line.get("killed"):
+        if not sealed:
+            return None, ""
+        return (line, "") if line.get("row") == row else ({**line, "row": row}, "row")
+    log = runs_dir / f"{run.run_id}.mcap"
+    stamp = line.get("log") if sealed else None
+    if sealed and log_complete(log, stamp if isinstance(stamp, dict) else None):
+        if line.get("row") == row:
+            return line, ""
+        return {**line, "row": row}, "row (the spec's input columns changed)"
+    record = logged_record(log)
+    if record is None:
+        return None, ""
+    corrected = {**line, "row": row, "record": record, "log": log_stamp(log)}
+    corrected.pop("check", None)
+    return corrected, _first_difference(line, corrected)
+
+
+def _first_difference(line: Mapping[str, Any], corrected: Mapping[str, Any]) -> str:
+    """The first field of a journal line that its corrected line changes (``"row.inputs.
+    gains.K_ps"``, ``"record.status"``), ``""`` when only the seal and the log's stamp do."""
+    for part in ("row", "record"):
+        old, new = line.get(part), corrected[part]
+        if old == new:
+            continue
+        if not isinstance(old, dict):
+            return part
+        inner = new.get("inputs", {}) if part == "row" else {}
+        for key in new:
+            if key == "mcap":  # where the log is; the summary names it by run id
+                continue
+            if key == "inputs" and isinstance(old.get("inputs"), dict):
+                diff = [k for k in inner if old["inputs"].get(k, ...) != inner[k]] \
+                    or [k for k in old["inputs"] if k not in inner]
+                if diff:
+                    return f"row.inputs.{_cut(diff[0])}"
+            elif old.get(key) != new[key]:
+                return f"{part}.{key}"
+        if set(old) - set(new):
+            return f"{part}.{_cut(sorted(old)[0])}"
+    return ""
+
+
+def _cut(text: str, limit: int = 40) -> str:
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def _row_json(run: BatchRun) -> dict[str, Any]:

@@ -1,0 +1,308 @@
+"""Inputs from strangers (issue 17, part C): parameters, names, journals and FMUs that used to
+end in an internal error, a crash or a silently wrong summary.  Each refusal is one line that
+names the field or the file."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from wmr.adapters.mcap import read_run
+from wmr.apps.batch import load_batch, parse_batch, run_batch
+from wmr.cli import MAX_LINE_CHARS, main
+from wmr.config.naming import default_log_path, file_stem
+from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
+from wmr.infra.errors import ConfigError, WmrError
+
+FIG11 = 'name = "h"\nstart = [0.0, 0.0, 0.0]\ngoal = [2.0, 1.0, 0.0]\n'
+
+
+# -- item 9: a length of 1e308 overflows the mass matrix ------------------------------------------
+
+@pytest.mark.parametrize("name", ["r", "L", "l"])
+@pytest.mark.parametrize("route", ["flag", "file", "grid", "random"])
+def test_a_huge_length_is_a_config_error_by_every_route(name: str, route: str) -> None:
+    """``params.r = 1e308`` used to raise OverflowError from ``r**2`` in the mass matrix."""
+    with pytest.raises(ConfigError) as err:
+        if route == "flag":
+            with_overrides(load_scenario("fig11").runs[0], params={name: 1e308})
+        elif route == "file":
+            parse_scenario(tomllib.loads(FIG11 + f"[params]\n{name} = 1e308\n"))
+        elif route == "grid":
+            parse_batch(tomllib.loads(FIG11 + f"[grid.params]\n{name} = [0.2, 1e308]\n"))
+        else:
+            batch = parse_batch(tomllib.loads(
+                FIG11 + f"[random]\nseed = 1\nn = 3\n[random.params]\n{name} = "
+                '{ dist = "uniform", low = 1e307, high = 1e308 }\n'))
+            list(batch.runs)
+    assert f"params.{name}" in str(err.value) and "overflow" in str(err.value)
+
+
+def test_products_that_overflow_name_the_extreme_parameter() -> None:
+    """Each value finite and its square too, but m l^2 is not."""
+    with pytest.raises(ConfigError) as err:
+        with_overrides(load_scenario("fig11").runs[0], params={"m": 1e300, "l": 1e10})
+    assert err.value.field == "params.m"
+
+
+# -- item 9: run names whose file name is too long once percent-encoded ---------------------------
+
+@pytest.mark.parametrize("name", ["é" * 60, "🤖" * 70, "a" * 119 + "é" * 60, "." + "\u202e" * 90])
+def test_a_long_run_name_gives_a_file_name_every_file_system_takes(name: str,
+                                                                    tmp_path: Path) -> None:
+    """The 120-character cap counted characters; ``é`` is 6 bytes once written ``%C3%A9``."""
+    path = default_log_path(name, tmp_path)
+    assert len(path.name.encode()) + len(".partial.recovering") <= 255
+    path.with_name(path.name + ".partial.recovering").touch()  # the longest sibling
+    assert default_log_path(name[:-1] + "x", tmp_path) != path  # long names stay apart
+    assert "%" not in path.name[-16:]  # cut at a character, not inside its escapes
+    assert file_stem("fig11-m=40") == "fig11-m=40"  # short names unchanged
+
+
+def test_wmr_run_of_a_scenario_named_in_emoji_writes_its_log(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scenario = tmp_path / "emoji.toml"
+    scenario.write_text(f'name = "{"🤖" * 70}"\nstart = [0.0, 0.0, 0.0]\n'
+                        'goal = [1.0, 0.0, 0.0]\nmax_time_s = 0.05\n', encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(scenario), "--json"]) == 3  # timeout: it ran
+    record = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert Path(record["mcap"]).is_file() and record["name"] == "🤖" * 70
+
+
+# -- item 10: error lines echo what they were given, cut and escaped -------------------------------
+
+@pytest.mark.parametrize("argv", [
+    ["run", "--param", "k" * 100_000 + "=1"],
+    ["run", "--param", "\x1b[31mred\x1b[0m=1"],
+    ["run", "--gain", "K_ps=\x1b[2J" + "9" * 5000],
+    ["run", "--start", "1", "2", "\x1b]0;owned\x07" + "k" * 5000],  # argparse's own error
+    ["run", "--out", "x" * 300 + ".mcap", "--max-time", "0.05"],  # too long for the disk
+], ids=["long-key", "esc-key", "esc-value", "argparse", "name-too-long"])
+def test_an_error_line_is_one_short_line_without_control_characters(
+        argv: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse
+        code = int(str(exc.code))
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code in (1, 2) and err.startswith(("wmr: error:", "wmr run: error:"))
+    assert "internal error" not in err
+    assert len(err) <= MAX_LINE_CHARS + 50
+    assert not any(ord(c) < 32 or 0x7F <= ord(c) <= 0x9F for c in err)
+    if "\x1b" in "".join(argv):
+        assert "\\x1b" in err  # escaped, still visible
+
+
+@pytest.mark.parametrize("stop", ["1e300", "inf", "nan", "0"])
+def test_ssp_run_refuses_a_stop_time_libcosim_cannot_buffer(
+        stop: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--stop-time 1e300`` reached libcosim, whose buffer message did not name the option."""
+    assert main(["ssp", "run", str(tmp_path / "loop.ssp"), "--stop-time", stop,
+                 "--out", str(tmp_path / "x.mcap")]) == 1
+    assert capsys.readouterr().err.startswith("wmr: error: --stop-time: must be > 0 and at most")
+
+
+# -- item 5: an FMU that returns fmi2Fatal is never called again -----------------------------------
+
+_OUTPUTS = ("x", "y", "theta", "v", "omega", "omega_r", "omega_l")
+
+
+def _fatal_robot(folder: Path) -> Path:
+    """``tests/other_fmus/fatal_robot.c`` as an FMI 2.0 co-simulation FMU (skips without cc)."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler")
+    root = folder / "fatal_robot"
+    binary = root / "binaries" / "linux64" / "fatal_robot.so"
+    binary.parent.mkdir(parents=True)
+    subprocess.run([cc, "-shared", "-fPIC", "-O1", "-o", str(binary),
+                    str(Path(__file__).parent / "other_fmus" / "fatal_robot.c"), "-lm"],
+                   check=True)
+    names = [("tau_r", 'causality="input" variability="continuous"', '<Real start="0"/>'),
+             ("tau_l", 'causality="input" variability="continuous"', '<Real start="0"/>')]
+    names += [(n, 'causality="output" variability="continuous" initial="exact"',
+               '<Real start="0"/>') for n in _OUTPUTS]
+    names += [(n, 'causality="parameter" variability="fixed" initial="exact"',
+               '<Real start="0"/>') for n in ("x0", "y0", "theta0")]
+    variables = "\n".join(f'<ScalarVariable name="{n}" valueReference="{i}" {a}>{t}'
+                          "</ScalarVariable>" for i, (n, a, t) in enumerate(names))
+    outputs = "".join(f'<Unknown index="{i + 3}"/>' for i in range(len(_OUTPUTS)))
+    (root / "modelDescription.xml").write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n<fmiModelDescription fmiVersion="2.0" '
+        'modelName="fatal_robot" guid="{fatal-robot}" variableNamingConvention="flat">'
+        '<CoSimulation modelIdentifier="fatal_robot"/><ModelVariables>'
+        f"{variables}</ModelVariables><ModelStructure><Outputs>{outputs}</Outputs>"
+        "</ModelStructure></fmiModelDescription>\n")
+    fmu = folder / "fatal_robot.fmu"
+    with zipfile.ZipFile(fmu, "w") as zf:
+        for path in root.rglob("*"):
+            if path.is_file():
+                zf.write(path, path.relative_to(root).as_posix())
+    return fmu
+
+
+@pytest.mark.parametrize("variable,scale", [("tau_r", "5e-324"), ("tau_r", "1e-308"),
+                                            ("x0", "5e-324")],
+                         ids=["torque-5e-324", "torque-1e-308", "start-pose"])
+def test_an_fmu_that_returned_fatal_is_left_alone_and_the_run_fails_cleanly(
+        variable: str, scale: str, tmp_path: Path) -> None:
+    """A map scale that makes an input inf (a torque while stepping, or the start pose while
+    initialising): the FMU says fmi2Fatal, and used to be sent fmi2Terminate (forbidden after
+    Fatal), which killed ``wmr run`` with SIGSEGV, exit 139, no JSON line.  Now: exit 1, the
+    JSON line (or the text line), and a finished log of status failed."""
+    fmu = _fatal_robot(tmp_path)
+    unmapped = '", "'.join(("phi_r", "phi_l", "x_G", "y_G", "E_kin", "v0", "omega0", "m", "r",
+                            "L", "l", "Ig", "Iwm", "b_f", "tau_c", "w_c"))
+    (tmp_path / "map.toml").write_text(f'unmapped = ["{unmapped}"]\n[variables]\n'
+                                       f'{variable} = {{ name = "{variable}", scale = {scale} }}\n')
+    log = tmp_path / "run.mcap"
+    argv = [sys.executable, "-m", "wmr.cli", "run", "--fmu", str(fmu), "--map",
+            str(tmp_path / "map.toml"), "--out", str(log), "--start", "1", "0", "0"]
+    for json_line in (True, False):
+        proc = subprocess.run(argv + ["--json"] * json_line, capture_output=True, text=True,
+                              timeout=300)
+        assert proc.returncode == 1, proc.stderr
+        assert "fmi2Terminate" not in proc.stderr and "internal error" not in proc.stderr
+        last = proc.stdout.splitlines()[-1]
+        if json_line:
+            record = json.loads(last)
+            assert record["status"] == "failed" and "fatal" in record["message"].lower()
+        else:
+            assert last.startswith("failed: ") and "fatal" in last.lower()
+        assert read_run(log).metadata["result"]["status"] == "failed"
+
+
+# -- item 8: journal lines are verified against the spec and the logs ------------------------------
+
+SPEC4 = """
+name = "t4"
+start = [1.0, 0.0, 0.0]
+goal = [0.0, 0.0, 180.0]
+max_time_s = 15.0
+[grid.gains]
+K_ps = [0.25, 0.5]
+K_is = [0.1, 0.2]
+"""
+
+
+@pytest.fixture(scope="module")
+def batch4(fmu3: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished 4-run batch (its folder is copied, never changed)."""
+    folder = tmp_path_factory.mktemp("batch4")
+    (folder / "t4.toml").write_text(SPEC4)
+    result = run_batch(load_batch(folder / "t4.toml"), folder / "out", workers=1,
+                       fmu_path=fmu3, progress=False)
+    assert result.counts["converged"] == 4
+    return folder
+
+
+def _copy(batch4: Path, tmp_path: Path) -> tuple[Path, list[dict[str, Any]]]:
+    out = tmp_path / "out"
+    shutil.copytree(batch4 / "out", out, copy_function=shutil.copy2)
+    lines = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()]
+    return out, lines
+
+
+def _rewrite(out: Path, lines: list[dict[str, Any]], extra: str = "") -> None:
+    (out / "journal.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines) + extra)
+
+
+@pytest.mark.parametrize("edit,field", [
+    (lambda x: x["row"]["inputs"].update({"gains.K_ps": 999}), "row.inputs.gains.K_ps"),
+    (lambda x: x["record"].update(status="failed"), "record.status"),
+    (lambda x: x["row"]["inputs"].update({"gains.K_is": "abc"}), "row.inputs.gains.K_is"),
+    (lambda x: x["record"].update(final_position_error_m=0.0), "record.final_position_error_m"),
+    (lambda x: x["record"].update(steps="695"), "record.steps"),
+    (lambda x: x["row"].update(name="other"), "row.name"),
+], ids=["input", "status", "text-input", "result", "type", "name"])
+def test_an_edited_journal_line_is_made_again_from_the_spec_and_the_log(
+        edit: Any, field: str, batch4: Path, fmu3: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``row.inputs."gains.K_ps"`` edited to 999 used to be in the summary, although the run
+    used 0.25; ``record.status`` edited to failed likewise; ``"abc"`` was ArrowInvalid."""
+    out, lines = _copy(batch4, tmp_path)
+    edit(lines[1])
+    _rewrite(out, lines)
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+                      progress=False)
+    assert again.executed == [] and again.counts["converged"] == 4  # nothing redone
+    assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
+    err = capsys.readouterr().err
+    assert f"1 line did not match the spec or the run's log (first: run {lines[1]['run_id']}, " \
+           f"{field})" in err
+    # the corrected line is sealed: the next resume trusts it, silently
+    run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3, progress=False)
+    assert "did not match" not in capsys.readouterr().err
+
+
+def test_garbage_journal_lines_are_skipped(batch4: Path, fmu3: Path, tmp_path: Path) -> None:
+    """A 5,000-digit run id was ValueError (int's digit limit); 100,000 ``[`` RecursionError;
+    a line without a seal (or an older journal's) is made again silently."""
+    out, lines = _copy(batch4, tmp_path)
+    del lines[0]["check"]
+    _rewrite(out, lines, '{"run_id": "' + "1" * 5000 + '-0a433d73", "record": {}}\n'
+             + "[" * 100_000 + "\n" + '{"run_id": "' + "7" * 60 + '", "record": {}}\n')
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+                      progress=False)
+    assert again.executed == [] and again.skipped == 4
+    assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
+
+
+def test_an_edited_line_of_a_killed_run_is_redone(batch4: Path, fmu3: Path,
+                                                  tmp_path: Path) -> None:
+    """A killed run's record was made up by the executor: no log record to make it again
+    from, so an edited one is not trusted but the run done again."""
+    out, lines = _copy(batch4, tmp_path)
+    lines[2].update(killed=True, record={**lines[2]["record"], "status": "timeout"})
+    _rewrite(out, lines)
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+                      progress=False)
+    assert again.executed == [lines[2]["run_id"]]
+    assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
+
+
+def test_records_made_again_from_logs_are_the_journalled_ones(fmu3: Path, tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]
+                                                              ) -> None:
+    """Runs stopped by their wall-clock limit (logged failed, journalled timeout) and finished
+    ones: every line unsealed, each is made again from its log, equal to what was written."""
+    spec = tmp_path / "t4.toml"
+    spec.write_text(SPEC4)
+    out = tmp_path / "out"
+    first = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False,
+                      run_timeout_s=0.02)
+    assert first.counts["timeout"] >= 1
+    lines = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()]
+    summary = (out / "summary.csv").read_bytes()
+    _rewrite(out, [{k: v for k, v in x.items() if k != "check"} for x in lines])
+    again = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    assert again.executed == [] and (out / "summary.csv").read_bytes() == summary
+    remade = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()][4:]
+    assert [x["record"] for x in remade] == [x["record"] for x in lines]
+    assert "did not match" not in capsys.readouterr().err
+
+
+def test_a_batch_folder_removed_under_the_workers_is_one_error_not_a_traceback(
+        fmu3: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    """A worker (re)started after the folder went could not open its log file: it printed a
+    traceback; now the batch stops with one line saying so."""
+    from wmr.apps.batch.local import LocalPool
+    from wmr.apps.batch.worker import Task
+
+    spec = load_scenario("fig11").runs[0]
+    pool = LocalPool(fmu3, tmp_path / "runs", 1, log_dir=tmp_path / "gone")
+    with pytest.raises(WmrError, match=r"could not start: cannot open .*worker-0\.log"):
+        list(pool.run([Task("0000-x", spec)]))
+    assert "Traceback" not in capfd.readouterr().err
