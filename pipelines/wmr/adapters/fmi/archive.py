@@ -46,15 +46,17 @@ MAX_UNCOMPRESSED_BYTES: Final = 512 * MiB
 MAX_CENTRAL_DIRECTORY_BYTES: Final = 16 * MiB
 #: A member name longer than this is refused (file systems refuse 255-byte names anyway).
 MAX_NAME_CHARS: Final = 1024
-#: XML documents we parse ourselves (SSD, SSV, model descriptions): size and nesting depth.
+#: XML documents: an SSP's SSD and SSVs (we parse them into memory), an FMU's model
+#: description (fmpy and the masters do), each bounded while it inflates; nesting depth.
 MAX_XML_BYTES: Final = 32 * MiB
+MAX_MODEL_DESCRIPTION_BYTES: Final = 64 * MiB
 MAX_XML_DEPTH: Final = 256
 _CHUNK: Final = MiB
 _ALLOWED_COMPRESSION: Final = (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED)
 _WINDOWS_REPARSE_POINT: Final = 0x400  # FILE_ATTRIBUTE_REPARSE_POINT: a Windows link
 #: Members that masters parse as FMI or SSP XML, checked by :class:`XmlGuard` as they inflate.
 _XML_SUFFIXES: Final = (".ssd", ".ssv", ".ssm")
-_XML_NAMES: Final = ("modelDescription.xml",)
+_MODEL_DESCRIPTION: Final = "modelDescription.xml"
 _EOCD: Final = b"PK\x05\x06"
 _ZIP64_LOCATOR: Final = b"PK\x06\x07"
 
@@ -184,7 +186,8 @@ class CheckedArchive:
                     raise _refuse(where, f"member {_show(norm)} is under "
                                          f"{_show(parent.as_posix())}, which is a file")
 
-    def chunks(self, name: str, limit: int | None = None) -> Iterator[bytes]:
+    def chunks(self, name: str, limit: int | None = None,
+               guard: XmlGuard | None = None) -> Iterator[bytes]:
         """The bytes of member ``name`` (:exc:`KeyError` if none), chunk by chunk, counted
         against the budget (and ``limit``) as they come out of the decompressor; an FMI or SSP
         document
@@ -195,8 +198,10 @@ class CheckedArchive:
             raise KeyError(name)
         count = 0
         cap = self.budget.member_bytes if limit is None else min(limit, self.budget.member_bytes)
-        guard = XmlGuard(f"{self.where}: {name}") if (
-            name in _XML_NAMES or name.endswith(_XML_SUFFIXES)) else None
+        if name == _MODEL_DESCRIPTION or name.endswith(_XML_SUFFIXES):
+            cap = min(cap, MAX_MODEL_DESCRIPTION_BYTES if name == _MODEL_DESCRIPTION
+                      else MAX_XML_BYTES)
+            guard = guard if guard is not None else XmlGuard(f"{self.where}: {name}")
         try:
             with self._zf.open(info) as stream:
                 while chunk := stream.read(_CHUNK):
@@ -366,6 +371,8 @@ class XmlGuard:
 
     def __init__(self, where: str) -> None:
         self.where = where
+        #: The root element's attributes, once it has streamed by (``fmiVersion``).
+        self.root_attributes: dict[str, str] = {}
         self._depth = 0
         self._parser = expat.ParserCreate()
         self._parser.SetParamEntityParsing(expat.XML_PARAM_ENTITY_PARSING_NEVER)
@@ -373,7 +380,9 @@ class XmlGuard:
         self._parser.EndElementHandler = self._end
         self._parser.StartDoctypeDeclHandler = self._doctype
 
-    def _start(self, _name: str, _attrs: object) -> None:
+    def _start(self, _name: str, attrs: dict[str, str]) -> None:
+        if self._depth == 0:
+            self.root_attributes = dict(attrs)
         self._depth += 1
         if self._depth > MAX_XML_DEPTH:
             raise _Refused(f"elements nested more than {MAX_XML_DEPTH} deep")
@@ -422,6 +431,6 @@ def file_sha256(path: Path) -> str:
         return hashlib.file_digest(f, "sha256").hexdigest()
 
 
-__all__ = ["MAX_MEMBERS", "MAX_UNCOMPRESSED_BYTES", "MAX_XML_BYTES", "MAX_XML_DEPTH", "Budget",
-           "CheckedArchive", "XmlGuard", "check_archive", "file_sha256", "open_archive",
-           "parse_xml", "safe_extract"]
+__all__ = ["MAX_MEMBERS", "MAX_MODEL_DESCRIPTION_BYTES", "MAX_UNCOMPRESSED_BYTES",
+           "MAX_XML_BYTES", "MAX_XML_DEPTH", "Budget", "CheckedArchive", "XmlGuard",
+           "check_archive", "file_sha256", "open_archive", "parse_xml", "safe_extract"]

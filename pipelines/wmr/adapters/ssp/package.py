@@ -32,6 +32,7 @@ from wmr.adapters.fmi.archive import (
     MAX_XML_BYTES,
     Budget,
     CheckedArchive,
+    XmlGuard,
     open_archive,
     parse_xml,
 )
@@ -128,33 +129,32 @@ def _parameter_set(folder: Path, source: str, where: str) -> dict[str, float]:
     return values
 
 
-def _rewrite(archive: CheckedArchive, target: Path) -> bytes:
+def _rewrite(archive: CheckedArchive, target: Path) -> str:
     """Write the checked members of ``archive`` as a new, plain archive at ``target`` (stored:
-    the master only unpacks it); return its ``modelDescription.xml``."""
+    the master only unpacks it); return the FMI version of its model description."""
     if "modelDescription.xml" not in archive.members:
         raise FmuError(f"{archive.where}: not an FMU (no modelDescription.xml at the top level)")
-    md = archive.read("modelDescription.xml", MAX_XML_BYTES)
+    md = XmlGuard(f"{archive.where}: modelDescription.xml")
     fd, tmp = tempfile.mkstemp(prefix=".", suffix=".fmu", dir=target.parent)
     with os.fdopen(fd, "wb") as raw, zipfile.ZipFile(raw, "w", zipfile.ZIP_STORED,
                                                      allowZip64=True) as out:
         for folder in sorted(archive.folders):
             out.writestr(zipfile.ZipInfo(folder + "/"), b"")
         for name in archive.members:
+            guard = md if name == "modelDescription.xml" else None
             with out.open(zipfile.ZipInfo(name), "w", force_zip64=True) as stream:
-                for chunk in archive.chunks(name):
+                for chunk in archive.chunks(name, guard=guard):
                     stream.write(chunk)
     os.replace(tmp, target)
-    return md
+    return md.root_attributes.get("fmiVersion", "")
 
 
 def _fmi_version(folder: Path, source: str, where: str, budget: Budget) -> str:
     """Check the component's FMU through the archive door, rewrite it as the checked members,
     and return its FMI version."""
     path = _member(folder, source, where, "FMU")
-    label = f"{where}: {source}"
-    with open_archive(path, "FMU", budget, where=label) as archive:
-        md = _rewrite(archive, path)
-    return parse_xml(md, f"{label}: modelDescription.xml").get("fmiVersion", "")
+    with open_archive(path, "FMU", budget, where=f"{where}: {source}") as archive:
+        return _rewrite(archive, path)
 
 
 def _read(p: Path, folder: Path, sha256: str, budget: Budget) -> SspPackage:
