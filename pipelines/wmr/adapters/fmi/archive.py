@@ -70,6 +70,9 @@ class Budget:
     total_bytes: int = MAX_UNCOMPRESSED_BYTES
     member_bytes: int = MAX_UNCOMPRESSED_BYTES
 
+    def __post_init__(self) -> None:
+        self.total_limit = self.total_bytes  # for messages: total_bytes counts down
+
 
 def _show(name: str) -> str:
     """A member name for a one-line message: quoted, escaped, cut when long."""
@@ -212,7 +215,7 @@ class CheckedArchive:
                                                   f"than {cap} bytes")
                     if self.budget.total_bytes < 0:
                         raise _refuse(self.where, "unpacks to more than "
-                                                  f"{MAX_UNCOMPRESSED_BYTES} bytes in all")
+                                                  f"{self.budget.total_limit} bytes in all")
                     if guard is not None:
                         guard.feed(chunk)
                     yield chunk
