@@ -104,7 +104,7 @@ def _member(folder: Path, source: str, where: str, what: str) -> Path:
                        "refused")
     path = folder / pure
     if not path.is_file():
-        raise FmuError(f"{where}: {what} {source} is missing from the package (export it "
+        raise FmuError(f"{where}: its {what} {source} is missing from the package (export it "
                        "again with 'wmr ssp export')")
     return path
 
