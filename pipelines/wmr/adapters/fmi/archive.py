@@ -189,8 +189,8 @@ class CheckedArchive:
                     raise _refuse(where, f"member {_show(norm)} is under "
                                          f"{_show(parent.as_posix())}, which is a file")
 
-    def chunks(self, name: str, limit: int | None = None,
-               guard: XmlGuard | None = None) -> Iterator[bytes]:
+    def chunks(self, name: str, limit: int | None = None, guard: XmlGuard | None = None,
+               charge: bool = True) -> Iterator[bytes]:
         """The bytes of member ``name`` (:exc:`KeyError` if none), chunk by chunk, counted
         against the budget (and ``limit``) as they come out of the decompressor; an FMI or SSP
         document
@@ -209,7 +209,8 @@ class CheckedArchive:
             with self._zf.open(info) as stream:
                 while chunk := stream.read(_CHUNK):
                     count += len(chunk)
-                    self.budget.total_bytes -= len(chunk)
+                    if charge:  # not again for the bytes a check already counted
+                        self.budget.total_bytes -= len(chunk)
                     if count > cap:
                         raise _refuse(self.where, f"member {_show(name)} unpacks to more "
                                                   f"than {cap} bytes")
@@ -249,8 +250,10 @@ class CheckedArchive:
                 pass
 
     def extract(self, dest: Path) -> Path:
-        """Write every member under ``dest`` (a folder the caller made and nobody else
-        writes); files are created ``O_EXCL | O_NOFOLLOW``, never through a link."""
+        """:meth:`check` every member, then write them under ``dest`` (a folder the caller
+        made and nobody else writes): a bomb never reaches the disk.  Files are created
+        ``O_EXCL | O_NOFOLLOW``, never through a link."""
+        self.check()
         for folder in sorted(self.folders):
             (dest / folder).mkdir(parents=True, exist_ok=True)
         flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
@@ -259,7 +262,8 @@ class CheckedArchive:
             target.parent.mkdir(parents=True, exist_ok=True)
             fd = os.open(target, flags, 0o644)
             with open(fd, "wb") as out:
-                for chunk in self.chunks(name):
+                for chunk in self.chunks(name, limit=self.members[name].file_size,
+                                         charge=False):
                     out.write(chunk)
         return dest
 

@@ -134,6 +134,7 @@ def _rewrite(archive: CheckedArchive, target: Path) -> str:
     the master only unpacks it); return the FMI version of its model description."""
     if "modelDescription.xml" not in archive.members:
         raise FmuError(f"{archive.where}: not an FMU (no modelDescription.xml at the top level)")
+    archive.check()  # every member inflated and counted first: a bomb never reaches the disk
     md = XmlGuard(f"{archive.where}: modelDescription.xml")
     fd, tmp = tempfile.mkstemp(prefix=".", suffix=".fmu", dir=target.parent)
     with os.fdopen(fd, "wb") as raw, zipfile.ZipFile(raw, "w", zipfile.ZIP_STORED,
@@ -143,7 +144,8 @@ def _rewrite(archive: CheckedArchive, target: Path) -> str:
         for name in archive.members:
             guard = md if name == "modelDescription.xml" else None
             with out.open(zipfile.ZipInfo(name), "w", force_zip64=True) as stream:
-                for chunk in archive.chunks(name, guard=guard):
+                for chunk in archive.chunks(name, archive.members[name].file_size, guard,
+                                            charge=False):
                     stream.write(chunk)
     os.replace(tmp, target)
     return md.root_attributes.get("fmiVersion", "")
