@@ -12,7 +12,7 @@ import pyarrow as pa
 import pytest
 
 from wmr.apps.batch.summary import SUMMARY_CSV, SUMMARY_PARQUET, write_summary
-from wmr.infra.durable import AtomicFile, partial_path, replacing
+from wmr.infra.durable import AtomicFile, partial_path
 from wmr.infra.errors import LogError
 
 PRECIOUS = b"precious data\n"
@@ -103,6 +103,8 @@ def test_a_link_at_the_final_name_is_replaced_not_written_through(tmp_path: Path
 
 
 def test_replacing_keeps_the_old_file_on_failure_and_uses_the_umask(tmp_path: Path) -> None:
+    from wmr.infra.durable import replacing
+
     target = tmp_path / "f.bin"
     target.write_bytes(b"old")
     with pytest.raises(RuntimeError), replacing(target) as f:
