@@ -253,3 +253,34 @@ def test_a_run_with_sensors_is_not_exported(tmp_path: Path,
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "sensors" in err and "perfect measurements" in err
     assert not out.exists()
+
+
+def test_wmr_ssp_run_does_not_overwrite_the_log_of_wmr_run(
+        built: BuildResult, ssp_dir: Path, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``wmr ssp run fig11.ssp`` without --out logs to runs/fig11-ssp.mcap, not over the
+    runs/fig11.mcap of ``wmr run fig11``."""
+    package = tmp_path / "fig11.ssp"
+    package.write_bytes(_export(built, _spec("fig11", None), ssp_dir).read_bytes())
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "fig11.mcap").write_bytes(b"the log of wmr run")
+    assert main(["ssp", "run", str(package), "--stop-time", "0.5"]) == 3
+    assert (tmp_path / "runs" / "fig11.mcap").read_bytes() == b"the log of wmr run"
+    assert read_run(tmp_path / "runs" / "fig11-ssp.mcap").n_steps == 50
+
+
+def test_an_exported_package_has_the_mode_of_a_new_file(tmp_path: Path,
+                                                        built: BuildResult) -> None:
+    """0666 less the umask, as any file a command writes (it was 0600, from mkstemp)."""
+    import os
+    import stat
+
+    old_mask = os.umask(0o022)
+    try:
+        out = export_ssp(_spec("fig11", None), tmp_path / "m.ssp", built.fmus[2],
+                         built.controllers[2])
+    finally:
+        os.umask(old_mask)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o644
+    assert [p.name for p in tmp_path.iterdir()] == ["m.ssp"]  # no temporary file left

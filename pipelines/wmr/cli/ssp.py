@@ -44,7 +44,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.infra.outputs import check_output
 
     ssp = Path(args.ssp)
-    out = check_output(args.out if args.out else default_log_path(ssp.stem), "--out",
+    # '-ssp': the package of fig11 must not overwrite runs/fig11.mcap of 'wmr run fig11'
+    out = check_output(args.out if args.out else default_log_path(f"{ssp.stem}-ssp"), "--out",
                        suffix=".mcap")
     # the longest run a scenario allows at the default period: libcosim sizes its buffers by it
     longest_s = MAX_STEPS * DEFAULT_PERIOD_S
@@ -94,7 +95,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "variable) and log it in the layout of 'wmr run', so that 'wmr replay' "
                     "shows it.  Exit status: 0 converged, 3 not converged.")
     run.add_argument("ssp", metavar="FILE.ssp", help="the package")
-    run.add_argument("--out", metavar="FILE.mcap", help="log file (default runs/NAME.mcap)")
+    run.add_argument("--out", metavar="FILE.mcap",
+                     help="log file (default runs/NAME-ssp.mcap for NAME.ssp, not the "
+                          "runs/NAME.mcap of 'wmr run NAME')")
     run.add_argument("--stop-time", type=float, metavar="S",
                      help="end of the run, s (default: the package's stop time)")
     run.add_argument("--json", action="store_true",

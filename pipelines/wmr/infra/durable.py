@@ -6,6 +6,12 @@ A finished file is replaced only by another finished file: :class:`AtomicFile` w
 SQLite and rosbag2 keep a committed file whole.  A process killed before the commit leaves
 ``NAME`` as it was and its own data in ``NAME.partial``, which ``wmr log recover`` reads.
 
+No write can be redirected by a file someone planted: ``NAME.partial`` is opened with
+``O_NOFOLLOW`` and refused (one :class:`~wmr.infra.errors.LogError` line) when it is a
+symbolic link, a hard link, not a regular file or another user's; any other temporary file
+(:func:`replacing`) gets a new random name, created ``O_CREAT | O_EXCL | O_NOFOLLOW``.  A
+final file is only ever renamed over, never written through.
+
 Every write checks its result: :func:`write_all` loops over short writes of ``os.write``, and
 a full disk (``ENOSPC``, ``EDQUOT``) becomes one :class:`~wmr.infra.errors.DiskFullError` line
 naming the device and the file.
@@ -17,10 +23,13 @@ import ctypes
 import errno
 import fcntl
 import os
+import secrets
+import stat
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Final
+from typing import BinaryIO, Final
 
 from wmr.infra.errors import DiskFullError, LogError
 
@@ -106,6 +115,88 @@ def fsync_dir(folder: str | os.PathLike[str]) -> None:
         os.close(fd)
 
 
+def _refuse_foreign(path: Path, st: os.stat_result, what: str) -> None:
+    """Refuse to write into a file that another user or process planted: not a regular file,
+    a hard link to another file (writing would change that file too), or not ours."""
+    problem = None
+    if not stat.S_ISREG(st.st_mode):
+        problem = "is not a regular file"
+    elif st.st_nlink != 1:
+        problem = f"has {st.st_nlink} names (a hard link: writing it would change another file)"
+    elif st.st_uid != os.geteuid():
+        problem = f"belongs to another user (uid {st.st_uid})"
+    if problem is not None:
+        raise LogError(f"{path}: {problem}; wmr never makes such a file: remove it, or write "
+                       f"the {what} elsewhere")
+
+
+def _open_own(path: Path, flags: int, what: str, mode: int = 0o644) -> int:
+    """``os.open`` that never follows a symbolic link at ``path`` (``O_NOFOLLOW``) and never
+    writes into a file that was not made the way we make ours (:func:`_refuse_foreign`)."""
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise LogError(f"{path}: is a symbolic link; wmr never makes one: remove it, or "
+                           f"write the {what} elsewhere") from None
+        raise LogError(f"{path}: cannot create the {what}: {exc.strerror}") from exc
+    try:
+        _refuse_foreign(path, os.fstat(fd), what)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def _unique_temp(target: Path) -> tuple[int, Path]:
+    """A new file beside ``target``, under a name nobody can have planted (``O_EXCL``), with
+    the mode a new file gets (0666 less the umask, as ``open`` gives)."""
+    for _ in range(100):
+        tmp = target.with_name(f".{target.name}.{secrets.token_hex(8)}.tmp")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW
+                         | os.O_CLOEXEC, 0o666)
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise storage_error(exc, tmp) from exc
+        return fd, tmp
+    raise LogError(f"{target}: cannot find a free temporary name beside it")  # pragma: no cover
+
+
+@contextmanager
+def replacing(path: str | os.PathLike[str], durable: bool = False) -> Iterator[BinaryIO]:
+    """Write a whole file and put it in place at once: a binary stream on a new temporary
+    file beside ``path`` (:func:`_unique_temp`), renamed over ``path`` when the block ends,
+    removed if it raises.  ``path`` itself is replaced, never written through: a symbolic
+    link there is replaced, its target untouched.
+
+    Parameters
+    ----------
+    path
+        The final file.
+    durable
+        fsync the file and its folder, so that the rename survives a power loss.
+    """
+    target = Path(path)
+    fd, tmp = _unique_temp(target)
+    try:
+        with open(fd, "wb") as stream:
+            yield stream
+            stream.flush()
+            if durable:
+                os.fsync(stream.fileno())
+        os.replace(tmp, target)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise storage_error(exc, tmp) from exc
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    if durable:
+        fsync_dir(target.parent)
+
+
 class AtomicFile:
     """A binary output that appears at ``path`` only when complete.
 
@@ -140,10 +231,7 @@ class AtomicFile:
         self.partial = partial_path(self.path)
         self._what = what
         for _ in range(10):
-            try:
-                fd = os.open(self.partial, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-            except OSError as exc:
-                raise LogError(f"{self.path}: cannot create the {what}: {exc.strerror}") from exc
+            fd = _open_own(self.partial, os.O_RDWR | os.O_CREAT, what)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -219,4 +307,4 @@ class AtomicFile:
 
 
 __all__ = ["PARTIAL_SUFFIX", "AtomicFile", "fsync_dir", "mount_point", "partial_path",
-           "storage_error", "write_all"]
+           "replacing", "storage_error", "write_all"]

@@ -19,10 +19,8 @@ from ``y_k``, the torques the robot holds next).
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wmr.adapters.fmi.varmap import PARAMETER_NAMES, MapEntry
-from wmr.adapters.ssp.package import CONTROLLER, ROBOT, SspPackage, read_package
+from wmr.adapters.ssp.package import CONTROLLER, ROBOT, SspPackage, unpacked_package
 from wmr.build.controller_interface import SIGNAL_OUTPUTS
 from wmr.core.plant import OUTPUT_NAMES
 from wmr.core.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
@@ -98,15 +96,21 @@ def simulate_libcosim(ssp_path: str | os.PathLike[str], *, stop_time_s: float | 
     Raises
     ------
     ConfigError, FmuError
-        The package is missing, incomplete (an FMU absent), not FMI 2.0, or libcosim
-        refuses it.
+        The package is missing, refused by the archive door, incomplete (an FMU absent),
+        not FMI 2.0, or libcosim refuses it.
     """
     _require_libcosim()
+    # libcosim gets the folder we extracted and checked, never the package itself
+    with unpacked_package(ssp_path) as (package, folder):
+        return _simulate(package, folder, stop_time_s, stop_at_convergence)
+
+
+def _simulate(package: SspPackage, folder: Path, stop_time_s: float | None,
+              stop_at_convergence: bool) -> SspRunData:
     from libcosimpy.CosimEnums import CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimObserver import CosimObserver
 
-    package = read_package(Path(ssp_path))
     robot, ctrl = package.component(ROBOT), package.component(CONTROLLER)
     for component in (robot, ctrl):
         if not component.fmi_version.startswith("2"):
@@ -129,8 +133,7 @@ def simulate_libcosim(ssp_path: str | os.PathLike[str], *, stop_time_s: float | 
     n_max = max(1, round((stop - package.start_time_s) / h))
     _quiet_libcosim()
     try:
-        execution = CosimExecution.from_ssp_file(str(Path(ssp_path).resolve()),
-                                                 step_size=round(h * 1e9))
+        execution = CosimExecution.from_ssp_file(str(folder), step_size=round(h * 1e9))
     except AssertionError:
         raise FmuError(f"{package.path}: libcosim cannot load the package (run with a "
                        "libcosim log level of debug to see why)") from None
@@ -256,7 +259,7 @@ def run_record(run: SspRunData) -> dict[str, object]:
         "stop_radius_m": cp.get("stop_radius_m"),
         "heading_tolerance_rad": math.radians(cp.get("heading_tolerance_deg", math.nan)),
         "ssp_file": package.path.name,
-        "ssp_sha256": hashlib.sha256(package.path.read_bytes()).hexdigest(),
+        "ssp_sha256": package.sha256,
         "fmi_version": package.component(ROBOT).fmi_version,
         "master": run.master,
         "lag_steps": 1,
@@ -289,14 +292,9 @@ def log_ssp_run(run: SspRunData, mcap_path: str | os.PathLike[str]) -> dict[str,
 
     path = Path(mcap_path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with zipfile.ZipFile(run.package.path) as zf:
-        attachments = {n: ("application/xml", zf.read(n)) for n in zf.namelist()
-                       if n.endswith((".ssd", ".ssv"))}
-        attachments.update({Path(n).name: ("application/toml", zf.read(n))
-                            for n in zf.namelist() if n.endswith(".toml")})
     record = result_record(run, path)
     with RunLogWriter(path, run=run_record(run), goal=_goal(run.package),
-                      attachments=attachments) as log:
+                      attachments=run.package.attachments) as log:
         log.write_block(run.t_ns, run.block)
         log.close(record)
     return record

@@ -26,17 +26,18 @@ step ``control_period_s``, the only step the controller FMU accepts.
 from __future__ import annotations
 
 import os
-import tempfile
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final
 
+from wmr.adapters.fmi.archive import check_archive
 from wmr.adapters.fmi.controller import controller_parameters
 from wmr.adapters.fmi.varmap import INPUT_NAMES, ResolvedMap, VariableMap, resolve
 from wmr.config.scenario import RunSpec
 from wmr.core.plant import OUTPUT_NAMES
+from wmr.infra.durable import replacing
 from wmr.infra.errors import ConfigError, FmuError
 
 ROBOT: Final = "robot"
@@ -79,6 +80,7 @@ def _model_description(fmu: Path) -> Any:
 
     if not fmu.is_file():
         raise FmuError(f"{fmu}: no such FMU (run 'wmr fmu build' or give an existing file)")
+    check_archive(fmu)  # the package carries it to other masters: the door of 'wmr run --fmu'
     try:
         md = read_model_description(str(fmu))
     except Exception as exc:
@@ -248,20 +250,14 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     if scenario_file is not None:
         files[f"resources/{scenario_file.name}"] = scenario_file
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-    os.close(fd)
-    try:
-        with zipfile.ZipFile(tmp_name, "w", zipfile.ZIP_DEFLATED) as zf:
-            for name, data in members.items():
-                zf.writestr(name, data)
-            for name, path in files.items():
-                # the FMUs are zips already: stored, not deflated again
-                zf.write(path, name, compress_type=zipfile.ZIP_STORED
-                         if path.suffix == ".fmu" else zipfile.ZIP_DEFLATED)
-        os.replace(tmp_name, target)
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
+    # a new file beside the target, renamed into place (mode 0666 less the umask)
+    with replacing(target) as raw, zipfile.ZipFile(raw, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+        for name, path in files.items():
+            # the FMUs are zips already: stored, not deflated again
+            zf.write(path, name, compress_type=zipfile.ZIP_STORED
+                     if path.suffix == ".fmu" else zipfile.ZIP_DEFLATED)
     return target
 
 

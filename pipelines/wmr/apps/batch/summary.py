@@ -8,9 +8,9 @@ the journal only.
 from __future__ import annotations
 
 import csv
+import io
 import itertools
 import math
-import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +20,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from wmr.apps.batch.spec import NAME_COLUMNS, BatchRun
+from wmr.infra.durable import replacing
 
 SUMMARY_PARQUET: Final = "summary.parquet"
 SUMMARY_CSV: Final = "summary.csv"
@@ -137,26 +138,22 @@ def write_summary(tables: pa.Table | Iterable[pa.Table], out_dir: Path) -> tuple
     blocks = iter([tables] if isinstance(tables, pa.Table) else tables)
     first = next(blocks)
     parquet, csv_path = out_dir / SUMMARY_PARQUET, out_dir / SUMMARY_CSV
-    tmp_parquet = parquet.with_suffix(".parquet.tmp")
-    tmp_csv = csv_path.with_suffix(".csv.tmp")
-    try:
-        with pq.ParquetWriter(tmp_parquet, first.schema, compression="zstd",
-                              write_statistics=False) as pw, \
-                open(tmp_csv, "w", encoding="utf-8", newline="") as stream:
-            writer = csv.writer(stream, lineterminator="\n")
-            writer.writerow(first.column_names)
+    # each under a new random name beside it (a planted 'summary.csv.tmp' link is never
+    # followed), renamed into place: the summary before stays until both are whole
+    with replacing(parquet) as parquet_file, replacing(csv_path) as csv_file:
+        stream = io.TextIOWrapper(csv_file, encoding="utf-8", newline="")
+        writer = csv.writer(stream, lineterminator="\n")
+        writer.writerow(first.column_names)
+        with pq.ParquetWriter(parquet_file, first.schema, compression="zstd",
+                              write_statistics=False) as pw:
             for table in itertools.chain([first], blocks):
                 if table.num_rows:
                     pw.write_table(table)
                 columns = [table.column(i).to_pylist() for i in range(table.num_columns)]
                 writer.writerows([_csv_cell(v) for v in row]
                                  for row in zip(*columns, strict=True))
-    except BaseException:  # a full disk, Ctrl-C: the summary before stays, no debris
-        tmp_parquet.unlink(missing_ok=True)
-        tmp_csv.unlink(missing_ok=True)
-        raise
-    os.replace(tmp_parquet, parquet)
-    os.replace(tmp_csv, csv_path)
+        stream.flush()
+        stream.detach()  # replacing() closes the file itself
     return parquet, csv_path
 
 
