@@ -119,3 +119,51 @@ def test_replacing_keeps_the_old_file_on_failure_and_uses_the_umask(tmp_path: Pa
         os.umask(old_mask)
     assert target.read_bytes() == b"new"
     assert stat.S_IMODE(target.stat().st_mode) == 0o640
+
+
+@pytest.mark.parametrize("kind", ["symlink", "hardlink"])
+def test_a_batch_journal_planted_in_a_batch_folder_is_not_appended_through(
+        kind: str, tmp_path: Path, precious: Path) -> None:
+    """A batch folder copied from someone else may hold a link at ``journal.jsonl``: the
+    journal's append must not write into what it points at."""
+    from wmr.apps.batch.journal import Journal
+
+    journal_path = tmp_path / "batch" / "journal.jsonl"
+    journal_path.parent.mkdir()
+    _plant(kind, journal_path, precious)
+    with pytest.raises(LogError, match=r"journal\.jsonl") as info:
+        Journal(journal_path).append({"run_id": "0000-00000000", "status": "converged"})
+    assert len(str(info.value).splitlines()) == 1
+    assert precious.read_bytes() == PRECIOUS
+
+
+@pytest.mark.parametrize("name", [".lock", "journal.jsonl"])
+def test_wmr_batch_refuses_a_batch_folder_with_a_planted_link(
+        name: str, tmp_path: Path, precious: Path, fmu3: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from wmr.cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text('name = "s"\nstart = [0.0, 0.0, 0.0]\ngoal = [1.0, 0.0, 0.0]\n'
+                    'max_time_s = 0.5\n[grid.gains]\nK_ps = [0.25, 0.5]\n')
+    out = tmp_path / "batch"
+    out.mkdir()
+    _plant("symlink", out / name, precious)
+    code = main(["batch", str(spec), "--out", str(out), "--workers", "1", "--fmu", str(fmu3)])
+    err = capsys.readouterr().err
+    assert code != 0 and name in err and "symbolic link" in err
+    assert precious.read_bytes() == PRECIOUS
+
+
+def test_a_link_at_the_build_lock_is_refused_not_truncated(tmp_path: Path,
+                                                           precious: Path) -> None:
+    """The build lock was opened with ``open(..., "w")``, which truncated whatever a link
+    planted at its name pointed at."""
+    from wmr.build.fmus import _locked
+
+    out = tmp_path / "fmus"
+    out.mkdir()
+    _plant("symlink", out / ".wmr-build.lock", precious)
+    with pytest.raises(LogError, match="wmr-build.lock"), _locked(out):
+        pass
+    assert precious.read_bytes() == PRECIOUS

@@ -36,6 +36,7 @@ from wmr.build.platforms import (
     find_compiler,
 )
 from wmr.infra import paths
+from wmr.infra.durable import open_own
 from wmr.infra.errors import BuildError
 
 FMI_VERSIONS = (2, 3)
@@ -122,12 +123,13 @@ def build_digest(compiler: Compiler | None = None,
 def _locked(out_dir: Path) -> Iterator[None]:
     """Serialise builds into one folder (batch workers may all ask for the FMUs at once)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / ".wmr-build.lock", "w") as lock:
+    # never "w": a link planted at the lock's name must not truncate what it points at
+    lock = open_own(out_dir / ".wmr-build.lock", os.O_RDWR | os.O_CREAT, "build lock")
+    try:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
+        yield
+    finally:
+        os.close(lock)  # closing releases the lock
 
 
 def _reusable(out_dir: Path, digest: str) -> dict[str, Path] | None:

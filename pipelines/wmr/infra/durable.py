@@ -130,9 +130,14 @@ def _refuse_foreign(path: Path, st: os.stat_result, what: str) -> None:
                        f"the {what} elsewhere")
 
 
-def _open_own(path: Path, flags: int, what: str, mode: int = 0o644) -> int:
+def open_own(path: str | os.PathLike[str], flags: int, what: str, mode: int = 0o644) -> int:
     """``os.open`` that never follows a symbolic link at ``path`` (``O_NOFOLLOW``) and never
-    writes into a file that was not made the way we make ours (:func:`_refuse_foreign`)."""
+    writes into a file that was not made the way we make ours (:func:`_refuse_foreign`).
+
+    Every file wmr opens for writing in a folder that may have come from someone else (a batch
+    folder's journal, lock and worker logs, an FMU build folder's lock) goes through here.
+    """
+    path = Path(path)
     try:
         fd = os.open(path, flags | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
     except OSError as exc:
@@ -231,7 +236,7 @@ class AtomicFile:
         self.partial = partial_path(self.path)
         self._what = what
         for _ in range(10):
-            fd = _open_own(self.partial, os.O_RDWR | os.O_CREAT, what)
+            fd = open_own(self.partial, os.O_RDWR | os.O_CREAT, what)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -306,5 +311,5 @@ class AtomicFile:
     close = abandon
 
 
-__all__ = ["PARTIAL_SUFFIX", "AtomicFile", "fsync_dir", "mount_point", "partial_path",
-           "replacing", "storage_error", "write_all"]
+__all__ = ["PARTIAL_SUFFIX", "AtomicFile", "fsync_dir", "mount_point", "open_own",
+           "partial_path", "replacing", "storage_error", "write_all"]

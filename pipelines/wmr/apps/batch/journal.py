@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from wmr.adapters.mcap.writer import MAGIC
-from wmr.infra.durable import write_all
+from wmr.infra.durable import open_own, write_all
 
 JOURNAL = "journal.jsonl"
 #: Longest journal line read, in bytes (a line is about 1.5 kB): a longer one is skipped
@@ -177,7 +177,7 @@ class Journal:
         where it starts (the batch folder's lock makes the parent the only writer)."""
         sealed = {**row, "check": line_check(row)}
         line = (json.dumps(sealed, allow_nan=False, separators=(",", ":")) + "\n").encode()
-        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        fd = open_own(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, "batch journal")
         try:
             size = os.fstat(fd).st_size
             # a line that a previous batch cut short must not swallow this one

@@ -30,6 +30,7 @@ import wmr.apps.run  # noqa: F401 - preloaded by the forkserver, so that workers
 from wmr.adapters.fmi.varmap import VariableMap
 from wmr.apps.batch.worker import PlantHolder, Task, TaskSource, wall_limit_message
 from wmr.core.energy import ENERGY_KEYS
+from wmr.infra.durable import open_own
 from wmr.infra.errors import FmuError, WmrError
 
 #: Exit code of a worker that could not open the FMU.
@@ -120,10 +121,9 @@ def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     if log_file is not None:  # the FMU's own messages go to a file, not over the progress bar
         try:
-            fd = os.open(log_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-        except OSError as exc:  # the batch folder removed or unwritable: one line, no traceback
-            conn.send(("setup_error", f"cannot open {log_file}: {exc.strerror} (was the batch "
-                       "folder removed?)"))
+            fd = open_own(log_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND, "worker log")
+        except WmrError as exc:  # the batch folder removed, unwritable or planted with a link
+            conn.send(("setup_error", f"{exc} (was the batch folder removed or changed?)"))
             conn.close()
             os._exit(_INIT_FAILED)
         os.dup2(fd, 1)

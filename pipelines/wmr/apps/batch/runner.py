@@ -44,7 +44,7 @@ from wmr.apps.batch.spec import BatchRun, BatchSpec, run_index
 from wmr.apps.batch.summary import STATUSES, SummaryRow, summary_table, write_summary
 from wmr.apps.batch.worker import DISK_FULL, FAULTS, Task
 from wmr.config.naming import plural
-from wmr.infra.durable import AtomicFile, partial_path, storage_error
+from wmr.infra.durable import AtomicFile, open_own, partial_path, storage_error
 from wmr.infra.errors import ConfigError, DiskFullError, WmrError
 
 #: Default per-run wall-clock limit, s: generous (a 120 s simulated run takes about 1 s).
@@ -94,7 +94,7 @@ class _Lock:
     """An exclusive lock on the batch folder: two batches must not share a journal."""
 
     def __init__(self, out_dir: Path) -> None:
-        self._fd = os.open(out_dir / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+        self._fd = open_own(out_dir / ".lock", os.O_RDWR | os.O_CREAT, "batch lock")
         try:
             fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
