@@ -75,7 +75,9 @@ def dependency_tables(rows: Sequence[DependencyRow]) -> str:
     model descriptions are written from."""
     from wmr.build.modeldesc import DEPENDENCY_KIND_NUMBERS
 
-    table, knowns, kinds = [], [], []
+    table: list[str] = []
+    knowns: list[str] = []
+    kinds: list[str] = []
     for row in rows:
         table.append(f"    {{{row.unknown}u, {int(row.initial)}, {len(knowns)}, "
                      f"{len(row.knowns)}}},")
