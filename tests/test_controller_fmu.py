@@ -3,8 +3,9 @@
 The C core (``fmu/src/controller/controller.c``) is compiled with a test-only loop over
 arrays, so that 100,000 random controller states run in one call; the Python reference is
 :class:`wmr.core.control.Controller` (PointStabiliser and two WheelServos) with its state set
-slot by slot.  The built FMUs are then checked as FMUs: validation, the refused step size,
-NaN measurements, names and defaults.
+slot by slot.  The built FMUs are then checked as FMUs: validation,
+NaN measurements, names and defaults (the sampling in any master:
+``tests/test_controller_sampling.py``).
 """
 
 from __future__ import annotations
@@ -355,14 +356,14 @@ def test_parameters_carry_the_scenario_names_and_defaults() -> None:
 
 
 @pytest.mark.parametrize("version", [2, 3])
-def test_controller_fmus_pass_validation_and_declare_the_fixed_step(built: BuildResult,
+def test_controller_fmus_pass_validation_and_declare_the_period(built: BuildResult,
                                                                      version: int) -> None:
     path = built.controllers[version]
     assert path.name == f"wmr_controller-fmi{version}.fmu"
     assert validate_fmu(str(path)) == []
     md = read_model_description(str(path), validate=True)  # the FMI XSD schemas
     assert md.coSimulation.modelIdentifier == "wmr_controller"
-    assert md.coSimulation.canHandleVariableCommunicationStepSize is False
+    assert md.coSimulation.canHandleVariableCommunicationStepSize is True  # on its grid
     assert md.defaultExperiment.stepSize == "0.01" or float(md.defaultExperiment.stepSize) == 0.01
     variables = {v.name: v for v in md.modelVariables}
     for name in INPUTS:
@@ -418,19 +419,6 @@ def _simulate(path: Path, step_size: float, inputs: dict[str, float] | None = No
         fmu.freeInstance()
         shutil.rmtree(unzipdir, ignore_errors=True)
     return status, messages
-
-
-@pytest.mark.parametrize("version", [2, 3])
-def test_a_step_other_than_the_control_period_is_refused(built: BuildResult,
-                                                         version: int) -> None:
-    path = built.controllers[version]
-    assert _simulate(path, 0.01)[0] == 0
-    status, messages = _simulate(path, 0.02)
-    assert status == 3
-    errors = [m for m in messages if "communicationStepSize" in m]
-    assert len(errors) == 1
-    assert "differs from the sample period 0.01" in errors[0]
-    assert "control_period_s" in errors[0]
 
 
 @pytest.mark.parametrize("version", [2, 3])
@@ -568,59 +556,6 @@ def test_a_batch_with_the_controller_fmu_key_logs_the_python_paths(tmp_path: Pat
         for name in SIGNALS:
             np.testing.assert_allclose(got.signals[name], ref.signals[name], rtol=0,
                                        atol=1e-9, err_msg=name)
-
-
-@pytest.mark.parametrize("version", [2, 3])
-def test_outputs_hold_the_sample_until_the_next_input(built: BuildResult, version: int) -> None:
-    """After doStep the outputs hold the sample just taken (zero-order hold); setting the
-    inputs at the new time takes the next sample, equal to the Python controller's second
-    step; an FMU state restores the controller's discrete state."""
-    from fmpy import extract, instantiate_fmu
-
-    path = built.controllers[version]
-    md = read_model_description(str(path))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    outs = [vr[n] for n in SIGNAL_OUTPUTS]
-    ins = [vr[n] for n in INPUTS]
-    u1 = [19.8, 9.9, 0.2, 0.0, 0.0, 1.0, 0.8]  # near the goal: no saturation
-    u2 = [19.81, 9.9, 0.21, 0.0, 0.0, 1.1, 0.9]
-    unzipdir = extract(str(path))
-    fmu = instantiate_fmu(unzipdir, md, fmi_type="CoSimulation")
-    get = fmu.getReal if version == 2 else fmu.getFloat64
-    put = fmu.setReal if version == 2 else fmu.setFloat64
-    try:
-        if version == 2:
-            fmu.setupExperiment(startTime=0.0)
-        fmu.enterInitializationMode()
-        fmu.exitInitializationMode()
-        put(ins, u1)
-        y0 = get(outs)
-        fmu.doStep(0.0, 0.01)
-        held = get(outs)  # no input set since the step: the sample of t = 0
-        state = fmu.getFMUstate() if version == 2 else fmu.getFMUState()
-        put(ins, u1)  # the same measurement, set at t = 0.01: the next sample
-        y1 = get(outs)
-        fmu.doStep(0.01, 0.01)
-        put(ins, u2)
-        y2 = get(outs)
-        (fmu.setFMUstate if version == 2 else fmu.setFMUState)(state)
-        held_again = get(outs)
-        put(ins, u1)
-        y1_again = get(outs)
-    finally:
-        fmu.freeInstance()
-        shutil.rmtree(unzipdir, ignore_errors=True)
-    spec = controller_model()
-    defaults = {v.name: v.start for v in spec.parameters}
-    ctrl = Controller(Pose(defaults["goal.x_m"], defaults["goal.y_m"],
-                           math.radians(defaults["goal.heading_deg"])), Gains(), Limits(),
-                      RobotParams(), defaults["control_period_s"], defaults["stop_radius_m"])
-    for u, y in ((u1, y0), (u1, y1), (u2, y2)):
-        x, yy, theta, _, _, w_r, w_l = u
-        assert ctrl.step(x, yy, theta, w_r, w_l) == pytest.approx(y, abs=1e-12)
-    assert held == y0 and held_again == y0
-    assert y1_again == y1
-    assert y1 != y0  # the integrals moved: the second sample differs from the first
 
 
 def test_run_ids_of_python_runs_do_not_move_and_fmu_runs_get_their_own() -> None:

@@ -117,3 +117,81 @@ def test_display_units_and_tolerance(built: BuildResult, version: int) -> None:
     factors = {d.name: d.factor for u in md.unitDefinitions for d in u.displayUnits}
     assert factors["deg"] == pytest.approx(180 / math.pi, rel=1e-15)
     assert factors["rpm"] == pytest.approx(60 / (2 * math.pi), rel=1e-15)
+
+
+_KIND_NUMBER = {"constant": 1, "fixed": 2, "tunable": 3, "discrete": 4, "dependent": 5}
+
+
+def _xml_structure(path: str) -> tuple[dict[int, list[tuple[int, int]]],
+                                       dict[int, list[tuple[int, int]]]]:
+    """The FMI 3 ``ModelStructure`` read from the archive's XML by the standard's rules, not
+    by our code: ``{unknown: [(known, kind number)]}`` at communication points and at
+    initialisation.  An unknown without ``dependencies`` depends on every known (the
+    continuous states and inputs; at initialisation the inputs and parameters)."""
+    import xml.etree.ElementTree as ET
+    import zipfile
+
+    with zipfile.ZipFile(path) as zf:
+        root = ET.fromstring(zf.read("modelDescription.xml"))
+    variables = list(root.iterfind("ModelVariables/*"))
+    states = sorted(int(v.get("derivative", "")) for v in variables if v.get("derivative"))
+    inputs = [int(v.get("valueReference", "")) for v in variables
+              if v.get("causality") == "input"]
+    params = [int(v.get("valueReference", "")) for v in variables
+              if v.get("causality") == "parameter"]
+    every = {False: sorted(states + inputs), True: sorted(inputs + params)}
+    running: dict[int, list[tuple[int, int]]] = {}
+    initial: dict[int, list[tuple[int, int]]] = {}
+    for el in root.iterfind("ModelStructure/*"):
+        is_initial = el.tag == "InitialUnknown"
+        if el.get("dependencies") is None:
+            deps = [(k, 5) for k in every[is_initial]]
+        else:
+            deps = [(int(k), _KIND_NUMBER[kind]) for k, kind in zip(
+                el.get("dependencies", "").split(), el.get("dependenciesKind", "").split(),
+                strict=True)]
+        (initial if is_initial else running)[int(el.get("valueReference", ""))] = deps
+    return running, initial
+
+
+@pytest.mark.parametrize("product", ["robot", "controller"])
+def test_fmi3_variable_dependency_functions_return_the_model_structure(
+        built: BuildResult, product: str) -> None:
+    """fmi3GetNumberOfVariableDependencies / fmi3GetVariableDependencies answer what the model
+    description declares: the initial unknowns' before the end of initialisation, the outputs'
+    and derivatives' after (both returned an error before)."""
+    import ctypes
+
+    from fmpy.fmi3 import fmi3DependencyKind, fmi3ValueReference
+
+    path = str((built.fmus if product == "robot" else built.controllers)[3])
+    running, initial = _xml_structure(path)
+    md = read_model_description(path)
+    unzipdir = extract(path)
+    fmu = instantiate_fmu(unzipdir, md, fmi_type="CoSimulation")
+
+    def ask(vr: int) -> list[tuple[int, int]]:
+        n = ctypes.c_size_t(99)
+        assert fmu.fmi3GetNumberOfVariableDependencies(fmu.component, vr, ctypes.byref(n)) == 0
+        m = n.value
+        dep_idx, idx = (ctypes.c_size_t * m)(), (ctypes.c_size_t * m)()
+        knowns, kinds = (fmi3ValueReference * m)(), (fmi3DependencyKind * m)()
+        assert fmu.fmi3GetVariableDependencies(fmu.component, vr, dep_idx, knowns, idx, kinds,
+                                               m) == 0
+        assert list(dep_idx) == [0] * m and list(idx) == [0] * m
+        return list(zip(list(knowns), list(kinds), strict=True))
+
+    try:
+        assert {vr: ask(vr) for vr in initial} == initial
+        fmu.enterInitializationMode()
+        assert {vr: ask(vr) for vr in initial} == initial
+        fmu.exitInitializationMode()
+        assert {vr: ask(vr) for vr in running} == running
+        parameter = next(v.valueReference for v in md.modelVariables
+                         if v.causality == "parameter")
+        n = ctypes.c_size_t(0)
+        with pytest.raises(Exception, match="fmi3GetNumberOfVariableDependencies"):
+            fmu.fmi3GetNumberOfVariableDependencies(fmu.component, parameter, ctypes.byref(n))
+    finally:
+        fmu.freeInstance()
+        shutil.rmtree(unzipdir, ignore_errors=True)

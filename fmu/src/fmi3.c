@@ -218,9 +218,8 @@ fmi3Status fmi3SetClock(fmi3Instance instance, const fmi3ValueReference valueRef
 fmi3Status fmi3GetNumberOfVariableDependencies(fmi3Instance instance,
                                                fmi3ValueReference valueReference,
                                                size_t *nDependencies) {
-    (void)valueReference; (void)nDependencies;
-    return UNSUPPORTED(fmi3GetNumberOfVariableDependencies,
-                       "variable dependencies are given in modelDescription.xml only");
+    return (fmi3Status)fl_variable_dependencies("fmi3GetNumberOfVariableDependencies", INST,
+                                                valueReference, nDependencies, NULL, NULL, 0);
 }
 
 fmi3Status fmi3GetVariableDependencies(fmi3Instance instance, fmi3ValueReference dependent,
@@ -229,10 +228,31 @@ fmi3Status fmi3GetVariableDependencies(fmi3Instance instance, fmi3ValueReference
                                        size_t elementIndicesOfIndependents[],
                                        fmi3DependencyKind dependencyKinds[],
                                        size_t nDependencies) {
-    (void)dependent; (void)elementIndicesOfDependent; (void)independents;
-    (void)elementIndicesOfIndependents; (void)dependencyKinds; (void)nDependencies;
-    return UNSUPPORTED(fmi3GetVariableDependencies,
-                       "variable dependencies are given in modelDescription.xml only");
+    const char *fn = "fmi3GetVariableDependencies";
+    unsigned int knowns[MODEL_NV + 1];
+    int kinds[MODEL_NV + 1];
+    size_t k, n = 0;
+    FlStatus st;
+    if (!fl_check_state(fn, INST, FL_ANY_STATE)) return fmi3Error;
+    if (nDependencies > 0 && (!elementIndicesOfDependent || !independents ||
+                              !elementIndicesOfIndependents || !dependencyKinds)) {
+        fl_log(INST, FL_ERROR, "%s: an array argument is NULL", fn);
+        return fmi3Error;
+    }
+    if (nDependencies > (size_t)MODEL_NV) {
+        fl_log(INST, FL_ERROR, "%s: nDependencies = %lu, the model has %d variables", fn,
+               (unsigned long)nDependencies, MODEL_NV);
+        return fmi3Error;
+    }
+    st = fl_variable_dependencies(fn, INST, dependent, &n, knowns, kinds, nDependencies);
+    if (st != FL_OK) return (fmi3Status)st;
+    for (k = 0; k < n; k++) {
+        elementIndicesOfDependent[k] = 0; /* every variable is a scalar */
+        independents[k] = knowns[k];
+        elementIndicesOfIndependents[k] = 0;
+        dependencyKinds[k] = (fmi3DependencyKind)kinds[k];
+    }
+    return fmi3OK;
 }
 
 /* ---- FMU state ---- */

@@ -313,7 +313,25 @@ static int compute_outputs(const char *fn, FlInstance *inst, const double x[MODE
     return 1;
 }
 
-/* Re-evaluate the outputs if inputs or parameters changed (lazy). */
+static double time_tol(double t) { return FL_TIME_TOL * (fabs(t) > 1.0 ? fabs(t) : 1.0); }
+
+#if MODEL_SAMPLED
+/* Sample n is taken at start_time + n * period: a grid, never accumulated, whatever the
+ * master's steps. */
+static double sample_time(const FlData *d, unsigned long n) {
+    return d->start_time + (double)n * model_sample_period(d->p);
+}
+
+/* 1 if the next sample is due at the current time: the outputs are then the sample g(z, u)
+ * with direct feedthrough; between grid points they hold the last sample. */
+static int sample_due(const FlData *d) {
+    return sample_time(d, d->n_samples) <= d->time + time_tol(d->time);
+}
+#endif
+
+/* Re-evaluate the outputs if the time, state, inputs or parameters changed (lazy): they are a
+ * function of those alone (for a sampled-data model also of whether the time is on the sample
+ * grid), never of which setters were called. */
 static int update_outputs(const char *fn, FlInstance *inst) {
     FlData *d = &inst->d;
     double x[MODEL_NX], y[MODEL_NY];
@@ -321,6 +339,13 @@ static int update_outputs(const char *fn, FlInstance *inst) {
     if (!(d->mode & (FL_INITIALIZATION_MODE | FL_SIMULATING))) return 1;
     memcpy(x, d->x, sizeof(x));
     if (d->mode == FL_INITIALIZATION_MODE && !compute_initial_state(fn, inst, x)) return 0;
+#if MODEL_SAMPLED
+    if (d->mode != FL_INITIALIZATION_MODE && !sample_due(d)) {
+        memcpy(d->y, d->y_held, sizeof(d->y)); /* between samples: the last one, held */
+        d->outputs_dirty = 0;
+        return 1;
+    }
+#endif
     if (!compute_outputs(fn, inst, x, y)) return 0;
     memcpy(d->x, x, sizeof(x));
     memcpy(d->y, y, sizeof(y));
@@ -491,9 +516,11 @@ FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst) {
     if (!compute_outputs(fn, inst, x, y)) return fail(inst);
     memcpy(d->x, x, sizeof(x));
     memcpy(d->y, y, sizeof(y));
+    memcpy(d->y_held, y, sizeof(y));
     d->outputs_dirty = 0;
     d->time = d->start_time;
     d->n_comm_steps = 0;
+    d->n_samples = 0;
     solver_reset_hint(&d->solver);
     d->mode = inst->model_exchange ? FL_EVENT_MODE : FL_STEP_MODE;
     fl_log(inst, FL_OK, "%s: initialised at t = %g", fn, d->time);
@@ -673,6 +700,9 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
     double x[MODEL_NX], y[MODEL_NY], t_end, tol;
     char msg[FL_MSG_SIZE];
     SolverStatus st;
+#if MODEL_SAMPLED
+    unsigned long n = 0; /* samples taken by the end of the step */
+#endif
 
     if (inst && last_successful_time) *last_successful_time = inst->d.time;
     if (!fl_check_state(fn, inst, FL_STEP_MODE)) return FL_ERROR;
@@ -683,7 +713,7 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
                fn, h);
         return ret(inst, FL_ERROR);
     }
-    tol = FL_TIME_TOL * (fabs(d->time) > 1.0 ? fabs(d->time) : 1.0);
+    tol = time_tol(d->time);
     if (!isfinite(tc) || fabs(tc - d->time) > tol) {
         fl_log(inst, FL_ERROR,
                "%s: currentCommunicationPoint = %.17g does not match the instance time: expected "
@@ -693,35 +723,52 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
     }
     t_end = tc + h;
     if (d->stop_time_defined &&
-        t_end > d->stop_time + FL_TIME_TOL * (fabs(d->stop_time) > 1.0 ? fabs(d->stop_time) : 1.0)) {
+        t_end > d->stop_time + time_tol(d->stop_time)) {
         fl_log(inst, FL_ERROR, "%s: the step [%.17g, %.17g] ends after stopTime = %.17g", fn, tc,
                t_end, d->stop_time);
         return ret(inst, FL_ERROR);
     }
 
-    memcpy(x, d->x, sizeof(x));
 #if MODEL_SAMPLED
-    /* One sample per step: a master at another step size would silently run another
-     * (untuned) controller, so it gets an error instead (README.md). */
     {
-        double period = model_sample_period(d->p);
-        if (fabs(h - period) > FL_TIME_TOL * (period > 1.0 ? period : 1.0)) {
-            fl_log(inst, FL_ERROR,
-                   "%s: communicationStepSize = %.17g s differs from the sample period %.17g s; "
-                   "step this sampled-data FMU at exactly its period (parameter %s)",
-                   fn, h, period, MODEL_SAMPLE_PERIOD_NAME);
-            return ret(inst, FL_ERROR);
+        /* Every grid point in [tc, t_end) is a sample, with the inputs set at tc held over the
+         * step (canInterpolateInputs is false): k periods in one step are k single steps
+         * without a set in between.  A step between grid points takes none. */
+        double z[MODEL_NX], ys[MODEL_NY];
+        int i;
+        memcpy(z, d->x, sizeof(z));
+        memcpy(ys, d->y_held, sizeof(ys));
+        n = d->n_samples;
+        st = SOLVER_OK;
+        msg[0] = '\0';
+        while (st == SOLVER_OK && sample_time(d, n) < t_end - time_tol(t_end)) {
+            if (n == d->n_samples && !d->outputs_dirty && sample_due(d)) {
+                memcpy(ys, d->y, sizeof(ys)); /* the sample at tc, already read by the master */
+            } else if (!compute_outputs(fn, inst, z, ys)) {
+                st = SOLVER_NONFINITE;
+                snprintf(msg, sizeof(msg), "the sample at t = %.17g failed",
+                         sample_time(d, n));
+                break;
+            }
+            if (model_update(z, d->u, d->p, x) != 0) {
+                st = SOLVER_MODEL_ERROR;
+                snprintf(msg, sizeof(msg), "model_update failed at t = %.17g", sample_time(d, n));
+            } else if ((i = find_nonfinite(x, MODEL_NX)) >= 0) {
+                st = SOLVER_NONFINITE;
+                snprintf(msg, sizeof(msg), "model_update gave a non-finite discrete state %d at "
+                         "t = %.17g", i, sample_time(d, n));
+            } else {
+                memcpy(z, x, sizeof(z));
+                n++;
+            }
         }
-        if (!update_outputs(fn, inst)) return fail(inst); /* the sample's outputs come first */
-        memcpy(y, d->y, sizeof(y));
-        st = model_update(d->x, d->u, d->p, x) == 0 ? SOLVER_OK : SOLVER_MODEL_ERROR;
-        snprintf(msg, sizeof(msg), "model_update failed");
-        if (st == SOLVER_OK && find_nonfinite(x, MODEL_NX) >= 0) {
-            st = SOLVER_NONFINITE;
-            snprintf(msg, sizeof(msg), "model_update gave a non-finite discrete state");
+        if (st == SOLVER_OK) {
+            memcpy(x, z, sizeof(x));
+            memcpy(y, ys, sizeof(y));
         }
     }
 #else
+    memcpy(x, d->x, sizeof(x));
     st = solver_integrate(&d->solver, tc, t_end, x, d->u, d->p, msg, sizeof(msg));
 #endif
     if (st != SOLVER_OK) {
@@ -732,12 +779,12 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
         return fail(inst);
     }
 #if MODEL_SAMPLED
-    /* zero-order hold: the outputs keep the sample just taken until the master sets an
-     * input at the new time, which takes the next sample (direct feedthrough); a master that
-     * reads before it sets (Jacobi) so applies each sample one period late, a pure delay */
+    /* the outputs at t_end follow from the new state: the next sample g(z, u) if t_end is on
+     * the grid, else the last sample held (evaluated on the next get) */
+    d->n_samples = n;
     memcpy(d->x, x, sizeof(x));
-    memcpy(d->y, y, sizeof(y));
-    d->outputs_dirty = 0;
+    memcpy(d->y_held, y, sizeof(y));
+    d->outputs_dirty = 1;
 #else
     if (!compute_outputs(fn, inst, x, y)) {
         fl_log(inst, FL_ERROR, "%s: the last good state at t = %.17g is kept", fn, d->time);
@@ -869,6 +916,50 @@ FlStatus fl_get_event_indicators(const char *fn, FlInstance *inst, double indica
 }
 
 /* ------------------------------------------------------------------------ */
+/* variable dependencies                                                    */
+/* ------------------------------------------------------------------------ */
+
+WMR_INTERNAL
+FlStatus fl_variable_dependencies(const char *fn, FlInstance *inst, unsigned int vr, size_t *n,
+                                  unsigned int knowns[], int kinds[], size_t n_given) {
+    int r, initial, k;
+    if (!fl_check_state(fn, inst, FL_ANY_STATE)) return FL_ERROR;
+    if (!n && !knowns) {
+        fl_log(inst, FL_ERROR, "%s: nDependencies is NULL", fn);
+        return ret(inst, FL_ERROR);
+    }
+    if (vr >= (unsigned int)MODEL_NV) {
+        fl_log(inst, FL_ERROR, "%s: value reference %u does not exist (valid: 0 to %d)", fn, vr,
+               MODEL_NV - 1);
+        return ret(inst, FL_ERROR);
+    }
+    /* before the end of initialisation the initial unknowns' dependencies apply */
+    initial = (inst->d.mode & (FL_INSTANTIATED | FL_INITIALIZATION_MODE)) != 0;
+    for (r = 0; r < MODEL_N_DEPENDENCY_ROWS; r++) {
+        const ModelDependencyRow *row = &MODEL_DEPENDENCY_ROWS[r];
+        if (row->unknown != vr || row->initial != initial) continue;
+        if (n) *n = (size_t)row->count;
+        if (!knowns) return FL_OK;
+        if (n_given != (size_t)row->count || (row->count > 0 && !kinds)) {
+            fl_log(inst, FL_ERROR, "%s: nDependencies = %lu, %s has %d (ask "
+                   "fmi3GetNumberOfVariableDependencies first)", fn, (unsigned long)n_given,
+                   MODEL_VARIABLES[vr].name, row->count);
+            return ret(inst, FL_ERROR);
+        }
+        for (k = 0; k < row->count; k++) {
+            knowns[k] = MODEL_DEPENDENCY_KNOWNS[row->first + k];
+            kinds[k] = MODEL_DEPENDENCY_KINDS[row->first + k];
+        }
+        return FL_OK;
+    }
+    fl_log(inst, FL_ERROR, "%s: %s (value reference %u) is not %s of the model structure", fn,
+           MODEL_VARIABLES[vr].name, vr,
+           initial ? "an initial unknown (InitialUnknown)"
+                   : "an output or a state derivative (Output, ContinuousStateDerivative)");
+    return ret(inst, FL_ERROR);
+}
+
+/* ------------------------------------------------------------------------ */
 /* partial derivatives                                                      */
 /* ------------------------------------------------------------------------ */
 
@@ -974,7 +1065,7 @@ FlStatus fl_partial_derivative(const char *fn, FlInstance *inst,
 
 static const char STATE_MAGIC[8] = {'W', 'M', 'R', 'S', 'T', 'A', 'T', 'E'};
 static const char BLOB_MAGIC[8] = {'W', 'M', 'R', 'F', 'M', 'U', 'S', 'T'};
-#define BLOB_FORMAT_VERSION 2u /* 2: Model Exchange modes */
+#define BLOB_FORMAT_VERSION 3u /* 2: Model Exchange modes; 3: the sample grid */
 
 typedef struct {
     char magic[8];

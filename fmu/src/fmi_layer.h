@@ -66,9 +66,14 @@ typedef struct {
     double u[MODEL_NU];
     double p[MODEL_NP];
     double y[MODEL_NY];       /* last good outputs */
-    int outputs_dirty;        /* y must be re-evaluated before it is read */
+    int outputs_dirty;        /* y must be re-evaluated before it is read: set by every change
+                                 of time, state, inputs or parameters, never a hold */
     SolverState solver;
     unsigned long n_comm_steps; /* doStep calls (CS) or completed integrator steps (ME) */
+    /* sampled-data models (MODEL_SAMPLED): samples taken so far (the next is due at
+     * start_time + n_samples * period) and the outputs of the last one, held between samples */
+    unsigned long n_samples;
+    double y_held[MODEL_NY];
 } FlData;
 
 typedef struct FlInstance {
@@ -189,6 +194,17 @@ FlStatus fl_get_nominals(const char *fn, FlInstance *inst, double nominals[], si
 WMR_INTERNAL
 FlStatus fl_get_event_indicators(const char *fn, FlInstance *inst, double indicators[],
                                  size_t n);
+
+/* ---- variable dependencies (FMI 3) ---- */
+
+/* The dependencies of the unknown vr, from the generated tables (MODEL_DEPENDENCY_ROWS, written
+ * from the same model structure as the model description): in Instantiated and
+ * InitializationMode those of the initial unknowns, afterwards those at communication points
+ * and in continuous-time mode.  Sets *n; with knowns != NULL also writes n_given (== *n)
+ * value references and kinds (numbered as fmi3DependencyKind). */
+WMR_INTERNAL
+FlStatus fl_variable_dependencies(const char *fn, FlInstance *inst, unsigned int vr, size_t *n,
+                                  unsigned int knowns[], int kinds[], size_t n_given);
 
 /* ---- partial derivatives ---- */
 

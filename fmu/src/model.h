@@ -36,8 +36,8 @@
  * (model_derivatives returns zeros and is never called by the layer); the
  * outputs y = model_outputs(z, u, p) are the sample at the current
  * communication point, with direct feedthrough from u, and doStep commits
- * z := model_update(z, u, p) for a step of exactly model_sample_period(p)
- * (any other step size is refused; no Model Exchange; see README.md). */
+ * z := model_update(z, u, p) at every point of the grid t0 + n * model_sample_period(p)
+ * in the step, the outputs held between samples (no Model Exchange; see README.md). */
 #ifndef MODEL_SAMPLED
 #define MODEL_SAMPLED 0
 #endif
@@ -66,9 +66,25 @@ typedef struct {
     int state;             /* index into x[] if this output is a continuous state, else -1 */
 } ModelVariable;
 
+/* The dependencies of one unknown (the model structure of the model description, generated
+ * from the same source): the knowns MODEL_DEPENDENCY_KNOWNS[first .. first + count) with the
+ * kinds MODEL_DEPENDENCY_KINDS[...] (numbered as fmi3DependencyKind: 1 constant, 2 fixed,
+ * 3 tunable, 5 dependent).  initial = 1: an initial unknown (knowns: inputs, parameters). */
+typedef struct {
+    unsigned int unknown; /* value reference */
+    int initial;
+    int first;
+    int count;
+} ModelDependencyRow;
+
 #ifndef WMR_UNITY /* in the unity build the definitions come first, with internal linkage */
 /* The value reference of a variable is its position in this table. */
 extern const ModelVariable MODEL_VARIABLES[MODEL_NV];
+
+extern const int MODEL_N_DEPENDENCY_ROWS;
+extern const ModelDependencyRow MODEL_DEPENDENCY_ROWS[];
+extern const unsigned int MODEL_DEPENDENCY_KNOWNS[];
+extern const int MODEL_DEPENDENCY_KINDS[];
 
 /* Derived from the content of the model and of the C sources (a hash). */
 extern const char MODEL_INSTANTIATION_TOKEN[];

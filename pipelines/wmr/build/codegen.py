@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import re
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -25,6 +25,7 @@ from wmr.infra.errors import BuildError
 
 if TYPE_CHECKING:
     from wmr.build.controller_interface import ControllerModel
+    from wmr.build.modeldesc import DependencyRow
 
 MODEL_IDENTIFIER = "wmr_robot"
 
@@ -68,7 +69,45 @@ def sizes_header(model: FlatModel | ControllerModel) -> str:
 """
 
 
+def dependency_tables(rows: Sequence[DependencyRow]) -> str:
+    """The C tables behind ``fmi3GetVariableDependencies`` (``ModelDependencyRow`` of
+    ``model.h``), from :func:`wmr.build.modeldesc.dependency_rows`: the model structure the
+    model descriptions are written from."""
+    from wmr.build.modeldesc import DEPENDENCY_KIND_NUMBERS
+
+    table: list[str] = []
+    knowns: list[str] = []
+    kinds: list[str] = []
+    for row in rows:
+        table.append(f"    {{{row.unknown}u, {int(row.initial)}, {len(knowns)}, "
+                     f"{len(row.knowns)}}},")
+        knowns += [f"{k}u" for k in row.knowns]
+        kinds += [str(DEPENDENCY_KIND_NUMBERS[k]) for k in row.kinds]
+    # one padding entry each: C has no empty arrays
+    return f"""
+WMR_INTERNAL const int MODEL_N_DEPENDENCY_ROWS = {len(rows)};
+WMR_INTERNAL const ModelDependencyRow MODEL_DEPENDENCY_ROWS[{len(rows) + 1}] = {{
+{chr(10).join(table)}
+    {{0u, 0, 0, 0}}
+}};
+WMR_INTERNAL const unsigned int MODEL_DEPENDENCY_KNOWNS[{len(knowns) + 1}] = {{
+{_c_list([*knowns, "0u"])}
+}};
+WMR_INTERNAL const int MODEL_DEPENDENCY_KINDS[{len(kinds) + 1}] = {{
+{_c_list([*kinds, "0"])}
+}};
+"""
+
+
+def _c_list(items: Sequence[str], per_line: int = 16) -> str:
+    return ",\n".join("    " + ", ".join(items[i:i + per_line])
+                       for i in range(0, len(items), per_line))
+
+
 def variables_source(model: FlatModel | ControllerModel, token: str) -> str:
+    """``model_variables.c``: the variable table, the token and the dependency tables."""
+    from wmr.build.modeldesc import dependency_rows
+
     rows = ['    {"time", MODEL_VAR_TIME, 0, 0.0, -INFINITY, INFINITY, 0, -1},']
     for v in model.variables:
         rows.append(
@@ -86,7 +125,7 @@ WMR_INTERNAL const char MODEL_INSTANTIATION_TOKEN[] = "{token}";
 WMR_INTERNAL const ModelVariable MODEL_VARIABLES[MODEL_NV] = {{
 {body}
 }};
-"""
+""" + dependency_tables(dependency_rows(model))
 
 
 _WRAPPERS = """

@@ -141,7 +141,7 @@ def controller_model() -> ControllerModel:
     for name, (unit, lo, text) in ROBOT_PARAMETERS.items():
         params.append((f"params.{name}", unit, text, getattr(robot, name), lo))
     params += [
-        ("control_period_s", "s", "control period h: the only communication step size",
+        ("control_period_s", "s", "control period h: samples on the grid t0 + n h",
          DEFAULT_PERIOD_S, 1e-6),
         ("stop_radius_m", "m", "stop radius epsilon (Section 4)", DEFAULT_STOP_RADIUS_M, 0.0),
         ("heading_tolerance_deg", "deg", "heading tolerance of the convergence test",
@@ -213,10 +213,11 @@ wheel (back-calculation anti-windup, friction feed-forward), and the extensions 
 final alignment inside the stop radius, forward motion only, |beta| clamped to 60 degrees,
 hysteresis of the angles near +-pi. Hand-written C, built by wmr-cosim {escape(__version__)}
 on the FMI layer of the robot FMU; equal to the Python controller of wmr-cosim to rounding.</p>
-<p><b>Sampling.</b> The FMU samples once per communication step, which must equal the
-parameter <code>control_period_s</code> (any other step size is refused with an error). At a
-communication point the outputs are the sample computed from the inputs set there (direct
-feedthrough); <code>fmiDoStep</code> commits the controller's discrete state. Connect the
+<p><b>Sampling.</b> The FMU samples on the grid t0 + n h, h = the parameter
+<code>control_period_s</code>, whatever the communication step: <code>fmiDoStep</code> takes
+every grid point of the step with the inputs set at its start, and the outputs are the sample
+computed from the inputs set at a grid point (direct feedthrough), the last sample held between
+grid points. Step at <code>control_period_s</code> to run the law as tuned. Connect the
 robot's outputs <code>x, y, theta, v, omega, omega_r, omega_l</code> to the inputs of the same
 names and <code>tau_r, tau_l</code> back to the robot. <code>converged</code> turns 1 when the
 robot is at the goal, aligned and at rest. Non-finite inputs are refused with an error.</p>

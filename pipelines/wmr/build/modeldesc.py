@@ -54,7 +54,7 @@ def _identifier(model: Model) -> str:
 
 
 def _sampled(model: Model) -> bool:
-    """A sampled-data model (the controller): discrete outputs, one fixed step size, no
+    """A sampled-data model (the controller): discrete outputs sampled on a fixed grid, no
     Model Exchange, no partial derivatives, no CasADi functions to read a structure from."""
     return not isinstance(model, FlatModel)
 
@@ -253,6 +253,51 @@ def _structure(model: Model) -> ModelStructure:
 #: ``dependencies`` attribute, which is what its absence means in FMI.
 _EVERY_KNOWN: tuple[str, ...] = ("*",)
 
+#: ``fmi3DependencyKind`` number of each ``dependenciesKind``.
+DEPENDENCY_KIND_NUMBERS: dict[str, int] = {"constant": 1, "fixed": 2, "tunable": 3,
+                                           "discrete": 4, "dependent": 5}
+
+
+@dataclass(frozen=True)
+class DependencyRow:
+    """The knowns of one unknown by value reference, as ``fmi3GetVariableDependencies``
+    returns them: ``initial`` rows are the initial unknowns' (Instantiated and Initialization
+    Mode), the others those at communication points and in continuous-time mode."""
+
+    unknown: int
+    initial: bool
+    knowns: tuple[int, ...]
+    kinds: tuple[str, ...]
+
+
+def dependency_rows(model: Model) -> list[DependencyRow]:
+    """The model structure of both model descriptions (:func:`_structure`) as the C tables of
+    the FMI 3 dependency functions, so that the two cannot disagree.
+
+    An unknown written without a ``dependencies`` attribute depends on every known: at
+    communication points the continuous states and inputs, at initialisation the inputs and
+    parameters (the knowns of :func:`model_structure`), each ``dependent``.
+    """
+    structure = _structure(model)
+    vrs = model.value_references
+    states = [v.name for v in sorted((v for v in model.outputs if v.state >= 0),
+                                     key=lambda v: v.state)]
+    every = {False: [*states, *(v.name for v in model.inputs)],
+             True: [*(v.name for v in model.inputs), *(v.name for v in model.parameters)]}
+    rows = []
+    for initial, unknowns in ((False, [*structure.outputs, *structure.derivatives]),
+                              (True, structure.initial_unknowns)):
+        for unknown in unknowns:
+            if unknown.dependencies == _EVERY_KNOWN:
+                names = sorted(every[initial], key=lambda n: vrs[n])
+                pairs = [(vrs[n], "dependent") for n in names]
+            else:
+                pairs = [(vrs[n], k) for n, k in zip(unknown.dependencies, unknown.kinds,
+                                                      strict=True)]
+            rows.append(DependencyRow(vrs[unknown.name], initial,
+                                      tuple(p[0] for p in pairs), tuple(p[1] for p in pairs)))
+    return rows
+
 
 def fmi2_model_description(model: Model, token: str, sources: Sequence[str]) -> bytes:
     """``modelDescription.xml`` of the FMI 2.0 FMU: Model Exchange (if the model has continuous
@@ -270,7 +315,8 @@ def fmi2_model_description(model: Model, token: str, sources: Sequence[str]) -> 
             **common, "completedIntegratorStepNotNeeded": "true"}))
     cs = ET.SubElement(root, "CoSimulation", {
         "modelIdentifier": _identifier(model),
-        "canHandleVariableCommunicationStepSize": "false" if sampled else "true",
+        # a sampled-data model samples on its grid whatever the step (fmu/src/README.md)
+        "canHandleVariableCommunicationStepSize": "true",
         "canInterpolateInputs": "false",
         "canRunAsynchronuously": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false",
@@ -285,14 +331,14 @@ def fmi2_model_description(model: Model, token: str, sources: Sequence[str]) -> 
     root.append(_log_categories())
     root.append(_experiment(model))
     mv = ET.SubElement(root, "ModelVariables")
-    sv = ET.SubElement(mv, "ScalarVariable", name="time", valueReference="0",
-                       causality="independent", variability="continuous",
-                       description="Simulation time")
-    ET.SubElement(sv, "Real", unit="s")
+    # No `time` variable: in FMI 2.0 the independent variable is optional ("if no variable is
+    # defined as independent, it is implicitly present with name = time and unit = s"), and
+    # FMI Library (libcosim's, fmi-library issue #21) logs an error for a declared one, whose
+    # start the standard forbids.  Its value reference 0 stays reserved (the C table).
     vrs = model.value_references
-    # ScalarVariable indices are 1-based positions in ModelVariables: time is 1, then the
-    # variables in value-reference order, so index = value reference + 1.
-    index = {name: vr + 1 for name, vr in vrs.items()}
+    # ScalarVariable indices are 1-based positions in ModelVariables: the variables in
+    # value-reference order from 1, so index = value reference.
+    index = dict(vrs)
     state_of = {v.state: v.name for v in model.outputs if v.state >= 0}
     for v in model.variables:
         causality, variability, initial = _causality(v, _sampled(model))
@@ -333,7 +379,7 @@ def fmi3_model_description(model: Model, token: str) -> bytes:
         ET.SubElement(root, "ModelExchange", {**common, "needsCompletedIntegratorStep": "false"})
     cs = ET.SubElement(root, "CoSimulation", {
         **common,
-        "canHandleVariableCommunicationStepSize": "false" if sampled else "true",
+        "canHandleVariableCommunicationStepSize": "true",
         "hasEventMode": "false",
         "providesIntermediateUpdate": "false",
         "canReturnEarlyAfterIntermediateUpdate": "false",

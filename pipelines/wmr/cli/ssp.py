@@ -1,5 +1,5 @@
 """``wmr ssp export`` (the closed loop as an SSP 1.0 package) and ``wmr ssp run`` (a package
-in libcosim, logged to MCAP like ``wmr run``)."""
+in libcosim or Ecos, logged to MCAP like ``wmr run``)."""
 
 from __future__ import annotations
 
@@ -52,7 +52,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.stop_time is not None and not 0 < args.stop_time <= longest_s:
         raise ConfigError("--stop-time", f"must be > 0 and at most {longest_s:g} s, got "
                           f"{args.stop_time:g}", "give seconds, e.g. --stop-time 30")
-    run = simulate_libcosim(ssp, stop_time_s=args.stop_time)
+    master = args.master
+    if master == "auto":  # libcosim loads FMI 2.0 only
+        from wmr.adapters.ssp.package import ROBOT, read_package
+
+        fmi3 = read_package(ssp).component(ROBOT).fmi_version.startswith("3")
+        master = "ecos" if fmi3 else "libcosim"
+    if master == "ecos":
+        from wmr.adapters.ssp.ecos import simulate_ecos
+
+        run = simulate_ecos(ssp, stop_time_s=args.stop_time)
+    else:
+        run = simulate_libcosim(ssp, stop_time_s=args.stop_time)
     record = log_ssp_run(run, out)
     if args.json:
         print(result_json(record))
@@ -65,9 +76,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from wmr.cli.run import add_scenario_choice
 
-    p = sub.add_parser("ssp", help="the closed loop as an SSP package, run in libcosim",
+    p = sub.add_parser("ssp", help="the closed loop as an SSP package, run in libcosim or Ecos",
                        description="Export the closed loop (robot and controller FMUs) as an "
-                                   "SSP 1.0 package, or run a package in libcosim.")
+                                   "SSP 1.0 package, or run a package in libcosim or Ecos.")
     ssp_sub = p.add_subparsers(dest="ssp_command", metavar="ACTION", required=True)
     ex = ssp_sub.add_parser(
         "export", help="write a scenario's closed loop as an SSP 1.0 package",
@@ -90,9 +101,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     ex.add_argument("--out", metavar="FILE.ssp", help="package file (default NAME.ssp)")
     ex.set_defaults(handler=_cmd_export)
     run = ssp_sub.add_parser(
-        "run", help="run an SSP package in libcosim and log it to MCAP",
-        description="Run an SSP package of 'wmr ssp export' in libcosim (observing every "
-                    "variable) and log it in the layout of 'wmr run', so that 'wmr replay' "
+        "run", help="run an SSP package in libcosim or Ecos and log it to MCAP",
+        description="Run an SSP package of 'wmr ssp export' in libcosim or Ecos (recording "
+                    "every step) and log it in the layout of 'wmr run', so that 'wmr replay' "
                     "shows it.  Exit status: 0 converged, 3 not converged.")
     run.add_argument("ssp", metavar="FILE.ssp", help="the package")
     run.add_argument("--out", metavar="FILE.mcap",
@@ -100,6 +111,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                           "runs/NAME.mcap of 'wmr run NAME')")
     run.add_argument("--stop-time", type=float, metavar="S",
                      help="end of the run, s (default: the package's stop time)")
+    run.add_argument("--master", choices=("auto", "libcosim", "ecos"), default="auto",
+                     help="the co-simulation master: libcosim (FMI 2.0), ecos (FMI 2.0 and "
+                          "3.0); default auto: libcosim for an FMI 2.0 package, ecos for 3.0")
     run.add_argument("--json", action="store_true",
                      help="print the result as one JSON object on the last line")
     run.set_defaults(handler=_cmd_run)

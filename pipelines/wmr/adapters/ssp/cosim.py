@@ -1,26 +1,34 @@
-"""``wmr ssp run``: an SSP package of the closed loop in libcosim, logged like ``wmr run``.
+"""``wmr ssp run``: an SSP package in a master we did not write, logged like ``wmr run``.
 
-libcosim (DNV's Open Simulation Platform master, through ``libcosimpy``) loads the package,
-applies its parameter sets and steps both FMUs with its fixed-step algorithm at the package's
-``baseStepSize``.  A time-series observer records every Real variable of both components at
-every step; the run stops at the controller's ``converged`` flag (as ``wmr run`` does) or at
-the default experiment's stop time.
+Two masters: libcosim (DNV's Open Simulation Platform, through ``libcosimpy``; FMI 2.0) here,
+and Ecos (``ecospy``; FMI 2.0 and 3.0) in :mod:`wmr.adapters.ssp.ecos`.  Each loads the
+package, applies its parameter sets and steps both FMUs with its fixed-step algorithm at the
+package's ``baseStepSize``; every step is recorded, and the run stops at the controller's
+``converged`` flag (as ``wmr run`` does) or at the default experiment's stop time.
 
-Timing.  libcosim steps its components side by side (Jacobi): before the step from ``t_k`` it
-sets every input from the outputs read after the step before, and reads the outputs after the
-step.  Its initialisation passes the controller's first sample ``u_0`` to the robot, so the
-robot's first step is on time.  After its step from ``t_k`` (on the measurement ``y_k``) the
-controller's outputs are ``g(z_{k+1}, y_k)``: its new discrete state on the measurement it was
-given (docs/control.md); the robot holds those torques over ``[t_{k+1}, t_{k+2})``, so the
-measurement reaches the robot's torques one period late.  A log row ``k`` is the robot's
-outputs at ``t_k`` and the controller's outputs observed after its step from ``t_k`` (computed
-from ``y_k``, the torques the robot holds next).
+Timing.  Both masters step their components side by side (Jacobi): before the step from
+``t_k`` they set every input from the outputs read after the step before, and read the outputs
+after the step.  Their initialisation passes the controller's first sample ``u_0`` to the
+robot, so the robot's first step is on time.  After its step from ``t_k`` (on the measurement
+``y_k``) the controller is at the grid point ``t_{k+1}`` and its outputs are the next sample
+on the measurement it holds, ``g(z_{k+1}, y_k)`` (fmu/src/README.md); the robot holds those
+torques over ``[t_{k+1}, t_{k+2})``.  A log row ``k`` is the robot's outputs at ``t_k`` and
+the controller's outputs observed after its step from ``t_k`` (the torques the robot holds
+next).
+
+Standard output.  The masters' C libraries print to the process's standard output (fd 1);
+:func:`c_stdout_to_stderr` sends it to standard error around their calls, so that ``wmr ssp
+run --json`` prints the JSON line alone.
 """
 
 from __future__ import annotations
 
+import ctypes
 import math
 import os
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +39,7 @@ import numpy.typing as npt
 from wmr.adapters.fmi.varmap import PARAMETER_NAMES, MapEntry
 from wmr.adapters.ssp.package import CONTROLLER, ROBOT, SspPackage, unpacked_package
 from wmr.build.controller_interface import SIGNAL_OUTPUTS
+from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES
 from wmr.core.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
 from wmr.infra.errors import ConfigError, FmuError
@@ -46,7 +55,8 @@ class SspRunData:
 
     ``variables[component][name]`` holds the variable at every communication point
     ``0 .. steps`` (index ``s`` is ``t_s``); ``block`` row ``k`` pairs the robot at ``t_k``
-    with the controller's outputs after its step from ``t_k``.
+    with the controller's outputs after its step from ``t_k``.  ``held_torque_nm[k]`` is the
+    (right, left) torque the robot held over the step from ``t_k`` (for the energies).
     """
 
     package: SspPackage
@@ -58,6 +68,42 @@ class SspRunData:
     master: str = "libcosim"
     time_to_goal_s: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    held_torque_nm: npt.NDArray[np.float64] = field(
+        default_factory=lambda: np.empty((0, 2), dtype=np.float64))
+    step_size_s: float = math.nan
+
+
+@contextmanager
+def c_stdout_to_stderr() -> Iterator[None]:
+    """Send what C code prints on the process's standard output (fd 1) to standard error
+    meanwhile: the masters' libraries print there, and ``--json`` promises one line."""
+    sys.stdout.flush()
+    libc = ctypes.CDLL(None)
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        libc.fflush(None)  # C stdio buffers written meanwhile go to stderr too
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def step_size(package: SspPackage) -> float:
+    """The package's communication step (its OSP annotation, else the control period)."""
+    h = package.step_size_s or package.component(CONTROLLER).parameters.get("control_period_s")
+    if h is None or not h > 0:
+        raise FmuError(f"{package.path}: no step size (no OSP FixedStepAlgorithm and no "
+                       "control_period_s): export it again with 'wmr ssp export'")
+    return h
+
+
+def n_steps(package: SspPackage, h: float, stop_time_s: float | None) -> int:
+    """The number of steps to ``stop_time_s`` (default: the package's stop time)."""
+    stop = stop_time_s if stop_time_s is not None else package.stop_time_s
+    if stop is None:
+        raise FmuError(f"{package.path}: no stop time: give one")
+    return max(1, round((stop - package.start_time_s) / h))
 
 
 def _require_libcosim() -> None:
@@ -107,31 +153,29 @@ def simulate_libcosim(ssp_path: str | os.PathLike[str], *, stop_time_s: float | 
 
 def _simulate(package: SspPackage, folder: Path, stop_time_s: float | None,
               stop_at_convergence: bool) -> SspRunData:
+    for component in (package.component(ROBOT), package.component(CONTROLLER)):
+        if not component.fmi_version.startswith("2"):
+            raise FmuError(f"{package.path}: component {component.name} is FMI "
+                           f"{component.fmi_version}; "
+                           f"libcosim ({_libcosim_version()}) runs FMI 2.0 FMUs only: run it "
+                           "with --master ecos (or export the package with --fmi 2)")
+    h = step_size(package)
+    n_max = n_steps(package, h, stop_time_s)
+    _quiet_libcosim()
+    with c_stdout_to_stderr():
+        variables, steps = _libcosim_loop(package, folder, h, n_max, stop_at_convergence)
+    # libcosim observes after each step, before it passes the values on
+    return log_rows(package, variables, steps, h, stop_at_convergence, _libcosim_version(),
+                    after_transfer=False)
+
+
+def _libcosim_loop(package: SspPackage, folder: Path, h: float, n_max: int,
+                   stop_at_convergence: bool
+                   ) -> tuple[dict[str, dict[str, npt.NDArray[np.float64]]], int]:
     from libcosimpy.CosimEnums import CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimObserver import CosimObserver
 
-    robot, ctrl = package.component(ROBOT), package.component(CONTROLLER)
-    for component in (robot, ctrl):
-        if not component.fmi_version.startswith("2"):
-            raise FmuError(f"{package.path}: component {component.name} is FMI "
-                           f"{component.fmi_version}; "
-                           f"libcosim ({_libcosim_version()}) runs FMI 2.0 FMUs only: export "
-                           "the package with --fmi 2")
-    h = package.step_size_s or ctrl.parameters.get("control_period_s")
-    if h is None or not h > 0:
-        raise FmuError(f"{package.path}: no step size (no OSP FixedStepAlgorithm and no "
-                       "control_period_s): export it again with 'wmr ssp export'")
-    period = ctrl.parameters.get("control_period_s", h)
-    if abs(period - h) > 1e-12 * max(1.0, h):
-        raise FmuError(f"{package.path}: the controller's control_period_s = {period:g} s but "
-                       f"the package steps at {h:g} s, and the controller FMU refuses any other "
-                       "step: export the package again with 'wmr ssp export'")
-    stop = stop_time_s if stop_time_s is not None else package.stop_time_s
-    if stop is None:
-        raise FmuError(f"{package.path}: no stop time: give one")
-    n_max = max(1, round((stop - package.start_time_s) / h))
-    _quiet_libcosim()
     try:
         execution = CosimExecution.from_ssp_file(str(folder), step_size=round(h * 1e9))
     except AssertionError:
@@ -161,8 +205,7 @@ def _simulate(package: SspPackage, folder: Path, stop_time_s: float | None,
             converged = last.last_real_values(index[CONTROLLER], [converged_ref])[0] >= 0.5
     variables = {comp: {name: _samples(series, index[comp], ref, steps)
                         for name, ref in refs[comp].items()} for comp in (ROBOT, CONTROLLER)}
-    return _rows(package, variables, steps, h, stop_at_convergence)
-
+    return variables, steps
 
 
 def _samples(series: Any, slave: int, ref: int, steps: int) -> npt.NDArray[np.float64]:
@@ -196,36 +239,49 @@ def _in_our_names(package: SspPackage, values: dict[str, Any],
     return out
 
 
-def _rows(package: SspPackage, variables: dict[str, dict[str, npt.NDArray[np.float64]]],
-          steps: int, h: float, stop_at_convergence: bool) -> SspRunData:
-    robot = _in_our_names(package, variables[ROBOT], OUTPUT_NAMES)
+def log_rows(package: SspPackage, variables: dict[str, dict[str, npt.NDArray[np.float64]]],
+             steps: int, h: float, stop_at_convergence: bool, master: str, *,
+             after_transfer: bool) -> SspRunData:
+    """The log rows of a run recorded at communication points ``0 .. steps``.
+
+    ``after_transfer``: the master recorded after passing the outputs on to the inputs (Ecos),
+    so that index ``k`` holds the controller's sample at ``t_k`` (its inputs are ``y_k``) and
+    the robot's torque inputs for the step from ``t_k``; otherwise before (libcosim): the
+    controller's outputs after its step from ``t_k`` are at index ``k + 1``, and so are the
+    robot's inputs of the step from ``t_k``.
+    """
+    robot = _in_our_names(package, variables[ROBOT], (*OUTPUT_NAMES, "tau_r", "tau_l"))
     ctrl = variables[CONTROLLER]
     missing = [n for n in OUTPUT_NAMES if n not in robot] + \
         [n for n in (*CONTROL_OUTPUTS, "converged") if n not in ctrl]
     if missing:
         raise FmuError(f"{package.path}: the components lack the outputs {', '.join(missing)}")
-    # row k: robot at t_k (index k), the controller after its step from t_k (index k + 1)
-    n_rows = steps
-    flags = ctrl["converged"][1:steps + 1]
+    off = 0 if after_transfer else 1  # index of the controller's values of row 0
+    n_rows = steps + 1 - off  # rows whose controller values were recorded
+    flags = ctrl["converged"][off:n_rows + off]
     hit = np.flatnonzero(flags >= 0.5)
     status, message, time_to_goal = "timeout", f"not converged within {steps * h:g} s", None
     if stop_at_convergence and hit.size:
         n_rows = int(hit[0]) + 1
         time_to_goal = hit[0] * h
         status, message = "converged", f"converged at t = {time_to_goal:.2f} s"
+    held = np.full((steps, 2), np.nan)
+    for j, name in enumerate(("tau_r", "tau_l")):
+        if np.ndim(robot.get(name, math.nan)):
+            held[:, j] = robot[name][off:steps + off]
     block = np.empty((n_rows, len(SIGNALS)), dtype=np.float64)
     for i, name in enumerate(OUTPUT_NAMES):
         values = robot[name]  # NaN (a float) where the map leaves the output unmapped
         block[:, COLUMN[PLANT_SIGNALS[i]]] = values[:n_rows] if np.ndim(values) else values
     for col, name in zip(CONTROL_SIGNALS, CONTROL_OUTPUTS, strict=True):
-        block[:, COLUMN[col]] = ctrl[name][1:n_rows + 1]
+        block[:, COLUMN[col]] = ctrl[name][off:n_rows + off]
     if status == "converged":
         # as in wmr run: the last row shows the robot at rest with zero torque
         block[-1, COLUMN["tau_r_nm"]] = block[-1, COLUMN["tau_l_nm"]] = 0.0
     t_ns = np.round(np.arange(n_rows) * h * 1e9).astype(np.int64)
     return SspRunData(package=package, t_ns=t_ns, block=block, variables=variables,
-                      status=status, message=message, master=_libcosim_version(),
-                      time_to_goal_s=time_to_goal)
+                      status=status, message=message, master=master,
+                      time_to_goal_s=time_to_goal, step_size_s=h, held_torque_nm=held)
 
 
 def _goal(package: SspPackage) -> tuple[float, float, float]:
@@ -280,10 +336,23 @@ def result_record(run: SspRunData, mcap: Path) -> dict[str, object]:
         "final_heading_error_rad": abs(head),
         "time_to_goal_s": run.time_to_goal_s,
         "path_length_m": float(np.hypot(np.diff(x), np.diff(y)).sum()),
+        **energies(run),
         "steps": int(b.shape[0]),
         "master": run.master,
         "mcap": str(mcap),
     }
+
+
+def energies(run: SspRunData) -> dict[str, float]:
+    """The :data:`~wmr.core.energy.ENERGY_KEYS` of the run (as ``wmr run``'s): the torques the
+    robot held over each step between the logged rows, times its wheel speeds at both ends
+    (trapezoid).  NaN where the robot's map leaves a wheel speed unmapped."""
+    b = run.block
+    n = b.shape[0] - 1
+    if n < 1 or run.held_torque_nm.shape[0] < n:
+        return dict.fromkeys(ENERGY_KEYS, math.nan if n >= 1 else 0.0)
+    omega = b[:, [COLUMN["omega_r_radps"], COLUMN["omega_l_radps"]]]
+    return wheel_work(run.held_torque_nm[:n], omega, run.step_size_s)
 
 
 def log_ssp_run(run: SspRunData, mcap_path: str | os.PathLike[str]) -> dict[str, object]:
@@ -300,4 +369,5 @@ def log_ssp_run(run: SspRunData, mcap_path: str | os.PathLike[str]) -> dict[str,
     return record
 
 
-__all__ = ["CONTROL_OUTPUTS", "SspRunData", "log_ssp_run", "simulate_libcosim"]
+__all__ = ["CONTROL_OUTPUTS", "SspRunData", "c_stdout_to_stderr", "energies", "log_rows",
+           "log_ssp_run", "n_steps", "simulate_libcosim", "step_size"]
