@@ -248,6 +248,7 @@ def test_a_build_reports_each_step_and_says_it_still_runs(
     assert lines[0].startswith(f"building the robot and controller FMUs for "
                                f"{result.platforms[0]}")
     for product in ("robot", "controller"):
+        assert f"{product}: generating the C sources" in lines
         assert sum(f"{product}: still compiling" in line for line in lines) >= 2, lines
         assert f"{product}: compiled FMI 3 {result.platforms[0]} " in "\n".join(lines)
         assert any(line.startswith(f"{product}: compiled ") and "(2/2," in line

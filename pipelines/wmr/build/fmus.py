@@ -289,9 +289,8 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
         fmus = _build(out, digest, compiler, targets, progress=progress)
         controllers = _build(out, digest, compiler, targets, "controller", progress=progress)
         if validate:
-            progress("validating the FMUs with fmpy")
-            _validate(fmus)
-            _validate(controllers)
+            _validate(fmus, progress)
+            _validate(controllers, progress)
         products = _products(out)
         stamp = {"digest": digest, "compiler": compiler.version, "platforms": list(names),
                  "sha256": {key: hashlib.sha256(p.read_bytes()).hexdigest()
@@ -361,6 +360,7 @@ def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platfor
 
     model: FlatModel | ControllerModel
     extra: list[Path] = []  # hand-written C of the product's model core
+    progress(f"{product}: generating the C sources")
     if product == "robot":
         from wmr.build.flatten import flatten
 
@@ -430,10 +430,11 @@ def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platfor
     return result
 
 
-def _validate(fmus: dict[int, Path]) -> None:
+def _validate(fmus: dict[int, Path], progress: Progress = _quiet) -> None:
     from fmpy.validation import validate_fmu
 
     for version, path in fmus.items():
+        progress(f"validating {path.name} with fmpy")
         problems = validate_fmu(str(path))
         if problems:
             raise BuildError(f"fmpy rejects the FMI {version} FMU {path}: " + "; ".join(problems))
