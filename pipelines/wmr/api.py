@@ -44,13 +44,17 @@ def _not_in_a_worker_import(function: str) -> None:
     the batch."""
     import sys
 
-    main = sys.modules.get("__main__")
-    script = getattr(main, "__file__", None)
-    if getattr(main, "__name__", None) == "__mp_main__" and script is not None:
-        raise SystemExit(
-            f"wmr: error: {script} calls wmr.{function} at its top level, and batch "
-            "workers import the script again: put its code under "
-            "`if __name__ == \"__main__\":` (docs/api.md)")
+    # multiprocessing runs the script under the name __mp_main__ in each worker
+    # (runpy.run_path), while __main__ is still the worker's own; in the parent, __mp_main__
+    # is only another name of __main__
+    imported = sys.modules.get("__mp_main__")
+    script = getattr(imported, "__file__", None)
+    if getattr(imported, "__name__", None) == "__mp_main__" and script is not None:
+        # printed here: a forkserver child ends with os._exit, which drops SystemExit's text
+        print(f"wmr: error: {script} calls wmr.{function} at its top level, and batch "
+              "workers import the script again: put its code under "
+              "`if __name__ == \"__main__\":` (docs/api.md)", file=sys.stderr, flush=True)
+        raise SystemExit(1)
 
 
 #: Columns of :attr:`Log.path` (and :attr:`RunResult.path`).
