@@ -143,3 +143,152 @@ def test_hostile_archives_are_refused(tmp_path: Path) -> None:
         check_archive(tmp_path / "text.fmu")
     with pytest.raises(FmuError, match="no such FMU"):
         FmuPlant(tmp_path / "missing.fmu")
+
+
+# ------------------------------------------------------------- platforms and progress (issue 21)
+
+
+def test_the_implicit_build_of_a_run_is_for_this_machine_only(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``wmr run``, ``wmr batch`` and the API build through ``default_fmu``: the host's
+    binaries only (seconds), not the five platforms of ``wmr fmu build`` (minutes)."""
+    import wmr.build.fmus as fmus
+    from wmr.apps.run import default_controller_fmu, default_fmu
+
+    asked: list[object] = []
+    built = BuildResult({2: Path("r2.fmu"), 3: Path("r3.fmu")}, "digest", True,
+                        controllers={2: Path("c2.fmu"), 3: Path("c3.fmu")})
+
+    def spy(*args: object, **kwargs: object) -> BuildResult:
+        asked.append(kwargs.get("platforms", "all"))
+        return built
+
+    monkeypatch.setattr(fmus, "build_fmus", spy)
+    default_fmu(3)
+    default_controller_fmu(2)
+    assert asked == ["host", "host"]
+
+
+def test_host_and_full_builds_have_their_own_cache_folders() -> None:
+    from wmr.build.fmus import default_out_dir
+    from wmr.build.platforms import host_platform
+    from wmr.infra import paths
+
+    host = host_platform()
+    assert host is not None
+    assert default_out_dir("all") == paths.default_fmu_dir()
+    assert default_out_dir("host") == paths.default_fmu_dir().with_name(f"fmu-{host.name}")
+    assert default_out_dir("host") == default_out_dir(host.name)
+    assert default_out_dir("x86_64-windows,x86_64-linux").name == \
+        "fmu-x86_64-linux+x86_64-windows"
+
+
+def test_platform_choices_are_parsed_and_bad_ones_named() -> None:
+    from wmr.build.platforms import PLATFORMS, parse_platforms
+    from wmr.infra.errors import ConfigError
+
+    assert parse_platforms("all") is None
+    assert parse_platforms(["aarch64-darwin", "x86_64-linux"]) == (PLATFORMS[0], PLATFORMS[4])
+    assert parse_platforms("x86_64-windows, x86_64-windows") == (PLATFORMS[2],)
+    for bad in ("win64", "", "all,x86_64-linux"):
+        with pytest.raises(ConfigError, match="platforms"):
+            parse_platforms(bad)
+
+
+def test_the_host_compiler_is_preferred_for_a_host_only_build() -> None:
+    """gcc builds the host's binaries in seconds where zig first builds its C libraries."""
+    import shutil
+
+    from wmr.build.platforms import find_compiler, host_platform, parse_platforms
+
+    if shutil.which("gcc") is None or host_platform() is None:
+        pytest.skip("needs gcc on a Linux host")
+    assert not find_compiler(None, parse_platforms("host")).cross
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["fmu", "build", "--platforms", "win64"], "--platforms"),
+    (["fmu", "build", "--platforms", "host", "--out", "/proc/wmr-fmus"], "--out"),
+    (["fmu", "crosscheck", "--out", "x", "--platforms", "linux"], "--platforms"),
+])
+def test_bad_platforms_and_folders_are_one_line_errors(
+        argv: list[str], option: str, capsys: pytest.CaptureFixture[str]) -> None:
+    if option == "--out" and not Path("/proc/self").exists():
+        pytest.skip("needs /proc, where no folder can be created")
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"wmr: error: {option}:"), err
+
+
+def _fake_compile(seconds: float) -> object:
+    """A compiler that takes ``seconds`` per library and writes an empty one."""
+    import time
+
+    def compile_(compiler: object, target: object, sources: object, include: object,
+                 output: Path) -> None:
+        time.sleep(seconds)
+        output.parent.mkdir(parents=True, exist_ok=True)
+        output.write_bytes(b"")
+
+    return compile_
+
+
+def test_a_build_reports_each_step_and_says_it_still_runs(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """A compile longer than the progress interval is reported while it runs, and each
+    library when it is done: a first build is never silent for minutes."""
+    import wmr.build.fmus as fmus
+
+    monkeypatch.setattr(fmus, "PROGRESS_INTERVAL_S", 0.05)
+    monkeypatch.setattr(fmus, "_compile", _fake_compile(0.4))
+    lines: list[str] = []
+    result = fmus.build_fmus(tmp_path, platforms="host", validate=False,
+                             on_build=lines.append)
+    assert not result.reused and len(result.platforms) == 1
+    assert lines[0].startswith(f"building the robot and controller FMUs for "
+                               f"{result.platforms[0]}")
+    for product in ("robot", "controller"):
+        assert f"{product}: generating the C sources" in lines
+        assert sum(f"{product}: still compiling" in line for line in lines) >= 2, lines
+        assert f"{product}: compiled FMI 3 {result.platforms[0]} " in "\n".join(lines)
+        assert any(line.startswith(f"{product}: compiled ") and "(2/2," in line
+                   for line in lines)
+    assert lines[-1].startswith("built the FMUs in")
+    # reused: nothing to say
+    lines.clear()
+    assert fmus.build_fmus(tmp_path, platforms="host", validate=False,
+                           on_build=lines.append).reused
+    assert lines == []
+
+
+def test_waiting_on_another_build_is_reported(monkeypatch: pytest.MonkeyPatch,
+                                              tmp_path: Path) -> None:
+    """A process that waits on another's build of the same folder says so, repeatedly."""
+    import fcntl
+    import threading
+    import time
+
+    import wmr.build.fmus as fmus
+
+    monkeypatch.setattr(fmus, "PROGRESS_INTERVAL_S", 0.05)
+    lines: list[str] = []
+    entered = threading.Event()
+
+    def waiter() -> None:
+        with fmus._locked(tmp_path, lines.append):
+            entered.set()
+
+    with open(tmp_path / ".wmr-build.lock", "w") as other:  # the other process's lock
+        fcntl.flock(other, fcntl.LOCK_EX)
+        thread = threading.Thread(target=waiter)
+        thread.start()
+        for _ in range(1000):  # a bound, so that a silent wait fails rather than hangs
+            if sum("waiting for another process's build" in line for line in lines) >= 3:
+                break
+            time.sleep(0.01)
+        assert not entered.is_set()
+        fcntl.flock(other, fcntl.LOCK_UN)
+        assert sum("waiting for another process's build" in line for line in lines) >= 3
+    thread.join(10)
+    assert entered.is_set()
+    assert lines[-1].startswith("the other build finished after")

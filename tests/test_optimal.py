@@ -180,6 +180,48 @@ def test_forward_only_by_default_and_reversing_when_allowed() -> None:
     assert rev.final_time_s < fwd.final_time_s
 
 
+@pytest.mark.parametrize("heading_deg", [10.0, -45.0, 90.0, -135.0, 180.0])
+def test_turns_on_the_spot_solve_and_replay_on_the_fmu(heading_deg: float, fmu3: Path) -> None:
+    """Issue 21: from 10 to 90 deg either way IPOPT ended in Maximum_Iterations_Exceeded
+    (v = 0 at every node sat on the bound v >= 0 and the goal pinned x, y too)."""
+    from wmr.adapters.ocp import SPOT_TURN_CREEP_MPS
+
+    turn = math.radians(heading_deg)
+    r = solve_optimal(START, Pose(0.0, 0.0, turn), **CLOSED_LOOP)  # type: ignore[arg-type]
+    assert r.status == "solved", r.message
+    # no faster than turning at the omega limit, and at most the PI's 2.98 s for 90 deg
+    assert abs(turn) / CLOSED_LOOP["omega_limit_radps"] <= r.final_time_s
+    assert r.final_time_s < 2.98 * abs(turn) / (math.pi / 2) + 0.5
+    assert np.min(r.states["v"]) >= -SPOT_TURN_CREEP_MPS - 1e-9
+    assert np.max(np.hypot(r.states["x"], r.states["y"])) < 0.02  # it stays on the spot
+    rp = replay_open_loop(r, fmu3)
+    assert rp.final_position_error_m < 0.01
+    assert abs(rp.final_heading_error_rad) < 0.01
+
+
+def test_short_moves_stay_forward_only() -> None:
+    """The creep is for turns on the spot only: a goal 0.5 m away keeps v >= 0."""
+    r = solve_optimal(START, Pose(0.0, 0.5, math.pi / 2), **CLOSED_LOOP)  # type: ignore[arg-type]
+    assert r.status == "solved"
+    assert np.min(r.states["v"]) >= -1e-9
+
+
+def test_a_solve_reports_its_progress(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A failing solve grinds for up to max_cpu_time_s: IPOPT's iterations are reported every
+    PROGRESS_INTERVAL_S (0 here: every iteration)."""
+    from wmr.adapters.ocp import transcription
+
+    monkeypatch.setattr(transcription, "PROGRESS_INTERVAL_S", 0.0)
+    lines: list[str] = []
+    r = solve_optimal(START, FIG11_GOAL, progress=lines.append)
+    iterations = [line for line in lines if line.startswith("IPOPT: iteration ")]
+    assert r.status == "solved" and len(iterations) >= r.iterations
+    assert "T = " in iterations[-1]
+    lines.clear()
+    solve_optimal(START, FIG11_GOAL)  # no receiver: silent, and the last one is forgotten
+    assert lines == []
+
+
 # --- replay on the FMU -----------------------------------------------------------------------
 
 
@@ -313,3 +355,25 @@ def test_warm_start_solves_every_fig9_and_fig10_case(limits: dict[str, float],
                 far.append(f"{name}: {rp.final_position_error_m:.3g} m")
     assert not failed, failed
     assert not far, far
+
+
+def test_the_optimal_record_has_one_effort_and_an_absolute_heading_error(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path, fmu3: Path) -> None:
+    """``wmr optimal --json``: docs/results.md defines final_heading_error_rad as |theta -
+    theta_d|, and the effort is torque_sq_integral_n2m2s alone (issue 21 found a signed error
+    and a duplicate effort_N2m2s)."""
+    import dataclasses
+
+    from wmr.apps.optimal import optimal_to_log
+
+    real = optimal.replay_open_loop
+
+    def tilted(*args: object, **kwargs: object) -> object:
+        rp = real(*args, **kwargs)  # type: ignore[arg-type]
+        return dataclasses.replace(rp, final_heading_error_rad=-0.01)
+
+    monkeypatch.setattr(optimal, "replay_open_loop", tilted)
+    record = optimal_to_log(START, Pose(2.0, 1.0, 0.0), tmp_path / "o.mcap", fmu3, name="t")
+    assert record["status"] == "solved"
+    assert record["final_heading_error_rad"] == pytest.approx(0.01)
+    assert "effort_N2m2s" not in record and record["torque_sq_integral_n2m2s"] > 0.0

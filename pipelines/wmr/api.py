@@ -35,6 +35,28 @@ if TYPE_CHECKING:  # pandas and matplotlib load only when a result is used
     from wmr.config.scenario import Scenario
 
 PoseLike = Sequence[float]
+
+
+def _not_in_a_worker_import(function: str) -> None:
+    """Stop, in one line, a script that calls the API at its top level from running again in
+    every batch worker: multiprocessing's workers import the script (as ``__mp_main__``) to
+    find its functions, and its unguarded calls would repeat its runs and start a batch inside
+    the batch."""
+    import sys
+
+    # multiprocessing runs the script under the name __mp_main__ in each worker
+    # (runpy.run_path), while __main__ is still the worker's own; in the parent, __mp_main__
+    # is only another name of __main__
+    imported = sys.modules.get("__mp_main__")
+    script = getattr(imported, "__file__", None)
+    if getattr(imported, "__name__", None) == "__mp_main__" and script is not None:
+        # printed here: a forkserver child ends with os._exit, which drops SystemExit's text
+        print(f"wmr: error: {script} calls wmr.{function} at its top level, and batch "
+              "workers import the script again: put its code under "
+              "`if __name__ == \"__main__\":` (docs/api.md)", file=sys.stderr, flush=True)
+        raise SystemExit(1)
+
+
 #: Columns of :attr:`Log.path` (and :attr:`RunResult.path`).
 PATH_COLUMNS = ("x_m", "y_m", "theta_rad")
 
@@ -235,6 +257,7 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
     fmi, fmu
         The project's FMI 2 or 3 build, or another FMU file.
     """
+    _not_in_a_worker_import("run")
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.apps.run import default_fmu, run_to_log
     from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
@@ -268,6 +291,7 @@ def optimal(start: PoseLike = (0.0, 0.0, 0.0), goal: PoseLike = (20.0, 10.0, 0.0
             fmi: int = 3, fmu: str | Path | None = None) -> RunResult:
     """The optimal manoeuvre, as ``wmr optimal`` makes it (solved, replayed on the FMU,
     logged); ``start`` and ``goal`` are ``(x_m, y_m, heading_deg)``."""
+    _not_in_a_worker_import("optimal")
     from wmr.apps.optimal import optimal_to_log
     from wmr.apps.run import default_fmu
     from wmr.config.naming import default_log_path, fmu_tokens, pose_token, variant_name
@@ -317,6 +341,7 @@ def batch(spec: str | Path, out: str | Path | None = None, *,
           fmu: str | Path | None = None) -> BatchResult:
     """Many runs, as ``wmr batch`` makes them (resumable: done runs are kept); returns the
     summary as a DataFrame (``docs/batch.md``)."""
+    _not_in_a_worker_import("batch")
     import pyarrow.parquet as pq
 
     from wmr.apps.batch import DEFAULT_RUN_TIMEOUT_S, load_batch, run_batch

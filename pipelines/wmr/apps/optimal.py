@@ -4,6 +4,7 @@ under the PI's limits, replay its torques open-loop on the FMU, log the replay t
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -35,13 +36,16 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
                    objective: str = "time", torque_limit_nm: float | None = None,
                    torque_only: bool = False, final_time_s: float | None = None,
                    period_s: float = 0.01,
-                   params: RobotParams | None = None) -> dict[str, Any]:
+                   params: RobotParams | None = None,
+                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Solve, replay on the FMU at ``fmu_path`` and log to ``out``; return the result record.
 
     ``objective="energy"`` without ``final_time_s`` takes 1.5 times the minimum time.  The
     record holds the fields of ``wmr optimal --json`` (``status``, ``final_time_s``,
-    ``path_length_m``, the energy keys of ``docs/results.md``, ``mcap``, ...); the log is
-    written only when the solve succeeded.
+    ``path_length_m``, the energy keys of ``docs/results.md`` with the replay's
+    ``torque_sq_integral_n2m2s``, the absolute ``final_heading_error_rad``, ``mcap``, ...); the
+    log is written only when the solve succeeded.  ``progress`` receives a line at least every
+    few seconds while IPOPT iterates (:func:`wmr.adapters.ocp.solve_optimal`).
     """
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.adapters.ocp import FAILED_ADVICE, replay_open_loop, solve_optimal
@@ -56,14 +60,15 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
     limits = optimal_limits(torque_limit_nm, torque_only)
     note = ""
     if objective == "energy" and final_time_s is None:
-        t_min = solve_optimal(start, goal, params, objective="time", limits=limits)
+        t_min = solve_optimal(start, goal, params, objective="time", limits=limits,
+                              progress=progress)
         if t_min.status != "solved":
             raise ConfigError("final_time_s", "no minimum time to base the energy run on "
                               f"({t_min.status}: {t_min.message})", "give the final time")
         final_time_s = 1.5 * t_min.final_time_s
         note = f"final time 1.5 x the minimum time {t_min.final_time_s:.3f} s"
     res = solve_optimal(start, goal, params, objective=objective,  # type: ignore[arg-type]
-                        limits=limits, final_time_s=final_time_s)
+                        limits=limits, final_time_s=final_time_s, progress=progress)
     res.message = res.message.replace(FAILED_ADVICE, _CASE_ADVICE)
     record: dict[str, Any] = {
         "name": name,
@@ -73,7 +78,7 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
         "path_length_m": None, "mcap": None,
         "ocp_path_length_m": res.path_length_m,
         "ocp_energy_positive_j": res.energy_positive_j,
-        "effort_N2m2s": res.effort_N2m2s, "solve_time_s": res.solve_time_s,
+        "solve_time_s": res.solve_time_s,
         "iterations": res.iterations, "limits": res.summary()["limits"],
     }
     if res.status != "solved":
@@ -83,7 +88,6 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
                                   control_period_s=period_s)
         record.update(replay_figures(replay, goal, 0.05))
         record["mcap"] = str(out)
-        record["final_heading_error_rad"] = float(replay.final_heading_error_rad)
         record["final_speed_mps"] = replay.final_speed_mps
         write_optimal_log(out, res, replay, plant,
                           optimal_metadata(name, "", start, goal, params, limits, objective,

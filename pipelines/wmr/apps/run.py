@@ -30,23 +30,25 @@ if TYPE_CHECKING:
 
 
 def _notice(message: str) -> None:
-    """A build that a run starts says so on stderr: it may take minutes, and stdout is for
-    results (``--json``)."""
+    """A build that a run starts reports its steps on stderr (stdout is for results,
+    ``--json``)."""
     print(f"wmr: {message}", file=sys.stderr, flush=True)
 
 
 def default_fmu(fmi_version: int = 3) -> Path:
-    """The FMU of the project's model, built (or reused) in the user's cache."""
+    """The FMU of the project's model, built (or reused) in the user's cache for this machine
+    only (seconds with gcc; ``wmr fmu build`` builds every platform)."""
     from wmr.build.fmus import build_fmus
 
-    return build_fmus(on_build=_notice).fmus[fmi_version]
+    return build_fmus(on_build=_notice, platforms="host").fmus[fmi_version]
 
 
 def default_controller_fmu(fmi_version: int = 3) -> Path:
-    """The controller FMU (the PI stabiliser in C), built (or reused) in the user's cache."""
+    """The controller FMU (the PI stabiliser in C), built (or reused) in the user's cache for
+    this machine only."""
     from wmr.build.fmus import build_fmus
 
-    return build_fmus(on_build=_notice).controllers[fmi_version]
+    return build_fmus(on_build=_notice, platforms="host").controllers[fmi_version]
 
 
 def _jsonable(value: float | None) -> float | None:

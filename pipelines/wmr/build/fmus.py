@@ -7,6 +7,14 @@ standard names (:mod:`wmr.build.platforms`); with the host's gcc, for the host o
 compiles run concurrently.  A build is skipped when a digest over every input (Modelica
 sources, C sources, this build code, the tool and compiler versions, the flags and the target
 platforms) matches the digest of the FMUs already there.
+
+``platforms`` chooses the binaries: ``"all"`` (``wmr fmu build``, ``wmr ssp export``: the FMUs
+to hand to other tools), ``"host"`` (the implicit build behind ``wmr run``, ``wmr batch`` and
+the API: seconds with gcc, where Zig's first use on a machine builds its C libraries for five
+platforms for minutes) or a list of FMI 3 platform names.  Each choice has its own cache folder,
+so that a host build never replaces a full one.  A build reports each step through
+``on_build``, and at least every :data:`PROGRESS_INTERVAL_S` while a compile or another
+process's build runs.
 """
 
 from __future__ import annotations
@@ -18,9 +26,10 @@ import os
 import shutil
 import subprocess
 import tempfile
+import time
 import zipfile
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,12 +43,18 @@ from wmr.build.platforms import (
     Platform,
     check_binary,
     find_compiler,
+    parse_platforms,
 )
 from wmr.infra import paths
 from wmr.infra.durable import open_own
-from wmr.infra.errors import BuildError
+from wmr.infra.errors import BuildError, ConfigError
 
 FMI_VERSIONS = (2, 3)
+#: Longest silence of a build, s: a compile or a wait on another process's build says it is
+#: still running at least this often.
+PROGRESS_INTERVAL_S = 5.0
+#: A progress line's receiver: one line of text, no newline.
+Progress = Callable[[str], None]
 _STAMP = ".wmr-build.json"
 _ZIP_DATE = (2020, 1, 1, 0, 0, 0)  # fixed, so that identical inputs give identical archives
 
@@ -119,14 +134,38 @@ def build_digest(compiler: Compiler | None = None,
     return h.hexdigest()
 
 
+def _quiet(line: str) -> None:
+    """The progress receiver of a build nobody watches."""
+
+
 @contextmanager
-def _locked(out_dir: Path) -> Iterator[None]:
-    """Serialise builds into one folder (batch workers may all ask for the FMUs at once)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    # never "w": a link planted at the lock's name must not truncate what it points at
+def _locked(out_dir: Path, progress: Progress = _quiet) -> Iterator[None]:
+    """Serialise builds into one folder (batch workers may all ask for the FMUs at once); a
+    process that waits on another's build says so, and how long, every
+    :data:`PROGRESS_INTERVAL_S`."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError("out_dir", f"cannot create the FMU folder {out_dir} "
+                          f"({exc.strerror or exc})", "give a folder you can write") from None
+    # never open(..., "w"): a link planted at the lock's name must not truncate its target
     lock = open_own(out_dir / ".wmr-build.lock", os.O_RDWR | os.O_CREAT, "build lock")
     try:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+        t0 = time.monotonic()
+        said = None
+        while True:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                waited = time.monotonic() - t0
+                if said is None or waited - said >= PROGRESS_INTERVAL_S:
+                    progress(f"waiting for another process's build of the FMUs in {out_dir} "
+                             f"({waited:.0f} s)")
+                    said = waited
+                time.sleep(min(0.2, PROGRESS_INTERVAL_S))
+        if said is not None:
+            progress(f"the other build finished after {time.monotonic() - t0:.0f} s")
         yield
     finally:
         os.close(lock)  # closing releases the lock
@@ -184,54 +223,81 @@ def _write_zip(target: Path, members: dict[str, bytes]) -> None:
         raise
 
 
+def default_out_dir(platforms: str | Sequence[str] = "all") -> Path:
+    """The cache folder of a build for ``platforms``: :func:`wmr.infra.paths.default_fmu_dir`
+    for ``"all"``, a sibling ``fmu-<platform>[+<platform>...]`` for fewer (``fmu-x86_64-linux``
+    for ``"host"`` on a Linux PC), so that a host build and a full build never replace each
+    other."""
+    chosen = parse_platforms(platforms)
+    if chosen is None:
+        return paths.default_fmu_dir()
+    return paths.default_fmu_dir().with_name("fmu-" + "+".join(p.name for p in chosen))
+
+
 def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = False,
                cc: str | None = None, validate: bool = True,
-               on_build: Callable[[str], None] | None = None) -> BuildResult:
+               platforms: str | Sequence[str] = "all",
+               on_build: Progress | None = None) -> BuildResult:
     """Build (or reuse) the FMI 2.0 and FMI 3.0 FMUs into ``out_dir``.
 
     Parameters
     ----------
     out_dir
-        Folder for the two ``.fmu`` files; :func:`wmr.infra.paths.default_fmu_dir` by default.
+        Folder for the ``.fmu`` files; :func:`default_out_dir` of ``platforms`` by default.
     force
         Rebuild even when the digest of the inputs matches the existing FMUs.
     cc
-        The C compiler: ``"zig"`` (every platform), a host compiler such as ``"gcc"`` (the host
-        platform only), or None for zig when the ``ziglang`` package is installed, else gcc.
+        The C compiler: ``"zig"`` (any platform), a host compiler such as ``"gcc"`` (the host
+        platform only), or None to choose: gcc for the host platform alone when it is on PATH,
+        else zig when the ``ziglang`` package is installed, else gcc.
     validate
         Run fmpy's ``validate_fmu`` on each new FMU and fail on any problem.
+    platforms
+        ``"all"`` (every platform the compiler builds: five with zig, the host with gcc),
+        ``"host"``, or FMI 3 platform names as a list or one comma-separated string
+        (:func:`wmr.build.platforms.parse_platforms`).
     on_build
-        Called with a one-line notice when the FMUs must be built rather than reused (a first
-        build takes minutes: Zig builds its C libraries for every platform once per machine).
+        Called with one line per step of a build (none when the FMUs are reused): what is built
+        for which platforms with which compiler, each library compiled, the validation, and at
+        least every :data:`PROGRESS_INTERVAL_S` while a compile, or another process's build of
+        the same folder, is still running.
 
     Raises
     ------
     BuildError
         With the failing step and what to do.
+    ConfigError
+        For an unknown platform (field ``platforms``) or a folder that cannot be created
+        (``out_dir``).
     """
-    compiler = find_compiler(cc)
-    targets = compiler.platforms()
-    out = Path(out_dir) if out_dir is not None else paths.default_fmu_dir()
+    progress = on_build if on_build is not None else _quiet
+    requested = parse_platforms(platforms)
+    compiler = find_compiler(cc, requested)
+    targets = compiler.targets(requested)
+    out = Path(out_dir) if out_dir is not None else default_out_dir(platforms)
     digest = build_digest(compiler, targets)
     names = tuple(t.name for t in targets)
-    with _locked(out):
+    with _locked(out, progress):
         if not force:
             reused = _reusable(out, digest)
             if reused is not None:
                 return _result(reused, digest, True, names)
-        if on_build is not None:
-            on_build(f"building the robot and controller FMUs for {', '.join(names)} into {out} "
-                     "(the first build on a machine takes a few minutes)")
-        fmus = _build(out, digest, compiler, targets)
-        controllers = _build(out, digest, compiler, targets, "controller")
+        t0 = time.monotonic()
+        slow = (" (Zig builds its C libraries for each platform on its first use on a "
+                "machine: minutes)" if compiler.cross else "")
+        progress(f"building the robot and controller FMUs for {', '.join(names)} with "
+                 f"{compiler.version} into {out}{slow}")
+        fmus = _build(out, digest, compiler, targets, progress=progress)
+        controllers = _build(out, digest, compiler, targets, "controller", progress=progress)
         if validate:
-            _validate(fmus)
-            _validate(controllers)
+            _validate(fmus, progress)
+            _validate(controllers, progress)
         products = _products(out)
         stamp = {"digest": digest, "compiler": compiler.version, "platforms": list(names),
                  "sha256": {key: hashlib.sha256(p.read_bytes()).hexdigest()
                             for key, p in products.items()}}
         (out / _STAMP).write_text(json.dumps(stamp, indent=1) + "\n")
+        progress(f"built the FMUs in {time.monotonic() - t0:.0f} s")
     return _result(products, digest, False, names)
 
 
@@ -242,8 +308,45 @@ def _result(products: dict[str, Path], digest: str, reused: bool,
                        controllers={v: products[f"c{v}"] for v in FMI_VERSIONS})
 
 
+def _compile_all(compiler: Compiler, jobs: list[tuple[int, Platform, Path, list[Path]]],
+                 include: list[Path], product: str, progress: Progress) -> None:
+    """Compile every job concurrently, with a line per library done and, while none finishes,
+    a line every :data:`PROGRESS_INTERVAL_S` naming the ones still compiling."""
+    t0 = time.monotonic()
+    progress(f"{product}: compiling {len(jobs)} libraries (FMI "
+             f"{' and '.join(str(v) for v in sorted({v for v, _, _, _ in jobs}))} x "
+             f"{len({t for _, t, _, _ in jobs})} platforms)")
+    workers = min(len(jobs), os.cpu_count() or 1)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        running: dict[Future[None], tuple[int, Platform]] = {
+            pool.submit(_compile, compiler, t, sources, include, lib): (v, t)
+            for v, t, lib, sources in jobs}
+        done_count = 0
+        try:
+            while running:
+                done, _ = wait(running, timeout=PROGRESS_INTERVAL_S,
+                               return_when=FIRST_COMPLETED)
+                elapsed = time.monotonic() - t0
+                if not done:
+                    # what runs now: the pool's first max_workers jobs not yet done
+                    busy = list(running.values())[:workers]
+                    progress(f"{product}: still compiling "
+                             f"{', '.join(f'FMI {v} {t.name}' for v, t in busy)} "
+                             f"({elapsed:.0f} s)")
+                for future in done:
+                    v, t = running.pop(future)
+                    future.result()
+                    done_count += 1
+                    progress(f"{product}: compiled FMI {v} {t.name} "
+                             f"({done_count}/{len(jobs)}, {elapsed:.0f} s)")
+        except BaseException:
+            for future in running:
+                future.cancel()
+            raise
+
+
 def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platform],
-           product: str = "robot") -> dict[int, Path]:
+           product: str = "robot", progress: Progress = _quiet) -> dict[int, Path]:
     """Build one product, ``robot`` or ``controller``, for every FMI version and platform."""
     from wmr.build.codegen import MODEL_IDENTIFIER, unity_source, write_model_core
     from wmr.build.controller_interface import ControllerModel
@@ -258,6 +361,7 @@ def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platfor
 
     model: FlatModel | ControllerModel
     extra: list[Path] = []  # hand-written C of the product's model core
+    progress(f"{product}: generating the C sources")
     if product == "robot":
         from wmr.build.flatten import flatten
 
@@ -293,15 +397,11 @@ def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platfor
         sources = {v: [p for p in hand if p.name != ("fmi3.c" if v == 2 else "fmi2.c")]
                    + generated + [unity[v]] for v in FMI_VERSIONS}
         # One job per FMI version and platform; FMI 2 has no folder name for aarch64.
-        jobs = [(v, t, Path(tmp) / f"fmi{v}" / t.name / f"{identifier}{t.extension}")
-                for v in FMI_VERSIONS for t in targets if t.folder(v) is not None]
+        jobs = [(v, t, Path(tmp) / f"fmi{v}" / t.name / f"{identifier}{t.extension}",
+                 [unity[v]]) for v in FMI_VERSIONS for t in targets if t.folder(v) is not None]
         include = [gen_dir, paths.fmu_src_dir(), headers,
                    *sorted({p.parent for p in extra})]
-        with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
-            futures = [pool.submit(_compile, compiler, t, [unity[v]], include, lib)
-                       for v, t, lib in jobs]
-            for future in futures:
-                future.result()
+        _compile_all(compiler, jobs, include, product, progress)
         if isinstance(model, ControllerModel):
             from wmr.build.controller_interface import index_html as controller_index
 
@@ -316,7 +416,7 @@ def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platfor
             c_names = [unity[version].name]
             members = {f"sources/{p.name}": p.read_bytes() for p in sources[version]}
             members.update(docs)
-            for v, t, lib in jobs:
+            for v, t, lib, _ in jobs:
                 if v == version:
                     members[f"binaries/{t.folder(v)}/{lib.name}"] = lib.read_bytes()
             if version == 2:
@@ -331,10 +431,11 @@ def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platfor
     return result
 
 
-def _validate(fmus: dict[int, Path]) -> None:
+def _validate(fmus: dict[int, Path], progress: Progress = _quiet) -> None:
     from fmpy.validation import validate_fmu
 
     for version, path in fmus.items():
+        progress(f"validating {path.name} with fmpy")
         problems = validate_fmu(str(path))
         if problems:
             raise BuildError(f"fmpy rejects the FMI {version} FMU {path}: " + "; ".join(problems))

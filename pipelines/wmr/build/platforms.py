@@ -16,10 +16,11 @@ import re
 import shutil
 import subprocess
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from wmr.infra.errors import BuildError
+from wmr.infra.errors import BuildError, ConfigError
 
 #: The oldest glibc the Linux binaries may need (RHEL/CentOS 7).
 GLIBC_FLOOR = (2, 17)
@@ -102,6 +103,8 @@ class Compiler:
     cross: bool
 
     def platforms(self) -> tuple[Platform, ...]:
+        """Every platform this compiler builds: all of :data:`PLATFORMS` for zig, the host's
+        for a host compiler."""
         if self.cross:
             return PLATFORMS
         host = host_platform()
@@ -111,6 +114,23 @@ class Compiler:
                 f"{_host.machine()}: pip install ziglang, or compile the FMU's sources/ folder "
                 "with your C compiler")
         return (host,)
+
+    def targets(self, requested: Sequence[Platform] | None) -> tuple[Platform, ...]:
+        """The platforms to build of ``requested`` (None: every platform it can build).
+
+        Raises
+        ------
+        BuildError
+            When a host compiler is asked for another platform than the host's.
+        """
+        own = self.platforms()
+        if requested is None:
+            return own
+        other = [p.name for p in requested if p not in own]
+        if other:
+            raise BuildError(f"{self.command[0]} builds {', '.join(p.name for p in own)} only, "
+                             f"not {', '.join(other)}: pip install ziglang (every platform)")
+        return tuple(requested)
 
     def argv(self, target: Platform, sources: list[Path], include_dirs: list[Path],
              output: Path) -> list[str]:
@@ -149,15 +169,55 @@ def zig_compiler() -> Compiler | None:
     return Compiler((*command, "cc"), "zig " + _version_line([*command, "version"]), cross=True)
 
 
-def find_compiler(cc: str | None = None) -> Compiler:
+def parse_platforms(choice: str | Sequence[str]) -> tuple[Platform, ...] | None:
+    """The platforms of a ``--platforms`` choice: None for ``"all"`` (every platform the
+    compiler builds), the host's for ``"host"``, else the FMI 3 names given as a sequence or as
+    one comma-separated string (``"x86_64-linux,x86_64-windows"``), in :data:`PLATFORMS`
+    order.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown name, an empty list, or ``"host"`` on a platform the FMUs do not have.
+    """
+    names = [n.strip() for n in (choice.split(",") if isinstance(choice, str) else choice)]
+    names = [n for n in names if n]
+    fix = f"give host, all or a comma-separated list of {', '.join(PLATFORM_BY_NAME)}"
+    if not names:
+        raise ConfigError("platforms", "is empty", fix)
+    if names == ["all"]:
+        return None
+    chosen: set[Platform] = set()
+    for name in names:
+        if name == "host":
+            host = host_platform()
+            if host is None:
+                raise ConfigError("platforms", f"this host ({_host.system()} "
+                                  f"{_host.machine()}) is none of the FMUs' platforms", fix)
+            chosen.add(host)
+        elif name in PLATFORM_BY_NAME:
+            chosen.add(PLATFORM_BY_NAME[name])
+        else:
+            raise ConfigError("platforms", f"unknown platform {name!r}", fix)
+    return tuple(p for p in PLATFORMS if p in chosen)
+
+
+def find_compiler(cc: str | None = None,
+                  platforms: Sequence[Platform] | None = None) -> Compiler:
     """The compiler for a build: ``cc`` if given (``"zig"`` or a host compiler such as
-    ``"gcc"``), else zig when installed, else the host's gcc.
+    ``"gcc"``); else, for the host platform alone, the host's gcc when it is on PATH (seconds,
+    where zig first builds its C libraries for the target, which takes minutes); else zig when
+    installed, else the host's gcc.
 
     Raises
     ------
     BuildError
         When the compiler asked for (or any, with ``cc=None``) is not there.
     """
+    host = host_platform()
+    if (cc is None and platforms is not None and host is not None and host.binary_format == "ELF"
+            and tuple(platforms) == (host,) and shutil.which("gcc") is not None):
+        cc = "gcc"
     if cc in (None, "zig"):
         zig = zig_compiler()
         if zig is not None:

@@ -10,10 +10,13 @@ import signal
 import sys
 from collections.abc import Callable, Sequence
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from wmr import __version__
 from wmr.infra.errors import ConfigError, DiskFullError, WmrError
+
+if TYPE_CHECKING:
+    from wmr.build.fmus import BuildResult
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -80,13 +83,42 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {error_line(Exception(message))}\n")
 
 
+def build_progress(line: str) -> None:
+    """A build's progress line on standard error (standard output is for results)."""
+    print(f"wmr: {line}", file=sys.stderr, flush=True)
+
+
+def add_platforms_option(parser: argparse.ArgumentParser) -> None:
+    """``--platforms host|all|LIST`` of the commands that build FMUs for other tools."""
+    parser.add_argument(
+        "--platforms", metavar="host|all|LIST", default="all",
+        help="binaries to build: all (default: x86_64-linux, aarch64-linux, x86_64-windows, "
+             "x86_64-darwin, aarch64-darwin with the ziglang package, the host with gcc), "
+             "host (this machine only: seconds), or a comma-separated list of those names")
+
+
+def build_for(args: argparse.Namespace, out: str | None) -> BuildResult:
+    """The FMUs for a command's ``--platforms``, reporting progress; an unknown platform or
+    a folder that cannot be made is the option's one-line error."""
+    from wmr.build.fmus import build_fmus
+
+    try:
+        return build_fmus(out, force=getattr(args, "force", False), platforms=args.platforms,
+                          on_build=build_progress)
+    except ConfigError as exc:
+        option = {"platforms": "--platforms", "out_dir": "--out"}.get(exc.field)
+        if option is None:
+            raise
+        raise ConfigError(option, exc.problem, exc.fix) from None
+
+
 def _cmd_fmu_build(args: argparse.Namespace) -> int:
-    from wmr.build.fmus import build_fmus, summarize
+    from wmr.build.fmus import summarize
     from wmr.infra.outputs import check_output
 
     if args.out is not None:
         check_output(args.out, "--out", "dir")
-    result = build_fmus(args.out, force=args.force)
+    result = build_for(args, args.out)
     # Standard output stays one path a line (scripts read it); what each FMU offers goes to
     # standard error.
     for fmu in [result.fmus[v] for v in sorted(result.fmus)] + \
@@ -115,11 +147,16 @@ def build_parser() -> argparse.ArgumentParser:
         "build", help="build (or reuse, if nothing changed) the robot and controller FMUs",
         description="Build the robot's and the controller's FMI 2.0 and FMI 3.0 FMUs (the robot "
                     "with co-simulation and model exchange) and print their paths, one a line "
-                    "(standard error says what each offers: FMI version, interfaces, platforms). "
-                    "With the ziglang package the binaries cover x86_64-linux, aarch64-linux, "
-                    "x86_64-windows, x86_64-darwin and aarch64-darwin; with gcc, the host only.")
+                    "(standard error says what each offers: FMI version, interfaces, platforms, "
+                    "and each step of a build). With the ziglang package the binaries cover "
+                    "x86_64-linux, aarch64-linux, x86_64-windows, x86_64-darwin and "
+                    "aarch64-darwin (Zig's first use on a machine builds its C libraries: "
+                    "minutes); with gcc, the host only. wmr run builds for the host only, in "
+                    "its own cache folder.")
     build.add_argument("--out", metavar="DIR", default=None,
-                       help="output folder (default: ~/.cache/wmr-cosim/fmu)")
+                       help="output folder (default: ~/.cache/wmr-cosim/fmu for all "
+                            "platforms, fmu-PLATFORM[+PLATFORM...] beside it for fewer)")
+    add_platforms_option(build)
     build.add_argument("--force", action="store_true", help="rebuild even if nothing changed")
     build.add_argument("-v", "--verbose", action="store_true", help="say whether it rebuilt")
     build.set_defaults(handler=_cmd_fmu_build)

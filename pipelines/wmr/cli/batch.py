@@ -126,7 +126,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
         raise ConfigError("--max-plots", f"must be >= 0, got {args.max_plots}",
                           "give e.g. --max-plots 8, or 0 for no input plots")
     check_output(Path(args.dir) / "report", "DIR", "dir")
-    print(write_report(Path(args.dir), max_plots=args.max_plots))
+    print(write_report(Path(args.dir), max_plots=args.max_plots,
+                       progress=lambda line: print(f"wmr: {line}", file=sys.stderr, flush=True)))
     return 0
 
 

@@ -10,9 +10,9 @@ from pathlib import Path
 
 def _cmd(args: argparse.Namespace) -> int:
     from wmr.build.crosscheck import write_crosscheck
-    from wmr.build.fmus import build_fmus
+    from wmr.cli import build_for
 
-    entries = write_crosscheck(build_fmus(args.fmu_dir), Path(args.out))
+    entries = write_crosscheck(build_for(args, args.fmu_dir), Path(args.out))
     # One exported-FMU folder a line on standard output, as `wmr fmu build` prints its FMUs;
     # what fmpy's re-import made of each on standard error.
     for entry in entries:
@@ -27,6 +27,8 @@ def _cmd(args: argparse.Namespace) -> int:
 
 def register(fmu_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add ``crosscheck`` to the ``wmr fmu`` actions."""
+    from wmr.cli import add_platforms_option
+
     parser = fmu_sub.add_parser(
         "crosscheck", help="write the FMUs with reference results in the FMI Cross-Check layout",
         description="Build (or reuse) the FMUs and write, for each FMI version, interface and "
@@ -38,4 +40,5 @@ def register(fmu_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
     parser.add_argument("--out", metavar="DIR", required=True, help="folder to write into")
     parser.add_argument("--fmu-dir", metavar="DIR", default=None,
                         help="where the FMUs are built or reused (default: the cache)")
+    add_platforms_option(parser)
     parser.set_defaults(handler=_cmd)

@@ -26,6 +26,11 @@ def _fmu_path(args: argparse.Namespace) -> Path:
     return Path(args.fmu) if args.fmu else default_fmu(args.fmi)
 
 
+def _progress(line: str) -> None:
+    """A long step's progress line on standard error (standard output is for results)."""
+    print(f"wmr: {line}", file=sys.stderr, flush=True)
+
+
 def _json_line(obj: Any) -> str:
     """One line of JSON, NaN/inf as null."""
 
@@ -108,7 +113,7 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
         record = optimal_to_log(start, goal, out, _fmu_path(args), name=name,
                                 objective=args.objective, torque_limit_nm=args.torque_limit,
                                 torque_only=args.torque_only, final_time_s=args.final_time,
-                                period_s=args.period)
+                                period_s=args.period, progress=_progress)
     except ConfigError as exc:
         raise _as_flag(exc) from None
     if args.json:
@@ -118,7 +123,7 @@ def _cmd_optimal(args: argparse.Namespace) -> int:
             print(f"solved: T = {record['final_time_s']:.3f} s, path "
                   f"{record['path_length_m']:.2f}"
                   f" m; FMU replay ends {record['final_position_error_m']:.4f} m and "
-                  f"{math.degrees(abs(record['final_heading_error_rad'])):.3f} deg from the "
+                  f"{math.degrees(record['final_heading_error_rad']):.3f} deg from the "
                   f"goal; log {out}")
         else:
             print(f"{record['status']}: {record['message']}")
@@ -168,6 +173,28 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------- tune
 
 
+class _TuneProgress:
+    """``tune``'s progress: the first evaluation, then one line at least every
+    ``interval_s`` (each evaluation runs every case), and the last."""
+
+    def __init__(self, controller: str, budget: int, cases: int,
+                 interval_s: float = 5.0) -> None:
+        import time
+
+        self.controller, self.budget, self.cases = controller, budget, cases
+        self.interval_s = interval_s
+        self.clock = time.monotonic
+        self.last = -math.inf
+        _progress(f"tune {controller}: up to {budget} evaluations of {cases} runs each")
+
+    def __call__(self, evaluation: int, cost_s: float, best_s: float) -> None:
+        now = self.clock()
+        if now - self.last >= self.interval_s or evaluation >= self.budget:
+            self.last = now
+            _progress(f"tune {self.controller}: evaluation {evaluation}/{self.budget}, "
+                      f"objective {cost_s:.3f} s (best {best_s:.3f} s)")
+
+
 def _cmd_tune(args: argparse.Namespace) -> int:
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.apps.benchmark import run_optimal
@@ -194,11 +221,13 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     with FmuPlant(_fmu_path(args)) as plant:
         opt_times: list[float | None] = []
         if not args.no_optimal:
-            for s in specs:
+            for i, s in enumerate(specs, 1):
+                _progress(f"tune: the optimal time of {s.name} ({i}/{len(specs)})")
                 o = run_optimal(s, plant, None)
                 opt_times.append(o.final_time_s)
         for c in controllers:
-            res = tune(c, specs, plant, budget=budget)
+            res = tune(c, specs, plant, budget=budget,
+                       progress=_TuneProgress(c, budget, len(specs)))
             saved[c] = res.gains
             gains = ", ".join(f"{k} = {v:.4g}" for k, v in res.gains.items())
             start = ", ".join(f"{k} = {v:.4g}" for k, v in res.start_gains.items())

@@ -30,6 +30,18 @@ MAX_FINAL_TIME_S: Final = 600.0
 #: and N = 60: intervals of 0.95 s (d = 50 m) replay 1.2 cm from the goal, 1.9 s (100 m)
 #: 9 cm, 3.8 s (200 m) 2.7 m; at 400 m IPOPT no longer converges.
 MAX_INTERVAL_S: Final = 1.0
+#: A goal within this distance of the start (m) is a turn on the spot: forward only
+#: (``allow_reverse=False``) then bounds v >= -:data:`SPOT_TURN_CREEP_MPS` instead of v >= 0.
+#: A spot turn's optimum has v = 0 at every node, on the bound v >= 0, and the goal position
+#: then pins x and y at the end as well: the constraints are degenerate and IPOPT failed
+#: (Maximum_Iterations_Exceeded after 1000-1900 iterations) on every spot turn from 10 to 90 deg
+#: either way.  With the creep allowed, every turn from 10 to 180 deg solves in 10-20
+#: iterations (benchmarks/short_manoeuvres.py, docs/optimal.md).
+SPOT_TURN_RADIUS_M: Final = 0.1
+#: The backward speed a spot turn may use, m/s.  Its optimum rocks by a few cm/s and ends
+#: within millimetres of the start; reversing at 5 cm/s grows omega at m l |v| / J_B = 0.13 1/s,
+#: harmless over the 1-3 s of a turn (the open-loop replay on the FMU ends within 1 cm).
+SPOT_TURN_CREEP_MPS: Final = 0.05
 #: What the message of a failed solve advises (the command line replaces it: these are
 #: arguments of the Python function, not options of ``wmr optimal``).
 FAILED_ADVICE: Final = "try more n_intervals, warm_start=True or a larger max_iter/max_cpu_time_s"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -16,6 +17,8 @@ from wmr.adapters.ocp.problem import (
     MIN_FINAL_TIME_S,
     OBJECTIVES,
     SAME_POSE_TOL,
+    SPOT_TURN_CREEP_MPS,
+    SPOT_TURN_RADIUS_M,
     FloatArray,
     Objective,
     OptimalLimits,
@@ -24,7 +27,7 @@ from wmr.adapters.ocp.problem import (
     _optional_limit,
 )
 from wmr.adapters.ocp.result import OptimalResult, _empty_result
-from wmr.adapters.ocp.transcription import _Nlp, _nlp, _solve_nlp
+from wmr.adapters.ocp.transcription import _Nlp, _nlp, _nlp_built, _solve_nlp
 from wmr.adapters.ocp.warmstart import _cold_guess, _kinematic_guess, _wrap
 from wmr.core.plant import Pose, RobotParams
 from wmr.infra.errors import ConfigError
@@ -121,11 +124,21 @@ def _check_arguments(start: Pose, goal: Pose, params: RobotParams, objective: Ob
     return start, goal, limits
 
 
+def _reverse_creep_mps(start: Pose, goal: Pose, allow_reverse: bool) -> float:
+    """How far below 0 a forward-only manoeuvre may take v: :data:`SPOT_TURN_CREEP_MPS` for a
+    turn on the spot (goal within :data:`SPOT_TURN_RADIUS_M`), else 0."""
+    if allow_reverse:
+        return math.inf
+    d = math.hypot(goal.x_m - start.x_m, goal.y_m - start.y_m)
+    return SPOT_TURN_CREEP_MPS if d < SPOT_TURN_RADIUS_M else 0.0
+
+
 def _bounds(nlp: _Nlp, start: Pose, goal: Pose, params: RobotParams, limits: OptimalLimits,
             allow_reverse: bool, T_fixed: float | None,
             ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Bounds of the NLP's variables and constraints: the start and the goal at rest, the
-    limits, forward only unless ``allow_reverse``, and the final time."""
+    limits, forward only unless ``allow_reverse`` (but for the creep of a turn on the spot,
+    :func:`_reverse_creep_mps`), and the final time."""
     m = _model()
     n = nlp.n
     nx = nlp.nx
@@ -140,8 +153,9 @@ def _bounds(nlp: _Nlp, start: Pose, goal: Pose, params: RobotParams, limits: Opt
     if limits.v_max_mps is not None:
         lx[m.sx("v"), 1:n] = -limits.v_max_mps
         ux[m.sx("v"), 1:n] = limits.v_max_mps
-    if not allow_reverse:
-        lx[m.sx("v"), 1:n] = 0.0
+    creep = _reverse_creep_mps(start, goal, allow_reverse)
+    if math.isfinite(creep):
+        lx[m.sx("v"), 1:n] = np.maximum(lx[m.sx("v"), 1:n], -creep)
     if limits.omega_max_radps is not None:
         lx[m.sx("omega"), 1:n] = -limits.omega_max_radps
         ux[m.sx("omega"), 1:n] = limits.omega_max_radps
@@ -177,6 +191,7 @@ def solve_optimal(
     rk_substeps: int = DEFAULT_RK_SUBSTEPS,
     max_iter: int = 1000,
     max_cpu_time_s: float = 60.0,
+    progress: Callable[[str], None] | None = None,
 ) -> OptimalResult:
     r"""The optimal rest-to-rest manoeuvre from ``start`` to ``goal`` under the limits.
 
@@ -211,6 +226,9 @@ def solve_optimal(
         the centre of gravity ahead of the axle (``l > 0``) driving backward is open-loop
         unstable (:math:`\dot\omega = m l |v| \omega / J_B + \dots`), so a replay of a
         reversing optimum on the FMU drifts away from the goal.
+        A turn on the spot (goal within :data:`SPOT_TURN_RADIUS_M` of the start) may still
+        reverse at up to :data:`SPOT_TURN_CREEP_MPS`: with v >= 0 its optimum sits on the bound
+        at every node and IPOPT does not converge.
     limits
         All limits at once (e.g. ``OptimalLimits.like(closed_loop_limits)``); overrides the four
         ``*_limit_*`` arguments.
@@ -220,6 +238,10 @@ def solve_optimal(
         RK4 steps per interval.
     max_iter, max_cpu_time_s
         IPOPT's iteration and CPU-time limits: a solve never hangs.
+    progress
+        Called with a line (IPOPT's iteration, T, the objective) at least every
+        :data:`~wmr.adapters.ocp.transcription.PROGRESS_INTERVAL_S` while IPOPT runs, and when
+        a failed solve is retried from the cold start; None: silent.
 
     Returns
     -------
@@ -265,6 +287,8 @@ def solve_optimal(
                              math.nan)
 
     n = n_intervals
+    if progress is not None and not _nlp_built(n, rk_substeps, max_iter, float(max_cpu_time_s)):
+        progress(f"building the NLP on {n} intervals (once per process)")
     nlp = _nlp(n, rk_substeps, max_iter, float(max_cpu_time_s))
     p = m.param_vector(params, start)
     guess = (_kinematic_guess(start, goal, params, limits, n, T_fixed, p, allow_reverse)
@@ -275,12 +299,20 @@ def solve_optimal(
     pn = np.concatenate([p, [goal.heading_rad, w_t, w_e]])
 
     first = _solve_nlp(nlp, guess, lbx, ubx, lbg, ubg, pn, objective, start, goal, params,
-                       limits, rk_substeps, T_fixed)
+                       limits, rk_substeps, T_fixed, progress)
+    creep = _reverse_creep_mps(start, goal, allow_reverse)
+    if 0.0 < creep < math.inf:
+        first.message += f" (a turn on the spot: reversing up to {creep:g} m/s allowed)"
+        first.extra["reverse_creep_mps"] = creep
     if first.status == "solved" or not warm_start:
         return first
     # a local failure from the kinematic guess: one retry from the cold guess
+    if progress is not None:
+        progress(f"IPOPT: {first.return_status} from the warm start after "
+                 f"{first.solve_time_s:.0f} s; retrying from the cold start")
     second = _solve_nlp(nlp, _cold_guess(start, goal, params, n, T_fixed), lbx, ubx, lbg, ubg,
-                        pn, objective, start, goal, params, limits, rk_substeps, T_fixed)
+                        pn, objective, start, goal, params, limits, rk_substeps, T_fixed,
+                        progress)
     second.solve_time_s += first.solve_time_s
     second.iterations += first.iterations
     if second.status == "solved":

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -26,16 +27,81 @@ from wmr.adapters.ocp.result import OptimalResult, _integrals
 from wmr.adapters.ocp.warmstart import _Guess
 from wmr.core.plant import Pose, RobotParams
 
+#: Longest silence of a solve, s: IPOPT's iteration, the final time and the objective are
+#: reported at least this often to the ``progress`` of :func:`wmr.adapters.ocp.solve_optimal`.
+PROGRESS_INTERVAL_S = 5.0
+
+
+class _IterationReport(ca.Callback):
+    """IPOPT's ``iteration_callback``: a line to ``receiver`` every :data:`PROGRESS_INTERVAL_S`
+    of a solve (a failing one grinds for up to ``max_cpu_time_s``).  One per NLP, which is
+    cached, so the receiver is set for each solve by :func:`_solve_nlp`."""
+
+    def __init__(self, n_w: int, n_g: int) -> None:
+        ca.Callback.__init__(self)
+        self.n_w, self.n_g = n_w, n_g
+        self.receiver: Callable[[str], None] | None = None
+        self.iteration = 0
+        self.t0 = self.last = 0.0
+        self.construct("wmr_ocp_progress", {})
+
+    def start(self, receiver: Callable[[str], None] | None) -> None:
+        self.receiver = receiver
+        self.iteration = 0
+        self.t0 = self.last = time.monotonic()
+
+    def get_n_in(self) -> int:
+        return int(ca.nlpsol_n_out())
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return str(ca.nlpsol_out(i))
+
+    def get_name_out(self, i: int) -> str:
+        return "ret"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        name = ca.nlpsol_out(i)
+        if name == "f":
+            return ca.Sparsity.scalar()
+        if name in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.n_w)
+        if name in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.n_g)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg: list[ca.DM]) -> list[int]:
+        self.iteration += 1
+        now = time.monotonic()
+        if self.receiver is not None and now - self.last >= PROGRESS_INTERVAL_S:
+            self.last = now
+            w = arg[ca.nlpsol_out().index("x")]
+            f = float(arg[ca.nlpsol_out().index("f")])
+            self.receiver(f"IPOPT: iteration {self.iteration} ({now - self.t0:.0f} s), "
+                          f"T = {float(w[-1]):.3f} s, objective {f:.4g}")
+        return [0]
+
 
 @dataclass(frozen=True)
 class _Nlp:
     solver: ca.Function
+    report: _IterationReport
     n: int
     nx: int
     nu: int
     n_x: int  # number of state variables in w
     n_u: int
     n_g_dyn: int
+
+
+def _nlp_built(n: int, substeps: int, max_iter: int, max_cpu_time_s: float) -> bool:
+    """Whether :func:`_nlp` has these arguments cached (a new NLP takes seconds to build)."""
+    return any(key == (n, substeps, max_iter, max_cpu_time_s) for key in _BUILT)
+
+
+_BUILT: list[tuple[int, int, int, float]] = []
 
 
 @lru_cache(maxsize=16)
@@ -67,7 +133,9 @@ def _nlp(n: int, substeps: int, max_iter: int, max_cpu_time_s: float) -> _Nlp:
     g = ca.vertcat(dyn, ca.sin(dth), ca.cos(dth), wheels)
     J = w_t * T + w_e * h * ca.sumsqr(U)
     w = ca.vertcat(ca.vec(X), ca.vec(U), T)
+    report = _IterationReport(w.numel(), g.numel())
     opts: dict[str, Any] = {
+        "iteration_callback": report,
         "expand": True,
         "print_time": False,
         # IPOPT recovers from a NaN in a trial step by itself; CasADi's warning per NaN
@@ -79,19 +147,25 @@ def _nlp(n: int, substeps: int, max_iter: int, max_cpu_time_s: float) -> _Nlp:
                   "acceptable_tol": 1e-6, "acceptable_iter": 10},
     }
     solver = ca.nlpsol("wmr_ocp", "ipopt", {"x": w, "p": P, "f": J, "g": g}, opts)
-    return _Nlp(solver, n, nx, nu, nx * (n + 1), nu * n, nx * n)
+    _BUILT.append((n, substeps, max_iter, max_cpu_time_s))
+    return _Nlp(solver, report, n, nx, nu, nx * (n + 1), nu * n, nx * n)
 
 
 def _solve_nlp(nlp: _Nlp, guess: _Guess, lbx: FloatArray, ubx: FloatArray, lbg: FloatArray,
                ubg: FloatArray, pn: FloatArray, objective: Objective, start: Pose, goal: Pose,
                params: RobotParams, limits: OptimalLimits, rk_substeps: int,
-               T_fixed: float | None) -> OptimalResult:
-    """One IPOPT run from ``guess``, classified."""
+               T_fixed: float | None,
+               progress: Callable[[str], None] | None = None) -> OptimalResult:
+    """One IPOPT run from ``guess``, classified; ``progress`` hears of it while it runs."""
     m = _model()
     n, nx = nlp.n, nlp.nx
     w0 = np.clip(guess.w0, lbx, ubx)
     t0 = time.perf_counter()
-    sol = nlp.solver(x0=w0, p=pn, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    nlp.report.start(progress)
+    try:
+        sol = nlp.solver(x0=w0, p=pn, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    finally:
+        nlp.report.start(None)
     solve_time = time.perf_counter() - t0
     stats = nlp.solver.stats()
     ret = str(stats.get("return_status", "unknown"))

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Final
 
@@ -145,7 +145,12 @@ def _plot_spread(columns: dict[str, NDArray[np.float64]], ok: NDArray[np.bool_],
     plt.close(fig)
 
 
-def write_report(batch_dir: Path, max_plots: int = 8) -> Path:
+def _silent(line: str) -> None:
+    """The progress receiver of a report nobody watches."""
+
+
+def write_report(batch_dir: Path, max_plots: int = 8,
+                 progress: Callable[[str], None] = _silent) -> Path:
     """Write ``batch_dir/report/report.md`` and its plots from the batch's summary.
 
     Parameters
@@ -154,6 +159,9 @@ def write_report(batch_dir: Path, max_plots: int = 8) -> Path:
         A folder written by ``wmr batch``.
     max_plots
         Plot at most this many varied inputs.
+    progress
+        Called with a line before each step (reading the summary, each plot): a report with
+        many plots takes seconds.
 
     Returns
     -------
@@ -165,6 +173,7 @@ def write_report(batch_dir: Path, max_plots: int = 8) -> Path:
     ConfigError
         No summary in ``batch_dir``.
     """
+    progress(f"report: reading {batch_dir / SUMMARY_PARQUET}")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -196,6 +205,7 @@ def write_report(batch_dir: Path, max_plots: int = 8) -> Path:
     lines += [f"| {s} | {c} | {100.0 * c / n:.1f} % |" for s, c in counts.items()]
     lines += ["", f"**Success rate: {rate:.1f} %** ({int(ok.sum())}/{n} converged).", "",
               "![runs per status](status.png)", ""]
+    progress("report: plotting the runs per status")
     _plot_status(counts, out / "status.png")
 
     lines += ["## Spread over the converged runs", "",
@@ -210,12 +220,15 @@ def write_report(batch_dir: Path, max_plots: int = 8) -> Path:
         lines.append(f"| {label} | " + " | ".join(_fmt(float(v)) for v in q)
                      + f" | {_fmt(float(y.mean()))} | {_fmt(float(y.std()))} |")
     lines += ["", "![spread](spread.png)", ""]
+    progress("report: plotting the spread of the metrics")
     _plot_spread(cols, ok, out / "spread.png")
 
     varied = varied_inputs(table)
     if varied:
         lines += ["## Against the varied inputs", ""]
-        for name in varied[:max_plots]:
+        shown = varied[:max_plots]
+        for i, name in enumerate(shown, 1):
+            progress(f"report: plotting against {name} ({i}/{len(shown)})")
             x = _floats(table, name)
             png = f"vs_{_safe(name)}.png"
             rates = _plot_against(name, x, ok, status, cols["time_to_goal_s"],
@@ -230,6 +243,7 @@ def write_report(batch_dir: Path, max_plots: int = 8) -> Path:
             lines += [f"Not plotted (over --max-plots): {', '.join(varied[max_plots:])}.", ""]
     from wmr.apps.sensing_study import sensing_section
 
+    progress("report: the sensing study, if the batch varies the sensors")
     lines += sensing_section(table, out)
     bad = [i for i, s in enumerate(status) if s != "converged"]
     if bad:
