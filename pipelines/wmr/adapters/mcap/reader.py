@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import io
+import json
 import math
 import os
+import re
+import stat
 import struct
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import IO, Any, NamedTuple
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 from google.protobuf.message import DecodeError
@@ -19,14 +22,10 @@ from mcap.opcode import Opcode
 from mcap.records import (
     Attachment,
     Channel,
-    Chunk,
-    DataEnd,
-    Footer,
     Message,
     Metadata,
     Schema,
 )
-from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
@@ -43,6 +42,7 @@ from wmr.adapters.mcap.schemas import (
 )
 from wmr.adapters.mcap.writer import MAGIC
 from wmr.core.signals import SIGNALS
+from wmr.infra.durable import partial_path
 from wmr.infra.errors import LogError
 
 
@@ -110,10 +110,76 @@ class RunData:
         )
 
 
-class _Scan:
+try:
+    from zstandard import ZstdError
+except ImportError:  # pragma: no cover - zstandard comes with mcap
+
+    class ZstdError(Exception):  # type: ignore[no-redef]
+        """Placeholder when zstandard is absent."""
+
+
+#: What a damaged record raises inside mcap (lz4 raises RuntimeError).
+_DAMAGE = (McapError, ZstdError, struct.error, ValueError, EOFError, RuntimeError, MemoryError)
+
+
+@dataclass(frozen=True)
+class ReadLimits:
+    """How much a log may make the reader hold or do: a file from anyone stays bounded.
+
+    A log beyond a limit is still read up to it, with a warning naming the limit; raise a
+    limit (``read_run(path, limits=ReadLimits(total_bytes=...))``) to read a larger log.
+
+    Attributes
+    ----------
+    chunk_bytes
+        Largest chunk, uncompressed (its declared ``uncompressed_size``, and the bytes
+        inflated, counted while decompressing), bytes.  Our chunks hold 1 s of a run
+        (about 100 kB); ``mcap``'s own writer makes 1 MiB ones.
+    record_bytes
+        Largest record outside a chunk (an attachment, a metadata record), bytes.
+    total_bytes
+        Everything kept: chunks inflated, attachments, metadata, and 100 bytes per message
+        for its Python objects, bytes.  A 60 s run at 100 Hz keeps about 80 MB.
+    records
+        Records outside chunks other than messages (indexes, schemas, unknown opcodes).
+    json_bytes, json_depth
+        Largest metadata value decoded as JSON (characters), and its deepest nesting.
+    """
+
+    chunk_bytes: int = 64 << 20
+    record_bytes: int = 64 << 20
+    total_bytes: int = 512 << 20
+    records: int = 1_000_000
+    json_bytes: int = 1 << 20
+    json_depth: int = 64
+
+
+#: The limits used when none are given.
+DEFAULT_LIMITS: Final = ReadLimits()
+#: Python objects of one kept message (tuple, bytes header, list slot), bytes.
+_MESSAGE_OVERHEAD: Final = 100
+#: Largest log time that fits the int64 ns of :class:`RunData` (year 2262).
+MAX_LOG_TIME_NS: Final = (1 << 63) - 1
+_HEAD: Final = struct.Struct("<BQ")
+_MSG_HEAD: Final = struct.Struct("<HIQ")
+#: Chunk fields: start and end time, uncompressed size and CRC, length of the compression name.
+_CHUNK_HEAD: Final = struct.Struct("<QQQII")
+
+
+def _mib(n: int) -> str:
+    return f"{n / (1 << 20):.0f} MiB"
+
+
+class _Stop(Exception):
+    """The records cannot be followed past this point (cut file, broken framing)."""
+
+
+class LogScan:
     """Everything collected while walking the records of a file."""
 
-    def __init__(self) -> None:
+    def __init__(self, limits: ReadLimits, keep_chunks: bool) -> None:
+        self.limits = limits
+        self.keep_chunks = keep_chunks
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
         self.messages: dict[int, list[tuple[int, bytes]]] = {}
@@ -129,57 +195,179 @@ class _Scan:
         self.chunks: list[bytes] = []
         #: Message records outside chunks, whole (for recovery).
         self.loose: list[Message] = []
+        #: Bytes kept so far, counted against ``limits.total_bytes``.
+        self.kept_bytes = 0
+        self.over_budget = False
+        self.records = 0
+        #: Messages left out because their log time does not fit int64 ns, by channel id.
+        self.bad_times: dict[int, int] = {}
+        #: Where the summary section starts (after Data End), 0 before.
+        self.summary_start = 0
 
     def damage(self, what: str) -> None:
         self.damaged = True
         self.warnings.append(what)
 
-    def add_message(self, channel_id: int, log_time: int, data: bytes) -> None:
-        self.messages.setdefault(channel_id, []).append((log_time, data))
+    def charge(self, n_bytes: int, what: str) -> bool:
+        """Count ``n_bytes`` against the budget; False (and one warning) once it is spent."""
+        if self.kept_bytes + n_bytes > self.limits.total_bytes:
+            if not self.over_budget:
+                self.over_budget = True
+                self.damage(f"the log holds more than {_mib(self.limits.total_bytes)} "
+                            f"(ReadLimits.total_bytes): read stops at {what}; give a higher "
+                            "limit to read it all")
+            return False
+        self.kept_bytes += n_bytes
+        return True
+
+    def add_message_time(self, channel_id: int, log_time: int) -> bool:
+        """False (counted in ``bad_times``) for a log time that does not fit int64 ns."""
+        if log_time > MAX_LOG_TIME_NS:
+            self.bad_times[channel_id] = self.bad_times.get(channel_id, 0) + 1
+            return False
+        return True
+
+    def add_messages(self, messages: list[tuple[int, int, bytes]]) -> None:
+        """Keep ``(channel id, log time, data)`` messages, by channel."""
+        for cid, log_time, data in messages:
+            if self.add_message_time(cid, log_time):
+                self.messages.setdefault(cid, []).append((log_time, data))
 
 
-try:
-    from zstandard import ZstdError
-except ImportError:  # pragma: no cover - zstandard comes with mcap
+class _LogFile:
+    """A log opened for reading: sequential reads with a running CRC, bounded by its size."""
 
-    class ZstdError(Exception):  # type: ignore[no-redef]
-        """Placeholder when zstandard is absent."""
+    def __init__(self, name: str, fd: int, size: int) -> None:
+        self.name = name
+        self.fd = fd
+        self.size = size
+        self.pos = 0
+        self.crc = 0
+        #: False once bytes were skipped unread (the running CRC then proves nothing).
+        self.crc_whole = True
+        self._f = open(fd, "rb", buffering=1 << 16, closefd=False)
+
+    def read(self, n: int) -> bytes:
+        data = self._f.read(n)
+        if len(data) != n:  # the file shrank under us, or ends inside a record
+            raise _Stop(f"the file ends inside the record at byte {self.pos}")
+        self.crc = zlib.crc32(data, self.crc)
+        self.pos += n
+        return data
+
+    def skip(self, n: int) -> None:
+        """Seek past ``n`` bytes without reading them (a damaged or oversized record)."""
+        self._f.seek(n, io.SEEK_CUR)
+        self.pos += n
+        self.crc_whole = False
+
+    def close(self) -> None:
+        self._f.close()
+        os.close(self.fd)
+
+    def __enter__(self) -> _LogFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
-#: What a cut or damaged file raises inside mcap (lz4 raises RuntimeError).
-_DAMAGE = (McapError, ZstdError, struct.error, ValueError, EOFError, RuntimeError, MemoryError)
+_KINDS: Final = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe (FIFO)"),
+                 (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                 (stat.S_ISSOCK, "a socket"))
 
 
-def _records(stream: IO[bytes], size: int) -> Iterator[Any]:
-    reader = StreamReader(stream, emit_chunks=True, record_size_limit=max(size, 1024))
-    yield from reader.records
+def _not_regular(name: str, mode: int) -> LogError:
+    kind = next((k for test, k in _KINDS if test(mode)), "not a regular file")
+    return LogError(f"{name}: is {kind}, not a log file; give an .mcap file")
 
 
-def _chunk_messages(chunk: Chunk, scan: _Scan) -> list[tuple[int, int, bytes]]:
-    """The Message records of a chunk as ``(channel id, log time, data)``.
+def open_log(name: str) -> _LogFile:
+    """Open the log ``name`` for reading, refusing what is not a regular MCAP file.
 
-    Faster than :func:`mcap.stream_reader.breakup_chunk` (no record objects per message); the
-    uncompressed CRC is checked; Schema and Channel records inside the chunk are kept in
-    ``scan``.  Raises on any inconsistency, so that a damaged chunk is dropped whole.
+    A FIFO or a device is refused before it is opened (opening a FIFO waits for a writer),
+    and checked again once open.
+
+    Raises
+    ------
+    LogError
+        Missing (naming ``NAME.partial`` when a killed run left one), not a regular file,
+        unreadable, empty, or not MCAP.
     """
-    if chunk.compression == "":
-        buf = bytes(chunk.data)
-    else:
-        stream, _ = get_chunk_data_stream(chunk, validate_crc=False)
-        buf = stream.read(chunk.uncompressed_size)
-    if len(buf) != chunk.uncompressed_size:
-        raise McapError(f"chunk size {len(buf)} != {chunk.uncompressed_size}")
-    if chunk.uncompressed_crc and zlib.crc32(buf) != chunk.uncompressed_crc:
-        raise McapError("chunk crc validation failed")
+    try:
+        mode = os.stat(name).st_mode
+    except OSError as exc:
+        hint = ""
+        if isinstance(exc, FileNotFoundError) and partial_path(name).is_file():
+            part = partial_path(name)
+            hint = (f"; the run writing it was killed or is still running: its data is in "
+                    f"{part} (wmr log recover {part})")
+        raise LogError(f"{name}: cannot open the log: {exc.strerror}{hint}") from exc
+    if not stat.S_ISREG(mode):
+        raise _not_regular(name, mode)
+    try:
+        fd = os.open(name, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        raise LogError(f"{name}: cannot open the log: {exc.strerror}") from exc
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):  # replaced between the stat and the open
+        os.close(fd)
+        raise _not_regular(name, st.st_mode)
+    log = _LogFile(name, fd, st.st_size)
+    try:
+        head = os.pread(fd, len(MAGIC), 0)
+        if not head:
+            raise LogError(f"{name}: empty file, not an MCAP log")
+        if head != MAGIC[: len(head)]:
+            raise LogError(f"{name}: not an MCAP file (bad magic bytes)")
+    except BaseException:
+        log.close()
+        raise
+    return log
+
+
+def _inflate(compression: str, data: bytes, size: int) -> bytes:
+    """``data`` decompressed, never more than ``size + 1`` bytes (a bomb stops there)."""
+    if compression == "":
+        return data
+    if compression == "zstd":
+        import zstandard
+
+        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data),
+                                                            read_across_frames=True)
+        parts, got = [], 0
+        while got <= size:
+            part = reader.read(size + 1 - got)
+            if not part:
+                break
+            parts.append(part)
+            got += len(part)
+        return b"".join(parts)
+    if compression == "lz4":
+        import lz4.frame
+
+        return bytes(lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size + 1))
+    raise McapError(f"unknown compression {compression!r}")
+
+
+def _chunk_messages(buf: bytes, scan: LogScan) -> list[tuple[int, int, bytes]]:
+    """The Message records of an inflated, checked chunk as ``(channel id, log time, data)``.
+
+    Faster than :func:`mcap.stream_reader.breakup_chunk` (no record objects per message);
+    Schema and Channel records inside the chunk are kept in ``scan``.  Raises on any
+    inconsistency, so that a damaged chunk is dropped whole.
+    """
     out: list[tuple[int, int, bytes]] = []
     pos, end = 0, len(buf)
-    unpack_head, unpack_msg = struct.Struct("<BQ").unpack_from, struct.Struct("<HIQ").unpack_from
+    unpack_head, unpack_msg = _HEAD.unpack_from, _MSG_HEAD.unpack_from
     while pos < end:
         opcode, length = unpack_head(buf, pos)
         start, pos = pos + 9, pos + 9 + length
         if pos > end:
             raise McapError("record runs past the end of its chunk")
         if opcode == Opcode.MESSAGE:
+            if length < 22:
+                raise McapError("message record too short")
             cid, _, log_time = unpack_msg(buf, start)
             out.append((cid, log_time, buf[start + 22 : pos]))
         elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
@@ -190,97 +378,228 @@ def _chunk_messages(chunk: Chunk, scan: _Scan) -> list[tuple[int, int, bytes]]:
             else:
                 channel = Channel.read(rec)
                 scan.channels[channel.id] = channel
-    scan.chunks.append(buf)
     return out
 
 
-def _check_footer(buf: bytes, footer: Footer, start: int, scan: _Scan) -> None:
-    """Check the summary CRC (summary start to the footer's ``summary_offset_start``)."""
-    if footer.summary_crc == 0 or footer.summary_start == 0:
+def _read_chunk(log: _LogFile, start: int, length: int, scan: LogScan) -> None:
+    """Check a Chunk record's sizes against the limits, inflate it bounded, keep its messages.
+
+    A chunk over a limit is skipped unread; a damaged one is left out whole; the records
+    after either are still read (the chunk's own length frames them).
+    """
+    limits = scan.limits
+    where = f"the chunk at byte {start}"
+    # compressed data never exceeds its uncompressed size by more than the frame overhead
+    if length > limits.chunk_bytes + (1 << 20) or scan.over_budget:
+        log.skip(length)
+        if not scan.over_budget:
+            scan.damage(f"{where} is {length} bytes, above the {_mib(limits.chunk_bytes)} "
+                        "chunk limit (ReadLimits.chunk_bytes): left out")
+        scan.bad_chunks += 1
         return
-    covered = buf[footer.summary_start:start + 9 + 16]
-    if footer.summary_start > start or zlib.crc32(covered) != footer.summary_crc:
-        scan.damage("the summary section is damaged (summary CRC mismatch): "
-                    "read from the data section's records instead")
+    body = log.read(length)
+    try:
+        t0, t1, usize, ucrc, clen = _CHUNK_HEAD.unpack_from(body, 0)
+    except struct.error:
+        scan.damage(f"{where} is damaged (its header is cut): left out")
+        scan.bad_chunks += 1
+        return
+    span = f"its messages from t = {t0 * 1e-9:g} s to {t1 * 1e-9:g} s are left out"
+    if usize > limits.chunk_bytes:
+        scan.damage(f"{where} declares {usize} bytes uncompressed, above the "
+                    f"{_mib(limits.chunk_bytes)} chunk limit (ReadLimits.chunk_bytes; a "
+                    f"decompression bomb?): {span}")
+        scan.bad_chunks += 1
+        return
+    if not scan.charge(usize, f"the chunk at t = {t0 * 1e-9:g} s"):
+        scan.bad_chunks += 1
+        return
+    try:
+        compression = body[32 : 32 + clen].decode()
+        (rlen,) = struct.unpack_from("<Q", body, 32 + clen)
+        data_at = 40 + clen
+        if data_at + rlen > length:
+            raise McapError("its data runs past the end of the record")
+        buf = _inflate(compression, body[data_at : data_at + rlen], usize)
+        del body
+        if len(buf) != usize:
+            raise McapError(f"it inflates to {'more than ' if len(buf) > usize else ''}"
+                            f"{len(buf)} bytes, not the {usize} it declares")
+        if ucrc and zlib.crc32(buf) != ucrc:
+            raise McapError("chunk crc validation failed")
+        messages = _chunk_messages(buf, scan)
+    except _DAMAGE as exc:
+        scan.damage(f"{where} is damaged ({exc or type(exc).__name__}): {span}")
+        scan.bad_chunks += 1
+        return
+    if not scan.charge(_MESSAGE_OVERHEAD * len(messages), f"the chunk at t = {t0 * 1e-9:g} s"):
+        scan.bad_chunks += 1
+        return
+    if scan.keep_chunks:
+        scan.chunks.append(buf)
+    else:
+        scan.add_messages(messages)
 
 
-def _scan(stream: IO[bytes], size: int) -> _Scan:
-    """Walk every record, checking each CRC the file offers.
+def _check_crc(scan: LogScan, log: _LogFile, crc: int, expected: int, what: str,
+               consequence: str) -> None:
+    if not expected:
+        return
+    if not log.crc_whole:
+        scan.warnings.append(f"the {what} CRC was not checked: damaged bytes were skipped")
+    elif crc != expected:
+        scan.damage(f"the {what} is damaged ({what} CRC mismatch){consequence}")
+
+
+#: Records read only for their CRC: indexes, statistics, summary offsets, header, unknown.
+_SKIPPED: Final = frozenset({Opcode.HEADER, Opcode.MESSAGE_INDEX, Opcode.CHUNK_INDEX,
+                             Opcode.ATTACHMENT_INDEX, Opcode.METADATA_INDEX,
+                             Opcode.STATISTICS, Opcode.SUMMARY_OFFSET}) | frozenset(
+    range(0x80, 0x100))
+
+
+def _parse_record(log: _LogFile, opcode: int, start: int, body: bytes, scan: LogScan,
+                  crc_before: int, crc_head: int) -> None:
+    """Keep what a record outside a chunk holds; raises on a damaged record."""
+    rec = ReadDataStream(io.BytesIO(body))
+    if opcode == Opcode.MESSAGE:
+        message = Message.read(rec, len(body))
+        if not scan.charge(len(body) + _MESSAGE_OVERHEAD, f"the message at byte {start}"):
+            return
+        if scan.keep_chunks:
+            if scan.add_message_time(message.channel_id, message.log_time):
+                scan.loose.append(message)
+        else:
+            scan.add_messages([(message.channel_id, message.log_time, message.data)])
+    elif opcode == Opcode.SCHEMA:
+        schema = Schema.read(rec)
+        if not scan.in_summary or schema.id not in scan.schemas:
+            scan.schemas[schema.id] = schema
+    elif opcode == Opcode.CHANNEL:
+        channel = Channel.read(rec)
+        if not scan.in_summary or channel.id not in scan.channels:
+            scan.channels[channel.id] = channel
+    elif opcode == Opcode.METADATA:
+        metadata = Metadata.read(rec)
+        if scan.charge(len(body), f"the metadata record {metadata.name!r}"):
+            scan.metadata[metadata.name] = dict(metadata.metadata)
+    elif opcode == Opcode.ATTACHMENT:
+        attachment = Attachment.read(rec)
+        crc = int.from_bytes(body[-4:], "little")
+        if crc and zlib.crc32(body[:-4]) != crc:
+            scan.damage(f"attachment {attachment.name!r} is damaged (CRC mismatch): left out")
+        elif scan.charge(len(body), f"the attachment {attachment.name!r}"):
+            scan.attachments[attachment.name] = bytes(attachment.data)
+            scan.media_types[attachment.name] = attachment.media_type
+    elif opcode == Opcode.DATA_END:
+        (data_crc,) = struct.unpack_from("<I", body, 0)
+        scan.in_summary = True
+        _check_crc(scan, log, crc_before, data_crc, "data section",
+                   "" if scan.bad_chunks else ": a record outside the chunks (metadata, "
+                   "attachment, schema, channel or index) may be wrong")
+        log.crc, log.crc_whole = 0, True  # the summary's CRC starts here
+        scan.summary_start = log.pos
+    elif opcode == Opcode.FOOTER:
+        summary_start, _, summary_crc = struct.unpack_from("<QQI", body, 0)
+        scan.complete = True
+        if summary_start:
+            # covers the summary and the Footer up to its own summary_crc field
+            crc = zlib.crc32(body[:16], crc_head)
+            if summary_start != scan.summary_start:
+                crc ^= 0xFFFFFFFF  # the footer points elsewhere: it cannot be trusted
+            _check_crc(scan, log, crc, summary_crc, "summary",
+                       ": read from the data section's records instead")
+    # any other opcode was skipped by the caller
+
+
+def _walk(log: _LogFile, scan: LogScan) -> None:
+    """Follow the records of ``log`` to the closing magic; raise :class:`_Stop` where the
+    framing breaks (a record's length is checked against the file before anything is read)."""
+    log.read(len(MAGIC))
+    while not scan.complete:
+        start, crc_before = log.pos, log.crc
+        if start == log.size:
+            return
+        if log.size - start < _HEAD.size:
+            raise _Stop(f"the file ends inside the record at byte {start}")
+        opcode, length = _HEAD.unpack(log.read(_HEAD.size))
+        if not (0 < opcode < 0x10 or opcode >= 0x80):
+            raise _Stop(f"no MCAP record at byte {start} (opcode 0x{opcode:02x}: zeroed or "
+                        "damaged bytes)")
+        if length > log.size - log.pos:
+            raise _Stop(f"the record at byte {start} claims {length} bytes, past the end of "
+                        f"the file ({log.size} bytes)")
+        if opcode == Opcode.CHUNK:
+            _read_chunk(log, start, length, scan)
+            continue
+        if opcode != Opcode.MESSAGE:
+            scan.records += 1
+            if scan.records > scan.limits.records:
+                raise _Stop(f"more than {scan.limits.records} records outside chunks "
+                            "(ReadLimits.records)")
+        if length > scan.limits.record_bytes:
+            log.skip(length)
+            if opcode not in _SKIPPED:
+                scan.damage(f"the record at byte {start} (opcode 0x{opcode:02x}) is {length} "
+                            f"bytes, above the {_mib(scan.limits.record_bytes)} limit "
+                            "(ReadLimits.record_bytes): left out")
+            continue
+        crc_head = log.crc
+        body = log.read(length)
+        if opcode in _SKIPPED:
+            continue
+        try:
+            _parse_record(log, opcode, start, body, scan, crc_before, crc_head)
+        except _DAMAGE as exc:
+            scan.damage(f"the record at byte {start} (opcode 0x{opcode:02x}) is damaged "
+                        f"({exc or type(exc).__name__}): left out")
+    magic = log._f.read(len(MAGIC))
+    if magic != MAGIC:
+        scan.complete = False
+        raise _Stop("the closing magic bytes are missing or wrong")
+    if log.size > log.pos + len(MAGIC):
+        scan.damage(f"{log.size - log.pos - len(MAGIC)} bytes of unknown data after the "
+                    "closing magic (another write appended to this file?)")
+
+
+def scan_log(log: _LogFile, limits: ReadLimits = DEFAULT_LIMITS,
+             keep_chunks: bool = False) -> LogScan:
+    """Walk every record of an open log, checking each CRC the file offers and each size
+    against ``limits``.
 
     Records of the summary section never override those of the data section (a damaged
     summary must not hide an intact Schema); attachment, data section and summary CRCs are
-    checked, and bytes after the closing magic are reported.
+    checked, and bytes after the closing magic are reported.  ``keep_chunks`` keeps the
+    inflated chunks and loose Message records (for recovery) instead of the messages.
     """
-    scan = _Scan()
-    buf = stream.read()
-    bio = io.BytesIO(buf)
-    start = 0
+    scan = LogScan(limits, keep_chunks)
     try:
-        for record in _records(bio, size):
-            end = bio.tell()
-            if isinstance(record, Chunk):
-                # Decode the whole chunk before using any of it: a damaged chunk is dropped,
-                # and the chunks after it are still read (their framing is intact).
-                try:
-                    messages = _chunk_messages(record, scan)
-                except _DAMAGE as exc:
-                    scan.damage(f"the chunk at byte {start} is damaged ({exc or type(exc)}): "
-                                f"its messages from t = {record.message_start_time * 1e-9:g} s "
-                                f"to {record.message_end_time * 1e-9:g} s are left out")
-                    messages = []
-                    scan.bad_chunks += 1
-                for cid, log_time, data in messages:
-                    scan.add_message(cid, log_time, data)
-            elif isinstance(record, Message):
-                scan.add_message(record.channel_id, record.log_time, record.data)
-                scan.loose.append(record)
-            elif isinstance(record, Schema):
-                if not scan.in_summary or record.id not in scan.schemas:
-                    scan.schemas[record.id] = record
-            elif isinstance(record, Channel):
-                if not scan.in_summary or record.id not in scan.channels:
-                    scan.channels[record.id] = record
-            elif isinstance(record, Metadata):
-                scan.metadata[record.name] = dict(record.metadata)
-            elif isinstance(record, Attachment):
-                crc = int.from_bytes(buf[end - 4:end], "little")
-                if crc and zlib.crc32(buf[start + 9:end - 4]) != crc:
-                    scan.damage(f"attachment {record.name!r} is damaged (CRC mismatch): "
-                                "left out")
-                else:
-                    scan.attachments[record.name] = bytes(record.data)
-                    scan.media_types[record.name] = record.media_type
-            elif isinstance(record, DataEnd):
-                scan.in_summary = True
-                if record.data_section_crc and zlib.crc32(buf[:start]) != \
-                        record.data_section_crc:
-                    scan.damage("the data section is damaged (data section CRC mismatch)"
-                                + ("" if scan.bad_chunks else ": a record outside the chunks "
-                                   "(metadata, attachment, schema, channel or index) may be "
-                                   "wrong"))
-            elif isinstance(record, Footer):
-                scan.complete = True
-                _check_footer(buf, record, start, scan)
-            start = end
-        if scan.complete and bio.tell() < size:
-            scan.damage(f"{size - bio.tell()} bytes of unknown data after the closing magic "
-                        "(another write appended to this file?)")
-    except _DAMAGE as exc:
+        _walk(log, scan)
+    except (_Stop, OSError) as exc:
         detail = str(exc) or type(exc).__name__
         if scan.complete:  # only the closing magic is missing or wrong
             scan.warnings.append(f"the file is cut or damaged after its footer ({detail})")
             scan.complete = False
         else:
             scan.warnings.append(f"stopped at a cut or damaged record ({detail})")
-            scan.warnings.append(
-                "the file has no footer (cut, or the writer was killed): "
-                "data read up to the last complete chunk"
-            )
+            scan.warnings.append("the file has no footer (cut, or the writer was killed): "
+                                 "data read up to the last complete chunk")
     else:
         if not scan.complete:
             scan.warnings.append("the file has no footer: data read up to the last chunk")
     return scan
 
+
+def scan_file(name: str, limits: ReadLimits = DEFAULT_LIMITS) -> LogScan:
+    """Every readable record of the MCAP file ``name``, checked (:func:`scan_log`).
+
+    Raises
+    ------
+    LogError
+        The file is missing, not a regular file, empty, or not MCAP at all.
+    """
+    with open_log(name) as log:
+        return scan_log(log, limits)
 
 def _generic_decoder(schema: Schema | None, channel: Channel) -> Callable[[bytes], Any] | None:
     try:
@@ -317,49 +636,94 @@ def _decode_topic(
     return out
 
 
-def _goal(scan: _Scan, by_topic: dict[str, Channel]) -> Pose2D | None:
-    channel = by_topic.get(GOAL_TOPIC)
-    if channel is None or not scan.messages.get(channel.id):
+def _goal(scan: LogScan, by_topic: dict[str, list[Channel]]) -> Pose2D | None:
+    msgs = [m for c in by_topic.get(GOAL_TOPIC, []) for m in scan.messages.get(c.id, [])]
+    if not msgs:
         return None
     msg = message_class(GOAL_SCHEMA)()
     try:
-        msg.ParseFromString(scan.messages[channel.id][0][1])
+        msg.ParseFromString(min(msgs, key=lambda m: m[0])[1])
     except DecodeError:
         return None
     p, q = msg.pose.position, msg.pose.orientation
     return Pose2D(p.x, p.y, 2.0 * math.atan2(q.z, q.w))
 
 
-def scan_file(name: str) -> _Scan:
-    """Every readable record of the MCAP file ``name``, checked.
+def _topic_series(layout: TopicLayout, channels: list[Channel], scan: LogScan,
+                  warnings: list[str]) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+    """Log times and signal columns of one topic, from every channel on it, in time order.
 
-    Raises
-    ------
-    LogError
-        The file is missing, empty, or not MCAP at all.
+    Whatever is not one message per distinct log time in file order (several channels, times
+    going backwards, repeated times, times beyond int64) is said in a warning naming the
+    topic; None when no channel of the topic can be decoded.
     """
-    try:
-        stream = open(name, "rb")
-    except OSError as exc:
-        raise LogError(f"{name}: cannot open the log: {exc.strerror}") from exc
-    with stream:
-        size = os.fstat(stream.fileno()).st_size
-        head = stream.read(len(MAGIC))
-        if not head:
-            raise LogError(f"{name}: empty file, not an MCAP log")
-        if head != MAGIC[: len(head)]:
-            raise LogError(f"{name}: not an MCAP file (bad magic bytes)")
-        stream.seek(0)
-        return _scan(stream, size)
+    topic = layout.topic
+    times: list[NDArray[np.int64]] = []
+    values: list[NDArray[np.float64]] = []
+    for channel in channels:
+        msgs = scan.messages.get(channel.id, [])
+        decoded = _decode_topic(layout, channel, scan.schemas.get(channel.schema_id), msgs)
+        if decoded is None:
+            continue
+        times.append(np.fromiter((t for t, _ in msgs), np.int64, len(msgs)))
+        values.append(decoded)
+    lost = sum(scan.bad_times.get(c.id, 0) for c in channels)
+    if lost:
+        warnings.append(f"topic {topic}: {lost} messages have log times beyond 2^63-1 ns "
+                        "(after the year 2262): left out")
+    if not times:
+        return None
+    if len(channels) > 1:
+        warnings.append(f"topic {topic} has {len(channels)} channels (ids "
+                        f"{', '.join(str(c.id) for c in channels)}): their messages are "
+                        "merged by log time")
+    t = np.concatenate(times) if len(times) > 1 else times[0]
+    v = np.concatenate(values) if len(values) > 1 else values[0]
+    if t.size > 1 and bool(np.any(t[1:] < t[:-1])):
+        if len(channels) == 1:
+            warnings.append(f"topic {topic}: log times go backwards "
+                            f"{int(np.count_nonzero(t[1:] < t[:-1]))} times in file order "
+                            "(chunks out of order?): messages sorted by log time")
+        order = np.argsort(t, kind="stable")
+        t, v = t[order], v[order]
+    if t.size > 1 and bool(np.any(t[1:] == t[:-1])):
+        first = np.r_[True, t[1:] != t[:-1]]
+        warnings.append(f"topic {topic}: {t.size - int(first.sum())} messages repeat the log "
+                        "time of another: the first at each time is kept")
+        t, v = t[first], v[first]
+    return t, v
 
 
-def read_run(path: str | os.PathLike[str]) -> RunData:
+def _join_by_time(series: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]],
+                  warnings: list[str]) -> NDArray[np.int64]:
+    """The row times: the log times of any signal topic (one row per distinct time)."""
+    all_t = [t for t, _ in series.values()]
+    if not all_t:
+        return np.zeros(0, np.int64)
+    first = all_t[0]
+    if all(t is first or np.array_equal(t, first) for t in all_t):
+        return first
+    rows = np.unique(np.concatenate(all_t))
+    for topic, (t, _) in series.items():
+        if t.size != rows.size:
+            warnings.append(f"topic {topic} has messages at {t.size} of the {rows.size} "
+                            f"row times (topics disagree in log times): its signals are NaN "
+                            f"at the other {rows.size - t.size}")
+    return rows
+
+
+def read_run(path: str | os.PathLike[str], limits: ReadLimits = DEFAULT_LIMITS) -> RunData:
     """Read a run log; a cut or damaged file gives its readable prefix, marked truncated.
+
+    Rows are joined by log time: row times are the log times of the signal topics, and a
+    topic without a message at a row's time is NaN there (with a warning naming it).
 
     Parameters
     ----------
     path
         An MCAP file written by :class:`wmr.adapters.mcap.RunLogWriter`.
+    limits
+        How much the file may make the reader hold (:class:`ReadLimits`).
 
     Returns
     -------
@@ -369,57 +733,100 @@ def read_run(path: str | os.PathLike[str]) -> RunData:
     Raises
     ------
     LogError
-        The file is missing, empty, or not MCAP at all.
+        The file is missing, not a regular file, empty, or not MCAP at all.
     """
     name = os.fspath(path)
-    scan = scan_file(name)
-    by_topic = {c.topic: c for c in scan.channels.values()}
-    columns: dict[str, NDArray[np.float64]] = {}
-    counts: list[int] = []
-    t_ns: NDArray[np.int64] | None = None
+    scan = scan_file(name, limits)
+    by_topic: dict[str, list[Channel]] = {}
+    for channel in sorted(scan.channels.values(), key=lambda c: c.id):
+        by_topic.setdefault(channel.topic, []).append(channel)
     warnings = list(scan.warnings)
     open_loop = TORQUE_TOPIC.topic in by_topic
     expected = {t.topic for t in (OPEN_LOOP_TOPICS if open_loop else STEP_TOPICS)}
+    series: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]] = {}
+    layouts: dict[str, TopicLayout] = {}
     for layout in (*STEP_TOPICS, TORQUE_TOPIC):
         if not layout.signals:
             continue
-        channel = by_topic.get(layout.topic)
-        if channel is None:
+        channels = by_topic.get(layout.topic)
+        if channels is None:
             if layout.topic in expected:
                 warnings.append(f"topic {layout.topic} is missing: its signals are NaN")
             continue
-        msgs = scan.messages.get(channel.id, [])
-        values = _decode_topic(layout, channel, scan.schemas.get(channel.schema_id), msgs)
-        if values is None:
+        got = _topic_series(layout, channels, scan, warnings)
+        if got is None:
             warnings.append(f"topic {layout.topic} cannot be decoded: its signals are NaN")
             continue
-        if t_ns is None:
-            t_ns = np.array([log_time for log_time, _ in msgs], np.int64)
-        counts.append(len(msgs))
-        for j, sig in enumerate(layout.signals):
-            columns[sig] = values[:, j]
-    n = min(counts) if counts else 0
-    if counts and max(counts) != n:
-        warnings.append(f"signal topics differ in length {sorted(set(counts))}: trimmed to {n}")
-    times = (t_ns if t_ns is not None else np.zeros(0, np.int64))[:n].copy()
-    signals = {
-        sig: np.ascontiguousarray(columns[sig][:n]) if sig in columns else np.full(n, np.nan)
-        for sig in SIGNALS
-    }
+        series[layout.topic] = got
+        layouts[layout.topic] = layout
+    times = _join_by_time(series, warnings)
+    n = times.size
+    columns: dict[str, NDArray[np.float64]] = {}
+    for topic, (t, values) in series.items():
+        at = None if t is times or t.size == n else np.searchsorted(times, t)
+        for j, sig in enumerate(layouts[topic].signals):
+            if at is None:
+                columns[sig] = np.ascontiguousarray(values[:, j])
+            else:
+                columns[sig] = np.full(n, np.nan)
+                columns[sig][at] = values[:, j]
+    signals = {sig: columns[sig] if sig in columns else np.full(n, np.nan) for sig in SIGNALS}
     for rec in ("run", "result"):
         if rec not in scan.metadata:
             warnings.append(f"no {rec!r} metadata record")
     return RunData(
         path=name,
-        t_ns=times,
+        t_ns=times.copy(),
         signals=signals,
         metadata=scan.metadata,
         attachments=scan.attachments,
         media_types=scan.media_types,
         goal=_goal(scan, by_topic),
-        truncated=not scan.complete or scan.damaged,
+        truncated=not scan.complete or scan.damaged or bool(scan.bad_times),
         warnings=warnings,
     )
 
 
-__all__ = ["Pose2D", "RunData", "read_run"]
+def metadata_json(value: str, limits: ReadLimits = DEFAULT_LIMITS) -> Any:
+    """A metadata value decoded from JSON, bounded in size and nesting depth.
+
+    Parameters
+    ----------
+    value
+        The string stored in a Metadata record.
+    limits
+        ``json_bytes`` and ``json_depth`` bound what is decoded.
+
+    Returns
+    -------
+    Any
+        The decoded value.
+
+    Raises
+    ------
+    ValueError
+        ``value`` is not JSON, is longer than ``limits.json_bytes`` or nests deeper than
+        ``limits.json_depth`` (checked before decoding: a deep value would exhaust the stack).
+    """
+    if len(value) > limits.json_bytes:
+        raise ValueError(f"{len(value)} characters, above the {limits.json_bytes} JSON limit")
+    if _json_depth(value) > limits.json_depth:
+        raise ValueError(f"nests deeper than {limits.json_depth} levels")
+    return json.loads(value)
+
+
+_JSON_STRING: Final = re.compile(r'"(?:[^"\\]|\\.)*"')
+
+
+def _json_depth(text: str) -> int:
+    """Deepest nesting of ``[``/``{`` in ``text``, strings ignored (vectorised)."""
+    if "[" not in text and "{" not in text:
+        return 0
+    bare = np.frombuffer(_JSON_STRING.sub("", text).encode(), np.uint8)
+    step = (np.isin(bare, (ord("["), ord("{"))).astype(np.int64)
+            - np.isin(bare, (ord("]"), ord("}"))))
+    return int(np.cumsum(step).max(initial=0))
+
+
+__all__ = ["DEFAULT_LIMITS", "MAX_LOG_TIME_NS", "Pose2D", "ReadLimits", "RunData", "metadata_json",
+           "open_log", "read_run", "scan_file", "scan_log"]

@@ -3,7 +3,7 @@
 A run killed before its log was finished leaves ``NAME.mcap.partial``: records up to its last
 flushed chunk, no summary, no footer.  Our reader reads such a file, but other MCAP tools (the
 ``mcap`` library's seeking reader, Foxglove, Rerun) need the summary and the footer.  Recovery
-reads every record that passes its checks (:func:`wmr.adapters.mcap.reader.scan_file`: chunk,
+reads every record that passes its checks (:func:`wmr.adapters.mcap.reader.scan_log`: chunk,
 attachment, data section and summary CRCs) and writes them again with
 :class:`wmr.adapters.mcap.writer.McapFile`: Schema, Channel, Metadata and Attachment records, each
 intact chunk's Message records byte for byte (channel ids renumbered if needed), then the
@@ -13,6 +13,7 @@ written like every log (``.partial``, fsync, rename): recovery never damages a f
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import struct
@@ -22,7 +23,14 @@ from typing import Final
 
 import numpy as np
 
-from wmr.adapters.mcap.reader import scan_file
+from wmr.adapters.mcap.reader import (
+    DEFAULT_LIMITS,
+    MAX_LOG_TIME_NS,
+    LogScan,
+    ReadLimits,
+    open_log,
+    scan_log,
+)
 from wmr.adapters.mcap.writer import McapFile
 from wmr.infra.durable import PARTIAL_SUFFIX, AtomicFile, partial_path
 from wmr.infra.errors import LogError
@@ -84,7 +92,7 @@ def _messages(buf: bytes) -> list[tuple[int, int, bytes]]:
 
 
 def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] | None = None,
-                *, overwrite: bool = False) -> Recovery:
+                *, overwrite: bool = False, limits: ReadLimits = DEFAULT_LIMITS) -> Recovery:
     """Write what is intact in ``source`` as a finished MCAP log at ``output``.
 
     Parameters
@@ -95,6 +103,9 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
         Where to write (default :func:`default_output`); never ``source`` itself.
     overwrite
         Replace ``output`` if it exists.
+    limits
+        How much the source may make the reader hold (see
+        :class:`wmr.adapters.mcap.reader.ReadLimits`).
 
     Returns
     -------
@@ -104,29 +115,48 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
     Raises
     ------
     LogError
-        ``source`` is not an MCAP file, ``output`` exists (without ``overwrite``) or is the
-        source, or cannot be written.
+        ``source`` is missing (naming ``X.mcap.partial`` when a killed run left one), not a
+        regular file (a FIFO, a device, a folder), not MCAP, or locked by the run still
+        writing it; ``output`` exists (without ``overwrite``) or is the source, or cannot be
+        written.
     """
     src = Path(source)
     dst = Path(output) if output is not None else default_output(src)
-    if dst.exists() and src.exists() and os.path.samefile(src, dst):
-        raise LogError(f"{dst}: the recovered log cannot replace its source; give another "
-                       "output file")
-    if dst.exists() and not overwrite:
-        raise LogError(f"{dst}: exists; give another output file or allow overwriting "
-                       "(--force)")
-    if src.exists() and partial_path(dst).exists() and os.path.samefile(src, partial_path(dst)):
-        # X.mcap.partial -> X.mcap: the writer of X.mcap would empty its own source first;
-        # the source is kept, renamed
-        aside = src.with_name(src.name + ".recovering")
-        os.replace(src, aside)
-        src = aside
-    scan = scan_file(str(src))
-    rec = Recovery(source=src, output=dst, lost=list(scan.warnings))
+    with open_log(str(src)) as log:
+        # a live run holds an exclusive lock on its X.mcap.partial (wmr.infra.durable): its
+        # log is still growing, and renaming it would strand the run's own commit
+        try:
+            fcntl.flock(log.fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise LogError(f"{src}: a run is still writing this log (the file is locked); "
+                           "wait for it to finish, or stop it first") from None
+        if dst.exists() and os.path.samefile(src, dst):
+            raise LogError(f"{dst}: the recovered log cannot replace its source; give another "
+                           "output file")
+        if dst.exists() and not overwrite:
+            raise LogError(f"{dst}: exists; give another output file or allow overwriting "
+                           "(--force)")
+        if partial_path(dst).exists() and os.path.samefile(src, partial_path(dst)):
+            # X.mcap.partial -> X.mcap: the writer of X.mcap would empty its own source first;
+            # the source is kept, renamed (still locked by us: no run can take it meanwhile)
+            aside = src.with_name(src.name + ".recovering")
+            os.replace(src, aside)
+            src = aside
+        scan = scan_log(log, limits, keep_chunks=True)
+        rec = Recovery(source=src, output=dst)
+        _write(scan, src, log.size, rec)
+    return rec
+
+
+def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery) -> None:
+    """Write what ``scan`` kept to ``rec.output`` as a finished log; on failure nothing
+    stays."""
+    rec.lost = list(scan.warnings)
     if "result" not in scan.metadata:
         rec.lost.append("no 'result' metadata record: the run did not finish")
-
-    file = McapFile(AtomicFile(dst, "log"))
+    late = sum(scan.bad_times.values())
+    sink = AtomicFile(rec.output, "log")
+    file = McapFile(sink)
     try:
         schema_ids = {0: 0}
         for old in sorted(scan.schemas):
@@ -147,18 +177,24 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
             file.add_attachment(name, scan.media_types[name], blob)
 
         loose = [(m.channel_id, m.log_time, _loose_record(m)) for m in scan.loose]
-        for messages in [*map(_messages, scan.chunks), loose]:
-            kept = [(channel_ids[c], t, r) for c, t, r in messages if c in channel_ids]
-            rec.dropped_messages += len(messages) - len(kept)
+        for messages in [*(_messages(buf) for buf in scan.chunks), loose]:
+            kept = [(channel_ids[c], t, r) for c, t, r in messages
+                    if c in channel_ids and t <= MAX_LOG_TIME_NS]
+            late += sum(1 for _, t, _ in messages if t > MAX_LOG_TIME_NS)
+            rec.dropped_messages += sum(1 for c, t, _ in messages
+                                        if c not in channel_ids and t <= MAX_LOG_TIME_NS)
             if kept:
                 _write_chunk(file, kept)
                 rec.chunks += 1
                 rec.messages += len(kept)
         if rec.dropped_messages:
             rec.lost.append(f"{rec.dropped_messages} messages of lost channels left out")
+        if late:
+            rec.lost.append(f"{late} messages with log times beyond 2^63-1 ns (after the year "
+                            "2262) left out")
         file.add_metadata(RECOVERY_RECORD, {
             "source": src.name,
-            "source_bytes": str(src.stat().st_size),
+            "source_bytes": str(src_bytes),
             "source_finished": json.dumps(scan.complete and not scan.damaged),
             "messages": str(rec.messages),
             "chunks": str(rec.chunks),
@@ -166,9 +202,10 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
         })
         file.finish()
     except BaseException:
+        # a half-written recovery is worth nothing: remove it while still holding its lock
+        sink.partial.unlink(missing_ok=True)
         file.abort()
         raise
-    return rec
 
 
 def _loose_record(message: object) -> bytes:
