@@ -19,7 +19,6 @@ copy of the columns' meaning.
 from __future__ import annotations
 
 import html
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -148,26 +147,39 @@ def _plot_path(path: pd.DataFrame, goal: Mapping[str, float] | None, label: str,
 
 
 def read_log(path: str | Path) -> Log:
-    """Read a run log (``wmr run``, ``wmr batch``, ``wmr optimal``) into a :class:`Log`."""
+    """Read a run log (``wmr run``, ``wmr batch``, ``wmr optimal``) into a :class:`Log`.
+
+    Raises
+    ------
+    wmr.infra.errors.LogError
+        The file is missing, not a regular file, or not MCAP (one line naming it); a damaged
+        or hostile log is read within limits, with ``truncated`` and ``warnings`` set.
+    """
     import pandas as pd
 
     from wmr.adapters.mcap import read_run
+    from wmr.adapters.mcap.reader import metadata_json
     from wmr.core.signals import SIGNALS
+    from wmr.infra.errors import LogError
 
     data = read_run(path)
     frame = pd.DataFrame({name: data.signals[name] for name in SIGNALS},
                          index=pd.Index(data.t_s, name="t_s"))
     metadata: dict[str, dict[str, Any]] = {}
+    warnings = list(data.warnings)
     for rec, values in data.metadata.items():
         decoded: dict[str, Any] = {}
         for k, v in values.items():
             try:
-                decoded[k] = json.loads(v)
-            except ValueError:
+                decoded[k] = metadata_json(v)
+            except ValueError:  # not JSON: a plain string
                 decoded[k] = v
+            except LogError as exc:  # too large or too deep to decode safely
+                decoded[k] = v
+                warnings.append(f"metadata {rec}.{k} kept as text: {exc}")
         metadata[rec] = decoded
     return Log(Path(path), frame, metadata, dict(data.attachments), data.truncated,
-               tuple(data.warnings))
+               tuple(warnings))
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if args.blueprint is not None:
         from wmr.adapters.rerun.blueprint import APPLICATION_ID, write_blueprint
 
-        path = write_blueprint(check_output(args.blueprint, "--blueprint", suffix=".rbl"))
+        out = check_output(args.blueprint, "--blueprint", suffix=".rbl")
+        out.parent.mkdir(parents=True, exist_ok=True)  # as --rrd does
+        path = write_blueprint(out)
         print(path)
         print(f"wrote the blueprint; open a log with Rerun's own loader: rerun mcap convert "
               f"RUN.mcap --timeline-type duration --application-id {APPLICATION_ID} -o RUN.rrd"

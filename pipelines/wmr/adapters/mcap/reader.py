@@ -805,13 +805,16 @@ def metadata_json(value: str, limits: ReadLimits = DEFAULT_LIMITS) -> Any:
     Raises
     ------
     ValueError
-        ``value`` is not JSON, is longer than ``limits.json_bytes`` or nests deeper than
+        ``value`` is not JSON (a plain string: keep it as it is).
+    LogError
+        ``value`` is longer than ``limits.json_bytes`` or nests deeper than
         ``limits.json_depth`` (checked before decoding: a deep value would exhaust the stack).
     """
     if len(value) > limits.json_bytes:
-        raise ValueError(f"{len(value)} characters, above the {limits.json_bytes} JSON limit")
+        raise LogError(f"{len(value)} characters, above the {limits.json_bytes}-character "
+                       "JSON limit (ReadLimits.json_bytes)")
     if _json_depth(value) > limits.json_depth:
-        raise ValueError(f"nests deeper than {limits.json_depth} levels")
+        raise LogError(f"nests deeper than {limits.json_depth} levels (ReadLimits.json_depth)")
     return json.loads(value)
 
 

@@ -47,6 +47,7 @@ import rerun.blueprint as rrb
 from numpy.typing import NDArray
 
 from wmr.adapters.mcap import Pose2D, RunData, read_run
+from wmr.adapters.mcap.reader import metadata_json
 from wmr.core.signals import COLUMN
 from wmr.infra.errors import LogError, WmrError
 
@@ -168,6 +169,8 @@ def find_logs(inputs: Sequence[str | os.PathLike[str]]) -> list[RunLog]:
             paths.extend(found)
         elif p.is_file():
             paths.append(p)
+        elif p.exists():  # a FIFO or a device: opening it could block, reading it never ends
+            raise LogError(f"{p}: not a regular file or folder; give .mcap files or folders")
         else:
             raise LogError(f"{p}: no such file or folder")
     if not paths:
@@ -293,13 +296,11 @@ def _time_column(t_ns: NDArray[np.int64]) -> rr.TimeColumn:
 
 def _params(meta: dict[str, dict[str, str]]) -> tuple[float, float]:
     """Half track ``L`` and wheel radius ``r`` from a log's ``run`` record (or the paper's)."""
-    import json
-
-    try:
-        params = json.loads(meta.get("run", {}).get("params", "{}"))
+    try:  # bounded: a stranger's log may hold a value nested too deep for json.loads
+        params = metadata_json(meta.get("run", {}).get("params", "{}"))
         half_track, radius = float(params.get("L", _DEFAULT_L_M)), float(
             params.get("r", _DEFAULT_R_M))
-    except (ValueError, TypeError, AttributeError):
+    except (ValueError, TypeError, AttributeError, LogError):
         return _DEFAULT_L_M, _DEFAULT_R_M
     if not (half_track > 0 and radius > 0 and math.isfinite(half_track + radius)):
         return _DEFAULT_L_M, _DEFAULT_R_M
@@ -523,9 +524,13 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                        wheel_radius_m=radius, info=_info_markdown(log.name, data))
         send_run_columns(rec, log.name, data.t_ns, data.block())
         if "sensors" in data.metadata.get("run", {}):  # measured and estimated paths too
-            from wmr.adapters.mcap.sensing import replay_sensing
+            if data.truncated:  # read_sensing uses mcap's reader, which trusts the file
+                warnings.append(f"{log.path}: damaged log: its sensing topics are not drawn "
+                                "(wmr log recover it first)")
+            else:
+                from wmr.adapters.mcap.sensing import replay_sensing
 
-            replay_sensing(rec, run_entity(log.name), log.path, color)
+                replay_sensing(rec, run_entity(log.name), log.path, color)
     rec.flush()
     if out is not None:
         rec.disconnect()
