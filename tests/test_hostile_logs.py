@@ -209,11 +209,20 @@ def test_an_lz4_bomb_is_cut_at_its_declared_size(tmp_path: Path,
     assert peak_bytes() < 32 * MiB
 
 
+def test_a_chunk_of_zeros_is_dropped_whole_not_walked(tmp_path: Path) -> None:
+    # 32 MiB of zeros, honestly declared: 3.7 million empty "records" of opcode 0
+    path = tmp_path / "zeros.mcap"
+    path.write_bytes(log_bytes(chunk(zstd_bomb(32 * MiB), declared=32 * MiB)))
+    run = read_run(path)
+    assert any("opcode 0x00 inside the chunk" in w for w in run.warnings), run.warnings
+
+
 def test_many_chunks_under_the_chunk_limit_stop_at_the_total_limit(tmp_path: Path) -> None:
     import zstandard
 
-    # each chunk is a valid 8 MiB run of a user record, 20 of them: 160 MiB inflated
-    inner = struct.pack("<BQ", 0x80, 8 * MiB - 9) + bytes(8 * MiB - 9)
+    # each chunk is one valid 8 MiB message, 20 of them: 160 MiB inflated
+    inner = records(Message(channel_id=1, sequence=0, log_time=0, publish_time=0,
+                            data=bytes(8 * MiB - 31)))
     bomb = chunk(zstandard.compress(inner), declared=len(inner))
     path = tmp_path / "many.mcap"
     path.write_bytes(log_bytes(*[bomb] * 20))

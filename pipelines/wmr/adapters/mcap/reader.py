@@ -355,7 +355,8 @@ def _chunk_messages(buf: bytes, scan: LogScan) -> list[tuple[int, int, bytes]]:
 
     Faster than :func:`mcap.stream_reader.breakup_chunk` (no record objects per message);
     Schema and Channel records inside the chunk are kept in ``scan``.  Raises on any
-    inconsistency, so that a damaged chunk is dropped whole.
+    inconsistency, and on any other record (MCAP chunks hold only these three), so that a
+    damaged chunk is dropped whole.
     """
     out: list[tuple[int, int, bytes]] = []
     pos, end = 0, len(buf)
@@ -378,6 +379,8 @@ def _chunk_messages(buf: bytes, scan: LogScan) -> list[tuple[int, int, bytes]]:
             else:
                 channel = Channel.read(rec)
                 scan.channels[channel.id] = channel
+        else:  # a chunk holds only these three (zeros would be walked 9 bytes at a time)
+            raise McapError(f"a record of opcode 0x{opcode:02x} inside the chunk")
     return out
 
 
