@@ -260,6 +260,16 @@ def test_recover_of_a_killed_runs_log_names_its_partial_file(
     assert "\n" not in err and "killed.mcap.partial" in err, err
 
 
+def test_recover_merges_tiny_chunks(tmp_path: Path) -> None:
+    path = tmp_path / "tiny.mcap"
+    stranger_log(path, [("/robot/state", steps(1000)), ("/controller/errors", steps(1000))],
+                 chunk_size=1)  # one message per chunk: 2000 chunks
+    rec = recover_log(path, tmp_path / "fixed.mcap")
+    assert rec.messages == 2000 and rec.chunks == 1
+    before, after = read_run(path), read_run(rec.output)
+    assert np.array_equal(before.block(), after.block(), equal_nan=True)
+
+
 def _in_subprocess(code: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess[str]:
     """Run ``code`` in a fresh interpreter; the timeout only turns a hang into a failure."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))

@@ -14,6 +14,7 @@ written like every log (``.partial``, fsync, rename): recovery never damages a f
 from __future__ import annotations
 
 import fcntl
+import itertools
 import json
 import os
 import struct
@@ -40,6 +41,8 @@ RECOVERY_RECORD: Final = "recovery"
 _MESSAGE: Final = 0x05
 _HEAD = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQ")
+#: Smallest chunk recovery writes when the source's chunks are smaller (mcap's default size).
+_CHUNK_BYTES: Final = 1 << 20
 
 
 @dataclass
@@ -177,16 +180,26 @@ def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery) -> None:
             file.add_attachment(name, scan.media_types[name], blob)
 
         loose = [(m.channel_id, m.log_time, _loose_record(m)) for m in scan.loose]
-        for messages in [*(_messages(buf) for buf in scan.chunks), loose]:
+        # consecutive small chunks are merged up to _CHUNK_BYTES: a source of a million tiny
+        # chunks gives a file of a few, not a million chunk records and indexes
+        pending: list[tuple[int, int, bytes]] = []
+        pending_bytes = 0
+        for messages in itertools.chain(map(_messages, scan.chunks), [loose, None]):
+            if messages is None or (pending and pending_bytes >= _CHUNK_BYTES):
+                if pending:
+                    _write_chunk(file, pending)
+                    rec.chunks += 1
+                    rec.messages += len(pending)
+                pending, pending_bytes = [], 0
+                if messages is None:
+                    break
             kept = [(channel_ids[c], t, r) for c, t, r in messages
                     if c in channel_ids and t <= MAX_LOG_TIME_NS]
             late += sum(1 for _, t, _ in messages if t > MAX_LOG_TIME_NS)
             rec.dropped_messages += sum(1 for c, t, _ in messages
                                         if c not in channel_ids and t <= MAX_LOG_TIME_NS)
-            if kept:
-                _write_chunk(file, kept)
-                rec.chunks += 1
-                rec.messages += len(kept)
+            pending += kept
+            pending_bytes += sum(len(r) for _, _, r in kept)
         if rec.dropped_messages:
             rec.lost.append(f"{rec.dropped_messages} messages of lost channels left out")
         if late:
