@@ -260,6 +260,14 @@ def test_recover_of_a_killed_runs_log_names_its_partial_file(
     assert "\n" not in err and "killed.mcap.partial" in err, err
 
 
+def test_a_log_of_more_chunks_than_the_record_limit_stops_there(tmp_path: Path) -> None:
+    tiny = records(Message(channel_id=1, sequence=0, log_time=0, publish_time=0, data=b""))
+    path = tmp_path / "chunks.mcap"
+    path.write_bytes(log_bytes(*[chunk(tiny, declared=len(tiny), compression="")] * 2000))
+    run = read_run(path, ReadLimits(records=1000))
+    assert run.truncated and any("ReadLimits.records" in w for w in run.warnings)
+
+
 def test_recover_merges_tiny_chunks(tmp_path: Path) -> None:
     path = tmp_path / "tiny.mcap"
     stranger_log(path, [("/robot/state", steps(1000)), ("/controller/errors", steps(1000))],
