@@ -132,29 +132,43 @@ class SensingTrace:
 
 
 def read_sensing(path: str | os.PathLike[str]) -> SensingTrace | None:
-    """The sensing topics of the log at ``path``; ``None`` when it has none."""
-    from mcap.reader import make_reader
+    """The sensing topics of the log at ``path``; ``None`` when it has none.
 
-    gps: list[tuple[int, float, float]] = []
-    est: list[tuple[int, float, float, float]] = []
-    with open(path, "rb") as f:
-        reader = make_reader(f)
-        for _schema, channel, message in reader.iter_messages(
-                topics=[GPS_TOPIC, ESTIMATE_TOPIC]):
-            msg = PoseInFrame.FromString(message.data)
+    The log is read by the bounded scan of :func:`wmr.adapters.mcap.reader.scan_file` (record
+    lengths checked against the file, inflation capped, a damaged region left out), never by
+    a reader that trusts the file: a log from someone else cannot take the memory or hang here.
+    A message that does not parse as a ``foxglove.PoseInFrame`` is left out.
+    """
+    from google.protobuf.message import DecodeError
+
+    from wmr.adapters.mcap.reader import scan_file
+
+    scan = scan_file(os.fspath(path))
+    gps: list[tuple[int, int, float, float]] = []
+    est: list[tuple[int, int, float, float, float]] = []
+    for cid, channel in scan.channels.items():
+        if channel.topic not in (GPS_TOPIC, ESTIMATE_TOPIC):
+            continue
+        for log_time, data in scan.messages.get(cid, []):
+            try:
+                msg = PoseInFrame.FromString(data)
+            except DecodeError:
+                continue
             t = msg.timestamp.ToNanoseconds()
             p = msg.pose
             if channel.topic == GPS_TOPIC:
-                gps.append((t, p.position.x, p.position.y))
+                gps.append((log_time, t, p.position.x, p.position.y))
             else:
                 theta = 2.0 * math.atan2(p.orientation.z, p.orientation.w)
-                est.append((t, p.position.x, p.position.y, theta))
+                est.append((log_time, t, p.position.x, p.position.y, theta))
     if not gps and not est:
         return None
-    g = np.array(gps, dtype=np.float64).reshape(-1, 3)
-    e = np.array(est, dtype=np.float64).reshape(-1, 4)
-    return SensingTrace(gps_t_ns=np.array([r[0] for r in gps], np.int64), gps_xy_m=g[:, 1:3],
-                        est_t_ns=np.array([r[0] for r in est], np.int64),
+    gps.sort(key=lambda r: r[0])  # in log-time order, as the run wrote them
+    est.sort(key=lambda r: r[0])
+    g = np.array([r[1:] for r in gps], dtype=np.float64).reshape(-1, 3)
+    e = np.array([r[1:] for r in est], dtype=np.float64).reshape(-1, 4)
+    return SensingTrace(gps_t_ns=np.array([r[1] for r in gps], np.int64), gps_xy_m=g[:, 1:3],
+                        est_t_ns=np.array([r[1] for r in est], np.int64),
                         est_pose=e[:, 1:4])
 
 

@@ -524,13 +524,9 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                        wheel_radius_m=radius, info=_info_markdown(log.name, data))
         send_run_columns(rec, log.name, data.t_ns, data.block())
         if "sensors" in data.metadata.get("run", {}):  # measured and estimated paths too
-            if data.truncated:  # read_sensing uses mcap's reader, which trusts the file
-                warnings.append(f"{log.path}: damaged log: its sensing topics are not drawn "
-                                "(wmr log recover it first)")
-            else:
-                from wmr.adapters.mcap.sensing import replay_sensing
+            from wmr.adapters.mcap.sensing import replay_sensing
 
-                replay_sensing(rec, run_entity(log.name), log.path, color)
+            replay_sensing(rec, run_entity(log.name), log.path, color)
     rec.flush()
     if out is not None:
         rec.disconnect()
