@@ -205,3 +205,69 @@ WMR_API int wmr_fmu_loop(const wmr_fmu *f, const wmr_fmu *c, wmr_loop *s) {
         if (done) return WMR_FULL;
     }
 }
+
+/* ---------------------------------------------------------------------------------------------
+ * The MCAP Message records of a block of rows, all per-step topics: the bytes of
+ * wmr.adapters.mcap.schemas.RowEncoder.encode (one record per row and topic, row after row,
+ * topic after topic: opcode, length, channel id, sequence 0, log time = publish time = t_ns,
+ * then the protobuf message: field 1 the Timestamp, then the topic's fixed body with the
+ * row's doubles in its slots).  src is (n, n_src) float64: the signals and the derived
+ * columns (the heading quaternion, computed by numpy as RowEncoder does).  Returns the bytes
+ * written to out (room for n rows of the longest records) and the offset of each record.
+ */
+static void put_u64(unsigned char *p, unsigned long long v) {
+    for (int j = 0; j < 8; j++) p[j] = (unsigned char)(v >> (8 * j));
+}
+
+/* a protobuf varint field (tag, then 7 bits a byte), omitted when the value is 0 */
+static int put_varint_field(unsigned char *p, unsigned char tag, unsigned long long v) {
+    int len = 0;
+    if (v == 0) return 0;
+    p[len++] = tag;
+    while (v >= 0x80) {
+        p[len++] = (unsigned char)(v & 0x7F) | 0x80;
+        v >>= 7;
+    }
+    p[len++] = (unsigned char)v;
+    return len;
+}
+
+WMR_API long long wmr_encode_rows(int n, const long long *t_ns, const double *src, int n_src,
+                                  int n_topics, const int *channel, const int *body_len,
+                                  const unsigned char *bodies, const int *n_slots,
+                                  const int *slot_off, const int *slot_src, unsigned char *out,
+                                  long long *offsets) {
+    size_t pos = 0;
+    for (int i = 0; i < n; i++) {
+        unsigned long long t = (unsigned long long)t_ns[i];
+        unsigned char ts[12];
+        int ts_len = put_varint_field(ts, 0x08, t / 1000000000ULL);
+        ts_len += put_varint_field(ts + ts_len, 0x10, t % 1000000000ULL);
+        const double *row = src + (size_t)i * (size_t)n_src;
+        const unsigned char *body = bodies;
+        const int *off = slot_off, *from = slot_src;
+        for (int k = 0; k < n_topics; k++) {
+            unsigned char *r = out + pos;
+            size_t data_len = 2 + (size_t)ts_len + (size_t)body_len[k];
+            offsets[(size_t)i * (size_t)n_topics + (size_t)k] = (long long)pos;
+            r[0] = 0x05; /* Message */
+            put_u64(r + 1, 2 + 4 + 8 + 8 + data_len);
+            r[9] = (unsigned char)(channel[k] & 0xFF);
+            r[10] = (unsigned char)(channel[k] >> 8);
+            memset(r + 11, 0, 4); /* sequence */
+            put_u64(r + 15, t);
+            put_u64(r + 23, t);
+            r[31] = 0x0A; /* Timestamp, length-delimited */
+            r[32] = (unsigned char)ts_len;
+            memcpy(r + 33, ts, (size_t)ts_len);
+            unsigned char *b = r + 33 + ts_len;
+            memcpy(b, body, (size_t)body_len[k]);
+            for (int s = 0; s < n_slots[k]; s++) memcpy(b + off[s], row + from[s], 8);
+            pos += 31 + data_len;
+            body += body_len[k];
+            off += n_slots[k];
+            from += n_slots[k];
+        }
+    }
+    return (long long)pos;
+}

@@ -69,6 +69,8 @@ _STEPPER: list[Any] = []
 def load_stepper() -> Any:
     """The C stepper library (ctypes), built on first use; None when it cannot be had.
 
+    It also holds the MCAP row encoder of :class:`wmr.adapters.mcap.RunLogWriter`.
+
     ``WMR_STEPPER=0`` in the environment turns it off (the pure-Python path, same results).
     """
     if os.environ.get("WMR_STEPPER", "1") == "0":
@@ -89,6 +91,9 @@ def load_stepper() -> Any:
                 lib.wmr_fmu_loop.argtypes = [ptr(FmuCall), ptr(FmuCall), ptr(LoopState)]
                 for fun in (lib.wmr_exchange, lib.wmr_servo_step, lib.wmr_fmu_loop):
                     fun.restype = ctypes.c_int
+                lib.wmr_encode_rows.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 2,
+                                                *[ctypes.c_int] * 2, *[ctypes.c_void_p] * 8]
+                lib.wmr_encode_rows.restype = ctypes.c_longlong
         except (OSError, AttributeError):  # no library, or an old one: the Python path
             lib = None
         _STEPPER.append(lib)
