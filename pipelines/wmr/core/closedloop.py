@@ -155,9 +155,25 @@ def _stepper(plant: Plant) -> tuple[Any, Any] | None:
     return cast("tuple[Any, Any]", found)
 
 
-def _loop_state(spec: RunSpec, block: _Block) -> Any:
-    from wmr.adapters.fmi.robot import LoopState
+class LoopState(ctypes.Structure):
+    """What the C stepper (``fmu/src/stepper/wmr_stepper.c``, ``wmr_loop``) keeps of a run: the
+    wheel servos, the accumulators, the clock and the row of the block being written."""
 
+    _fields_ = [*((name, ctypes.c_double) for name in (
+        "k_p", "k_i", "torque_max", "h_servo", "b_ff", "tau_c_ff", "w_c", "k_t",
+        "integral_r", "integral_l", "energy_net", "energy_pos", "tau_sq", "peak", "h")),
+        ("n", ctypes.c_longlong), ("n_max", ctypes.c_longlong),
+        ("block", ctypes.c_void_p),
+        *((name, ctypes.c_int) for name in (
+            "n_cols", "row", "rows_max", "n_plant", "n_sig", "col_tau_r", "col_tau_l",
+            "i_converged"))]
+
+
+#: Status codes of the stepper besides a failed FMI call's ``16 * (call + 1) + status``.
+STEP_CONTROLLER, STEP_NONFINITE, STEP_DONE, STEP_FULL = 64, 256, 512, 1024
+
+
+def _loop_state(spec: RunSpec, block: _Block) -> LoopState:
     st = LoopState()
     st.h = spec.period_s
     st.n_max = spec.n_steps_max
@@ -422,8 +438,6 @@ def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
               controller: FmuController, block: _Block, tally: _Tally,
               progress: Progress | None) -> None:
     """Both sides FMUs: whole blocks of the closed loop in one C call (``wmr_fmu_loop``)."""
-    from wmr.adapters.fmi.robot import STEP_CONTROLLER, STEP_DONE, STEP_FULL, STEP_NONFINITE
-
     lib, call = stepper
     h = spec.period_s
     st = _loop_state(spec, block)
@@ -476,4 +490,4 @@ def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
         plant.raise_step_error(code)  # type: ignore[attr-defined]
 
 
-__all__ = ["BLOCK_ROWS", "BlockSink", "Progress", "RunResult", "run_closed_loop"]
+__all__ = ["BLOCK_ROWS", "BlockSink", "LoopState", "Progress", "RunResult", "run_closed_loop"]

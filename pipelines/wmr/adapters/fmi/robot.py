@@ -30,6 +30,7 @@ import numpy.typing as npt
 
 from wmr.adapters.fmi.archive import file_sha256, safe_extract
 from wmr.adapters.fmi.varmap import VariableMap, resolve
+from wmr.core.closedloop import LoopState
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
 from wmr.infra.errors import ConfigError, FmuError
 
@@ -45,23 +46,6 @@ class FmuCall(ctypes.Structure):
                 ("in_val", ctypes.c_void_p), ("out_val", ctypes.c_void_p),
                 ("in_gain", ctypes.c_double * 2), ("in_bias", ctypes.c_double * 2)]
 
-
-class LoopState(ctypes.Structure):
-    """The wheel servos, accumulators and current row of a run in the C stepper
-    (``wmr_loop``)."""
-
-    _fields_ = [*((name, ctypes.c_double) for name in (
-        "k_p", "k_i", "torque_max", "h_servo", "b_ff", "tau_c_ff", "w_c", "k_t",
-        "integral_r", "integral_l", "energy_net", "energy_pos", "tau_sq", "peak", "h")),
-        ("n", ctypes.c_longlong), ("n_max", ctypes.c_longlong),
-        ("block", ctypes.c_void_p),
-        *((name, ctypes.c_int) for name in (
-            "n_cols", "row", "rows_max", "n_plant", "n_sig", "col_tau_r", "col_tau_l",
-            "i_converged"))]
-
-
-#: Status codes of the stepper (fmu/src/stepper/wmr_stepper.c).
-STEP_CONTROLLER, STEP_NONFINITE, STEP_DONE, STEP_FULL = 64, 256, 512, 1024
 
 _STEPPER: list[Any] = []
 
