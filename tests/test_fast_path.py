@@ -183,3 +183,26 @@ def test_fmu_plant_step_through_the_stepper_matches_the_three_calls(
             rows = [plant.step(0.5 * math.sin(k), -0.3, 0.01).tobytes() for k in range(50)]
             outputs.append((rows, plant.time_s))
     assert outputs[0] == outputs[1]
+
+
+def test_the_hot_path_wrap_is_wrap_then_unwrap_bit_for_bit() -> None:
+    """PointStabiliser.update's one-call ``_wrapped_near`` against the two public functions
+    it replaces, on every band edge and on random angles and previous values."""
+    import random
+
+    from wmr.core.control.stabiliser import (
+        HYSTERESIS_BAND_RAD,
+        _wrapped_near,
+        unwrap_near,
+        wrap_angle,
+    )
+
+    rng = random.Random(5)
+    edges = [0.0, -0.0, math.pi, -math.pi, 2 * math.pi, math.pi - HYSTERESIS_BAND_RAD,
+             HYSTERESIS_BAND_RAD - math.pi, math.nan, 1e300, -1e300]
+    angles = edges + [math.nextafter(e, s) for e in edges for s in (-math.inf, math.inf)]
+    angles += [rng.uniform(-20.0, 20.0) for _ in range(20000)]
+    for a in angles:
+        for prev in (0.0, -0.0, 1.0, -1.0, rng.uniform(-4.0, 4.0)):
+            assert struct.pack("<d", _wrapped_near(a, prev)) == \
+                struct.pack("<d", unwrap_near(wrap_angle(a), prev)), (a, prev)
