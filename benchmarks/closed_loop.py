@@ -2,7 +2,8 @@
 
 Rows (median of repeated runs of the paper's Fig. 11 case on the FMI 3 FMU):
 
-- FMU exchange: ``FmuPlant.step`` alone (set inputs, doStep, get outputs),
+- FMU exchange: ``FmuPlant.step`` alone (set inputs, doStep, get outputs: one call into the C
+  stepper when it is built, three ctypes calls without it),
 - controller: the stabiliser and wheel servos alone, on the states of a recorded run,
 - controller FMU: the same law in C (``FmuController``: set inputs, get outputs, doStep through
   ctypes, with the convergence test the master asks first), on the same states,
@@ -11,6 +12,8 @@ Rows (median of repeated runs of the paper's Fig. 11 case on the FMI 3 FMU):
 - loop with logging: ``run_to_log`` (the whole ``wmr run`` minus start-up),
 - logging: the time spent inside the log writer during that run (``write_block`` and
   ``close``, timed directly: the difference of two noisy totals is noisier still).
+
+The loops against their C floor, side by side: ``python benchmarks/loop_vs_c_floor.py``.
 
 Run: ``python benchmarks/closed_loop.py``.
 """

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -23,8 +24,10 @@ from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
+from wmr.adapters.fmi.robot import load_stepper
 from wmr.adapters.mcap import RunLogWriter, read_run
 from wmr.adapters.mcap.schemas import (
+    OPEN_LOOP_TOPICS,
     SRC_QW,
     SRC_QZ,
     STEP_TOPICS,
@@ -33,7 +36,7 @@ from wmr.adapters.mcap.schemas import (
     file_descriptor_set,
     message_class,
 )
-from wmr.adapters.mcap.writer import LIBRARY
+from wmr.adapters.mcap.writer import LIBRARY, _CRowEncoder
 from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.durable import partial_path
 from wmr.infra.errors import LogError
@@ -484,3 +487,25 @@ def test_write_block_checks_its_input(tmp_path: Path) -> None:
 def test_unwritable_path_raises_log_error(tmp_path: Path) -> None:
     with pytest.raises(LogError, match="cannot create"):
         RunLogWriter(tmp_path / "no" / "such" / "dir.mcap", run={}, goal=GOAL)
+
+
+@pytest.mark.parametrize("layouts", [STEP_TOPICS, OPEN_LOOP_TOPICS], ids=["closed", "open"])
+def test_c_row_encoder_writes_the_bytes_of_the_numpy_one(layouts: tuple[Any, ...]) -> None:
+    """The C stepper's encoder (used whenever the stepper is built) against RowEncoder: times
+    with and without seconds or nanos (omitted varint fields), every varint length, the
+    largest time, and doubles of every kind (NaN, infinities, -0.0, subnormals)."""
+    lib = load_stepper()
+    if lib is None:
+        pytest.skip("no C compiler: the stepper is not built")
+    rng = np.random.default_rng(7)
+    ids = tuple(range(3, 3 + len(layouts)))
+    numpy_enc, c_enc = RowEncoder(ids, layouts), _CRowEncoder(lib, ids, layouts)
+    edges = np.array([0, 1, 127, 128, 999_999_999, 10**9, 10**9 + 1, 2**33 * 10**9, 2**63 - 1])
+    for t in (np.arange(250, dtype=np.int64) * STEP_NS, np.sort(edges),
+              np.sort(rng.integers(0, 2**63 - 1, 300, dtype=np.int64))):
+        block = rng.normal(scale=1e3, size=(len(t), N_SIG))
+        block[:, 5:11] = [math.nan, math.inf, -math.inf, -0.0, 5e-324, 1e308]  # not theta
+        records, offsets = c_enc.encode(t, block)
+        expected, expected_offsets = numpy_enc.encode(t, block)
+        assert records == expected
+        assert np.array_equal(offsets, expected_offsets)

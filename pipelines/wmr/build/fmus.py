@@ -298,6 +298,7 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
                             for key, p in products.items()}}
         (out / _STAMP).write_text(json.dumps(stamp, indent=1) + "\n")
         progress(f"built the FMUs in {time.monotonic() - t0:.0f} s")
+    build_stepper(out)  # host-only, beside the FMUs (after the lock: it takes it itself)
     return _result(products, digest, False, names)
 
 
@@ -475,6 +476,66 @@ def summarize(path: Path) -> FmuSummary:
     order = [f for p in PLATFORMS for f in (p.name, p.fmi2) if f]
     platforms = tuple(sorted(folders, key=lambda f: order.index(f) if f in order else len(order)))
     return FmuSummary(path, md.fmiVersion, interfaces, platforms)
+
+
+#: Flags of the stepper: ``-ffp-contract=off`` keeps every operation rounded on its own, as in
+#: the Python code it must equal bit for bit.
+STEPPER_CFLAGS = ("-O2", "-g0", "-fPIC", "-shared", "-std=c99", "-Wall", "-Wextra",
+                  "-ffp-contract=off")
+
+
+def stepper_source() -> Path:
+    """The master loop's C stepper (``fmu/src/stepper/wmr_stepper.c``), in no FMU."""
+    return paths.fmu_src_dir() / "stepper" / "wmr_stepper.c"
+
+
+def build_stepper(out_dir: str | os.PathLike[str] | None = None,
+                  cc: str | None = None) -> Path | None:
+    """Compile (or reuse) the C stepper for this host beside the FMUs; None without a compiler.
+
+    The library is named by a digest of its source, the flags and the compiler's version, so
+    that a changed source is never served by an old binary.  The stepper is host-only (it is
+    loaded by this Python, never shipped): without a host C compiler, or when the compile
+    fails, the master loop runs its pure-Python path, which gives the same bits.
+
+    Parameters
+    ----------
+    out_dir
+        Folder of the FMUs; :func:`wmr.infra.paths.default_fmu_dir` by default.
+    cc
+        Host C compiler; the ``CC`` environment variable, else ``cc``, else ``gcc``.
+    """
+    cc = cc or os.environ.get("CC") or next((c for c in ("cc", "gcc") if shutil.which(c)), None)
+    if cc is None or shutil.which(cc) is None:
+        return None
+    src = stepper_source()
+    try:
+        headers = _fmi_headers()
+        version = subprocess.run([cc, "--version"], capture_output=True, text=True,
+                                 check=True).stdout.splitlines()[0]
+    except (BuildError, OSError, subprocess.CalledProcessError, IndexError):
+        return None
+    h = hashlib.sha256(src.read_bytes())
+    h.update(" ".join([version, *STEPPER_CFLAGS]).encode())
+    out = Path(out_dir) if out_dir is not None else paths.default_fmu_dir()
+    lib = out / f"wmr_stepper-{h.hexdigest()[:16]}.so"
+    if lib.exists():
+        return lib
+    with _locked(out):
+        if lib.exists():
+            return lib
+        fd, tmp = tempfile.mkstemp(dir=out, prefix=".", suffix=".so.part")
+        os.close(fd)
+        try:
+            proc = subprocess.run([cc, *STEPPER_CFLAGS, f"-I{headers}", str(src), "-o", tmp,
+                                   "-lm"], capture_output=True, text=True)
+            if proc.returncode != 0 or proc.stderr.strip():
+                return None
+            os.chmod(tmp, 0o755)
+            os.replace(tmp, lib)
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+    return lib
 
 
 def copy_fmus(result: BuildResult, dest: Path) -> dict[int, Path]:

@@ -23,16 +23,18 @@ The run ends ``converged`` (stop radius, heading aligned, nearly at rest), ``tim
 
 from __future__ import annotations
 
+import ctypes
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from functools import partial
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
 import numpy.typing as npt
 
 from wmr.config.scenario import RunSpec
-from wmr.core.control import wrap_angle
+from wmr.core.control import WheelServo, wrap_angle
 from wmr.core.control.peers import make_controller
 from wmr.core.energy import step_work
 from wmr.core.plant import Plant, Pose
@@ -103,6 +105,85 @@ class RunResult:
         return d
 
 
+@dataclass
+class _Tally:
+    """What a run accumulates, whichever loop runs it (the loops keep it in locals while
+    they run and write it back here when they stop, however they stop)."""
+
+    n: int = 0  # the control step the plant is at
+    row: int = 0  # rows of the current block
+    steps: int = 0
+    x: float = math.nan
+    y: float = math.nan
+    theta: float = math.nan
+    path: float = 0.0
+    energy: float = 0.0
+    energy_pos: float = 0.0
+    tau_sq: float = 0.0
+    peak: float = 0.0
+    status: str = "failed"
+    message: str = ""
+    time_to_goal: float | None = None
+
+
+class _Block:
+    """The preallocated block of rows and its delivery to the sink."""
+
+    def __init__(self, h_s: float, sink: BlockSink | None) -> None:
+        self.rows = np.zeros((BLOCK_ROWS, _N_SIG), dtype=np.float64)
+        self.t_ns = np.zeros(BLOCK_ROWS, dtype=np.int64)
+        self.h_ns = h_s * 1e9
+        self.sink = sink
+
+    def set_times(self, n_first: int, rows: int) -> None:
+        """Log times of rows ``0..rows-1`` holding steps ``n_first, n_first + 1, ...``: the
+        ``round(n * h_ns)`` of the per-row path (numpy's rint also rounds half to even)."""
+        self.t_ns[:rows] = np.rint(np.arange(n_first, n_first + rows) * self.h_ns)
+
+    def flush(self, rows: int) -> None:
+        if self.sink is not None and rows:
+            self.sink.write_block(self.t_ns[:rows], self.rows[:rows])
+
+
+def _stepper(plant: Plant) -> tuple[Any, Any] | None:
+    """The plant's C stepper (:meth:`wmr.adapters.fmi.robot.FmuPlant.stepper`), if it has one
+    and its outputs are the plant outputs in our order."""
+    get = getattr(plant, "stepper", None)
+    found = get() if get is not None else None
+    if found is None or found[1].n_out != _N_PLANT:
+        return None
+    return cast("tuple[Any, Any]", found)
+
+
+class LoopState(ctypes.Structure):
+    """What the C stepper (``fmu/src/stepper/wmr_stepper.c``, ``wmr_loop``) keeps of a run: the
+    wheel servos, the accumulators, the clock and the row of the block being written."""
+
+    _fields_ = [*((name, ctypes.c_double) for name in (
+        "k_p", "k_i", "torque_max", "h_servo", "b_ff", "tau_c_ff", "w_c", "k_t",
+        "integral_r", "integral_l", "energy_net", "energy_pos", "tau_sq", "peak", "h")),
+        ("n", ctypes.c_longlong), ("n_max", ctypes.c_longlong),
+        ("block", ctypes.c_void_p),
+        *((name, ctypes.c_int) for name in (
+            "n_cols", "row", "rows_max", "n_plant", "n_sig", "col_tau_r", "col_tau_l",
+            "i_converged"))]
+
+
+#: Status codes of the stepper besides a failed FMI call's ``16 * (call + 1) + status``.
+STEP_CONTROLLER, STEP_NONFINITE, STEP_DONE, STEP_FULL = 64, 256, 512, 1024
+
+
+def _loop_state(spec: RunSpec, block: _Block) -> LoopState:
+    st = LoopState()
+    st.h = spec.period_s
+    st.n_max = spec.n_steps_max
+    st.block = block.rows.ctypes.data
+    st.n_cols, st.rows_max, st.n_plant = _N_SIG, BLOCK_ROWS, _N_PLANT
+    st.n_sig = _N_SIG - _N_PLANT
+    st.col_tau_r, st.col_tau_l = _C_TAU_R, _C_TAU_L
+    return st
+
+
 def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
                     progress: Progress | None = None,
                     controller_fmu: FmuController | None = None) -> RunResult:
@@ -110,36 +191,21 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
 
     The plant (and ``controller_fmu``, which replaces the Python controller when given) is
     reset here but not closed (the caller owns it).
+
+    Three loops give the same bits (``docs/architecture.md``): with the C stepper of an FMU
+    plant (:func:`wmr.adapters.fmi.robot.load_stepper`), a Python law drives the wheel servos,
+    the row and the FMU step through one C call per step, and the controller FMU runs whole
+    blocks of the closed loop in C; any other plant, controller or a run with sensors steps
+    through the plant's and the controller's Python interfaces.
     """
     h = spec.period_s
-    n_max = spec.n_steps_max
     goal = spec.goal
     xd, yd = goal.x_m, goal.y_m
-    tol = spec.heading_tolerance_rad
-    block = np.zeros((BLOCK_ROWS, _N_SIG), dtype=np.float64)
-    t_ns = np.zeros(BLOCK_ROWS, dtype=np.int64)
-    h_ns = h * 1e9
-
-    status = "failed"
-    message = ""
-    steps = 0
-    row = 0
-    path = 0.0
-    energy = 0.0
-    energy_pos = 0.0
-    tau_sq = 0.0
-    peak = 0.0
-    time_to_goal: float | None = None
-    x = y = theta = math.nan
-    n = 0
+    block = _Block(h, sink)
+    tally = _Tally()
     sensing: Sensing | None = None
-
-    def flush(rows: int) -> None:
-        if sink is not None and rows:
-            sink.write_block(t_ns[:rows], block[:rows])
-
+    controller: ServoedController | FmuController | None = None
     try:
-        controller: ServoedController | FmuController
         if controller_fmu is not None:
             controller_fmu.configure(spec)
             controller = controller_fmu
@@ -147,13 +213,86 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
             controller = make_controller(spec.controller, goal, spec.gains, spec.limits,
                                          spec.params, h, spec.stop_radius_m,
                                          dict(spec.controller_gains))
-        stab = controller.stabiliser
         out = plant.reset(spec.params, spec.start)
         if spec.sensors is not None:
             sensing = Sensing(spec.sensors, h, spec.params, spec.start, spec.goal)
-        x, y, theta = float(out[0]), float(out[1]), float(out[2])
-        w_r_prev, w_l_prev = float(out[5]), float(out[6])
-        tau_r_prev = tau_l_prev = 0.0
+        tally.x, tally.y, tally.theta = float(out[0]), float(out[1]), float(out[2])
+        stepper = _stepper(plant)
+        if stepper is not None and controller_fmu is not None and sensing is None:
+            _fmu_loop(spec, plant, stepper, controller_fmu, block, tally, progress)
+        elif (stepper is not None and controller_fmu is None
+              and type(getattr(controller, "right", None)) is WheelServo
+              and type(getattr(controller, "left", None)) is WheelServo):
+            _servo_loop(spec, plant, stepper, cast("ServoedController", controller), sensing,
+                        out, block, tally, progress)
+        else:
+            _python_loop(spec, plant, controller, sensing, out, block, tally, progress)
+        rows_left, tally.row = tally.row, 0
+        block.flush(rows_left)
+    except Exception as exc:  # a plant or controller failure ends the run, never the caller
+        tally.status = "failed"
+        tally.message = f"{type(exc).__name__} at t = {tally.n * h:g} s: {exc}"
+        try:  # keep the rows recorded before the failure
+            block.flush(tally.row)
+        except Exception as sink_exc:
+            tally.message += f"; and the sink failed: {sink_exc}"
+    if progress is not None:
+        progress(min(tally.n * h, spec.t_max_s), spec.t_max_s)
+
+    x, y, theta = tally.x, tally.y, tally.theta
+    pos_err = math.hypot(xd - x, yd - y) if math.isfinite(x) and math.isfinite(y) else math.nan
+    head_err = abs(wrap_angle(theta - goal.heading_rad)) if math.isfinite(theta) else math.nan
+    est_pos_err, est_head_err = pos_err, head_err
+    if sensing is not None:
+        known = sensing.pose
+        est_pos_err = math.hypot(xd - known.x_m, yd - known.y_m)
+        est_head_err = abs(wrap_angle(known.heading_rad - goal.heading_rad))
+    return RunResult(status=tally.status, message=tally.message,
+                     final_position_error_m=pos_err,
+                     final_heading_error_rad=head_err, time_to_goal_s=tally.time_to_goal,
+                     path_length_m=tally.path, energy_net_j=tally.energy,
+                     energy_positive_j=tally.energy_pos,
+                     energy_abs_j=2.0 * tally.energy_pos - tally.energy,
+                     torque_sq_integral=tally.tau_sq,
+                     peak_torque_nm=tally.peak, steps=tally.steps,
+                     final_pose=Pose(x, y, theta),
+                     name=spec.name, estimated_final_position_error_m=est_pos_err,
+                     estimated_final_heading_error_rad=est_head_err,
+                     sensing=None if sensing is None else sensing.record())
+
+
+def _end(spec: RunSpec, tally: _Tally, converged: bool, heading_error: Callable[[float], float]
+         ) -> None:
+    """The status and message of a run that stops at step ``tally.n``."""
+    n, h = tally.n, spec.period_s
+    if converged:
+        tally.status = "converged"
+        tally.time_to_goal = n * h
+        tally.message = f"converged at t = {n * h:.2f} s"
+    else:
+        tally.status = "timeout"
+        distance = math.hypot(spec.goal.x_m - tally.x, spec.goal.y_m - tally.y)
+        tally.message = (f"not converged within max_time_s = {spec.t_max_s:g} s "
+                         f"(distance {distance:.3f} m, heading error "
+                         f"{math.degrees(abs(heading_error(tally.theta))):.2f} deg)")
+
+
+def _python_loop(spec: RunSpec, plant: Plant, controller: ServoedController | FmuController,
+                 sensing: Sensing | None, out: npt.NDArray[np.float64], block: _Block,
+                 tally: _Tally, progress: Progress | None) -> None:
+    """Any plant, any controller: one call of each interface per step."""
+    h = spec.period_s
+    n_max = spec.n_steps_max
+    tol = spec.heading_tolerance_rad
+    stab = controller.stabiliser
+    rows, t_ns, h_ns = block.rows, block.t_ns, block.h_ns
+    row = n = 0
+    path = energy = energy_pos = tau_sq = peak = 0.0
+    x, y, theta = tally.x, tally.y, tally.theta
+    w_r_prev, w_l_prev = float(out[5]), float(out[6])
+    tau_r_prev = tau_l_prev = 0.0
+    converged = False
+    try:
         while True:
             v, omega = float(out[3]), float(out[4])
             w_r, w_l = float(out[5]), float(out[6])
@@ -175,26 +314,17 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
                 sig = (*sig[:14], 0.0, 0.0, *sig[16:])
             else:
                 sig = controller.step(kx, ky, ktheta, w_r, w_l)
-            block[row, :_N_PLANT] = out
-            block[row, _N_PLANT:] = sig
+            rows[row, :_N_PLANT] = out
+            rows[row, _N_PLANT:] = sig
             t_ns[row] = round(n * h_ns)
             row += 1
-            steps = n + 1
+            tally.steps = n + 1
             if row == BLOCK_ROWS:
                 row = 0
-                flush(BLOCK_ROWS)
+                block.flush(BLOCK_ROWS)
                 if progress is not None:
                     progress(n * h, spec.t_max_s)
-            if converged:
-                status = "converged"
-                time_to_goal = n * h
-                message = f"converged at t = {n * h:.2f} s"
-                break
-            if n >= n_max:
-                status = "timeout"
-                message = (f"not converged within max_time_s = {spec.t_max_s:g} s "
-                           f"(distance {math.hypot(xd - x, yd - y):.3f} m, heading error "
-                           f"{math.degrees(abs(stab.heading_error(theta))):.2f} deg)")
+            if converged or n >= n_max:
                 break
             tau_r, tau_l = sig[_C_TAU_R - _N_PLANT], sig[_C_TAU_L - _N_PLANT]
             a_r, a_l = abs(tau_r), abs(tau_l)
@@ -210,34 +340,154 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
             x, y = nx, ny
             w_r_prev, w_l_prev = w_r, w_l
             tau_r_prev, tau_l_prev = tau_r, tau_l
-        rows_left, row = row, 0
-        flush(rows_left)
-    except Exception as exc:  # a plant or controller failure ends the run, never the caller
-        status = "failed"
-        message = f"{type(exc).__name__} at t = {n * h:g} s: {exc}"
-        try:  # keep the rows recorded before the failure
-            flush(row)
-        except Exception as sink_exc:
-            message += f"; and the sink failed: {sink_exc}"
-    if progress is not None:
-        progress(min(n * h, spec.t_max_s), spec.t_max_s)
-
-    pos_err = math.hypot(xd - x, yd - y) if math.isfinite(x) and math.isfinite(y) else math.nan
-    head_err = abs(wrap_angle(theta - goal.heading_rad)) if math.isfinite(theta) else math.nan
-    est_pos_err, est_head_err = pos_err, head_err
-    if sensing is not None:
-        known = sensing.pose
-        est_pos_err = math.hypot(xd - known.x_m, yd - known.y_m)
-        est_head_err = abs(wrap_angle(known.heading_rad - goal.heading_rad))
-    return RunResult(status=status, message=message, final_position_error_m=pos_err,
-                     final_heading_error_rad=head_err, time_to_goal_s=time_to_goal,
-                     path_length_m=path, energy_net_j=energy,
-                     energy_positive_j=energy_pos, energy_abs_j=2.0 * energy_pos - energy,
-                     torque_sq_integral=tau_sq,
-                     peak_torque_nm=peak, steps=steps, final_pose=Pose(x, y, theta),
-                     name=spec.name, estimated_final_position_error_m=est_pos_err,
-                     estimated_final_heading_error_rad=est_head_err,
-                     sensing=None if sensing is None else sensing.record())
+    finally:
+        tally.n, tally.row, tally.x, tally.y, tally.theta = n, row, x, y, theta
+        tally.path, tally.energy, tally.energy_pos = path, energy, energy_pos
+        tally.tau_sq, tally.peak = tau_sq, peak
+    _end(spec, tally, converged, stab.heading_error)
 
 
-__all__ = ["BLOCK_ROWS", "BlockSink", "Progress", "RunResult", "run_closed_loop"]
+#: Columns of the block a stabiliser fills (all but the plant outputs and the two torques).
+_LAW_COLUMNS = np.array([c for c in range(_N_PLANT, _N_SIG) if c not in (_C_TAU_R, _C_TAU_L)])
+
+
+def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
+                controller: ServoedController, sensing: Sensing | None,
+                out: npt.NDArray[np.float64], block: _Block, tally: _Tally,
+                progress: Progress | None) -> None:
+    """A Python law, the wheel servos and the FMU step in one C call per step.
+
+    The stabiliser runs in Python as in :func:`_python_loop`; ``wmr_servo_step`` runs the two
+    :class:`~wmr.core.control.WheelServo` updates, writes the row's plant outputs and torques,
+    and takes the FMU step with the bookkeeping, operation for operation as in Python.  The
+    law's 18 columns are gathered per row and written into the block once it is full.
+    """
+    lib, call = stepper
+    h = spec.period_s
+    n_max = spec.n_steps_max
+    tol = spec.heading_tolerance_rad
+    stab = controller.stabiliser
+    servo = controller.right
+    st = _loop_state(spec, block)
+    st.k_p, st.k_i, st.torque_max, st.h_servo = servo.K_p, servo.K_i, servo.torque_max, servo.h
+    st.b_ff, st.tau_c_ff, st.w_c, st.k_t = servo.b_ff, servo.tau_c_ff, servo.w_c, servo.k_t
+    left = controller.left
+    if (left.K_p, left.K_i, left.torque_max, left.h, left.b_ff, left.tau_c_ff, left.w_c,
+            left.k_t) != (servo.K_p, servo.K_i, servo.torque_max, servo.h, servo.b_ff,
+                          servo.tau_c_ff, servo.w_c, servo.k_t):
+        raise ValueError("the C stepper needs two alike wheel servos")
+    st.integral_r, st.integral_l = servo.integral, left.integral
+    step = partial(lib.wmr_servo_step, ctypes.byref(call), ctypes.byref(st))
+    o = (ctypes.c_double * _N_PLANT).from_address(call.out_val)
+    laws: list[tuple[float, ...]] = []
+    keep = laws.append
+    converged_test, update = stab.converged, stab.update
+    isfinite, hypot = math.isfinite, math.hypot
+    n = n_first = 0
+    path = 0.0
+    x, y, theta = tally.x, tally.y, tally.theta
+    converged = False
+
+    def fill(rows: int) -> None:
+        if rows:
+            block.rows[:rows, _LAW_COLUMNS] = laws
+            block.set_times(n_first, rows)
+            laws.clear()
+
+    try:
+        while True:
+            if not (isfinite(x) and isfinite(y) and isfinite(theta)):
+                raise FloatingPointError(f"plant returned a non-finite pose at t={n * h:g} s")
+            if sensing is None:
+                kx, ky, ktheta = x, y, theta
+                converged = converged_test(x, y, theta, o[3], o[4], tol)
+            else:
+                kx, ky, ktheta, kv, komega = sensing.step(n, out)
+                converged = converged_test(kx, ky, ktheta, kv, komega, tol)
+            law = update(kx, ky, ktheta)
+            keep(law)
+            code = step(law[12], law[13], 1 if converged else (2 if n >= n_max else 0))
+            if st.row == BLOCK_ROWS:
+                fill(BLOCK_ROWS)
+                st.row = 0
+                block.flush(BLOCK_ROWS)
+                n_first = n + 1
+                if progress is not None:
+                    progress(n * h, spec.t_max_s)
+            if code:
+                plant.set_clock(h, n)  # type: ignore[attr-defined]
+                plant.raise_step_error(code)  # type: ignore[attr-defined]
+            if converged or n >= n_max:
+                break
+            n += 1
+            nx, ny, theta = o[0], o[1], o[2]
+            path += hypot(nx - x, ny - y)
+            x, y = nx, ny
+    finally:
+        fill(st.row)
+        plant.set_clock(h, int(st.n))  # type: ignore[attr-defined]
+        servo.integral, left.integral = st.integral_r, st.integral_l
+        tally.n, tally.row, tally.steps = n, st.row, n_first + st.row
+        tally.x, tally.y, tally.theta, tally.path = x, y, theta, path
+        tally.energy, tally.energy_pos = st.energy_net, st.energy_pos
+        tally.tau_sq, tally.peak = st.tau_sq, st.peak
+    _end(spec, tally, converged, stab.heading_error)
+
+
+def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
+              controller: FmuController, block: _Block, tally: _Tally,
+              progress: Progress | None) -> None:
+    """Both sides FMUs: whole blocks of the closed loop in one C call (``wmr_fmu_loop``)."""
+    lib, call = stepper
+    h = spec.period_s
+    st = _loop_state(spec, block)
+    st.i_converged = controller.converged_index
+    run = partial(lib.wmr_fmu_loop, ctypes.byref(call), ctypes.byref(controller.fmu_call),
+                  ctypes.byref(st))
+    o = (ctypes.c_double * _N_PLANT).from_address(call.out_val)
+    hypot = math.hypot
+    path = 0.0
+    x, y = tally.x, tally.y
+    logged = 0  # rows of the run delivered or in the block
+    code = 0
+    try:
+        while True:
+            code = run()
+            rows = st.row
+            xs, ys = block.rows[:rows, 0].tolist(), block.rows[:rows, 1].tolist()
+            start = 1 if logged == 0 else 0  # the first row of the run has no step before it
+            if start < rows:
+                for nx, ny in zip(xs[start:], ys[start:], strict=True):
+                    path += hypot(nx - x, ny - y)
+                    x, y = nx, ny
+            elif rows:
+                x, y = xs[0], ys[0]
+            block.set_times(logged, rows)
+            logged += rows
+            if code != STEP_FULL:
+                break
+            st.row = 0
+            block.flush(BLOCK_ROWS)
+            if progress is not None:
+                progress((logged - 1) * h, spec.t_max_s)
+        if st.n >= logged:  # the plant stepped past the last row: that step's path counts
+            path += hypot(o[0] - x, o[1] - y)
+            x, y = o[0], o[1]
+    finally:
+        plant.set_clock(h, int(st.n))  # type: ignore[attr-defined]
+        controller.set_clock(logged)
+        tally.n, tally.row, tally.steps = int(st.n), st.row, logged
+        tally.x, tally.y, tally.theta, tally.path = o[0], o[1], o[2], path
+        tally.energy, tally.energy_pos = st.energy_net, st.energy_pos
+        tally.tau_sq, tally.peak = st.tau_sq, st.peak
+    if code & STEP_DONE:
+        _end(spec, tally, code == STEP_DONE | 1, controller.stabiliser.heading_error)
+    elif code == STEP_NONFINITE:
+        raise FloatingPointError(f"plant returned a non-finite pose at t={tally.n * h:g} s")
+    elif code >= STEP_CONTROLLER:
+        controller.raise_step_error(code - STEP_CONTROLLER)
+    else:
+        plant.raise_step_error(code)  # type: ignore[attr-defined]
+
+
+__all__ = ["BLOCK_ROWS", "BlockSink", "LoopState", "Progress", "RunResult", "run_closed_loop"]

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from wmr.adapters.fmi.archive import file_sha256, safe_extract
+from wmr.adapters.fmi.robot import fmu_call
 from wmr.build.controller_interface import INPUTS, SIGNAL_OUTPUTS
 from wmr.config.scenario import RunSpec
 from wmr.core.control import wrap_angle
@@ -165,6 +166,9 @@ class FmuController:
             refs = [ctypes.byref(f) for f in flags]
             raw_step3 = dll.fmi3DoStep
             self._raw_step = lambda t, h: raw_step3(comp, t, h, 1, *refs)
+        #: this instance as the C stepper sees it (``wmr_fmu_loop``)
+        self.fmu_call = fmu_call(self.fmi_version, dll, comp, self._names, self._in_vr,
+                                 self._in_val, self._out_vr, self._out_val)
 
     def _check(self, which: int, status: int) -> None:
         if status <= 1:
@@ -173,6 +177,20 @@ class FmuController:
         inputs = ", ".join(f"{n} = {v!r}" for n, v in zip(INPUTS, self._in_val, strict=True))
         raise FmuError(f"controller FMU: {self._names[which]} returned {name} at "
                        f"t = {self._t:g} s ({inputs}); the FMU's log says why")
+
+    def raise_step_error(self, code: int) -> None:
+        """Raise the :class:`FmuError` of a stepper status ``16 * (call + 1) + status``."""
+        self._check(code // 16 - 1, code % 16)
+
+    def set_clock(self, n: int) -> None:
+        """The clock after ``n`` samples taken by the stepper, as :meth:`step` leaves it."""
+        self._n = n
+        self._t = n * self._h
+
+    @property
+    def converged_index(self) -> int:
+        """Index of the ``converged`` output in the stepper's output array."""
+        return _I_CONVERGED
 
     def configure(self, spec: RunSpec) -> None:
         """Set the run's goal, gains, limits, robot and timing, and start at t = 0."""

@@ -30,8 +30,74 @@ import numpy.typing as npt
 
 from wmr.adapters.fmi.archive import file_sha256, safe_extract
 from wmr.adapters.fmi.varmap import VariableMap, resolve
+from wmr.core.closedloop import LoopState
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
 from wmr.infra.errors import ConfigError, FmuError
+
+
+class FmuCall(ctypes.Structure):
+    """One FMU instance and its exchange arrays, as the C stepper sees it (``wmr_fmu``)."""
+
+    _fields_ = [("fmi_version", ctypes.c_int), ("n_in", ctypes.c_int),
+                ("n_out", ctypes.c_int), ("pad", ctypes.c_int),
+                ("instance", ctypes.c_void_p), ("set", ctypes.c_void_p),
+                ("do_step", ctypes.c_void_p), ("get", ctypes.c_void_p),
+                ("in_vr", ctypes.c_void_p), ("out_vr", ctypes.c_void_p),
+                ("in_val", ctypes.c_void_p), ("out_val", ctypes.c_void_p),
+                ("in_gain", ctypes.c_double * 2), ("in_bias", ctypes.c_double * 2)]
+
+
+_STEPPER: list[Any] = []
+
+
+def load_stepper() -> Any:
+    """The C stepper library (ctypes), built on first use; None when it cannot be had.
+
+    It also holds the MCAP row encoder of :class:`wmr.adapters.mcap.RunLogWriter`.
+
+    ``WMR_STEPPER=0`` in the environment turns it off (the pure-Python path, same results).
+    """
+    if os.environ.get("WMR_STEPPER", "1") == "0":
+        return None
+    if not _STEPPER:
+        lib: Any = None
+        try:
+            from wmr.build.fmus import build_stepper
+
+            path = build_stepper()
+            if path is not None:
+                lib = ctypes.CDLL(str(path))
+                ptr = ctypes.POINTER
+                lib.wmr_exchange.argtypes = [ptr(FmuCall), ctypes.c_double, ctypes.c_double,
+                                             ctypes.c_double, ctypes.c_double]
+                lib.wmr_servo_step.argtypes = [ptr(FmuCall), ptr(LoopState), ctypes.c_double,
+                                               ctypes.c_double, ctypes.c_int]
+                lib.wmr_fmu_loop.argtypes = [ptr(FmuCall), ptr(FmuCall), ptr(LoopState)]
+                for fun in (lib.wmr_exchange, lib.wmr_servo_step, lib.wmr_fmu_loop):
+                    fun.restype = ctypes.c_int
+                lib.wmr_encode_rows.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 2,
+                                                *[ctypes.c_int] * 2, *[ctypes.c_void_p] * 8]
+                lib.wmr_encode_rows.restype = ctypes.c_longlong
+        except (OSError, AttributeError):  # no library, or an old one: the Python path
+            lib = None
+        _STEPPER.append(lib)
+    return _STEPPER[0]
+
+
+def fmu_call(fmi_version: str, dll: Any, component: Any, names: tuple[str, str, str],
+             in_vr: Any, in_val: Any, out_vr: Any, out_val: Any) -> FmuCall:
+    """The stepper's view of an instance: the FMU's own ``set``, ``doStep`` and ``get``."""
+    call = FmuCall()
+    call.fmi_version = 2 if fmi_version.startswith("2") else 3
+    call.n_in, call.n_out = len(in_vr), len(out_vr)
+    call.instance = component
+    call.set, call.do_step, call.get = (ctypes.cast(getattr(dll, n), ctypes.c_void_p).value
+                                        for n in names)
+    call.in_vr, call.in_val = ctypes.addressof(in_vr), ctypes.addressof(in_val)
+    call.out_vr, call.out_val = ctypes.addressof(out_vr), ctypes.addressof(out_val)
+    call.in_gain[0] = call.in_gain[1] = 1.0
+    return call
+
 
 #: Prefix of the folders an FMU is extracted to (in the temp folder).
 TMP_PREFIX = "wmr-fmu-"
@@ -278,6 +344,16 @@ class FmuPlant:
             last = ctypes.byref(self._fmi3_out[3])
             raw_step3 = dll.fmi3DoStep
             self._raw_step = lambda t, h: raw_step3(comp, t, h, 1, *flags, last)
+        self._fast: Any = None
+        lib = load_stepper()
+        if lib is not None:
+            call = fmu_call(self.fmi_version, dll, comp, self._names, self._in_vr,
+                            self._in_val, self._out_vr, self._out_val)
+            call.in_gain[0], call.in_bias[0] = self._in_gain_r, self._in_bias_r
+            call.in_gain[1], call.in_bias[1] = self._in_gain_l, self._in_bias_l
+            self.fmu_call = call
+            self._call_ref = ctypes.byref(call)
+            self._fast = partial(lib.wmr_exchange, self._call_ref)
 
     def _check(self, which: int, status: int) -> None:
         """Raise for a status above fmiWarning of call ``which`` (0 set, 1 step, 2 get)."""
@@ -363,18 +439,43 @@ class FmuPlant:
 
     def step(self, tau_r_nm: float, tau_l_nm: float, h_s: float) -> npt.NDArray[np.float64]:
         """Hold the torques for ``h_s`` seconds; the returned array is reused by the next step."""
-        self._in_val[0] = tau_r_nm * self._in_gain_r + self._in_bias_r
-        self._in_val[1] = tau_l_nm * self._in_gain_l + self._in_bias_l
-        # a failed call raises; the outputs keep their last good values
-        self._check(0, self._raw_set())
-        self._check(1, self._raw_step(self._t, h_s))
-        self._get_outputs()
+        if self._fast is not None:  # the same three calls, made by the C stepper
+            code = self._fast(tau_r_nm, tau_l_nm, self._t, h_s)
+            if code:
+                self.raise_step_error(code)
+            if self._convert:
+                self._outputs[self._out_idx] = (self._raw_out * self._out_scale
+                                                + self._out_offset)
+        else:
+            self._in_val[0] = tau_r_nm * self._in_gain_r + self._in_bias_r
+            self._in_val[1] = tau_l_nm * self._in_gain_l + self._in_bias_l
+            # a failed call raises; the outputs keep their last good values
+            self._check(0, self._raw_set())
+            self._check(1, self._raw_step(self._t, h_s))
+            self._get_outputs()
         # Time is t0 + n*h while h stays the same (never t += h): no drift over long runs.
         if h_s != self._h:
             self._t0, self._h, self._n = self._t, h_s, 0
         self._n += 1
         self._t = self._t0 + self._n * h_s
         return self._outputs
+
+    def raise_step_error(self, code: int) -> None:
+        """Raise the :class:`FmuError` of a stepper status ``16 * (call + 1) + status``."""
+        self._check(code // 16 - 1, code % 16)
+
+    def stepper(self) -> tuple[Any, FmuCall] | None:
+        """The C stepper and this instance's view for it, when both are there and the outputs
+        need no conversion (a mapped FMU with other units steps through :meth:`step`)."""
+        if self._fast is None or self._convert:
+            return None
+        return load_stepper(), self.fmu_call
+
+    def set_clock(self, h_s: float, n: int) -> None:
+        """The clock after ``n`` steps of ``h_s`` from t = 0 taken by the stepper, as
+        :meth:`step` would have left it."""
+        self._t0, self._h, self._n = 0.0, h_s, n
+        self._t = self._t0 + n * h_s
 
     @property
     def time_s(self) -> float:

@@ -21,6 +21,7 @@ import json
 import math
 import os
 import struct
+import sys
 import zlib
 from collections.abc import Mapping
 from importlib.metadata import PackageNotFoundError, version
@@ -52,6 +53,9 @@ import wmr
 from wmr.adapters.mcap.schemas import (
     GOAL_SCHEMA,
     GOAL_TOPIC,
+    N_SOURCES,
+    SRC_QW,
+    SRC_QZ,
     STEP_TOPICS,
     WORLD_FRAME,
     RowEncoder,
@@ -59,7 +63,7 @@ from wmr.adapters.mcap.schemas import (
     file_descriptor_set,
     message_class,
 )
-from wmr.core.signals import SIGNALS
+from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.durable import AtomicFile
 from wmr.infra.errors import LogError
 
@@ -330,6 +334,60 @@ class McapFile:
             self._stream.close()
 
 
+class _CRowEncoder:
+    """:class:`RowEncoder`'s bytes, written by the C stepper (``wmr_encode_rows``) one row
+    after another instead of by numpy gathers of whole columns.
+
+    The derived source columns (the heading quaternion) are computed by numpy exactly as
+    :class:`RowEncoder` computes them; the C code only places bytes.
+    """
+
+    def __init__(self, lib: Any, channel_ids: tuple[int, ...],
+                 layouts: tuple[TopicLayout, ...]) -> None:
+        self._fun = lib.wmr_encode_rows
+        self._n_topics = len(layouts)
+        i32 = np.int32
+        self._channel = np.asarray(channel_ids, i32)
+        self._body_len = np.asarray([len(t.body) for t in layouts], i32)
+        self._bodies = np.frombuffer(b"".join(t.body for t in layouts), np.uint8).copy()
+        self._n_slots = np.asarray([len(t.slots) for t in layouts], i32)
+        self._slot_off = np.asarray([o for t in layouts for o, _ in t.slots] or [0], i32)
+        self._slot_src = np.asarray([c for t in layouts for _, c in t.slots] or [0], i32)
+        #: longest records of one row: header 33, timestamp 12, bodies
+        self._row_max = int(self._body_len.sum()) + (33 + 12) * self._n_topics
+        self._args = [a.ctypes.data for a in (self._channel, self._body_len, self._bodies,
+                                              self._n_slots, self._slot_off, self._slot_src)]
+
+    def encode(self, t_ns: NDArray[np.int64],
+               block: NDArray[np.float64]) -> tuple[bytes, NDArray[np.int64]]:
+        """As :meth:`RowEncoder.encode`."""
+        n = t_ns.shape[0]
+        src = np.empty((n, N_SOURCES), np.float64)
+        src[:, : len(SIGNALS)] = block
+        half = 0.5 * block[:, COLUMN["theta_rad"]]
+        src[:, SRC_QZ] = np.sin(half)
+        src[:, SRC_QW] = np.cos(half)
+        t = np.ascontiguousarray(t_ns, np.int64)
+        out = np.empty(n * self._row_max, np.uint8)
+        offsets = np.empty((n, self._n_topics), np.int64)
+        size = self._fun(n, t.ctypes.data, src.ctypes.data, N_SOURCES, self._n_topics,
+                         *self._args, out.ctypes.data, offsets.ctypes.data)
+        return out[:size].tobytes(), offsets
+
+
+def _row_encoder(channel_ids: tuple[int, ...],
+                 layouts: tuple[TopicLayout, ...]) -> RowEncoder | _CRowEncoder:
+    """The C row encoder when the stepper is there (and doubles are little-endian, as
+    protobuf writes them), else numpy's: the same bytes."""
+    if sys.byteorder == "little":
+        from wmr.adapters.fmi.robot import load_stepper
+
+        lib = load_stepper()
+        if lib is not None:
+            return _CRowEncoder(lib, channel_ids, layouts)
+    return RowEncoder(channel_ids, layouts)
+
+
 def _as_str(value: object) -> str:
     """Metadata values are strings: keep strings, JSON-encode anything else."""
     if isinstance(value, str):
@@ -458,7 +516,7 @@ class RunLogWriter:
             self._file.add_metadata("run", run_record)
             for name, (media_type, data) in (attachments or {}).items():
                 self._file.add_attachment(name, media_type, bytes(data))
-            self._encoder = RowEncoder(channel_ids, topics)
+            self._encoder = _row_encoder(channel_ids, topics)
             self._channel_ids = channel_ids
             self._write_goal(goal_channel, goal)
         except BaseException:

@@ -97,6 +97,26 @@ def unwrap_near(a: float, previous: float) -> float:
     return a
 
 
+# The hot path's names, bound once (a module attribute lookup per call is measurable there).
+_remainder, _hypot, _atan2, _cos, _sin = math.remainder, math.hypot, math.atan2, math.cos, math.sin
+_PI: Final = math.pi
+_BAND_HI: Final = math.pi - HYSTERESIS_BAND_RAD
+_BAND_LO: Final = HYSTERESIS_BAND_RAD - math.pi
+
+
+def _wrapped_near(a: float, previous: float) -> float:
+    """``unwrap_near(wrap_angle(a), previous)`` in one call, operation for operation."""
+    w = _remainder(a, TWO_PI)
+    if w <= -_PI:
+        w += TWO_PI
+    if w > _BAND_HI:
+        if previous < 0.0:
+            return w - TWO_PI
+    elif w < _BAND_LO and previous > 0.0:
+        return w + TWO_PI
+    return w
+
+
 def _check_fields(obj: object, section: str, positive: tuple[str, ...]) -> None:
     for f in fields(obj):  # type: ignore[arg-type]
         value = getattr(obj, f.name)
@@ -274,7 +294,7 @@ class PointStabiliser:
         """
         dx = self.xd - x
         dy = self.yd - y
-        dr = math.hypot(dx, dy)  # eq. 26, Delta r
+        dr = _hypot(dx, dy)  # eq. 26, Delta r
         phase = self.phase
         if phase == APPROACH:
             if dr <= self.align_radius:
@@ -288,9 +308,9 @@ class PointStabiliser:
             self.i_theta = 0.0
             self.prev_gamma = 0.0
 
-        alpha = math.atan2(dy, dx)  # eq. 27 (corrected): direction to the goal
+        alpha = _atan2(dy, dx)  # eq. 27 (corrected): direction to the goal
         # ROC: beta = theta_d - alpha, wrapped, with hysteresis near +-pi, then clamped
-        beta = unwrap_near(wrap_angle(self.theta_d - alpha), self.prev_beta)
+        beta = _wrapped_near(self.theta_d - alpha, self.prev_beta)
         self.prev_beta = beta
         if beta > BETA_MAX_RAD:
             beta_c = BETA_MAX_RAD
@@ -300,14 +320,14 @@ class PointStabiliser:
             beta_c = beta
         # the reference point R: the goal rotated by beta about B (Fig. 6)
         a_r = alpha - beta_c
-        rx = x + dr * math.cos(a_r)
-        ry = y + dr * math.sin(a_r)
+        rx = x + dr * _cos(a_r)
+        ry = y + dr * _sin(a_r)
 
         if phase == APPROACH:
             # ROC: gamma = e_phi - beta = 2 alpha - theta_d - theta, wrapped (errata)
-            gamma = unwrap_near(wrap_angle(a_r - theta), self.prev_gamma)
+            gamma = _wrapped_near(a_r - theta, self.prev_gamma)
             self.prev_gamma = gamma
-            e_s = dr * math.cos(gamma)  # ROC distance error (eq. 26 with gamma for phi)
+            e_s = dr * _cos(gamma)  # ROC distance error (eq. 26 with gamma for phi)
             e_theta = gamma
             s_lo = 0.0  # forward only: turn towards R in place rather than reverse
             s_hi = self.v_max
@@ -315,10 +335,10 @@ class PointStabiliser:
             k_itheta = self.K_itheta
         else:
             # extension: alignment in place inside the stop radius
-            gamma = unwrap_near(wrap_angle(self.theta_d - theta), self.prev_gamma)
+            gamma = _wrapped_near(self.theta_d - theta, self.prev_gamma)
             self.prev_gamma = gamma
             # hold B at the goal along the heading line (defined for dr = 0, unlike alpha)
-            e_s = dx * math.cos(theta) + dy * math.sin(theta)
+            e_s = dx * _cos(theta) + dy * _sin(theta)
             e_theta = gamma
             s_hi = self.v_max
             s_lo = -s_hi
@@ -363,15 +383,16 @@ class PointStabiliser:
         inv_r = self.inv_r
         w_r = (u_s + self.L * u_theta) * inv_r
         w_l = (u_s - self.L * u_theta) * inv_r
-        peak = max(abs(w_r), abs(w_l))
+        abs_r, abs_l = abs(w_r), abs(w_l)
+        peak = abs_l if abs_l > abs_r else abs_r  # max(|w_r|, |w_l|), as max() picks
         if peak > self.wheel_max:
             k = self.wheel_max / peak
             w_r *= k
             w_l *= k
 
         # point D on the heading line (Fig. 4)
-        d_x = x + e_s * math.cos(theta)
-        d_y = y + e_s * math.sin(theta)
+        d_x = x + e_s * _cos(theta)
+        d_y = y + e_s * _sin(theta)
         return (dr, e_s, e_theta, alpha, beta, gamma, u_s, u_theta, p_s, i_s, p_theta,
                 i_theta, w_r, w_l, d_x, d_y, rx, ry)
 

@@ -1,0 +1,208 @@
+"""The C stepper (fmu/src/stepper) against the pure-Python master loop: the same bits.
+
+Every run here is made twice on the same FMU, with the stepper (one C call per step, or whole
+blocks in C with the controller FMU) and without it (``WMR_STEPPER=0``, the loop that was the
+only one before), and must give the same :class:`~wmr.core.closedloop.RunResult` (float
+fields compared by their bits) and the same log bytes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import wmr.core.closedloop as closedloop
+from wmr.adapters.fmi import robot
+from wmr.adapters.fmi.controller import FmuController
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.apps.run import run_to_log
+from wmr.build.fmus import BuildResult, build_stepper
+from wmr.config.scenario import RunSpec, load_scenario, with_overrides
+from wmr.core.closedloop import RunResult, run_closed_loop
+
+
+@pytest.fixture(autouse=True)
+def fresh_stepper(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Each test loads the stepper anew (the library is cached per process)."""
+    robot._STEPPER.clear()
+    yield
+    robot._STEPPER.clear()
+
+
+def _fig11(**overrides: Any) -> RunSpec:
+    return with_overrides(load_scenario("fig11").runs[0], **overrides)
+
+
+def _bits(result: RunResult) -> dict[str, Any]:
+    """The result's fields, floats as their bit patterns (NaN equals NaN, -0.0 is not 0.0)."""
+    out: dict[str, Any] = {}
+    for name, value in dataclasses.asdict(result).items():
+        if name == "sensing":
+            continue
+        if isinstance(value, dict):
+            value = tuple(struct.pack("<d", v) for v in value.values())
+        elif isinstance(value, float):
+            value = struct.pack("<d", value)
+        out[name] = value
+    return out
+
+
+def _both(monkeypatch: pytest.MonkeyPatch, fmu: Path, spec: RunSpec, log: Path | None,
+          controller_fmu: Path | None = None) -> list[tuple[dict[str, Any], bytes]]:
+    """The run with the stepper and without it: its result's bits and its log's bytes."""
+    got = []
+    for mode in ("1", "0"):
+        monkeypatch.setenv("WMR_STEPPER", mode)
+        with FmuPlant(fmu) as plant:
+            plant.reset(spec.params, spec.start)  # instantiated here, with or without
+            assert (plant.stepper() is not None) == (mode == "1")
+            ctrl = FmuController(controller_fmu) if controller_fmu is not None else None
+            try:
+                if log is None:
+                    result = run_closed_loop(spec, plant, controller_fmu=ctrl)
+                    got.append((_bits(result), b""))
+                else:
+                    run_to_log(spec, log, plant, controller_fmu=ctrl)
+                    data = log.read_bytes()
+                    log.unlink()
+                    result = run_closed_loop(spec, plant, controller_fmu=ctrl)
+                    got.append((_bits(result), data))
+            finally:
+                if ctrl is not None:
+                    ctrl.close()
+    return got
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_python_law_converged_run_is_bit_identical_and_its_log_byte_identical(
+        monkeypatch: pytest.MonkeyPatch, built: BuildResult, tmp_path: Path,
+        version: int) -> None:
+    fast, slow = _both(monkeypatch, built.fmus[version], _fig11(), tmp_path / "r.mcap")
+    assert fast[0]["status"] == "converged" and fast[0]["steps"] == 2672
+    assert fast == slow
+
+
+def test_controller_fmu_converged_run_is_bit_identical_and_its_log_byte_identical(
+        monkeypatch: pytest.MonkeyPatch, built: BuildResult, tmp_path: Path) -> None:
+    fast, slow = _both(monkeypatch, built.fmus[3], _fig11(), tmp_path / "r.mcap",
+                       built.controllers[3])
+    assert fast[0]["status"] == "converged"
+    assert fast == slow
+
+
+@pytest.mark.parametrize("controller", ["pi", "fmu", "astolfi"])
+def test_timeout_in_the_middle_of_a_block_is_bit_identical(
+        monkeypatch: pytest.MonkeyPatch, built: BuildResult, controller: str) -> None:
+    spec = _fig11(t_max_s=2.555)  # 256 steps: the last block is not full
+    if controller == "astolfi":
+        spec = dataclasses.replace(spec, controller="astolfi")
+    fast, slow = _both(monkeypatch, built.fmus[3], spec, None,
+                       built.controllers[3] if controller == "fmu" else None)
+    assert fast[0]["status"] == "timeout" and fast[0]["steps"] == 257
+    assert fast == slow
+
+
+def test_run_with_sensors_is_bit_identical(monkeypatch: pytest.MonkeyPatch,
+                                           built: BuildResult) -> None:
+    spec = _fig11(t_max_s=3.0, sensors={"gps_sigma_m": 0.2})
+    fast, slow = _both(monkeypatch, built.fmus[2], spec, None)
+    assert fast == slow
+
+
+def test_plant_failure_gives_the_same_status_message_and_rows(
+        monkeypatch: pytest.MonkeyPatch, built: BuildResult, tmp_path: Path) -> None:
+    """A law that asks for a NaN wheel speed at step 150: the FMU refuses the NaN torque."""
+    make = closedloop.make_controller
+
+    class NanAt151:
+        def __init__(self, law: Any) -> None:
+            self.law, self.calls = law, 0
+            self.converged, self.heading_error = law.converged, law.heading_error
+
+        def update(self, x: float, y: float, theta: float) -> tuple[float, ...]:
+            self.calls += 1
+            sig = self.law.update(x, y, theta)
+            return (*sig[:12], math.nan, *sig[13:]) if self.calls == 151 else sig
+
+    def failing(*args: Any) -> Any:
+        ctrl = make(*args)
+        ctrl.stabiliser = NanAt151(ctrl.stabiliser)
+        return ctrl
+
+    monkeypatch.setattr(closedloop, "make_controller", failing)
+    fast, slow = _both(monkeypatch, built.fmus[3], _fig11(), tmp_path / "r.mcap")
+    assert fast[0]["status"] == "failed"
+    assert "FmuError at t = 1.5 s: fmi3SetFloat64 returned Error" in fast[0]["message"]
+    assert fast == slow
+
+
+def test_without_a_compiler_the_python_path_runs(monkeypatch: pytest.MonkeyPatch,
+                                                 built: BuildResult) -> None:
+    import wmr.build.fmus
+
+    monkeypatch.setattr(wmr.build.fmus, "build_stepper", lambda *a, **k: None)
+    assert robot.load_stepper() is None
+    with FmuPlant(built.fmus[3]) as plant:
+        result = run_closed_loop(_fig11(t_max_s=1.0), plant)
+        assert plant.stepper() is None
+    assert result.status == "timeout" and result.steps == 101
+
+
+def test_the_stepper_is_rebuilt_when_its_source_changes(tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    first = build_stepper(tmp_path)
+    assert first is not None and first.exists()
+    assert build_stepper(tmp_path) == first  # reused
+    src = tmp_path / "wmr_stepper.c"
+    src.write_text(wmr_source() + "\n/* changed */\n")
+    monkeypatch.setattr("wmr.build.fmus.stepper_source", lambda: src)
+    second = build_stepper(tmp_path)
+    assert second is not None and second != first
+
+
+def wmr_source() -> str:
+    from wmr.build.fmus import stepper_source
+
+    return stepper_source().read_text()
+
+
+def test_fmu_plant_step_through_the_stepper_matches_the_three_calls(
+        monkeypatch: pytest.MonkeyPatch, built: BuildResult) -> None:
+    spec = _fig11()
+    outputs = []
+    for mode in ("1", "0"):
+        monkeypatch.setenv("WMR_STEPPER", mode)
+        with FmuPlant(built.fmus[2]) as plant:
+            plant.reset(spec.params, spec.start)
+            rows = [plant.step(0.5 * math.sin(k), -0.3, 0.01).tobytes() for k in range(50)]
+            outputs.append((rows, plant.time_s))
+    assert outputs[0] == outputs[1]
+
+
+def test_the_hot_path_wrap_is_wrap_then_unwrap_bit_for_bit() -> None:
+    """PointStabiliser.update's one-call ``_wrapped_near`` against the two public functions
+    it replaces, on every band edge and on random angles and previous values."""
+    import random
+
+    from wmr.core.control.stabiliser import (
+        HYSTERESIS_BAND_RAD,
+        _wrapped_near,
+        unwrap_near,
+        wrap_angle,
+    )
+
+    rng = random.Random(5)
+    edges = [0.0, -0.0, math.pi, -math.pi, 2 * math.pi, math.pi - HYSTERESIS_BAND_RAD,
+             HYSTERESIS_BAND_RAD - math.pi, math.nan, 1e300, -1e300]
+    angles = edges + [math.nextafter(e, s) for e in edges for s in (-math.inf, math.inf)]
+    angles += [rng.uniform(-20.0, 20.0) for _ in range(20000)]
+    for a in angles:
+        for prev in (0.0, -0.0, 1.0, -1.0, rng.uniform(-4.0, 4.0)):
+            assert struct.pack("<d", _wrapped_near(a, prev)) == \
+                struct.pack("<d", unwrap_near(wrap_angle(a), prev)), (a, prev)
