@@ -270,10 +270,12 @@ def test_a_journal_path_outside_runs_is_not_followed(batches: dict[str, Path], s
     out = tmp_path / "copy"
     shutil.copytree(batches["full"], out, copy_function=shutil.copy2)
     lines = _journal(out)
-    lines[2]["path"] = "../" + str(lines[2]["path"])
+    # a path out of the folder and back: it names the run's finished log, but is not followed
+    lines[2]["path"] = f"runs/../../{out.name}/{lines[2]['path']}"
+    lines[3]["path"] = f"../{out.name}/{lines[3]['path']}"
     (out / "journal.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
     again = run_batch(load_batch(spec8), out, workers=1, fmu_path=fmu3, progress=False)
-    assert again.executed == [lines[2]["run_id"]]
+    assert sorted(again.executed) == [lines[2]["run_id"], lines[3]["run_id"]]
 
 
 # -- the policy in the spec, on the command line, and by default -----------------------------
