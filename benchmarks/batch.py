@@ -216,6 +216,7 @@ def policies(n_runs: int, names: list[str], with_dask: bool) -> None:
                     assert len(result.executed) == n_runs
                     rows.append((name, label, wall, n_runs / wall, _folder_bytes(folder),
                                  result.logs_kept, dict(result.counts)))
+                    print(*rows[-1], file=sys.stderr, flush=True)  # as they come: a long job
                 finally:
                     shutil.rmtree(folder, ignore_errors=True)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -139,7 +139,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "batch", help="many runs (sweeps, Monte Carlo) on all cores or a Dask cluster",
         description="Run every run of a batch spec (a scenario file plus [grid], [[list]] and "
                     "[random] sections; see docs/batch.md) and write OUT/summary.parquet and "
-                    "OUT/summary.csv, one row per run, and OUT/runs/<id>.mcap.  Rerunning the "
+                    "OUT/summary.csv, one row per run, and the logs the log policy keeps "
+                    "under OUT/runs (in shards of 1000 runs over 1000 runs).  Rerunning the "
                     "same command skips the runs already done.  Exit status 0 when the batch "
                     "completed (whatever the runs' statuses), 130 when interrupted (143 on "
                     "SIGTERM), 1 on bad input, a full disk, or when the first runs all fail "
