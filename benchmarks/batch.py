@@ -1,74 +1,101 @@
-"""Batch throughput: runs per second with 1 and 2 local workers and on a 2-worker Dask cluster.
+"""Batch throughput and where a run's time goes, on the Fig. 10 Monte Carlo (``mc_fig10``).
 
-The workload is the first ``N_RUNS`` runs of ``scenarios/mc_fig10.toml`` (Fig. 10 Monte Carlo,
-each run logged to MCAP), into a fresh folder per repetition.  The configurations take turns,
-after a warm-up round (the local forkserver and the Dask workers start once, as in a long
-session); the timings include everything else: worker processes, FMU shipping and opening,
-logs, journal and summary.  Prints medians over ``REPEATS`` and one table with the speed-up
-over one worker and the Dask overhead relative to the local executor with 2 workers.
+Three measurements, each printed as a table:
 
-Run: ``python benchmarks/batch.py [N_RUNS] [REPEATS]`` (defaults 200 and 3).
+``python benchmarks/batch.py executors [N_RUNS] [REPEATS]`` (defaults 200 and 3)
+    Runs per second with 1 and 2 local workers and on a 2-worker Dask cluster (LocalCluster
+    of processes), each run logged.  The configurations take turns, after a warm-up round (the
+    local forkserver and the Dask workers start once, as in a long session); the timings
+    include everything else: worker processes, FMU shipping and opening, logs, journal and
+    summary.  Medians over ``REPEATS``; speed-up over one worker and the Dask overhead
+    relative to the local executor with 2 workers.
+
+``python benchmarks/batch.py phases [N_RUNS]`` (default 50)
+    Where the time of one run goes, in one process, per run (medians over the first
+    ``N_RUNS`` runs): opening the FMU (once per worker), resetting it, the control loop
+    without a log, the loop holding its rows (the failed-only policy's cost for a run that
+    converges), the loop writing its full log, and appending its journal line.
+
+``python benchmarks/batch.py policies N_RUNS [--dask] [--policy P ...]``
+    One batch of ``N_RUNS`` runs of ``mc_fig10`` (its ``n`` raised to ``N_RUNS``) per log
+    policy (``full``, ``failed``, ``none``; default all three), on 2 local workers and, with
+    ``--dask``, on a Dask cluster of 2 worker processes started with ``dask scheduler`` and
+    ``dask worker`` (not in-process), the configurations taking turns: wall time, runs per
+    second, the disk the batch folder takes and the parent's peak memory.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
+import os
+import resource
 import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from wmr.apps.batch import BatchSpec, load_batch, run_batch
-from wmr.apps.run import default_fmu
+from wmr.apps.run import LogPolicy, default_fmu
 from wmr.infra.paths import scenarios_dir
 
 
-def _timed(batch: BatchSpec, go: Callable[[BatchSpec, Path], None]) -> float:
-    """Runs per second of one batch by ``go`` into a fresh folder."""
-    folder = Path(tempfile.mkdtemp(prefix="wmr-bench-batch-"))
-    try:
-        t0 = time.perf_counter()
-        go(batch, folder)
-        return len(batch.runs) / (time.perf_counter() - t0)
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
+def _mc_fig10(n_runs: int) -> BatchSpec:
+    """``mc_fig10`` with ``n_runs`` samples (the first 1000 are those of the scenario)."""
+    path = scenarios_dir() / "mc_fig10.toml"
+    text = path.read_text(encoding="utf-8").replace("n = 1000", f"n = {max(n_runs, 1000)}")
+    folder = Path(tempfile.mkdtemp(prefix="wmr-bench-spec-"))
+    spec = folder / "mc_fig10.toml"
+    spec.write_text(text, encoding="utf-8")
+    batch = load_batch(spec)
+    return batch if len(batch.runs) == n_runs else replace(batch, runs=batch.runs[:n_runs])
 
 
-def main(argv: list[str]) -> None:
-    """Measure and print the table.
+def _folder_bytes(folder: Path) -> int:
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
 
-    The configurations take turns (one batch each per round, after a warm-up round), so that
-    a load that comes and goes on the machine falls on all of them alike.
-    """
+
+def executors(n_runs: int, repeats: int) -> None:
+    """Runs per second of the local pool (1 and 2 workers) and of Dask (2 processes)."""
     from distributed import Client, LocalCluster
 
-    n_runs = int(argv[0]) if argv else 200
-    repeats = int(argv[1]) if len(argv) > 1 else 3
-    full = load_batch(scenarios_dir() / "mc_fig10.toml")
-    batch = replace(full, runs=full.runs[:n_runs])
+    batch = _mc_fig10(n_runs)
     fmu = default_fmu()
 
-    def local(workers: int) -> Callable[[BatchSpec, Path], None]:
-        def go(b: BatchSpec, out: Path) -> None:
-            result = run_batch(b, out, workers=workers, fmu_path=fmu, progress=False)
-            assert len(result.executed) == len(b.runs)
+    def timed(go: Callable[[Path], None]) -> float:
+        folder = Path(tempfile.mkdtemp(prefix="wmr-bench-batch-"))
+        try:
+            t0 = time.perf_counter()
+            go(folder)
+            return n_runs / (time.perf_counter() - t0)
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+
+    def local(workers: int) -> Callable[[Path], None]:
+        def go(out: Path) -> None:
+            result = run_batch(batch, out, workers=workers, fmu_path=fmu, progress=False)
+            assert len(result.executed) == n_runs
         return go
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster, Client(cluster) as client:
-        def on_dask(b: BatchSpec, out: Path) -> None:
-            result = run_batch(b, out, client=client, fmu_path=fmu, progress=False)
-            assert len(result.executed) == len(b.runs)
+        def on_dask(out: Path) -> None:
+            result = run_batch(batch, out, client=client, fmu_path=fmu, progress=False)
+            assert len(result.executed) == n_runs
 
         configs = {"local, 1 worker": local(1), "local, 2 workers": local(2),
                    "Dask, 2 workers": on_dask}
         samples: dict[str, list[float]] = {name: [] for name in configs}
-        for round_ in range(repeats + 1):
+        for round_ in range(repeats + 1):  # round 0 warms up
             for name, go in configs.items():
-                rate = _timed(batch, go)
+                rate = timed(go)
                 if round_:
                     samples[name].append(rate)
     rates = {name: statistics.median(v) for name, v in samples.items()}
@@ -78,6 +105,153 @@ def main(argv: list[str]) -> None:
     for name, rate in rates.items():
         overhead = f"{100.0 * (two / rate - 1.0):+.1f} %" if name != "local, 1 worker" else ""
         print(f"{name:<18} {rate:>8.1f} {rate / one:>14.2f} {overhead:>20}")
+
+
+def phases(n_runs: int) -> None:
+    """Where a run's time goes, in one process (no pool, no pipes)."""
+    from wmr.adapters.fmi.robot import FmuPlant
+    from wmr.apps.batch.journal import Journal
+    from wmr.apps.run import run_to_log
+    from wmr.core.closedloop import run_closed_loop
+
+    batch = _mc_fig10(n_runs)
+    fmu = default_fmu()
+    folder = Path(tempfile.mkdtemp(prefix="wmr-bench-phases-"))
+    times: dict[str, list[float]] = {k: [] for k in (
+        "FMU reset", "loop, no log", "loop, rows held (failed-only, converged)",
+        "loop, full log", "journal line")}
+    steps: list[int] = []
+    try:
+        t0 = time.perf_counter()
+        plant = FmuPlant(fmu)
+        opened_s = time.perf_counter() - t0
+        journal = Journal(folder / "journal.jsonl")
+        with plant:
+            for run in batch.runs:
+                t0 = time.perf_counter()
+                plant.reset(run.spec.params, run.spec.start)
+                times["FMU reset"].append(time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                result = run_closed_loop(run.spec, plant)
+                times["loop, no log"].append(time.perf_counter() - t0)
+                steps.append(result.steps)
+                # the three variants take turns on each run: a load that comes and goes
+                # falls on all of them alike
+                t0 = time.perf_counter()
+                run_to_log(run.spec, folder / "held.mcap", plant, durable=False,
+                           log=LogPolicy("failed"))
+                times["loop, rows held (failed-only, converged)"].append(
+                    time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                record = run_to_log(run.spec, folder / "full.mcap", plant, durable=False)
+                times["loop, full log"].append(time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                journal.append({"run_id": run.run_id, "digest": run.digest, "fmu_sha256": "x",
+                                "killed": False, "wall_s": 0.1, "worker": "1", "row": {},
+                                "path": "runs/x.mcap", "log": {"size": 1, "mtime_ns": 1},
+                                "record": record})
+                times["journal line"].append(time.perf_counter() - t0)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    loop = med["loop, no log"]
+    print(f"where a run's time goes: {n_runs} runs of mc_fig10, median per run "
+          f"({statistics.median(steps):.0f} control steps)")
+    print(f"{'phase':<42} {'ms':>8} {'vs loop':>8}")
+    print(f"{'open the FMU (once per worker)':<42} {1e3 * opened_s:>8.1f}")
+    for name, value in med.items():
+        print(f"{name:<42} {1e3 * value:>8.2f} {value / loop:>8.2f}")
+
+
+@contextmanager
+def dask_cluster(workers: int) -> Iterator[str]:
+    """A Dask scheduler and ``workers`` worker processes (one thread each), started with the
+    ``dask`` command line as a user would; yields the scheduler's address."""
+    folder = Path(tempfile.mkdtemp(prefix="wmr-bench-dask-"))
+    info = folder / "scheduler.json"
+    dask = str(Path(sys.executable).with_name("dask"))
+    scheduler = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0",
+                                  "--dashboard-address", ":0", "--scheduler-file", str(info)],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = None
+    try:
+        deadline = time.monotonic() + 60
+        while not info.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        worker = subprocess.Popen([dask, "worker", "--scheduler-file", str(info),
+                                   "--nworkers", str(workers), "--nthreads", "1",
+                                   "--no-dashboard", "--local-directory", str(folder)],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        from distributed import Client
+
+        address = json.loads(info.read_text())["address"]
+        with Client(address, timeout="60s") as client:
+            client.wait_for_workers(workers, timeout=120)
+        yield address
+    finally:
+        for proc in (worker, scheduler):
+            if proc is not None:
+                proc.terminate()
+                proc.wait(30)
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def policies(n_runs: int, names: list[str], with_dask: bool) -> None:
+    """One batch per log policy (and executor), side by side."""
+    batch = _mc_fig10(n_runs)
+    fmu = default_fmu()
+    rows = []
+    with dask_cluster(2) if with_dask else _nothing() as address:
+        executors_: dict[str, dict[str, Any]] = {"local, 2 workers": {"workers": 2}}
+        if address:
+            executors_["Dask, 2 worker processes"] = {"scheduler": address}
+        for name in names:
+            for label, how in executors_.items():
+                folder = Path(tempfile.mkdtemp(prefix="wmr-bench-policy-", dir=os.getcwd()))
+                try:
+                    t0 = time.perf_counter()
+                    result = run_batch(batch, folder, fmu_path=fmu, progress=False,
+                                       log=LogPolicy(name), **how)
+                    wall = time.perf_counter() - t0
+                    assert len(result.executed) == n_runs
+                    rows.append((name, label, wall, n_runs / wall, _folder_bytes(folder),
+                                 result.logs_kept, dict(result.counts)))
+                    print(*rows[-1], file=sys.stderr, flush=True)  # as they come: a long job
+                finally:
+                    shutil.rmtree(folder, ignore_errors=True)
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"{n_runs} runs of mc_fig10 per batch (parent's peak RSS over all: {peak_mb:.0f} MB)")
+    print(f"{'log':<7} {'executor':<26} {'wall s':>8} {'runs/s':>8} {'disk MB':>9} "
+          f"{'logs':>6}  counts")
+    for name, label, wall, rate, disk, kept, counts in rows:
+        print(f"{name:<7} {label:<26} {wall:>8.1f} {rate:>8.1f} {disk / 1e6:>9.1f} "
+              f"{kept:>6}  {counts}")
+
+
+@contextmanager
+def _nothing() -> Iterator[str]:
+    yield ""
+
+
+def main(argv: list[str]) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="what")
+    e = sub.add_parser("executors")
+    e.add_argument("n_runs", nargs="?", type=int, default=200)
+    e.add_argument("repeats", nargs="?", type=int, default=3)
+    ph = sub.add_parser("phases")
+    ph.add_argument("n_runs", nargs="?", type=int, default=50)
+    po = sub.add_parser("policies")
+    po.add_argument("n_runs", type=int)
+    po.add_argument("--dask", action="store_true")
+    po.add_argument("--policy", action="append", choices=("full", "failed", "none"))
+    args = parser.parse_args(argv or ["executors"])
+    if args.what == "phases":
+        phases(args.n_runs)
+    elif args.what == "policies":
+        policies(args.n_runs, args.policy or ["full", "failed", "none"], args.dask)
+    else:
+        executors(args.n_runs, args.repeats)
 
 
 if __name__ == "__main__":

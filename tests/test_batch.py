@@ -331,6 +331,16 @@ def test_reference_summary_has_one_row_per_run(reference: Path, spec20: Path) ->
     assert json.loads(log.metadata["result"]["steps"]) == table.column("steps")[3].as_py()
 
 
+#: The summary of SPEC20 as written before the log policies and the sharded layout (CSV: its
+#: bytes do not depend on the Parquet library's version); 1 worker, 2 workers and Dask must
+#: still write it byte for byte (the tests below compare them with ``reference``).
+REFERENCE_CSV = Path(__file__).parent / "data" / "batch_t20_summary.csv"
+
+
+def test_reference_summary_is_the_one_kept(reference: Path) -> None:
+    assert (reference / "summary.csv").read_bytes() == REFERENCE_CSV.read_bytes()
+
+
 def test_two_workers_give_the_same_summary_bit_for_bit(reference: Path, spec20: Path,
                                                        fmu3: Path, tmp_path: Path) -> None:
     result = run_batch(load_batch(spec20), tmp_path, workers=2, fmu_path=fmu3, progress=False)

@@ -13,16 +13,23 @@ import math
 import os
 import sys
 import zipfile
-from dataclasses import asdict
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, Final
+
+import numpy as np
+import numpy.typing as npt
 
 from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import RunLogWriter
 from wmr.config.scenario import RunSpec
 from wmr.config.scenario_file import run_spec_toml
-from wmr.core.closedloop import BlockSink, Progress, run_closed_loop
+from wmr.core.closedloop import BlockSink, Progress, RunResult, run_closed_loop
+from wmr.infra.errors import ConfigError
 from wmr.infra.paths import safe_filename
 
 if TYPE_CHECKING:
@@ -106,12 +113,127 @@ def _attachments(spec: RunSpec, plant: FmuPlant) -> dict[str, tuple[str, bytes]]
                                              run_spec_toml(spec).encode("utf-8"))}
 
 
+#: What a log policy keeps: every run's log, the logs of the runs that did not converge
+#: (``failed`` and ``timeout``), or none (the result record alone).
+LOG_KEEPS: Final = ("full", "failed", "none")
+#: Rows of a run that a ``failed`` policy holds in memory before it starts writing its log
+#: (264 bytes a row, the time and 32 signals: 26 MB, a 1000 s run at 100 Hz); a longer run
+#: is written to its ``.partial`` file from there on, and removed if it converges.
+HOLD_ROWS: Final = 100_000
+
+
+@dataclass(frozen=True)
+class LogPolicy:
+    """Which runs keep a log, and how much of it (``docs/batch.md``).
+
+    Attributes
+    ----------
+    keep
+        ``"full"`` (every run), ``"failed"`` (the runs that did not converge: ``failed`` and
+        ``timeout``) or ``"none"`` (no log: the result record is all).
+    every_k_steps
+        Log every k-th control step (and the last); 1 logs every step.
+    """
+
+    keep: str = "full"
+    every_k_steps: int = 1
+
+    def __post_init__(self) -> None:
+        if self.keep not in LOG_KEEPS:
+            raise ConfigError("log.keep", f"unknown policy {self.keep!r}",
+                              f"use one of: {', '.join(LOG_KEEPS)}")
+        k = self.every_k_steps
+        if isinstance(k, bool) or not isinstance(k, int) or k < 1:
+            raise ConfigError("log.every_k_steps", f"must be an integer >= 1, got {k!r}",
+                              "give e.g. every_k_steps = 10, or 1 for every step")
+
+    def keeps(self, status: str) -> bool:
+        """Whether a run that ended with ``status`` keeps its log."""
+        return self.keep == "full" or (self.keep == "failed" and status != "converged")
+
+    def describe(self) -> str:
+        """One phrase: ``"full logs"``, ``"logs of failed and timed-out runs, every 10th
+        step"``, ``"no logs"``."""
+        text = {"full": "full logs", "failed": "logs of failed and timed-out runs only",
+                "none": "no logs"}[self.keep]
+        if self.keep != "none" and self.every_k_steps > 1:
+            text += f", every {self.every_k_steps}th control step"
+        return text
+
+    def as_dict(self) -> dict[str, object]:
+        """The policy as ``batch.json`` and the ``[log]`` table of a spec write it."""
+        return {"keep": self.keep, "every_k_steps": self.every_k_steps}
+
+
+#: Every run keeps its whole log: the policy of ``wmr run`` and of small batches.
+FULL_LOGS: Final = LogPolicy()
+
+
+class _EveryK:
+    """A sink that passes every k-th row (counted over the whole run) and, at :meth:`end`,
+    the run's last row if it was not passed: a decimated log still ends where the run did."""
+
+    def __init__(self, sink: BlockSink, k: int) -> None:
+        self._sink, self._k = sink, k
+        self._row = 0  # index of the next row in the run
+        self._last: tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]] | None = None
+
+    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
+        n = len(t_ns)
+        if not n:
+            return
+        first = -self._row % self._k  # the first row of this block on the k-grid
+        self._sink.write_block(t_ns[first::self._k], block[first::self._k])
+        self._row += n
+        # the block's last row, unless it was passed (copied: the caller reuses its arrays)
+        self._last = None if (n - 1 - first) % self._k == 0 and first < n else (
+            t_ns[-1:].copy(), block[-1:].copy())
+
+    def end(self) -> None:
+        if self._last is not None:
+            self._sink.write_block(*self._last)
+            self._last = None
+
+
+class _Held:
+    """A sink that holds the run's rows in memory (a copy of each block, no encoding) until
+    :meth:`spill` or :data:`HOLD_ROWS` rows, then writes them, and the rest, to the log that
+    ``open_log`` opens: a run that converges under a ``failed`` policy costs a copy of its rows,
+    not the encoding and compression of a log."""
+
+    def __init__(self, open_log: Callable[[], RunLogWriter]) -> None:
+        self._open = open_log
+        self._blocks: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]] = []
+        self._rows = 0
+        self.log: RunLogWriter | None = None
+
+    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
+        if self.log is not None:
+            self.log.write_block(t_ns, block)
+            return
+        self._blocks.append((t_ns.copy(), block.copy()))
+        self._rows += len(t_ns)
+        if self._rows >= HOLD_ROWS:
+            self.spill()
+
+    def spill(self) -> RunLogWriter:
+        """The log, opened now if it was not, with the rows held so far written to it (the
+        bytes are those of a log written as the run went: chunks are cut by simulation time,
+        not by how the rows arrive)."""
+        if self.log is None:
+            self.log = self._open()
+            for t_ns, block in self._blocks:
+                self.log.write_block(t_ns, block)
+            self._blocks.clear()
+        return self.log
+
+
 def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant, *,
                scenario_file: Path | None = None,
                progress: Progress | None = None,
                also: BlockSink | None = None,
                controller_fmu: FmuController | None = None,
-               durable: bool = True) -> dict[str, Any]:
+               durable: bool = True, log: LogPolicy = FULL_LOGS) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
 
     The log attaches the run's effective scenario (:func:`scenario_attachment_name`), not
@@ -125,57 +247,105 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     (the live Rerun view of ``wmr run --view``).  ``controller_fmu`` runs the controller FMU
     in place of the Python controller (``wmr run --controller-fmu``).
 
+    ``log`` decides whether a log is kept (:class:`LogPolicy`): with ``keep="failed"`` the
+    rows are held in memory (up to :data:`HOLD_ROWS`) and written only if the run does not
+    converge, with ``keep="none"`` never; with ``every_k_steps=k`` every k-th step and the
+    last are logged, and the ``run`` record says ``log_every_k_steps``.  A run without a log
+    leaves nothing at ``mcap_path`` (a log there from before is left alone) and its record's
+    ``mcap`` is ``None``.
+
     Returns
     -------
     dict
         The fields of ``wmr run --json``: ``status`` (``converged``, ``timeout``, ``failed``),
         ``message``, ``final_position_error_m``, ``final_heading_error_rad``,
-        ``time_to_goal_s``, ``path_length_m``, ``mcap``, the energy and torque figures, and
-        ``estimated_final_position_error_m``, ``estimated_final_heading_error_rad``: the errors
-        the stabiliser believed (the ``final_*`` ones are the true errors; the two agree
-        without sensors).
+        ``time_to_goal_s``, ``path_length_m``, ``mcap`` (``None`` when no log was kept), the
+        energy and torque figures, and ``estimated_final_position_error_m``,
+        ``estimated_final_heading_error_rad``: the errors the stabiliser believed (the
+        ``final_*`` ones are the true errors; the two agree without sensors).
     """
     path = Path(mcap_path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
     run = run_metadata(spec, plant, controller_fmu)
     if scenario_file is not None:
         run["source_file"] = Path(scenario_file).name
-    with RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant),
-                      durable=durable) as log:
-        sink: BlockSink = log
+    if log.every_k_steps > 1:
+        run["log_every_k_steps"] = log.every_k_steps
+
+    def open_log() -> RunLogWriter:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant),
+                            durable=durable)
+
+    with ExitStack() as stack:
+        held: _Held | None = None
+        writer: RunLogWriter | None = None
+        if log.keep == "full":
+            writer = stack.enter_context(open_log())
+        elif log.keep == "failed":
+            held = _Held(open_log)
+
+            def failed(exc_type: type[BaseException] | None, exc: BaseException | None,
+                       tb: TracebackType | None) -> bool:
+                # the run raised, so it failed: its log is kept, the error as its result
+                if exc is not None and writer is None and held is not None:
+                    held.spill().__exit__(exc_type, exc, tb)
+                return False
+
+            stack.push(failed)
+        sink: BlockSink | None = writer if writer is not None else held
+        thin = None
+        if sink is not None and log.every_k_steps > 1:
+            sink = thin = _EveryK(sink, log.every_k_steps)
         if also is not None:
             from wmr.adapters.rerun.live_view import TeeSink
 
-            sink = TeeSink(log, also)
+            sink = also if sink is None else TeeSink(sink, also)
         result = run_closed_loop(spec, plant, sink=sink, progress=progress,
                                  controller_fmu=controller_fmu)
-        record: dict[str, Any] = {
-            "name": spec.name,
-            "status": result.status,
-            "message": result.message,
-            "final_position_error_m": _jsonable(result.final_position_error_m),
-            "final_heading_error_rad": _jsonable(result.final_heading_error_rad),
-            "time_to_goal_s": _jsonable(result.time_to_goal_s),
-            "path_length_m": _jsonable(result.path_length_m),
-            "energy_net_j": _jsonable(result.energy_net_j),
-            "energy_positive_j": _jsonable(result.energy_positive_j),
-            "energy_abs_j": _jsonable(result.energy_abs_j),
-            "torque_sq_integral_n2m2s": _jsonable(result.torque_sq_integral),
-            "peak_torque_nm": _jsonable(result.peak_torque_nm),
-            "steps": result.steps,
-            "estimated_final_position_error_m":
-                _jsonable(result.estimated_final_position_error_m),
-            "estimated_final_heading_error_rad":
-                _jsonable(result.estimated_final_heading_error_rad),
-            "mcap": str(path),
-        }
+        if thin is not None:
+            thin.end()
+        record = _record(spec, result)
+        if held is not None:
+            if log.keeps(result.status):
+                writer = stack.enter_context(held.spill())
+            elif held.log is not None:  # a long run spilled, then converged: not kept
+                held.log.close(record)
+                held.log = None
+                path.unlink()
+        if writer is None:
+            record["mcap"] = None
+            return record
+        record["mcap"] = str(path)
         if result.sensing is not None:
             from wmr.adapters.mcap.sensing import write_sensing
 
-            write_sensing(log, result.sensing)
-        log.close(record)
+            write_sensing(writer, result.sensing)
+        writer.close(record)
     return record
+
+
+def _record(spec: RunSpec, result: RunResult) -> dict[str, Any]:
+    """The result record of a run (the fields of ``wmr run --json`` but ``mcap``)."""
+    return {
+        "name": spec.name,
+        "status": result.status,
+        "message": result.message,
+        "final_position_error_m": _jsonable(result.final_position_error_m),
+        "final_heading_error_rad": _jsonable(result.final_heading_error_rad),
+        "time_to_goal_s": _jsonable(result.time_to_goal_s),
+        "path_length_m": _jsonable(result.path_length_m),
+        "energy_net_j": _jsonable(result.energy_net_j),
+        "energy_positive_j": _jsonable(result.energy_positive_j),
+        "energy_abs_j": _jsonable(result.energy_abs_j),
+        "torque_sq_integral_n2m2s": _jsonable(result.torque_sq_integral),
+        "peak_torque_nm": _jsonable(result.peak_torque_nm),
+        "steps": result.steps,
+        "estimated_final_position_error_m": _jsonable(result.estimated_final_position_error_m),
+        "estimated_final_heading_error_rad":
+            _jsonable(result.estimated_final_heading_error_rad),
+        "mcap": None,
+    }
 
 
 def result_json(record: dict[str, Any]) -> str:

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from wmr.cli.run import add_fmu_choice
+from wmr.cli.run import add_fmu_choice, add_log_choice, log_policy
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -87,14 +87,16 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     result = run_batch(batch, out, workers=args.workers, scheduler=scheduler,
                        run_timeout_s=args.run_timeout if args.run_timeout > 0 else None,
                        fmu_path=args.fmu, fmi_version=args.fmi, progress=progress,
-                       var_map=load_map(args.map) if args.map else None)
+                       var_map=load_map(args.map) if args.map else None,
+                       log=log_policy(args, batch.log))
     c = result.counts
     rate = len(result.executed) / result.wall_s * 60.0 if result.wall_s > 0 else 0.0
     state = "interrupted" if result.interrupted else "done"
     print(f"{state}: {result.finished}/{plural(result.total, 'run')} in the summary "
           f"({c.get('converged', 0)} converged, {c.get('timeout', 0)} timeout, "
           f"{c.get('failed', 0)} failed); {len(result.executed)} run now, "
-          f"{result.skipped} done before; {result.wall_s:.1f} s ({rate:.0f} runs/min)",
+          f"{result.skipped} done before; {result.wall_s:.1f} s ({rate:.0f} runs/min); "
+          f"{result.log.describe()}: {plural(result.logs_kept, 'log')} kept now",
           file=sys.stderr)
     print(out / "summary.parquet")
     if result.interrupted:
@@ -137,7 +139,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "batch", help="many runs (sweeps, Monte Carlo) on all cores or a Dask cluster",
         description="Run every run of a batch spec (a scenario file plus [grid], [[list]] and "
                     "[random] sections; see docs/batch.md) and write OUT/summary.parquet and "
-                    "OUT/summary.csv, one row per run, and OUT/runs/<id>.mcap.  Rerunning the "
+                    "OUT/summary.csv, one row per run, and the logs the log policy keeps "
+                    "under OUT/runs (in shards of 1000 runs over 1000 runs).  Rerunning the "
                     "same command skips the runs already done.  Exit status 0 when the batch "
                     "completed (whatever the runs' statuses), 130 when interrupted (143 on "
                     "SIGTERM), 1 on bad input, a full disk, or when the first runs all fail "
@@ -155,6 +158,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="refuse a spec of more runs than this (default one million; counted "
                         "before anything is expanded)")
     add_fmu_choice(p)
+    add_log_choice(p, "the spec's [log], else full up to 1000 runs and failed over")
     p.add_argument("--check", action="store_true",
                    help="make every run of the spec and stop: the first invalid one is named "
                         "(loading checks every grid value and list entry at once, and every "

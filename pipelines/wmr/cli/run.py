@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
+    from wmr.apps.run import LogPolicy
     from wmr.config.scenario import RunSpec, Scenario
 
 
@@ -60,6 +61,33 @@ def add_fmu_choice(parser: argparse.ArgumentParser) -> None:
                              "units for ours (docs/fmu_map.md)")
 
 
+def add_log_choice(parser: argparse.ArgumentParser, default: str) -> None:
+    """``--log`` and ``--log-every``: which runs keep a log and how much of it (``wmr run``
+    and ``wmr batch``)."""
+    from wmr.apps.run import LOG_KEEPS
+
+    parser.add_argument("--log", choices=LOG_KEEPS, default=None,
+                        help="which runs keep a log: full (all), failed (the runs that did not "
+                             "converge: failed and timed out), none (the result alone); "
+                             f"default {default}")
+    parser.add_argument("--log-every", type=int, default=None, metavar="K",
+                        help="log every K-th control step and the last (default 1: every step)")
+
+
+def log_policy(args: argparse.Namespace, base: LogPolicy | None) -> LogPolicy | None:
+    """The log policy of ``--log`` and ``--log-every`` over ``base`` (a spec's ``[log]``);
+    ``None`` when neither option nor ``base`` names one."""
+    from wmr.apps.run import FULL_LOGS, LogPolicy
+
+    if args.log_every is not None and args.log_every < 1:
+        raise ConfigError("--log-every", f"must be >= 1, got {args.log_every}",
+                          "give e.g. --log-every 10, or 1 for every step")
+    if args.log is None and args.log_every is None:
+        return base
+    start = base or FULL_LOGS
+    return LogPolicy(args.log or start.keep, args.log_every or start.every_k_steps)
+
+
 def add_scenario_choice(parser: argparse.ArgumentParser, doing: str) -> None:
     """``SCENARIO`` and ``--run NAME``: the run that :func:`select_run` picks for ``doing``."""
     parser.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
@@ -69,14 +97,16 @@ def add_scenario_choice(parser: argparse.ArgumentParser, doing: str) -> None:
 
 
 def result_summary(record: Mapping[str, Any]) -> str:
-    """The end of a run's one-line result: final errors, path length and the log file."""
+    """The end of a run's one-line result: final errors, path length and the log file (or
+    that none was kept)."""
     def num(key: str, digits: int) -> str:  # None: a run that failed before its first step
         value = record.get(key)
         return "n/a" if value is None else f"{value:.{digits}f}"
 
+    log = "no log kept (--log)" if record.get("mcap") is None else f"log {record['mcap']}"
     return (f"final position error {num('final_position_error_m', 4)} m, heading error "
             f"{num('final_heading_error_rad', 5)} rad, path "
-            f"{num('path_length_m', 2)} m; log {record['mcap']}")
+            f"{num('path_length_m', 2)} m; {log}")
 
 
 def select_run(scenario: Scenario, name: str | None) -> RunSpec:
@@ -100,7 +130,13 @@ def select_run(scenario: Scenario, name: str | None) -> RunSpec:
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.adapters.fmi.varmap import load_map
-    from wmr.apps.run import default_controller_fmu, default_fmu, result_json, run_to_log
+    from wmr.apps.run import (
+        FULL_LOGS,
+        default_controller_fmu,
+        default_fmu,
+        result_json,
+        run_to_log,
+    )
     from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
     from wmr.config.scenario import load_scenario, with_overrides
     from wmr.infra.outputs import check_output
@@ -145,6 +181,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if not ctrl_path.is_file():
             raise ConfigError("--controller-fmu", f"no such file: {ctrl_path}",
                               "give a controller .fmu, or no FILE for the built one")
+    policy = log_policy(args, None) or FULL_LOGS
     progress, finish = _progress_bar(spec.name, args.json)
     live = None
     if args.view:
@@ -159,7 +196,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             ctrl = stack.enter_context(FmuController(ctrl_path))
         try:
             record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress,
-                                also=live, controller_fmu=ctrl)
+                                also=live, controller_fmu=ctrl, log=policy)
         finally:
             finish()
             if live is not None:
@@ -216,6 +253,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="set one field of the [sensors] table (gps_sigma_m=0.05, "
                         "estimator=ekf, ...)")
     p.add_argument("--out", metavar="FILE.mcap", help="log file (default runs/NAME.mcap)")
+    add_log_choice(p, "full")
     p.add_argument("--json", action="store_true",
                    help="print the result as one JSON object on the last line")
     p.add_argument("--view", action="store_true",

@@ -147,7 +147,7 @@ def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str
             if task is None:
                 break
             t0 = time.perf_counter()
-            record = holder.run(task, runs / f"{task.run_id}.mcap", att)
+            record = holder.run(task, runs / task.log_relpath, att)
             conn.send(("done", task.run_id, record, time.perf_counter() - t0))
     finally:
         holder.close()

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from wmr.apps.batch.spec import POSE_COLUMNS
 from wmr.apps.batch.summary import ID_COLUMNS, RESULT_COLUMNS, STATUSES, SUMMARY_PARQUET
 from wmr.config.naming import plural
-from wmr.infra.errors import ConfigError
+from wmr.infra.errors import ConfigError, WmrError
 
 #: Inputs with at most this many distinct values are plotted per value, others in bins.
 DISCRETE_MAX: Final = 12
@@ -145,6 +145,23 @@ def _plot_spread(columns: dict[str, NDArray[np.float64]], ok: NDArray[np.bool_],
     plt.close(fig)
 
 
+def _logs_line(batch_dir: Path, table: pa.Table) -> str:
+    """What was logged: the runs with a log (the summary's ``mcap`` column) and the log policy
+    of the last invocation (``batch.json``, when it says)."""
+    import json
+
+    kept = table.num_rows - table.column("mcap").null_count
+    policy = ""
+    try:
+        log = json.loads((batch_dir / "batch.json").read_text(encoding="utf-8")).get("log")
+        from wmr.apps.run import LogPolicy
+
+        policy = f" (last run with {LogPolicy(log['keep'], log['every_k_steps']).describe()})"
+    except (OSError, ValueError, TypeError, KeyError, AttributeError, WmrError):
+        pass  # an older batch folder, or one whose batch.json is gone: the count is enough
+    return f"Logs: {kept} of {plural(table.num_rows, 'run')} kept one{policy}."
+
+
 def _silent(line: str) -> None:
     """The progress receiver of a report nobody watches."""
 
@@ -195,6 +212,8 @@ def write_report(batch_dir: Path, max_plots: int = 8,
     cols = {c: _floats(table, c) for c, _, _ in _SPREAD}
     lines = [f"# Batch report: {batch_dir.name}", "",
              f"Summary: `{summary}`, {plural(n, 'run')}.", ""]
+    if n:
+        lines += [_logs_line(batch_dir, table), ""]
     if n == 0:
         lines.append("No finished runs.")
         path = out / "report.md"
@@ -249,10 +268,11 @@ def write_report(batch_dir: Path, max_plots: int = 8,
     if bad:
         ids = table.column("run_id").to_pylist()
         msgs = table.column("message").to_pylist()
-        lines += ["## Runs that did not converge", "", "| run | status | message |",
-                  "|---|---|---|"]
-        lines += [f"| {ids[i]} | {status[i]} | {str(msgs[i]).replace('|', '/')} |"
-                  for i in bad[:20]]
+        logs = table.column("mcap").to_pylist()
+        lines += ["## Runs that did not converge", "", "| run | status | message | log |",
+                  "|---|---|---|---|"]
+        lines += [f"| {ids[i]} | {status[i]} | {str(msgs[i]).replace('|', '/')} | "
+                  f"{'–' if logs[i] is None else f'`{logs[i]}`'} |" for i in bad[:20]]
         if len(bad) > 20:
             lines.append(f"| ... | | {len(bad) - 20} more in the summary |")
         lines.append("")

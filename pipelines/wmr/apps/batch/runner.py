@@ -2,7 +2,8 @@
 
 Layout of the output folder::
 
-    OUT/runs/<run_id>.mcap   one log per run
+    OUT/runs/<run_id>.mcap   one log per run (as the log policy keeps them), in shards
+                             OUT/runs/<shard>/<run_id>.mcap in a batch of over 1000 runs
     OUT/journal.jsonl        one line per finished run (with its wall time and worker)
     OUT/summary.parquet      one row per finished run, sorted by run id (see summary.py)
     OUT/summary.csv          the same as CSV
@@ -41,8 +42,15 @@ from wmr.apps.batch.journal import (
 )
 from wmr.apps.batch.local import LocalPool, Outcome
 from wmr.apps.batch.spec import BatchRun, BatchSpec, run_index
-from wmr.apps.batch.summary import STATUSES, SummaryRow, summary_table, write_summary
+from wmr.apps.batch.summary import (
+    STATUSES,
+    SummaryRow,
+    log_relpath,
+    summary_table,
+    write_summary,
+)
 from wmr.apps.batch.worker import DISK_FULL, FAULTS, Task
+from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.naming import plural
 from wmr.infra.durable import AtomicFile, open_own, partial_path, storage_error
 from wmr.infra.errors import ConfigError, DiskFullError, WmrError
@@ -52,6 +60,15 @@ DEFAULT_RUN_TIMEOUT_S: Final = 600.0
 #: A batch whose first runs (this many, or all) fail before their first step stops: the FMU
 #: or the setup is broken, not the runs.
 EARLY_STOP_RUNS: Final = 4
+#: A batch of more runs than this keeps, unless its spec or command line says otherwise, the
+#: logs of its failed and timed-out runs only (``docs/batch.md``: a full log of a Fig. 10 run
+#: is about 0.5 MB and a third of its run time); a smaller one keeps every log.
+FULL_LOGS_MAX_RUNS: Final = 1000
+
+
+def default_log_policy(n_runs: int) -> LogPolicy:
+    """The log policy of a batch of ``n_runs`` runs whose spec and command line name none."""
+    return LogPolicy("full" if n_runs <= FULL_LOGS_MAX_RUNS else "failed")
 
 
 @dataclass
@@ -74,6 +91,10 @@ class BatchOutcome:
         Stopped early (Ctrl-C or ``stop_after``); the summary holds the finished runs.
     wall_s
         Wall time of this invocation, s.
+    log
+        The log policy of this invocation.
+    logs_kept
+        Runs of this invocation that kept a log.
     """
 
     out_dir: Path
@@ -83,6 +104,8 @@ class BatchOutcome:
     counts: dict[str, int] = field(default_factory=dict)
     interrupted: bool = False
     wall_s: float = 0.0
+    log: LogPolicy = FULL_LOGS
+    logs_kept: int = 0
 
     @property
     def finished(self) -> int:
@@ -124,7 +147,8 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
               progress: bool | None = None, stop_after: int | None = None,
               faults: Mapping[str, str] | None = None, dask_ship_logs: bool = False,
               var_map: VariableMap | None = None,
-              on_outcome: Callable[[Outcome], None] | None = None) -> BatchOutcome:
+              on_outcome: Callable[[Outcome], None] | None = None,
+              log: LogPolicy | None = None) -> BatchOutcome:
     """Run the runs of ``batch`` not done yet into ``out_dir``; write the summary.
 
     Parameters
@@ -155,6 +179,9 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
         On Dask, have every worker send its logs back, as workers on other hosts do.
     on_outcome
         Called with each finished run (after its journal line is written).
+    log
+        Which runs keep a log, and how much of it; by default the spec's ``[log]``, else
+        :func:`default_log_policy`.  Runs done earlier keep what they kept.
 
     Returns
     -------
@@ -197,17 +224,19 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
         # a run through another map is another run: the journal must not reuse it
         fmu_sha += "+map:" + hashlib.sha256(
             json.dumps(var_map.as_dict(), sort_keys=True).encode()).hexdigest()[:16]
+    policy = log or batch.log or default_log_policy(len(batch.runs))
     lock = _Lock(out)
     try:
         journal = Journal(out / JOURNAL)
-        ledger = _resume(batch, journal, fmu_sha, runs_dir, progress)
-        result = BatchOutcome(out_dir=out, total=len(batch.runs), skipped=ledger.n_done)
+        ledger = _resume(batch, journal, fmu_sha, out, progress)
+        result = BatchOutcome(out_dir=out, total=len(batch.runs), skipped=ledger.n_done,
+                              log=policy)
         attachment = None
         if batch.path is not None and batch.source:
             attachment = out / f"spec-{batch.path.name}"
             if not attachment.exists() or attachment.read_bytes() != batch.source:
                 _write_atomic(attachment, batch.source)
-        tasks = _Tasks(batch, ledger, run_timeout_s, faults or {})
+        tasks = _Tasks(batch, ledger, run_timeout_s, faults or {}, policy)
         if not tasks:
             stream: Iterator[Outcome] = iter(())
         elif scheduler is not None or client is not None:
@@ -240,16 +269,24 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             for outcome in stream:
                 if outcome.record.get(DISK_FULL):
                     raise DiskFullError(str(outcome.record.get("message")))
-                if outcome.log is not None:
-                    _write_atomic(runs_dir / f"{outcome.run_id}.mcap", outcome.log)
-                elif outcome.killed:
-                    _recover_partial(runs_dir / f"{outcome.run_id}.mcap")
                 index, digest, row = tasks.in_flight.pop(outcome.run_id)
+                rel = log_relpath(outcome.run_id, len(batch.runs))
+                if outcome.log is not None:
+                    (out / rel).parent.mkdir(exist_ok=True)
+                    _write_atomic(out / rel, outcome.log)
+                elif outcome.killed:
+                    _recover_partial(out / rel)
+                # the journal line says where the log is, or that there is none (the policy
+                # kept none, or a killed run left nothing): the line is the run's record
+                kept = (outcome.record.get("mcap") is not None or outcome.killed) \
+                    and (out / rel).is_file()
+                result.logs_kept += kept
                 offset = journal.append({"run_id": outcome.run_id, "digest": digest,
                                          "fmu_sha256": fmu_sha, "killed": outcome.killed,
                                          "wall_s": round(outcome.wall_s, 6),
                                          "worker": outcome.worker, "row": row,
-                                         "log": log_stamp(runs_dir / f"{outcome.run_id}.mcap"),
+                                         "path": rel if kept else None,
+                                         "log": log_stamp(out / rel) if kept else None,
                                          "record": outcome.record})
                 ledger.mark(index, offset, outcome.record.get("status"))
                 result.executed.append(outcome.run_id)
@@ -343,7 +380,7 @@ def _bar_off(progress: bool | None) -> bool | None:
     return None if progress is None else not progress
 
 
-def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, runs_dir: Path,
+def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, out: Path,
             progress: bool | None) -> _Ledger:
     """The runs of ``batch`` that the journal says are done, as a :class:`_Ledger`.
 
@@ -372,7 +409,7 @@ def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, runs_dir: Path,
             if i is None or i >= len(runs):
                 continue
             remade.pop(i, None)
-            checked, differs = _verified(runs[i], line, fmu_sha, runs_dir)
+            checked, differs = _verified(runs[i], line, fmu_sha, out)
             if checked is None:
                 ledger.unmark(i)
             else:
@@ -389,7 +426,7 @@ def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, runs_dir: Path,
     return ledger
 
 
-def _verified(run: BatchRun, line: dict[str, Any], fmu_sha: str, runs_dir: Path
+def _verified(run: BatchRun, line: dict[str, Any], fmu_sha: str, out: Path
               ) -> tuple[dict[str, Any] | None, str]:
     """Journal ``line`` checked as a finished run of ``run``.
 
@@ -397,7 +434,11 @@ def _verified(run: BatchRun, line: dict[str, Any], fmu_sha: str, runs_dir: Path
     ``(corrected, what)`` when its row or record had to be made again from the spec and the
     log (``what`` names the first field that differed, ``""`` if only the seal was missing);
     ``(None, "")`` when the run must be done again (another run, another FMU, no finished
-    log, or a killed run whose line was edited: there is no log record to make it from).
+    log, or a killed run or one without a log whose line was edited: there is no log record
+    to make it from).  The log is where the line says (``path``, relative to the batch
+    folder ``out``; ``runs/<run_id>.mcap`` for a line written before lines said it, the
+    layout of the batches of that time); a line without a log (``path`` null: its log policy
+    kept none) counts when sealed.
     """
     if line.get("run_id") != run.run_id or line.get("fmu_sha256") != fmu_sha \
             or line.get("digest") != run.digest:
@@ -409,7 +450,13 @@ def _verified(run: BatchRun, line: dict[str, Any], fmu_sha: str, runs_dir: Path
         if not sealed:
             return None, ""
         return (line, "") if line.get("row") == row else ({**line, "row": row}, "row")
-    log = runs_dir / f"{run.run_id}.mcap"
+    rel = _line_log(line)
+    if rel is None:  # no log: its policy kept none (the sealed line is the record), or the
+        # line names a path that is not followed
+        if not sealed or line.get("path", "") is not None:
+            return None, ""
+        return (line, "") if line.get("row") == row else ({**line, "row": row}, "row")
+    log = out / rel
     stamp = line.get("log") if sealed else None
     if sealed and log_complete(log, stamp if isinstance(stamp, dict) else None):
         if line.get("row") == row:
@@ -434,7 +481,7 @@ def _first_difference(line: Mapping[str, Any], corrected: Mapping[str, Any]) -> 
             return part
         inner = new.get("inputs", {}) if part == "row" else {}
         for key in new:
-            if key == "mcap":  # where the log is; the summary names it by run id
+            if key == "mcap":  # where the log was written; the summary takes the line's path
                 continue
             if key == "inputs" and isinstance(old.get("inputs"), dict):
                 diff = [k for k in inner if old["inputs"].get(k, ...) != inner[k]] \
@@ -450,6 +497,21 @@ def _first_difference(line: Mapping[str, Any], corrected: Mapping[str, Any]) -> 
 
 def _cut(text: str, limit: int = 40) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _line_log(line: Mapping[str, Any]) -> str | None:
+    """The log of a journal line, relative to the batch folder; ``None`` when it has none, or
+    a path that is not a log under ``runs/`` (a damaged or edited line is not followed)."""
+    if "path" not in line:
+        return log_relpath(str(line["run_id"]))
+    rel = line["path"]
+    if not isinstance(rel, str):
+        return None
+    parts = rel.split("/")
+    if parts[0] != "runs" or not rel.endswith(".mcap") or any(p in ("", ".", "..")
+                                                               for p in parts):
+        return None
+    return rel
 
 
 def _row_json(run: BatchRun) -> dict[str, Any]:
@@ -500,9 +562,10 @@ def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger) -> Iter
             raise WmrError(f"{exc}: the journal changed while the batch ran; rerun the same "
                            "command to check it again and rewrite the summary") from None
         records = {str(line["run_id"]): line["record"] for line in lines}
+        logs = {str(line["run_id"]): _line_log(line) for line in lines}
         yield summary_table([_row_of(i, line, batch) for (i, _), line in zip(block, lines,
                                                                               strict=True)],
-                            batch.input_columns, records)
+                            batch.input_columns, records, logs)
         if len(block) < SUMMARY_BLOCK:
             return
 
@@ -515,8 +578,9 @@ class _Tasks:
     """
 
     def __init__(self, batch: BatchSpec, ledger: _Ledger, run_timeout_s: float | None,
-                 faults: Mapping[str, str]) -> None:
+                 faults: Mapping[str, str], log: LogPolicy) -> None:
         self._runs = batch.runs
+        self._log = log
         self._ledger = ledger
         self._n = len(self._runs) - ledger.n_done
         self._timeout, self._faults = run_timeout_s, faults
@@ -535,7 +599,9 @@ class _Tasks:
                 raise ConfigError(exc.field, exc.problem, f"{exc.fix}; the runs finished are "
                                   "kept: rerun the same command after the fix") from None
             self.in_flight[run.run_id] = (i, run.digest, _row_json(run))
-            yield Task(run.run_id, run.spec, self._timeout, self._faults.get(run.run_id))
+            yield Task(run.run_id, run.spec, self._timeout, self._faults.get(run.run_id),
+                       log_name=log_relpath(run.run_id, len(self._runs)).removeprefix("runs/"),
+                       log=self._log)
 
 
 def _recover_partial(log: Path) -> None:
@@ -567,6 +633,7 @@ def _finish(out: Path, chunks: Iterator[Any], result: BatchOutcome, batch: Batch
                 "finished": result.finished, "skipped": result.skipped,
                 "executed": len(result.executed), "counts": result.counts,
                 "interrupted": result.interrupted, "wall_s": round(result.wall_s, 3),
+                "log": result.log.as_dict(), "logs_kept": result.logs_kept,
                 "executor": (f"dask {scheduler or 'client'}" if scheduler or client
                              else f"local, {workers or os.cpu_count()} workers"),
                 "fmu": fmu.name, "fmu_sha256": fmu_sha}, indent=1) + "\n").encode())

@@ -80,6 +80,7 @@ from typing import Any, Final, overload
 
 import numpy as np
 
+from wmr.apps.run import LOG_KEEPS, LogPolicy
 from wmr.config.scenario import (
     RunSpec,
     parse_scenario,
@@ -94,7 +95,7 @@ from wmr.core.sensing.models import NOISE_SEEDING
 from wmr.infra.errors import ConfigError
 
 #: Sections a batch spec adds to a scenario file.
-BATCH_SECTIONS: Final = ("grid", "sweep", "list", "random")
+BATCH_SECTIONS: Final = ("grid", "sweep", "list", "random", "log")
 #: Upper bound on the number of runs of one spec (a typo in a grid should not mean 10^9 runs).
 MAX_RUNS: Final = 1_000_000
 #: Pose columns every summary has, resolved from the run itself.
@@ -189,6 +190,9 @@ class BatchSpec:
     #: The scenario part's ``fmu`` and ``fmu_map`` (:mod:`wmr.adapters.fmi.varmap`), if given.
     fmu: Path | None = None
     fmu_map: Path | None = None
+    #: The ``[log]`` table: which runs keep a log; ``None`` if the spec has none (the batch's
+    #: size then decides, :func:`wmr.apps.batch.runner.default_log_policy`).
+    log: LogPolicy | None = None
 
 
 @dataclass(frozen=True)
@@ -393,6 +397,22 @@ def _random(table: Mapping[str, Any], max_runs: int = MAX_RUNS
     if not dists:
         raise ConfigError("random", "draws nothing", "add e.g. [random.params] with m = {...}")
     return n, dists, sources
+
+
+def _log_policy(table: Mapping[str, Any]) -> LogPolicy:
+    """The ``[log]`` table: ``keep`` (``full``, ``failed``, ``none``) and ``every_k_steps``."""
+    for key in table:
+        if key not in ("keep", "every_k_steps"):
+            raise _unknown(f"log.{key}", ("keep", "every_k_steps"))
+    keep = table.get("keep", "full")
+    if keep not in LOG_KEEPS:
+        raise ConfigError("log.keep", f"unknown policy {_cut(keep)}",
+                          f"use one of: {', '.join(LOG_KEEPS)}")
+    every = table.get("every_k_steps", 1)
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ConfigError("log.every_k_steps", f"must be an integer >= 1, got {_cut(every)}",
+                          "give e.g. every_k_steps = 10, or 1 for every step")
+    return LogPolicy(keep, every)
 
 
 def run_index(run_id: str) -> int | None:
@@ -712,11 +732,13 @@ def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | N
         if key not in columns:
             columns.append(key)
     seed = sections["random"]["seed"] if dists else 0
+    log = _log_policy(_table(sections["log"], "log", '[log] with keep = "failed"')) \
+        if "log" in sections else None
     runs = RunList(scenario.runs, axes, entries, seed, n_samples, dists, columns, sources)
     runs.check()
     return BatchSpec(name=scenario.name, description=scenario.description, runs=runs,
                      input_columns=tuple(columns), path=path, source=raw,
-                     fmu=scenario.fmu, fmu_map=scenario.fmu_map)
+                     fmu=scenario.fmu, fmu_map=scenario.fmu_map, log=log)
 
 
 def load_batch(name_or_path: str | Path, max_runs: int = MAX_RUNS) -> BatchSpec:

@@ -46,9 +46,25 @@ RESULT_COLUMNS: Final[dict[str, pa.DataType]] = {
 STATUSES: Final = ("converged", "timeout", "failed")
 
 
-def log_relpath(run_id: str) -> str:
-    """A run's log, relative to the batch folder."""
-    return f"runs/{run_id}.mcap"
+#: A batch of more runs than this keeps its logs in shards of this many runs each,
+#: ``runs/<shard>/<run_id>.mcap``: no folder of a million-run batch holds more than a
+#: thousand logs.  A smaller batch keeps them in ``runs/`` itself, as batches always did.
+SHARD_RUNS: Final = 1000
+
+
+def log_relpath(run_id: str, n_runs: int = 0) -> str:
+    """A run's log, relative to the batch folder.
+
+    ``runs/<run_id>.mcap`` in a batch of at most :data:`SHARD_RUNS` runs;
+    ``runs/<shard>/<run_id>.mcap`` in a larger one, the shard being the run's index
+    (:func:`wmr.apps.batch.spec.run_index`) divided by :data:`SHARD_RUNS`, with at least three
+    digits (``runs/012/012345-1f2e3d4c.mcap``), so that the shards sort as their runs do.
+    """
+    if n_runs <= SHARD_RUNS:
+        return f"runs/{run_id}.mcap"
+    head = run_id.partition("-")[0]
+    width = max(3, len(str((n_runs - 1) // SHARD_RUNS)))
+    return f"runs/{int(head) // SHARD_RUNS:0{width}d}/{run_id}.mcap"
 
 
 def _float(value: object) -> float | None:
@@ -75,7 +91,8 @@ class SummaryRow:
 
 
 def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence[str],
-                  records: Mapping[str, Mapping[str, Any]]) -> pa.Table:
+                  records: Mapping[str, Mapping[str, Any]],
+                  logs: Mapping[str, str | None] | None = None) -> pa.Table:
     """The summary of the runs of ``runs`` that have a record, sorted by run id.
 
     Parameters
@@ -86,6 +103,10 @@ def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence
         Input columns (:attr:`wmr.apps.batch.spec.BatchSpec.input_columns`).
     records
         Result records (:func:`wmr.apps.run.run_to_log`) by run id.
+    logs
+        Each run's log relative to the batch folder, ``None`` for a run without a log (its
+        log policy kept none); a run missing here has :func:`log_relpath` (every run, when
+        ``logs`` is ``None``).
     """
     done = sorted((r for r in runs if r.run_id in records), key=lambda r: r.run_id)
     cols: dict[str, list[Any]] = {c: [] for c in (*ID_COLUMNS, *input_columns,
@@ -101,7 +122,8 @@ def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence
             cols[c].append(v if isinstance(v, str) else None if math.isnan(v) else v)
         for c, kind in RESULT_COLUMNS.items():
             if c == "mcap":
-                cols[c].append(log_relpath(run.run_id))
+                cols[c].append(log_relpath(run.run_id) if logs is None or run.run_id not in logs
+                               else logs[run.run_id])
             elif kind == pa.string():
                 cols[c].append(str(rec.get(c) or ""))
             elif kind == pa.int64():
@@ -164,6 +186,7 @@ def read_summary(out_dir: Path) -> pa.Table:
 
 __all__ = [
     "RESULT_COLUMNS",
+    "SHARD_RUNS",
     "SUMMARY_CSV",
     "SUMMARY_PARQUET",
     "SummaryRow",

@@ -23,6 +23,7 @@ from typing import Any, Protocol
 
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
+from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.scenario import RunSpec
 from wmr.infra.errors import DiskFullError
 
@@ -43,7 +44,7 @@ class Task:
     Attributes
     ----------
     run_id
-        The run's id (its log is ``runs/<run_id>.mcap``).
+        The run's id.
     spec
         The run.
     wall_limit_s
@@ -51,12 +52,24 @@ class Task:
     fault
         Test hook: ``"hang"`` sleeps for ever, ``"crash"`` kills the worker process,
         ``"crash-once"`` kills it on the first attempt only.
+    log_name
+        Its log, relative to the batch's ``runs`` folder (``<shard>/<run_id>.mcap``, see
+        :func:`wmr.apps.batch.summary.log_relpath`); ``""``: ``<run_id>.mcap``.
+    log
+        Which runs keep a log, and how much of it.
     """
 
     run_id: str
     spec: RunSpec
     wall_limit_s: float | None = None
     fault: str | None = None
+    log_name: str = ""
+    log: LogPolicy = FULL_LOGS
+
+    @property
+    def log_relpath(self) -> str:
+        """The log's path relative to the ``runs`` folder."""
+        return self.log_name or f"{self.run_id}.mcap"
 
 
 class TaskSource(Protocol):
@@ -148,7 +161,8 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
             ctrl = stack.enter_context(FmuController(ctrl_path))
         # no fsync per log: the resume checks every log, and redoes one a power loss damaged
         record = run_to_log(task.spec, mcap_path, plant, scenario_file=attachment,
-                            progress=progress, controller_fmu=ctrl, durable=False)
+                            progress=progress, controller_fmu=ctrl, durable=False,
+                            log=task.log)
     if limit is not None and record["status"] == "failed" \
             and str(record["message"]).startswith(WallClockLimit.__name__):
         record["status"] = "timeout"
@@ -242,20 +256,21 @@ def dask_run(task: Task, fmu_sha256: str, attachment: Attachment | None, out_dir
     holder = _holder(fmu_sha256, var_map)
     att = materialise(attachment.name, attachment.data) if attachment is not None else None
     if sees_folder(out_dir, token):
-        final = Path(out_dir) / "runs" / f"{task.run_id}.mcap"
+        final = Path(out_dir) / "runs" / task.log_relpath
         part = final.with_name(f"{final.name}.{os.getpid()}.{threading.get_ident()}.part")
         try:
             record = holder.run(task, part, att)
-            os.replace(part, final)
+            if record.get("mcap") is not None and part.exists():  # kept (the log policy)
+                os.replace(part, final)
+                record["mcap"] = str(final)
         finally:
             part.unlink(missing_ok=True)
-        record["mcap"] = str(final)
         return task.run_id, record, None, time.perf_counter() - t0
     folder = Path(tempfile.mkdtemp(prefix="wmr-run-"))
     try:
         path = folder / f"{task.run_id}.mcap"
         record = holder.run(task, path, att)
-        data = path.read_bytes() if path.exists() else b""
+        data = path.read_bytes() if record.get("mcap") is not None and path.exists() else None
     finally:
         shutil.rmtree(folder, ignore_errors=True)
     return task.run_id, record, data, time.perf_counter() - t0
