@@ -272,16 +272,16 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
     _not_in_a_worker_import("run")
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.apps.run import default_fmu, run_to_log
-    from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
+    from wmr.config.naming import default_log_path, fmu_tokens, name_list, run_name, variant_name
     from wmr.config.scenario import with_overrides
     from wmr.infra.outputs import check_output
 
     sc = load_scenario(scenario)
     runs = [r for r in sc.runs if run is None or r.name == run]
     if len(runs) != 1:
-        raise ConfigError("run", f"scenario {sc.name} has {len(runs)} runs named {run!r}"
-                          if run is not None else f"scenario {sc.name} has {len(runs)} runs",
-                          "pick one of: " + ", ".join(r.name for r in sc.runs[:6]))
+        raise ConfigError("run", f"scenario {sc.name} has no run named {run!r}"
+                          if run is not None else f"scenario {sc.name} has several runs",
+                          "pick one with run=NAME of " + name_list([r.name for r in sc.runs]))
     base = runs[0]
     spec = with_overrides(base, start=_pose(start, "start"), goal=_pose(goal, "goal"),
                           params=params, gains=gains, limits=limits, period_s=period_s,

@@ -41,8 +41,14 @@ def add_run_overrides(parser: argparse.ArgumentParser) -> None:
                         help="override a gain (K_ps, K_is, K_ptheta, K_itheta, K_pw, K_iw)")
     parser.add_argument("--limit", action="append", metavar="NAME=VALUE",
                         help="override a limit (torque_max_nm, wheel_speed_max_radps, ...)")
+    from dataclasses import fields
+
+    from wmr.core.plant import RobotParams
+
+    # the names from the dataclass, so that a new parameter is never missing from the help
     parser.add_argument("--param", action="append", metavar="NAME=VALUE",
-                        help="override a robot parameter (m, r, L, l, Ig, Iwm, b_f, tau_c)")
+                        help="override a robot parameter "
+                             f"({', '.join(f.name for f in fields(RobotParams))})")
     parser.add_argument("--period", type=float, metavar="S", help="control period, s")
     parser.add_argument("--stop-radius", type=float, metavar="M",
                         help="stop radius epsilon, m")

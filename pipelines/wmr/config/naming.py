@@ -131,5 +131,16 @@ def plural(n: int, noun: str) -> str:
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
-__all__ = ["default_log_path", "file_stem", "fmu_tokens", "plural", "pose_token", "run_name",
-           "spec_tokens", "variant_name"]
+#: Names shown by :func:`name_list` before it ends the list with ``...``.
+LISTED_NAMES = 6
+
+
+def name_list(names: Sequence[str], noun: str = "run", shown: int = LISTED_NAMES) -> str:
+    """``its 12 runs: a, b, c, d, e, f, ...``: how many there are, and the first ``shown``,
+    the list ended with ``...`` when cut so that it never passes for the whole of them."""
+    head = ", ".join(names[:shown]) + (", ..." if len(names) > shown else "")
+    return f"its {plural(len(names), noun)}: {head}" if names else f"no {noun}s"
+
+
+__all__ = ["default_log_path", "file_stem", "fmu_tokens", "name_list", "plural", "pose_token",
+           "run_name", "spec_tokens", "variant_name"]
