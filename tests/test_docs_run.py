@@ -32,9 +32,11 @@ SKIP: dict[tuple[str, str], str] = {
         "a fragment of the loop's code with elided arguments",
     # other tools reading `wmr ssp export`'s package: tests/test_ssp.py runs both
     ("ssp.md", "from libcosimpy.CosimExecution import CosimExecution"):
-        "needs fig11.ssp from `wmr ssp export`; tests/test_ssp.py runs it",
+        "needs ssp/fig11.ssp from `wmr ssp export`; tests/test_ssp.py runs it",
     ("ssp.md", "from fmpy.ssp.simulation import simulate_ssp"):
-        "needs fig11.ssp from `wmr ssp export`; tests/test_ssp.py runs it",
+        "needs ssp/fig11.ssp from `wmr ssp export`; tests/test_ssp.py runs it",
+    ("ssp.md", "from wmr.adapters.ssp.ecos import simulate_ecos"):
+        "needs ssp/fig11-fmi3.ssp from `wmr ssp export --fmi 3`; tests/test_ssp.py runs it",
 }
 #: Pages whose python blocks take minutes (FMU runs, a batch, an optimal solve).
 SLOW_PAGES = {"api.md"}

@@ -7,7 +7,6 @@ import argparse
 from pathlib import Path
 
 from wmr.infra.errors import ConfigError
-from wmr.infra.paths import safe_filename
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
@@ -15,13 +14,18 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from wmr.adapters.ssp.export import export_ssp
     from wmr.build.fmus import build_fmus
     from wmr.cli.run import select_run
+    from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
     from wmr.config.scenario import load_scenario, with_overrides
     from wmr.infra.outputs import check_output
 
     scenario = load_scenario(args.scenario)
-    spec = with_overrides(select_run(scenario, args.run), start=args.start, goal=args.goal)
-    out = check_output(args.out if args.out else f"{safe_filename(spec.name)}.ssp", "--out",
-                       suffix=".ssp")
+    base = select_run(scenario, args.run)
+    spec = with_overrides(base, start=args.start, goal=args.goal)
+    # ssp/ as runs/ and batches/, named as wmr run names a variant: another goal or FMI
+    # version never overwrites the scenario's own package
+    name = variant_name(run_name(base, spec), fmu_tokens(args.fmi, args.robot_fmu, 2))
+    out = check_output(args.out if args.out else default_log_path(name, "ssp", ".ssp"),
+                       "--out", suffix=".ssp")
     built = None
     robot_choice = args.robot_fmu or scenario.fmu
     if robot_choice is None or args.controller_fmu is None:
@@ -98,7 +102,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     ex.add_argument("--map", metavar="FILE.toml",
                     help="variable map of a robot FMU made by another tool (docs/fmu_map.md; "
                          "default: the scenario's fmu_map)")
-    ex.add_argument("--out", metavar="FILE.ssp", help="package file (default NAME.ssp)")
+    ex.add_argument("--out", metavar="FILE.ssp",
+                    help="package file (default ssp/NAME.ssp, NAME the run's name as 'wmr "
+                         "run' gives it: fig11, fig11-to_5_5_30deg, fig11-fmi3)")
     ex.set_defaults(handler=_cmd_export)
     run = ssp_sub.add_parser(
         "run", help="run an SSP package in libcosim or Ecos and log it to MCAP",

@@ -120,10 +120,12 @@ def file_stem(name: str) -> str:
     return f"{''.join(kept)}~{digest}"
 
 
-def default_log_path(name: str, folder: str | Path = "runs") -> Path:
+def default_log_path(name: str, folder: str | Path = "runs", suffix: str = ".mcap") -> Path:
     """``runs/NAME.mcap``: where a run's log goes when no ``--out`` is given (its name
-    :func:`file_stem`, short enough for any file system however the name is written)."""
-    return Path(folder) / f"{file_stem(name)}.mcap"
+    :func:`file_stem`, short enough for any file system however the name is written); with
+    another ``folder`` and ``suffix``, where a command writes another file of a run
+    (``ssp/NAME.ssp`` of ``wmr ssp export``)."""
+    return Path(folder) / f"{file_stem(name)}{suffix}"
 
 
 def plural(n: int, noun: str) -> str:
