@@ -115,7 +115,7 @@ def test_wmr_optimal_energy_takes_longer_with_less_effort(
     assert isinstance(fast, dict) and isinstance(slow, dict)
     assert slow["status"] == "solved"
     assert slow["final_time_s"] == pytest.approx(1.5 * fast["final_time_s"], rel=1e-6)
-    assert slow["effort_N2m2s"] < fast["effort_N2m2s"]
+    assert slow["torque_sq_integral_n2m2s"] < fast["torque_sq_integral_n2m2s"]
 
 
 def test_wmr_optimal_bad_torque_is_one_line_error(capsys: pytest.CaptureFixture[str]) -> None:

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import argparse
 import re
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 
 import pytest
 
 import wmr
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.mcap import read_run
 from wmr.adapters.ssp.package import read_package
+from wmr.apps.benchmark import run_logged
+from wmr.apps.run import run_to_log
 from wmr.build.fmus import BuildResult
 from wmr.cli import main
 from wmr.cli.run import add_run_overrides
@@ -18,6 +22,7 @@ from wmr.config.naming import LISTED_NAMES, name_list
 from wmr.config.scenario import load_scenario
 from wmr.core.plant import RobotParams
 from wmr.infra.errors import ConfigError
+from wmr.infra.paths import _REPO_ROOT
 
 
 def test_param_help_names_every_robot_parameter() -> None:
@@ -67,3 +72,25 @@ def test_wmr_ssp_export_writes_into_ssp_by_default(
     assert read_package(variant).components["robot"].fmi_version.startswith("3")
     assert own.read_bytes() == package
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ssp"]
+
+
+def _documented_record_keys() -> list[str]:
+    """The keys of the table "The record of a run" of docs/results.md."""
+    text = (_REPO_ROOT / "docs" / "results.md").read_text(encoding="utf-8")
+    table = text.split("## The record of a run", 1)[1].split("\n## ", 1)[0]
+    return re.findall(r"^\| `(\w+)` \|", table, flags=re.M)
+
+
+def test_a_benchmark_log_holds_the_documented_record(built: BuildResult, tmp_path: Path) -> None:
+    """``benchmark.run_logged`` writes the record of ``wmr run`` (docs/results.md) as its log's
+    ``result``: ``torque_sq_integral_n2m2s``, not ``torque_sq_integral`` and ``final_pose``."""
+    keys = _documented_record_keys()
+    assert {"name", "torque_sq_integral_n2m2s", "steps", "mcap"} <= set(keys)
+    spec = replace(load_scenario("fig11").runs[0], t_max_s=0.5)
+    with FmuPlant(built.fmus[3]) as plant:
+        run_logged(spec, plant, tmp_path / "bench.mcap", "PI")
+        own = run_to_log(spec, tmp_path / "run.mcap", plant)
+    bench = read_run(tmp_path / "bench.mcap").metadata["result"]
+    assert list(bench) == [*keys, "time_to_radius_s"]
+    assert list(own) == keys  # the one record of both paths is the documented one
+    assert float(bench["torque_sq_integral_n2m2s"]) == own["torque_sq_integral_n2m2s"]

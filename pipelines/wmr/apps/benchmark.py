@@ -47,7 +47,7 @@ import numpy.typing as npt
 from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, RunLogWriter
-from wmr.apps.run import run_metadata, scenario_attachment_name
+from wmr.apps.run import result_record, run_metadata, scenario_attachment_name
 from wmr.apps.tune import TUNED_GAINS, with_gains
 from wmr.config.scenario import RunSpec, load_scenario
 from wmr.config.scenario_file import run_spec_toml
@@ -135,10 +135,9 @@ def run_logged(spec: RunSpec, plant: FmuPlant, mcap: Path | None,
     with RunLogWriter(mcap, run=meta, goal=goal, attachments=fmu_attachments(plant)) as log:
         tracker = _RadiusTracker(log, spec.goal, spec.stop_radius_m)
         result = run_closed_loop(spec, plant, sink=tracker)
-        record = result.as_dict()
-        record["time_to_radius_s"] = tracker.t_s
-        record["mcap"] = str(mcap)
-        log.close({k: v for k, v in record.items() if v is not None})
+        # the record of wmr run (docs/results.md), not RunResult's own field names
+        log.close({**result_record(spec.name, result), "mcap": str(mcap),
+                   "time_to_radius_s": tracker.t_s})
     return result, tracker.t_s
 
 
@@ -304,7 +303,7 @@ def run_optimal(spec: RunSpec, plant: FmuPlant, mcap: Path | None) -> OptimalRun
     figs = replay_figures(replay, spec.goal, spec.stop_radius_m)
     figs["time_to_goal_s"] = res.final_time_s
     if mcap is not None:
-        record = {"status": res.status, "message": res.message,
+        record = {"name": spec.name, "status": res.status, "message": res.message,
                   "final_time_s": res.final_time_s, **figs, "mcap": str(mcap)}
         write_optimal_log(mcap, res, replay, plant,
                           optimal_metadata(spec.name, spec.scenario, spec.start, spec.goal,

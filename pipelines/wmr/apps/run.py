@@ -305,7 +305,7 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
                                  controller_fmu=controller_fmu)
         if thin is not None:
             thin.end()
-        record = _record(spec, result)
+        record = result_record(spec.name, result)
         if held is not None:
             if log.keeps(result.status):
                 writer = stack.enter_context(held.spill())
@@ -325,10 +325,11 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     return record
 
 
-def _record(spec: RunSpec, result: RunResult) -> dict[str, Any]:
-    """The result record of a run (the fields of ``wmr run --json`` but ``mcap``)."""
+def result_record(name: str, result: RunResult) -> dict[str, Any]:
+    """The result record of a run (the fields of ``wmr run --json``, ``docs/results.md``, but
+    ``mcap``): every command that logs a closed-loop run stores it as the log's ``result``."""
     return {
-        "name": spec.name,
+        "name": name,
         "status": result.status,
         "message": result.message,
         "final_position_error_m": _jsonable(result.final_position_error_m),
