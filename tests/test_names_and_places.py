@@ -18,9 +18,16 @@ from wmr.apps.run import run_to_log
 from wmr.build.fmus import BuildResult
 from wmr.cli import main
 from wmr.cli.run import add_run_overrides
-from wmr.config.naming import LISTED_NAMES, name_list
+from wmr.config.naming import (
+    LISTED_NAMES,
+    MAX_SENSOR_CHARS,
+    SENSOR_ALIASES,
+    name_list,
+    run_name,
+)
 from wmr.config.scenario import load_scenario
 from wmr.core.plant import RobotParams
+from wmr.core.sensing.config import SensorConfig, command_line_sensors
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import _REPO_ROOT
 
@@ -94,3 +101,50 @@ def test_a_benchmark_log_holds_the_documented_record(built: BuildResult, tmp_pat
     assert list(bench) == [*keys, "time_to_radius_s"]
     assert list(own) == keys  # the one record of both paths is the documented one
     assert float(bench["torque_sq_integral_n2m2s"]) == own["torque_sq_integral_n2m2s"]
+
+
+def _sensors_name(preset: str | None, *items: str) -> str:
+    base = load_scenario("fig11").runs[0]
+    spec = replace(base, sensors=command_line_sensors(base.sensors, preset, list(items)))
+    return run_name(base, spec)
+
+
+#: ``wmr run --sensors ... --sensor ...`` cases: all differ in their sensors.
+SENSOR_CASES: list[tuple[str | None, tuple[str, ...]]] = [
+    ("gps", ()), ("raw", ()), (None, ("gps_sigma_m=0.05",)),
+    ("gps", ("gps_sigma_m=0.1",)), ("gps", ("gps_sigma_m=0.1", "estimator=none",
+                                            "heading=compass")),
+    *(("gps", ("seed=3", "gps_rate_hz=5", "gps_dropout_probability=0.1",
+               "wheel_radius_error_frac=0.01", "odometry_noise_m2_per_m=0.001",
+               f"initial_heading_sigma_deg={deg}")) for deg in (2, 3)),
+]
+
+
+def test_a_sensors_run_has_a_short_readable_name() -> None:
+    """``wmr run --sensors gps`` is ``fig11-sensors_gps``, not the 104 characters of every
+    field in full (``fig11-sensors-estimator=ekf-gps_latency_s=0.05-...``), which Rerun's
+    entity paths escaped."""
+    rerun = pytest.importorskip("rerun")
+    assert _sensors_name("gps") == "fig11-sensors_gps"
+    assert rerun.escape_entity_path_part("fig11-sensors_gps") == "fig11-sensors_gps"
+    assert _sensors_name(None, "gps_sigma_m=0.05") == "fig11-sensors-gps_sd=0.05"
+    for preset, items in SENSOR_CASES:
+        assert len(_sensors_name(preset, *items)) <= len("fig11-") + MAX_SENSOR_CHARS
+
+
+def test_sensors_run_names_stay_unique() -> None:
+    """Every case its own name: the two long ones differ past the cut, in a field the name
+    no longer spells out, and only the hash tells them apart."""
+    names = [_sensors_name(preset, *items) for preset, items in SENSOR_CASES]
+    assert len(set(names)) == len(names), names
+    numeric = [f.name for f in fields(SensorConfig)
+               if f.name not in ("estimator", "heading", "gps_dropout_windows")]
+    one_field = {_sensors_name(None, "estimator=ekf"),
+                 *(_sensors_name(None, f"{name}={0.25 if 'frac' in name or 'prob' in name else 2}")
+                   for name in numeric)}
+    assert len(one_field) == len(numeric) + 1
+
+
+def test_every_sensor_field_has_one_short_alias() -> None:
+    assert list(SENSOR_ALIASES) == [f.name for f in fields(SensorConfig)]
+    assert len(set(SENSOR_ALIASES.values())) == len(SENSOR_ALIASES)

@@ -12,10 +12,13 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import fields
 from pathlib import Path
+from typing import Final
 
 from wmr.config.scenario import RunSpec
 from wmr.core.plant import Pose
+from wmr.core.sensing.config import PRESETS, SensorConfig, preset
 from wmr.infra.paths import safe_filename
 
 #: Longest name kept whole; a longer one is cut and ends in a hash of the whole.
@@ -57,22 +60,70 @@ def spec_tokens(base: RunSpec, spec: RunSpec) -> list[str]:
         tokens.append("controller_fmu" if spec.controller_fmu is not None
                       else "controller_python")
     if spec.sensors != base.sensors:
-        if spec.sensors is None:
-            tokens.append("sensors_off")
-        else:
-            from dataclasses import asdict
-
-            from wmr.core.sensing.config import SensorConfig
-
-            before = asdict(base.sensors if base.sensors is not None else SensorConfig())
-            tokens.append("sensors")
-            tokens += [f"{k}={v:.10g}" if isinstance(v, float) else f"{k}={v}"
-                       for k, v in asdict(spec.sensors).items() if before.get(k) != v]
+        tokens += (["sensors_off"] if spec.sensors is None
+                   else sensor_tokens(base.sensors, spec.sensors))
     if spec.start != base.start:
         tokens.append(pose_token("from", spec.start))
     if spec.goal != base.goal:
         tokens.append(pose_token("to", spec.goal))
     return tokens
+
+
+#: Short names of the ``[sensors]`` fields in run names (``gps_sigma_m=0.05`` is ``gps_sd=0.05``).
+SENSOR_ALIASES: Final[dict[str, str]] = {
+    "estimator": "est", "seed": "seed", "gps_rate_hz": "gps_hz", "gps_latency_s": "gps_lag",
+    "gps_sigma_m": "gps_sd", "gps_bias_walk_m_per_sqrt_s": "gps_walk",
+    "gps_dropout_probability": "gps_drop", "gps_dropout_windows": "gps_gaps", "heading": "hdg",
+    "compass_sigma_deg": "cmp_sd", "compass_rate_hz": "cmp_hz", "compass_latency_s": "cmp_lag",
+    "encoder_counts_per_rev": "enc_cpr", "encoder_rate_hz": "enc_hz",
+    "odometry_noise_m2_per_m": "odo_var", "wheel_radius_error_frac": "r_err",
+    "initial_heading_sigma_deg": "hdg0_sd",
+}
+#: Longest sensors part of a run name (``sensors_gps-gps_sd=0.1-...``) kept whole; a longer
+#: one keeps the tokens that fit and ends in ``Nmore_HASH``, HASH of the whole sensors table.
+MAX_SENSOR_CHARS = 48
+
+
+def _sensor_value(value: object) -> str:
+    if isinstance(value, tuple):  # gps_dropout_windows: 20_25+30_35
+        return "+".join("_".join(f"{t:.10g}" for t in w) for w in value)
+    return f"{value:.10g}" if isinstance(value, float) else str(value)
+
+
+def _sensor_diffs(before: SensorConfig, after: SensorConfig) -> list[str]:
+    return [f"{SENSOR_ALIASES.get(f.name, f.name)}={_sensor_value(getattr(after, f.name))}"
+            for f in fields(SensorConfig) if getattr(before, f.name) != getattr(after, f.name)]
+
+
+def sensor_tokens(base: SensorConfig | None, sensors: SensorConfig) -> list[str]:
+    """Short tokens for a run's ``sensors`` (``base``: the scenario run's, or None).
+
+    ``sensors_gps`` for the ``gps`` preset as it is; else the table nearest to ``sensors`` of
+    the scenario run's (or the defaults), ``sensors``, and the presets, ``sensors_gps``,
+    followed by the fields that differ from it under their short names
+    (:data:`SENSOR_ALIASES`): ``sensors_gps-gps_sd=0.1``.  A sensors part longer than
+    :data:`MAX_SENSOR_CHARS` keeps the tokens that fit and ends with how many more differ and
+    a hash of the whole table (``4more_bcafb73d``), so that two runs with other sensors never
+    share a name; the log's ``run`` record holds the whole table.  (Names were once
+    every differing field in full, ``sensors-estimator=ekf-gps_latency_s=0.05-...``: about
+    110 characters, escaped in Rerun's entity paths.)
+    """
+    references = [("sensors", base if base is not None else SensorConfig()),
+                  *((f"sensors_{name}", preset(name)) for name in PRESETS)]
+    # fewest differences; the first on a tie: the scenario's own table before a preset
+    label, diffs = min(((lab, _sensor_diffs(ref, sensors)) for lab, ref in references),
+                       key=lambda item: len(item[1]))
+    tokens = [label, *diffs]
+    if len("-".join(tokens)) <= MAX_SENSOR_CHARS:
+        return tokens
+    digest = hashlib.sha256(repr(sensors.as_dict()).encode()).hexdigest()[:8]
+    kept, budget = [label], MAX_SENSOR_CHARS - len(label) - len(f"-99more_{digest}")
+    for token in diffs:
+        if len(token) + 1 > budget:
+            break
+        kept.append(token)
+        budget -= len(token) + 1
+    return [*kept, f"{len(diffs) - len(kept) + 1}more_{digest}"]
 
 
 def fmu_tokens(fmi_version: int, fmu: str | Path | None, default_fmi: int = 3) -> list[str]:
@@ -144,5 +195,5 @@ def name_list(names: Sequence[str], noun: str = "run", shown: int = LISTED_NAMES
     return f"its {plural(len(names), noun)}: {head}" if names else f"no {noun}s"
 
 
-__all__ = ["default_log_path", "file_stem", "fmu_tokens", "name_list", "plural", "pose_token",
-           "run_name", "spec_tokens", "variant_name"]
+__all__ = ["SENSOR_ALIASES", "default_log_path", "file_stem", "fmu_tokens", "name_list",
+           "plural", "pose_token", "run_name", "sensor_tokens", "spec_tokens", "variant_name"]
