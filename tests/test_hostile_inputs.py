@@ -10,6 +10,7 @@ import subprocess
 import sys
 import tomllib
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +66,41 @@ def test_a_long_run_name_gives_a_file_name_every_file_system_takes(name: str,
     assert default_log_path(name[:-1] + "x", tmp_path) != path  # long names stay apart
     assert "%" not in path.name[-16:]  # cut at a character, not inside its escapes
     assert file_stem("fig11-m=40") == "fig11-m=40"  # short names unchanged
+
+
+LONG_NAMES = ["é" * 60, "🤖" * 70, "a" * 300, "." + "\u202e" * 90, "a.b" * 100]
+
+
+@pytest.mark.parametrize("name", LONG_NAMES, ids=["e-acute", "emoji", "ascii", "bidi", "dots"])
+def test_every_file_named_after_a_run_fits_the_file_system(name: str, tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch
+                                                           ) -> None:
+    """``safe_filename`` had no cap: the default ``.rrd`` of a live view, the scenario a log
+    attaches, ``wmr ssp export``'s ``NAME.ssp`` and the figures' logs were ``File name too
+    long`` for these names.  One function cuts them all, by bytes after encoding."""
+    from wmr.adapters.rerun.live_view import live_view_sink
+    from wmr.apps.run import scenario_attachment_name
+    from wmr.infra.paths import MAX_STEM_BYTES, safe_filename
+
+    stem = safe_filename(name)
+    assert len(stem.encode()) <= MAX_STEM_BYTES and stem == file_stem(name)
+    for suffix in (".ssp", ".toml", ".rrd", ".mcap.partial.recovering"):
+        (tmp_path / f"{stem}{suffix}").touch()  # the file system takes each
+    assert safe_filename(name[:-1] + "x") != stem  # long names stay apart
+    assert safe_filename(stem) != stem  # a cut stem is no other name's whole stem
+    spec = load_scenario("fig11").runs[0]
+    assert scenario_attachment_name(replace(spec, name=name)) == f"{stem}.toml"
+    monkeypatch.chdir(tmp_path)
+    live_view_sink(name, (1.0, 2.0, 0.5), None, spawn=False).close()
+    assert (tmp_path / "runs" / f"{stem}.rrd").is_file()
+
+
+def test_a_cut_stem_keeps_the_characters_it_keeps_whole() -> None:
+    """Only the characters a cut leaves out change: a dot inside the name stays a dot."""
+    from wmr.infra.paths import safe_filename
+
+    assert safe_filename("a.b" * 100).startswith("a.ba.b")
+    assert safe_filename(".x") == "%2Ex" and safe_filename("x~y") == "x%7Ey"
 
 
 def test_wmr_run_of_a_scenario_named_in_emoji_writes_its_log(

@@ -19,14 +19,10 @@ from typing import Final
 from wmr.config.scenario import RunSpec
 from wmr.core.plant import Pose
 from wmr.core.sensing.config import PRESETS, SensorConfig, preset
-from wmr.infra.paths import safe_filename
+from wmr.infra.paths import MAX_STEM_BYTES, safe_filename
 
 #: Longest name kept whole; a longer one is cut and ends in a hash of the whole.
 MAX_NAME_CHARS = 120
-#: Longest file name stem made from a run name, in bytes *after* percent-encoding (one ``é`` is
-#: 6 bytes, ``%C3%A9``; one emoji 12): file systems allow 255 bytes (``NAME_MAX``), and the
-#: log's siblings add a suffix of up to 24 (``.mcap.partial.recovering``).
-MAX_STEM_BYTES = 200
 
 
 def pose_token(label: str, pose: Pose) -> str:
@@ -151,24 +147,9 @@ def run_name(base: RunSpec, spec: RunSpec, extra: Sequence[str] = ()) -> str:
     return variant_name(base.name, [*spec_tokens(base, spec), *extra])
 
 
-def file_stem(name: str) -> str:
-    """A file name stem for the run name ``name``: :func:`~wmr.infra.paths.safe_filename`,
-    cut to :data:`MAX_STEM_BYTES` bytes (at a character, never inside its ``%XX`` escapes) and
-    ended with ``~`` and a hash of the whole name when longer, so that two long names stay
-    apart (``safe_filename`` escapes ``~``: a cut stem is never another name's whole one)."""
-    stem = safe_filename(name)
-    if len(stem) <= MAX_STEM_BYTES:  # safe_filename's output is ASCII: chars are bytes
-        return stem
-    digest = hashlib.sha256(name.encode()).hexdigest()[:10]
-    budget = MAX_STEM_BYTES - len(digest) - 1
-    kept: list[str] = []
-    for i, char in enumerate(name):
-        piece = safe_filename(char) if i else safe_filename(name[0])
-        if budget < len(piece):
-            break
-        kept.append(piece)
-        budget -= len(piece)
-    return f"{''.join(kept)}~{digest}"
+#: A file name stem for a run name: :func:`wmr.infra.paths.safe_filename` itself (kept under this
+#: name for its callers), which cuts by bytes after encoding for every file the project names.
+file_stem = safe_filename
 
 
 def default_log_path(name: str, folder: str | Path = "runs", suffix: str = ".mcap") -> Path:
@@ -195,5 +176,6 @@ def name_list(names: Sequence[str], noun: str = "run", shown: int = LISTED_NAMES
     return f"its {plural(len(names), noun)}: {head}" if names else f"no {noun}s"
 
 
-__all__ = ["SENSOR_ALIASES", "default_log_path", "file_stem", "fmu_tokens", "name_list",
-           "plural", "pose_token", "run_name", "sensor_tokens", "spec_tokens", "variant_name"]
+__all__ = ["MAX_STEM_BYTES", "SENSOR_ALIASES", "default_log_path", "file_stem", "fmu_tokens",
+           "name_list", "plural", "pose_token", "run_name", "sensor_tokens", "spec_tokens",
+           "variant_name"]
