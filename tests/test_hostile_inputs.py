@@ -5,7 +5,9 @@ names the field or the file."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import tomllib
@@ -14,6 +16,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import pyarrow.parquet as pq
 import pytest
 
 from wmr.adapters.mcap import read_run
@@ -342,3 +345,103 @@ def test_a_batch_folder_removed_under_the_workers_is_one_error_not_a_traceback(
     with pytest.raises(WmrError, match=r"could not start: cannot open .*worker-0\.log"):
         list(pool.run([Task("0000-x", spec)]))
     assert "Traceback" not in capfd.readouterr().err
+
+
+# -- item 4 (part C): a worker stopped by SIGSTOP ----------------------------------------------
+
+def test_a_stopped_worker_s_run_has_a_null_log_not_a_missing_one(
+        fmu3: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A worker SIGSTOPped between runs never reads its next run: the pool kills it at the hard
+    limit and the run is ``timeout`` with no log at all.  Its summary row named
+    ``runs/<id>.mcap``, a file that does not exist; now it says null, ``wmr report`` reads the
+    summary, and a resume trusts the killed run's line (nothing redone)."""
+    spec = tmp_path / "t4.toml"
+    spec.write_text(SPEC4)
+    out = tmp_path / "out"
+    stopped: list[int] = []
+
+    def stop_the_worker(outcome: Any) -> None:
+        if not stopped:  # the worker waits for its next run: it will never read it
+            stopped.append(int(outcome.worker))
+            os.kill(stopped[0], signal.SIGSTOP)
+
+    first = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False,
+                      run_timeout_s=1.0, on_outcome=stop_the_worker)
+    assert first.counts["timeout"] >= 1 and len(first.executed) == 4
+    killed = first.executed[1]
+    rows = {r["run_id"]: r for r in pq.read_table(out / "summary.parquet").to_pylist()}
+    assert rows[killed]["status"] == "timeout" and rows[killed]["mcap"] is None
+    for row in rows.values():  # every log a row names exists
+        assert row["mcap"] is None or (out / row["mcap"]).is_file()
+    assert sum(row["mcap"] is None for row in rows.values()) == 1
+    csv_rows = (out / "summary.csv").read_text().splitlines()
+    assert next(r for r in csv_rows if r.startswith(killed)).endswith(",")  # empty cell
+    assert main(["report", str(out)]) == 0
+    summary = (out / "summary.csv").read_bytes()
+    again = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    assert again.executed == [] and (out / "summary.csv").read_bytes() == summary
+    assert "did not match" not in capsys.readouterr().err
+
+
+# -- item 3 (part C): ulimit -v too low to load the modules ------------------------------------
+
+def _limited(resource_name: str, value: int) -> Any:
+    """A ``preexec_fn`` that sets both limits of ``resource_name`` to ``value``."""
+    import resource
+
+    def set_limit() -> None:
+        which = getattr(resource, resource_name)
+        resource.setrlimit(which, (value, value))
+
+    return set_limit
+
+
+@pytest.mark.parametrize("argv", [["--version"], ["batch", "SPEC", "--workers", "2"]],
+                         ids=["version", "batch"])
+def test_ulimit_v_below_what_the_modules_need_is_one_line(argv: list[str],
+                                                          tmp_path: Path) -> None:
+    """``ulimit -v 150000``: numpy's import failed inside ``build_parser`` (a SyntaxError
+    from the parser's failed allocation, or numpy's 30-line ImportError, or OpenBLAS ending
+    the process); now one line before any heavy import."""
+    spec = tmp_path / "t4.toml"
+    spec.write_text(SPEC4)
+    argv = [str(spec) if a == "SPEC" else a for a in argv]
+    proc = subprocess.run([sys.executable, "-m", "wmr.cli", *argv, "--out", str(tmp_path / "o")]
+                          if argv[0] == "batch" else [sys.executable, "-m", "wmr.cli", *argv],
+                          capture_output=True, text=True, timeout=120,
+                          preexec_fn=_limited("RLIMIT_AS", 150_000 * 1024))
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stderr.startswith("wmr: error: out of memory: ulimit -v is 150000 kB")
+    assert "raise it (e.g. ulimit -v" in proc.stderr and proc.stderr.count("\n") == 1
+
+
+@pytest.mark.parametrize("where", ["parser", "handler"])
+def test_a_module_that_cannot_be_mapped_is_out_of_memory_not_an_internal_error(
+        where: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Above the floor a sub-command's module may still not fit: pyarrow's ImportError
+    ``libarrow.so.2600: failed to map segment from shared object`` was an internal error."""
+    import wmr.cli as cli
+
+    def unmappable(*args: Any) -> Any:
+        raise ImportError("libarrow.so.2600: failed to map segment from shared object")
+
+    if where == "parser":
+        monkeypatch.setattr(cli, "_extra_commands", unmappable)
+    else:
+        monkeypatch.setattr(cli, "_cmd_fmu_build", unmappable)  # looked up by build_parser
+    assert main(["fmu", "build"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("wmr: error: out of memory loading wmr's modules") and \
+        err.count("\n") == 1
+
+
+def test_a_missing_module_is_not_called_out_of_memory(monkeypatch: pytest.MonkeyPatch) -> None:
+    import wmr.cli as cli
+
+    def missing() -> Any:
+        raise ModuleNotFoundError("No module named 'rerun'")
+
+    monkeypatch.setattr(cli, "_extra_commands", missing)
+    with pytest.raises(ModuleNotFoundError):
+        main(["--version"])

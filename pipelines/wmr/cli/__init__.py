@@ -57,12 +57,53 @@ def error_line(exc: BaseException) -> str:
     return _cut(line, MAX_LINE_CHARS) + more
 
 
+#: Address space (``ulimit -v``) below which wmr cannot load its modules: numpy, pyarrow and
+#: CasADi map their libraries and OpenBLAS its buffers (``wmr --version`` needs about 190 MB on
+#: x86_64 Linux; below about 120 MB OpenBLAS ends the process itself, uncatchably).
+MIN_ADDRESS_SPACE_BYTES = 160 * 2**20
+_LOADING = " loading wmr's modules"
+# what the dynamic loader says when mmap fails for lack of address space
+_NO_MAP = re.compile(r"failed to map segment|cannot allocate memory", re.IGNORECASE)
+
+
+def _address_space_limit() -> int | None:
+    """The soft ``ulimit -v`` in bytes; ``None`` when there is none (or no such limit)."""
+    try:
+        import resource
+    except ImportError:  # not POSIX
+        return None
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    return None if soft == resource.RLIM_INFINITY else soft
+
+
+def out_of_memory(what: str = "") -> str:
+    """The one line of a command that ran out of memory ``what`` (`` loading wmr's modules``),
+    naming the ``ulimit -v`` if any (a limit per process: fewer workers would not help)."""
+    limit = _address_space_limit()
+    if limit is None:
+        return f"out of memory{what}: give the process more memory, or run fewer --workers"
+    return (f"out of memory{what} (ulimit -v is {limit // 1024} kB): raise ulimit -v (e.g. "
+            f"ulimit -v {max(4 * limit, 4 * MIN_ADDRESS_SPACE_BYTES) // 1024}, or unlimited)")
+
+
+def _from_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` is a lack of memory: a MemoryError (or one that caused it), a shared
+    library that could not be mapped (numpy and pyarrow raise ImportError), or a SyntaxError
+    from importing under a ``ulimit -v`` (CPython's parser reports a failed allocation so)."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, MemoryError) or (isinstance(seen, ImportError)
+                                             and _NO_MAP.search(str(seen))):
+            return True
+        seen = seen.__cause__ or seen.__context__
+    return isinstance(exc, SyntaxError) and _address_space_limit() is not None
+
+
 def _environment_error(exc: OSError | MemoryError) -> str:
     """An error of the machine, not of wmr (too many open files, no memory, a name too long for
     the file system, a folder removed under it): one line saying which and what to do."""
     if isinstance(exc, MemoryError):
-        return ("out of memory (a ulimit -v or the machine's memory): give the process more "
-                "memory, or run fewer --workers")
+        return out_of_memory()
     what = exc.strerror or type(exc).__name__
     where = f"{exc.filename}: " if exc.filename is not None else ""
     fix = {errno.EMFILE: "raise the limit (ulimit -n) or run fewer --workers",
@@ -230,7 +271,20 @@ def _json_error(args: argparse.Namespace, message: str, exc: BaseException) -> N
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    limit = _address_space_limit()
+    if limit is not None and limit < MIN_ADDRESS_SPACE_BYTES:  # fail now, not in an import
+        print(f"wmr: error: out of memory: ulimit -v is {limit // 1024} kB, below the "
+              f"{MIN_ADDRESS_SPACE_BYTES // 1024} kB that loading wmr's modules needs: raise "
+              f"it (e.g. ulimit -v {4 * MIN_ADDRESS_SPACE_BYTES // 1024}, or unlimited)",
+              file=sys.stderr)
+        return 1
+    try:  # the sub-commands' modules (numpy, pyarrow, ...) load here and in the handler
+        parser = build_parser()
+    except (MemoryError, ImportError, SyntaxError) as exc:
+        if not _from_memory(exc) or "--debug" in (sys.argv if argv is None else argv):
+            raise
+        print(f"wmr: error: {out_of_memory(_LOADING)}", file=sys.stderr)
+        return 1
     args = parser.parse_args(argv)
     handler: Handler = args.handler
     signals = _Signals()
@@ -269,6 +323,11 @@ def _dispatch(handler: Handler, args: argparse.Namespace) -> int:
     except Exception as exc:
         if args.debug:
             raise
+        if _from_memory(exc):  # a module the command loads could not be mapped
+            line = error_line(Exception(out_of_memory(_LOADING)))
+            print(f"wmr: error: {line}", file=sys.stderr)
+            _json_error(args, line, exc)
+            return 1
         line = error_line(Exception(f"{type(exc).__name__}: {exc}".replace("\n", " ")))
         print(f"wmr: internal error: {line} (run with --debug for the traceback)",
               file=sys.stderr)
