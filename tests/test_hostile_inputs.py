@@ -445,3 +445,79 @@ def test_a_missing_module_is_not_called_out_of_memory(monkeypatch: pytest.Monkey
     monkeypatch.setattr(cli, "_extra_commands", missing)
     with pytest.raises(ModuleNotFoundError):
         main(["--version"])
+
+
+# -- items 1 and 2 (part C): an open-file limit too low for the pool ---------------------------
+
+@pytest.mark.parametrize("limit", [12, 16])
+def test_ulimit_n_too_low_for_the_workers_is_one_line_at_once(limit: int, fmu3: Path,
+                                                               tmp_path: Path) -> None:
+    """``ulimit -n 12`` with two workers could hang; ``ulimit -n 16`` printed the forkserver's
+    ``EOFError`` traceback before its line.  Now one line naming the limit and the fix, before
+    any worker (or the forkserver) is started.  60 s is the hang's failure condition only."""
+    spec = tmp_path / "t4.toml"
+    spec.write_text(SPEC4)
+    proc = subprocess.run([sys.executable, "-m", "wmr.cli", "batch", str(spec), "--workers",
+                           "2", "--fmu", str(fmu3), "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=60,
+                          preexec_fn=_limited("RLIMIT_NOFILE", limit))
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stderr.startswith(f"wmr: error: the open-file limit (ulimit -n) is {limit}, "
+                                  "and 2 workers need about ")
+    assert "raise it (e.g. ulimit -n 256)" in proc.stderr and proc.stderr.count("\n") == 1
+    assert not (tmp_path / "out" / "logs").exists()  # no worker was started
+
+
+def test_a_low_soft_open_file_limit_is_raised_to_what_the_workers_need(fmu3: Path,
+                                                                        tmp_path: Path) -> None:
+    """``ulimit -S -n 12`` under a higher hard limit: the batch raises its own soft limit."""
+    import resource
+
+    spec = tmp_path / "t4.toml"
+    spec.write_text(SPEC4)
+    hard = resource.getrlimit(resource.RLIMIT_NOFILE)[1]
+
+    def soft_12() -> None:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (12, hard))
+
+    proc = subprocess.run([sys.executable, "-m", "wmr.cli", "batch", str(spec), "--workers",
+                           "2", "--fmu", str(fmu3), "--out", str(tmp_path / "out"),
+                           "--no-progress"],
+                          capture_output=True, text=True, timeout=120, preexec_fn=soft_12)
+    assert proc.returncode == 0, proc.stderr
+    assert "4 converged" in proc.stderr
+
+
+def test_a_worker_gone_while_a_helper_keeps_its_pipe_open_is_seen_dead(fmu3: Path,
+                                                                       tmp_path: Path) -> None:
+    """A worker whose FMU started a helper process (which inherits the worker's pipe) and
+    crashed: the pipe never read as EOF, and a batch without a run timeout waited for ever.
+    The pool now watches the process itself: the run is retried once, then ``failed``.  Run in
+    a subprocess so that the old hang is a failure after 60 s, not a stuck test session."""
+    spec = tmp_path / "t4.toml"
+    spec.write_text(SPEC4)
+    out = tmp_path / "out"
+    script = (
+        "import sys\n"
+        "from wmr.apps.batch import load_batch, run_batch\n"
+        f"batch = load_batch({str(spec)!r})\n"
+        "faults = {batch.runs[0].run_id: 'crash-keeping-pipe'}\n"
+        f"r = run_batch(batch, {str(out)!r}, workers=1, fmu_path={str(fmu3)!r},\n"
+        "              progress=False, faults=faults)\n"
+        "print(r.counts['failed'], r.counts['converged'])\n")
+    err = tmp_path / "stderr.txt"
+    try:  # files, not pipes: the helper keeps the forkserver, and its stderr, alive
+        with open(err, "w") as stderr, open(tmp_path / "stdout.txt", "w") as stdout:
+            proc = subprocess.run([sys.executable, "-c", script], stdout=stdout, stderr=stderr,
+                                  timeout=60)
+    finally:
+        for marker in (out / "runs").rglob("*.helpers"):
+            for pid in marker.read_text().split():
+                try:
+                    os.kill(int(pid), signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+    assert proc.returncode == 0, err.read_text()
+    assert (tmp_path / "stdout.txt").read_text().split() == ["1", "3"]
+    rows = {r["run_id"]: r for r in pq.read_table(out / "summary.parquet").to_pylist()}
+    assert "died" in min(rows.values(), key=lambda r: r["run_id"])["message"]

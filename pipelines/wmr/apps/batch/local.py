@@ -39,6 +39,49 @@ _INIT_FAILED = 3
 _ORPHANED = 4
 
 
+#: Open files a batch needs besides its workers' (standard streams, the journal and its lock,
+#: the module being imported, a log being recovered, the forkserver's sockets and a fork
+#: request's descriptors, a worker's FMU, log and pidfd): each process has the same limit.
+_FDS_SPARE = 16
+#: Open files per worker: its pipe and its process sentinel in the batch process, its exit
+#: status pipe in the forkserver.
+_FDS_PER_WORKER = 3
+
+
+def open_files_needed(workers: int) -> int:
+    """About how many files a batch of ``workers`` local workers keeps open in its process:
+    those open now (at least the standard streams), 3 per worker, and a spare of 16."""
+    try:
+        open_now = len(os.listdir("/proc/self/fd"))
+    except OSError:  # not Linux: assume few
+        open_now = 16
+    return max(open_now, 16) + _FDS_PER_WORKER * workers + _FDS_SPARE
+
+
+def check_open_files(workers: int) -> None:
+    """Make sure ``workers`` local workers can open what they need, before any is started:
+    the soft open-file limit is raised to what is needed when the hard limit allows it, else
+    one :class:`WmrError` says the limit and how to fix it (below it, the forkserver died with a
+    traceback, or a worker could not be started)."""
+    try:
+        import resource
+    except ImportError:  # not POSIX
+        return
+    need = open_files_needed(workers)
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY or soft >= need:
+        return
+    if hard == resource.RLIM_INFINITY or hard >= need:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
+        return
+    fewer = max((k for k in range(1, workers) if open_files_needed(k) <= soft), default=0)
+    who = "1 worker needs" if workers == 1 else f"{workers} workers need"
+    raise WmrError(f"the open-file limit (ulimit -n) is {soft}, and {who} about {need} open "
+                   f"files: raise it (e.g. "
+                   f"ulimit -n {max(256, need)})"
+                   + (f", or run --workers {fewer}" if fewer else ""))
+
+
 @dataclass
 class Outcome:
     """A finished run as an executor reports it.
@@ -154,6 +197,20 @@ def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str
         conn.close()
 
 
+def _start_problem(exc: BaseException) -> str:
+    """Why a worker could not be started, and what to do."""
+    import errno
+
+    if isinstance(exc, OSError) and exc.errno in (errno.EMFILE, errno.ENFILE):
+        return f"{exc.strerror} (raise ulimit -n, or run fewer --workers)"
+    if isinstance(exc, MemoryError) or (isinstance(exc, OSError)
+                                        and exc.errno in (errno.ENOMEM, errno.EAGAIN)):
+        return "out of memory or processes (raise ulimit -v or ulimit -u, or run fewer --workers)"
+    if isinstance(exc, EOFError):
+        return "the process that starts workers ended (too few open files or too little memory?)"
+    return f"{type(exc).__name__}: {exc}"
+
+
 @dataclass
 class _Slot:
     number: int
@@ -198,15 +255,27 @@ class LocalPool:
         self._ctx.set_forkserver_preload(["wmr.apps.batch.local"])
 
     def _spawn(self, number: int) -> _Slot:
-        parent, child = self._ctx.Pipe(duplex=True)
+        """Start worker ``number``; a pipe or a process that cannot be made (no file
+        descriptors, no memory, the forkserver gone) is one :class:`WmrError`."""
         log_file = str(self.log_dir / f"worker-{number}.log") if self.log_dir else None
+        try:
+            parent, child = self._ctx.Pipe(duplex=True)
+        except OSError as exc:
+            raise WmrError(f"cannot make the pipe of batch worker {number}: "
+                           f"{_start_problem(exc)}") from None
         proc = self._ctx.Process(
             target=_worker_main, name=f"wmr-batch-{number}", daemon=True,
             args=(child, str(self.fmu_path), str(self.runs_dir),
                   str(self.attachment) if self.attachment else None, log_file, os.getpid(),
                   self.var_map))
-        proc.start()
-        child.close()
+        try:
+            proc.start()
+        except (OSError, EOFError, MemoryError) as exc:  # EOFError: the forkserver died
+            parent.close()
+            raise WmrError(f"cannot start batch worker {number}: {_start_problem(exc)}"
+                           ) from None
+        finally:
+            child.close()
         return _Slot(number, proc, parent)
 
     @staticmethod
@@ -234,6 +303,7 @@ class LocalPool:
         FmuError
             A worker cannot open the FMU.
         """
+        check_open_files(min(self.workers, len(tasks)))
         source = iter(tasks)  # taken one at a time: a large batch's runs are made as they go
         again: deque[Task] = deque()
         retried: set[str] = set()
@@ -261,14 +331,19 @@ class LocalPool:
                 if self.hard_limit_s is not None:
                     first = min(s.started for s in busy) + self.hard_limit_s
                     timeout = max(0.0, min(timeout, first - time.monotonic()))
-                ready = wait([s.conn for s in busy], timeout)
+                # the process too: one gone whose pipe a child of its own (an FMU's helper)
+                # keeps open never reads as EOF
+                ready = wait([s.conn for s in busy] + [s.proc.sentinel for s in busy], timeout)
                 for slot in busy:
-                    if slot.conn not in ready:
-                        continue
-                    try:
-                        msg = slot.conn.recv()
-                    except (EOFError, OSError):
+                    if slot.conn in ready:
+                        try:
+                            msg = slot.conn.recv()
+                        except (EOFError, OSError):
+                            msg = None
+                    elif slot.proc.sentinel in ready:
                         msg = None
+                    else:
+                        continue
                     if msg is not None and msg[0] == "ready":
                         slot.ready = True
                         continue
@@ -322,4 +397,5 @@ class LocalPool:
                 self._stop(slot, kill=slot.task is not None)
 
 
-__all__ = ["DIED_TWICE", "LocalPool", "Outcome", "made_up_record"]
+__all__ = ["DIED_TWICE", "LocalPool", "Outcome", "check_open_files", "made_up_record",
+           "open_files_needed"]

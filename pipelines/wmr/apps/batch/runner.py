@@ -40,7 +40,7 @@ from wmr.apps.batch.journal import (
     log_stamp,
     logged_record,
 )
-from wmr.apps.batch.local import LocalPool, Outcome
+from wmr.apps.batch.local import LocalPool, Outcome, check_open_files
 from wmr.apps.batch.spec import BatchRun, BatchSpec, run_index
 from wmr.apps.batch.summary import (
     STATUSES,
@@ -216,6 +216,8 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     except OSError as exc:
         raise ConfigError("--out", f"cannot create {runs_dir}: {exc.strerror}",
                           "give a writable folder") from None
+    if scheduler is None and client is None:  # before the FMU is built (many files open)
+        check_open_files(min(workers or os.cpu_count() or 1, max(1, len(batch.runs))))
     fmu = Path(fmu_path) if fmu_path is not None else batch.fmu or default_fmu(fmi_version)
     if var_map is None and batch.fmu_map is not None:
         var_map = load_map(batch.fmu_map)

@@ -30,7 +30,7 @@ from wmr.infra.errors import DiskFullError
 #: Key of a result record whose log could not be written for lack of space.
 DISK_FULL = "disk_full"
 #: ``fault`` values understood by :func:`execute`, for tests of the executors only.
-FAULTS = ("hang", "crash", "crash-once")
+FAULTS = ("hang", "crash", "crash-once", "crash-keeping-pipe")
 
 
 class WallClockLimit(Exception):
@@ -51,7 +51,9 @@ class Task:
         Wall-clock limit of the run, s (checked every 100 control steps), ``None``: none.
     fault
         Test hook: ``"hang"`` sleeps for ever, ``"crash"`` kills the worker process,
-        ``"crash-once"`` kills it on the first attempt only.
+        ``"crash-once"`` kills it on the first attempt only, ``"crash-keeping-pipe"`` kills
+        it after starting a process that keeps its pipe open for 60 s (its pid in
+        ``<run_id>.helpers``).
     log_name
         Its log, relative to the batch's ``runs`` folder (``<shard>/<run_id>.mcap``, see
         :func:`wmr.apps.batch.summary.log_relpath`); ``""``: ``<run_id>.mcap``.
@@ -135,6 +137,14 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
             marker.touch()
             os._exit(70)
         marker.unlink()
+    if task.fault == "crash-keeping-pipe":  # an FMU whose helper process outlives it
+        helper = os.fork()
+        if helper == 0:  # holds every descriptor the worker had, its pipe to the batch too
+            time.sleep(60)
+            os._exit(0)
+        with open(mcap_path.with_name(f"{task.run_id}.helpers"), "a") as f:
+            f.write(f"{helper}\n")
+        os._exit(70)
     if task.fault == "hang":
         while True:
             time.sleep(3600)
