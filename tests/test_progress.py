@@ -54,3 +54,24 @@ def test_tune_reports_its_evaluations_at_least_every_interval(
     assert lines[0] == "wmr: tune pi: up to 10 evaluations of 3 runs each"
     evaluations = [int(line.split("evaluation ")[1].split("/")[0]) for line in lines[1:]]
     assert evaluations == [1, 4, 7, 10]
+
+
+@pytest.mark.parametrize("content", [b"not parquet at all", b"PAR1" + b"\0" * 64 + b"PAR1"])
+def test_a_report_of_a_damaged_summary_is_one_line(tmp_path: Path, content: bytes) -> None:
+    """A batch folder may come from anyone: a summary that is not Parquet is a one-line
+    :class:`LogError` naming it, never an Arrow traceback."""
+    from wmr.infra.errors import LogError
+
+    (tmp_path / SUMMARY_PARQUET).write_bytes(content)
+    with pytest.raises(LogError, match="not a readable Parquet summary") as info:
+        write_report(tmp_path)
+    assert len(str(info.value).splitlines()) == 1 and SUMMARY_PARQUET in str(info.value)
+
+
+def test_a_report_of_a_summary_without_run_ids_names_the_column(tmp_path: Path) -> None:
+    from wmr.infra.errors import LogError
+
+    pq.write_table(pa.table({"status": ["converged"], "message": ["ok"]}),
+                   tmp_path / SUMMARY_PARQUET)
+    with pytest.raises(LogError, match="no column run_id"):
+        write_report(tmp_path)

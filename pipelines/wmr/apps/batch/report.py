@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from wmr.apps.batch.spec import POSE_COLUMNS
 from wmr.apps.batch.summary import ID_COLUMNS, RESULT_COLUMNS, STATUSES, SUMMARY_PARQUET
 from wmr.config.naming import plural
-from wmr.infra.errors import ConfigError, WmrError
+from wmr.infra.errors import ConfigError, LogError, WmrError
 
 #: Inputs with at most this many distinct values are plotted per value, others in bins.
 DISCRETE_MAX: Final = 12
@@ -38,6 +38,33 @@ _COLOURS: Final = {"converged": "tab:green", "timeout": "tab:orange", "failed": 
 def _floats(table: pa.Table, name: str) -> NDArray[np.float64]:
     return np.array([math.nan if v is None else float(v)
                      for v in table.column(name).to_pylist()], dtype=np.float64)
+
+
+#: Columns a summary must have for a report; the rest (metrics, ``mcap``) may be missing, as in
+#: a summary written by another version or by hand, and are then read as empty.
+_REQUIRED: Final = ("run_id", "status", "message")
+
+
+def _read_summary(path: Path) -> pa.Table:
+    """The summary at ``path``, checked: a file that is not Parquet, or lacks a required
+    column, is one line naming the file (a batch folder may come from anyone)."""
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as exc:
+        detail = " ".join(str(exc).split())[:200]  # Arrow's messages run over several lines
+        raise LogError(f"{path}: not a readable Parquet summary ({detail}); "
+                       "run 'wmr batch' on its spec again to write it anew") from None
+    missing = [c for c in _REQUIRED if c not in table.column_names]
+    if missing:
+        raise LogError(f"{path}: the summary has no column {', '.join(missing)}; "
+                       "run 'wmr batch' on its spec again to write it anew")
+    for name in (*(c for c, _, _ in _SPREAD), "mcap"):
+        if name not in table.column_names:
+            table = table.append_column(name, pa.nulls(table.num_rows, pa.string()
+                                                       if name == "mcap" else pa.float64()))
+    return table
 
 
 def varied_inputs(table: pa.Table) -> list[str]:
@@ -194,13 +221,11 @@ def write_report(batch_dir: Path, max_plots: int = 8,
     import matplotlib
 
     matplotlib.use("Agg")
-    import pyarrow.parquet as pq
-
     summary = batch_dir / SUMMARY_PARQUET
     if not summary.exists():
         raise ConfigError("DIR", f"no {SUMMARY_PARQUET} in {batch_dir}",
                           "give the --out folder of a 'wmr batch'")
-    table = pq.read_table(summary)
+    table = _read_summary(summary)
     out = batch_dir / "report"
     out.mkdir(exist_ok=True)
     n = table.num_rows
