@@ -39,9 +39,10 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.run import run_to_log
 from wmr.build.controller_interface import INPUTS, SIGNAL_OUTPUTS
 from wmr.build.fmus import build_fmus
-from wmr.config.scenario import RunSpec, load_scenario
+from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.plant import OUTPUT_NAMES
+from wmr.core.runspec import RunSpec
 
 REPEATS = 7
 SHORT_S = 8.0  # the short run: Fig. 11 stopped at 8 s (801 steps)

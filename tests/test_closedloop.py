@@ -9,10 +9,11 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from wmr.config.scenario import RunSpec, expand, load_scenario, with_overrides
+from wmr.config.scenario import expand, load_scenario, with_overrides
 from wmr.core.closedloop import BLOCK_ROWS, run_closed_loop
 from wmr.core.physics import ReferencePlant
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, SIGNALS
 
 POS_BAR_M = 0.05

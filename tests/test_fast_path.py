@@ -23,8 +23,9 @@ from wmr.adapters.fmi.controller import FmuController
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.run import run_to_log
 from wmr.build.fmus import BuildResult, build_stepper
-from wmr.config.scenario import RunSpec, load_scenario, with_overrides
+from wmr.config.scenario import load_scenario, with_overrides
 from wmr.core.closedloop import RunResult, run_closed_loop
+from wmr.core.runspec import RunSpec
 
 
 @pytest.fixture(autouse=True)

@@ -12,7 +12,7 @@ import numpy.typing as npt
 import pytest
 
 from wmr.adapters.fmi.robot import FmuPlant
-from wmr.config.scenario import RunSpec, load_scenario, parse_scenario, with_overrides
+from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control import Gains, Limits
 from wmr.core.control.peers import (
@@ -24,6 +24,7 @@ from wmr.core.control.peers import (
     make_controller,
 )
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
 from wmr.infra.errors import ConfigError
 

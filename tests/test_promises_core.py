@@ -16,11 +16,12 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from wmr.config.scenario import RunSpec, expand, load_scenario, with_overrides
+from wmr.config.scenario import expand, load_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control.stabiliser import Gains, Limits, PointStabiliser
 from wmr.core.physics import ReferencePlant
 from wmr.core.plant import Plant, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS
 
 _TAU = [COLUMN["tau_r_nm"], COLUMN["tau_l_nm"]]

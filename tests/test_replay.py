@@ -30,8 +30,9 @@ from wmr.adapters.rerun.replay import (
 )
 from wmr.apps.run import run_to_log
 from wmr.cli import main
-from wmr.config.scenario import RunSpec, load_scenario, with_overrides
+from wmr.config.scenario import load_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import SIGNALS
 from wmr.infra.errors import LogError
 

@@ -14,10 +14,11 @@ from scipy import stats
 
 from wmr.apps.batch.spec import load_batch, parse_batch
 from wmr.apps.batch.summary import summary_table
-from wmr.config.scenario import RunSpec, expand, load_scenario, parse_scenario, with_overrides
+from wmr.config.scenario import expand, load_scenario, parse_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.physics import ReferencePlant
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.sensing import Sensing, SensorConfig, preset
 from wmr.core.sensing.ekf import PoseEKF
 from wmr.core.sensing.models import Encoders, Gps, Schedule, generators

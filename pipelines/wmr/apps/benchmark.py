@@ -49,12 +49,13 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, RunLogWriter
 from wmr.apps.run import result_record, run_metadata, scenario_attachment_name
 from wmr.apps.tune import TUNED_GAINS, with_gains
-from wmr.config.scenario import RunSpec, load_scenario
+from wmr.config.scenario import load_scenario
 from wmr.config.scenario_file import run_spec_toml
 from wmr.core.closedloop import RunResult, run_closed_loop
 from wmr.core.control import Limits
 from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 
 #: Benchmark rows: label -> (controller, use the tuned gains).

@@ -35,8 +35,8 @@ from numpy.typing import NDArray
 
 from wmr.adapters.mcap import RunData, read_run
 from wmr.config.naming import plural
-from wmr.config.scenario import RunSpec
 from wmr.core.plant import Plant, Pose
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError, LogError
 
 if TYPE_CHECKING:  # matplotlib is imported where a figure is drawn: `wmr --help` need not wait

@@ -1,7 +1,7 @@
 """One closed-loop co-simulation of the paper's stabiliser on the FMU, logged to MCAP.
 
 This is the main job (``wmr run``) and the unit of work of a batch: it ties a
-:class:`~wmr.config.scenario.RunSpec`, the FMU (:class:`~wmr.adapters.fmi.robot.FmuPlant`), the
+:class:`~wmr.core.runspec.RunSpec`, the FMU (:class:`~wmr.adapters.fmi.robot.FmuPlant`), the
 master loop (:func:`~wmr.core.closedloop.run_closed_loop`) and the log
 (:class:`~wmr.adapters.mcap.RunLogWriter`).
 """
@@ -26,9 +26,9 @@ import numpy.typing as npt
 from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import RunLogWriter
-from wmr.config.scenario import RunSpec
 from wmr.config.scenario_file import run_spec_toml
 from wmr.core.closedloop import BlockSink, Progress, RunResult, run_closed_loop
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import safe_filename
 

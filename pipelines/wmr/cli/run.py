@@ -14,7 +14,8 @@ from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
     from wmr.apps.run import LogPolicy
-    from wmr.config.scenario import RunSpec, Scenario
+    from wmr.config.scenario import Scenario
+    from wmr.core.runspec import RunSpec
 
 
 def _key_values(items: list[str] | None, option: str) -> dict[str, float]:

@@ -33,11 +33,11 @@ from typing import TYPE_CHECKING, Any, Protocol, cast
 import numpy as np
 import numpy.typing as npt
 
-from wmr.config.scenario import RunSpec
 from wmr.core.control import WheelServo, wrap_angle
 from wmr.core.control.peers import make_controller
 from wmr.core.energy import step_work
 from wmr.core.plant import Plant, Pose
+from wmr.core.runspec import RunSpec
 from wmr.core.sensing import Sensing, SensingRecord
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 

@@ -25,8 +25,8 @@ import numpy as np
 from wmr.adapters.fmi.archive import file_sha256, safe_extract
 from wmr.adapters.fmi.robot import fmu_call
 from wmr.build.controller_interface import INPUTS, SIGNAL_OUTPUTS
-from wmr.config.scenario import RunSpec
 from wmr.core.control import wrap_angle
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError, FmuError
 
 _OUTPUTS = (*SIGNAL_OUTPUTS, "phase", "converged")

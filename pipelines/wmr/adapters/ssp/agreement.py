@@ -20,8 +20,8 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
 from wmr.adapters.ssp.cosim import simulate_libcosim
 from wmr.adapters.ssp.package import fmpy_parameter_set, read_package
-from wmr.config.scenario import RunSpec
 from wmr.core.closedloop import run_closed_loop
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
 
 _POSE = [COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]]
