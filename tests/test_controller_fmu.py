@@ -41,6 +41,7 @@ from wmr.cli import main
 from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control import ALIGN, Controller, Gains, Limits
+from wmr.core.control.from_spec import SpecController
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, CONTROL_SIGNALS, SIGNALS
@@ -442,7 +443,7 @@ def _paths(spec: RunSpec, plant: FmuPlant, ctrl: FmuController | None) -> F64:
         def write_block(self, t_ns: npt.NDArray[np.int64], block: F64) -> None:
             rows.append(block.copy())
 
-    result = run_closed_loop(spec, plant, sink=Sink(), controller_fmu=ctrl)
+    result = run_closed_loop(spec, plant, sink=Sink(), controller=ctrl or SpecController())
     assert result.status == "converged", (spec.name, result.message)
     return np.vstack(rows)
 

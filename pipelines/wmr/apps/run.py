@@ -27,7 +27,8 @@ from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import RunLogWriter
 from wmr.config.scenario_file import run_spec_toml
-from wmr.core.closedloop import BlockSink, Progress, RunResult, run_closed_loop
+from wmr.core.closedloop import BlockSink, Controller, Progress, RunResult, run_closed_loop
+from wmr.core.control.from_spec import SpecController
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import safe_filename
@@ -233,7 +234,8 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
                progress: Progress | None = None,
                also: BlockSink | None = None,
                controller_fmu: FmuController | None = None,
-               durable: bool = True, log: LogPolicy = FULL_LOGS) -> dict[str, Any]:
+               durable: bool = True, log: LogPolicy = FULL_LOGS,
+               controller: Controller | None = None) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
 
     The log attaches the run's effective scenario (:func:`scenario_attachment_name`), not
@@ -245,7 +247,9 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     (without a ``result`` record).  A run that fails is logged with status ``failed`` and its
     error, and the file is closed and readable.  ``also`` receives the same blocks as the log
     (the live Rerun view of ``wmr run --view``).  ``controller_fmu`` runs the controller FMU
-    in place of the Python controller (``wmr run --controller-fmu``).
+    in place of the Python controller (``wmr run --controller-fmu``); ``controller`` runs any
+    other :class:`~wmr.core.closedloop.Controller` (default: the run's own law,
+    :class:`~wmr.core.control.from_spec.SpecController`).
 
     ``log`` decides whether a log is kept (:class:`LogPolicy`): with ``keep="failed"`` the
     rows are held in memory (up to :data:`HOLD_ROWS`) and written only if the run does not
@@ -264,6 +268,9 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
         ``estimated_final_heading_error_rad``: the errors the stabiliser believed (the
         ``final_*`` ones are the true errors; the two agree without sensors).
     """
+    if controller is not None and controller_fmu is not None:
+        raise ConfigError("controller", "both a controller and a controller FMU were given",
+                          "give one of them")
     path = Path(mcap_path)
     goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
     run = run_metadata(spec, plant, controller_fmu)
@@ -301,8 +308,8 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
             from wmr.adapters.rerun.live_view import TeeSink
 
             sink = also if sink is None else TeeSink(sink, also)
-        result = run_closed_loop(spec, plant, sink=sink, progress=progress,
-                                 controller_fmu=controller_fmu)
+        law = controller or controller_fmu or SpecController()
+        result = run_closed_loop(spec, plant, sink=sink, progress=progress, controller=law)
         if thin is not None:
             thin.end()
         record = result_record(spec.name, result)

@@ -37,6 +37,7 @@ from scipy.optimize import minimize
 
 from wmr.config.scenario import load_scenario, with_overrides
 from wmr.core.closedloop import RunResult, run_closed_loop
+from wmr.core.control.from_spec import SpecController
 from wmr.core.control.peers import CONTROLLER_NAMES
 from wmr.core.plant import Plant
 from wmr.core.runspec import RunSpec
@@ -130,7 +131,7 @@ def evaluate(controller: str, gains: Mapping[str, float], specs: Sequence[RunSpe
     results: list[RunResult | None] = []
     costs = []
     for s in tuned:
-        r = run_closed_loop(s, plant)
+        r = run_closed_loop(s, plant, controller=SpecController())
         results.append(r)
         costs.append(case_cost(r, s))
     return float(np.mean(costs)), results
