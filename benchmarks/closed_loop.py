@@ -7,8 +7,8 @@ Rows (median of repeated runs of the paper's Fig. 11 case on the FMI 3 FMU):
 - controller: the stabiliser and wheel servos alone, on the states of a recorded run,
 - controller FMU: the same law in C (``FmuController``: set inputs, get outputs, doStep through
   ctypes, with the convergence test the master asks first), on the same states,
-- loop with the controller FMU: ``run_closed_loop(..., controller_fmu=...)``,
-- loop without logging: ``run_closed_loop(..., sink=None)``,
+- loop with the controller FMU: ``run_closed_loop(..., controller=FmuController(...))``,
+- loop without logging: ``run_closed_loop(..., sink=None, controller=SpecController())``,
 - loop with logging: ``run_to_log`` (the whole ``wmr run`` minus start-up),
 - logging: the time spent inside the log writer during that run (``write_block`` and
   ``close``, timed directly: the difference of two noisy totals is noisier still).
@@ -36,6 +36,7 @@ from wmr.build.fmus import build_fmus
 from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control import Controller
+from wmr.core.control.from_spec import SpecController
 
 REPEATS = 7
 
@@ -98,11 +99,11 @@ def main() -> None:
             cfmu_t.append((time.perf_counter() - t0) / steps)
 
             t0 = time.perf_counter()
-            result = run_closed_loop(spec, plant, controller_fmu=cfmu)
+            result = run_closed_loop(spec, plant, controller=cfmu)
             cloop_t.append((time.perf_counter() - t0) / result.steps)
 
             t0 = time.perf_counter()
-            result = run_closed_loop(spec, plant)
+            result = run_closed_loop(spec, plant, controller=SpecController())
             loop_t.append((time.perf_counter() - t0) / result.steps)
 
             in_writer[0] = 0.0

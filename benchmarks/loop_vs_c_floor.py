@@ -39,9 +39,11 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.run import run_to_log
 from wmr.build.controller_interface import INPUTS, SIGNAL_OUTPUTS
 from wmr.build.fmus import build_fmus
-from wmr.config.scenario import RunSpec, load_scenario
+from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
+from wmr.core.control.from_spec import SpecController
 from wmr.core.plant import OUTPUT_NAMES
+from wmr.core.runspec import RunSpec
 
 REPEATS = 7
 SHORT_S = 8.0  # the short run: Fig. 11 stopped at 8 s (801 steps)
@@ -117,11 +119,11 @@ def main() -> None:
                 f"wmr run, Python stabiliser, logged{tag}":
                     lambda s: int(run_to_log(s, log, plant)["steps"]),
                 f"Python stabiliser, no log{tag}":
-                    lambda s: run_closed_loop(s, plant).steps,
+                    lambda s: run_closed_loop(s, plant, controller=SpecController()).steps,
                 f"wmr run --controller-fmu, logged{tag}":
                     lambda s: int(run_to_log(s, log, plant, controller_fmu=cfmu)["steps"]),
                 f"controller FMU, no log{tag}":
-                    lambda s: run_closed_loop(s, plant, controller_fmu=cfmu).steps,
+                    lambda s: run_closed_loop(s, plant, controller=cfmu).steps,
             }
 
         def without_stepper(fun: Callable[[RunSpec], int]) -> Callable[[RunSpec], int]:

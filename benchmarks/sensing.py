@@ -23,6 +23,7 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.build.fmus import build_fmus
 from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
+from wmr.core.control.from_spec import SpecController
 from wmr.core.sensing import Sensing, preset
 
 REPEATS = 5
@@ -36,7 +37,8 @@ def main() -> None:
     times: dict[str, list[float]] = {k: [] for k in variants}
     sensing_t: list[float] = []
     with FmuPlant(fmu) as plant:
-        recorded = run_closed_loop(replace(spec, sensors=preset("gps")), plant)  # warm-up
+        recorded = run_closed_loop(replace(spec, sensors=preset("gps")), plant,
+                                   controller=SpecController())  # warm-up
         outputs = []
         plant.reset(spec.params, spec.start)
         for _ in range(recorded.steps):
@@ -44,7 +46,8 @@ def main() -> None:
         for _ in range(REPEATS):
             for name, sensors in variants.items():
                 t0 = time.perf_counter()
-                res = run_closed_loop(replace(spec, sensors=sensors), plant)
+                res = run_closed_loop(replace(spec, sensors=sensors), plant,
+                                      controller=SpecController())
                 times[name].append((time.perf_counter() - t0) / res.steps)
             sensing = Sensing(preset("gps"), spec.period_s, spec.params, spec.start, spec.goal)
             t0 = time.perf_counter()

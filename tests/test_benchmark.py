@@ -16,6 +16,7 @@ from wmr.apps.benchmark import CONTROLLERS, FIELDS, OPTIMAL, run_benchmark, run_
 from wmr.cli import main
 from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
+from wmr.core.control.from_spec import SpecController
 
 REQUIRED = {"case", "controller", "time_to_goal_s", "path_length_m", "final_heading_error_rad"}
 
@@ -76,7 +77,7 @@ def test_benchmark_json_on_two_cases(tmp_path: Path, capsys: pytest.CaptureFixtu
 
 def test_optimal_is_never_slower_than_the_pi_on_fig11(fmu: FmuPlant) -> None:
     spec = load_scenario("fig11").runs[0]
-    pi = run_closed_loop(spec, fmu)
+    pi = run_closed_loop(spec, fmu, controller=SpecController())
     opt = run_optimal(spec, fmu, None)
     assert pi.status == "converged" and opt.status == "solved"
     assert opt.final_time_s is not None and pi.time_to_goal_s is not None
@@ -127,7 +128,7 @@ def test_wmr_optimal_bad_torque_is_one_line_error(capsys: pytest.CaptureFixture[
 @pytest.mark.slow
 def test_optimal_never_slower_than_pi_across_fig9(fmu: FmuPlant) -> None:
     for spec in load_scenario("fig9").runs:
-        pi = run_closed_loop(spec, fmu)
+        pi = run_closed_loop(spec, fmu, controller=SpecController())
         opt = run_optimal(spec, fmu, None)
         assert pi.status == "converged" and opt.status == "solved", spec.name
         assert opt.final_time_s is not None and pi.time_to_goal_s is not None

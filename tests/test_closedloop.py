@@ -9,10 +9,12 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from wmr.config.scenario import RunSpec, expand, load_scenario, with_overrides
+from wmr.config.scenario import expand, load_scenario, with_overrides
 from wmr.core.closedloop import BLOCK_ROWS, run_closed_loop
+from wmr.core.control.from_spec import SpecController
 from wmr.core.physics import ReferencePlant
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, SIGNALS
 
 POS_BAR_M = 0.05
@@ -40,7 +42,7 @@ def _spec(start: tuple[float, float, float], goal: tuple[float, float, float],
 
 
 def _assert_converged(spec: RunSpec) -> None:
-    res = run_closed_loop(spec, ReferencePlant())
+    res = run_closed_loop(spec, ReferencePlant(), controller=SpecController())
     assert res.status == "converged", (spec.name, spec.start, spec.goal, res.message)
     assert res.final_position_error_m < POS_BAR_M
     assert res.final_heading_error_rad < HEAD_BAR_RAD
@@ -51,7 +53,8 @@ def test_fig11_converges_and_logs_every_step() -> None:
     (spec,) = expand(load_scenario("fig11"))
     rec = Recorder()
     ticks: list[float] = []
-    res = run_closed_loop(spec, ReferencePlant(), rec, progress=lambda t, tm: ticks.append(t))
+    res = run_closed_loop(spec, ReferencePlant(), rec, progress=lambda t, tm: ticks.append(t),
+                          controller=SpecController())
     assert res.status == "converged", res.message
     assert res.final_position_error_m < POS_BAR_M
     assert res.final_heading_error_rad < HEAD_BAR_RAD
@@ -106,7 +109,8 @@ def test_random_poses_in_a_40m_square_converge() -> None:
 
 
 def test_timeout_is_reported_not_hung() -> None:
-    res = run_closed_loop(_spec((0, 0, 0), (20, 10, 0), t_max_s=1.0), ReferencePlant())
+    res = run_closed_loop(_spec((0, 0, 0), (20, 10, 0), t_max_s=1.0), ReferencePlant(),
+                          controller=SpecController())
     assert res.status == "timeout"
     assert "max_time_s" in res.message
     assert res.steps == 101 and res.time_to_goal_s is None
@@ -127,7 +131,8 @@ class _Exploding(ReferencePlant):
 
 def test_plant_failure_is_a_status_and_keeps_the_rows() -> None:
     rec = Recorder()
-    res = run_closed_loop(_spec((0, 0, 0), (5, 0, 0)), _Exploding(150), rec)
+    res = run_closed_loop(_spec((0, 0, 0), (5, 0, 0)), _Exploding(150), rec,
+                          controller=SpecController())
     assert res.status == "failed"
     assert "solver blew up" in res.message
     assert rec.rows.shape[0] == 150
@@ -140,7 +145,7 @@ class _Interrupted(ReferencePlant):
 
 def test_keyboard_interrupt_goes_through() -> None:
     with pytest.raises(KeyboardInterrupt):
-        run_closed_loop(_spec((0, 0, 0), (5, 0, 0)), _Interrupted())
+        run_closed_loop(_spec((0, 0, 0), (5, 0, 0)), _Interrupted(), controller=SpecController())
 
 
 def test_parameter_overrides_reach_the_plant() -> None:
@@ -149,3 +154,57 @@ def test_parameter_overrides_reach_the_plant() -> None:
                                                                "tau_c": 0.1})
     assert spec.params == RobotParams(m=40.0, b_f=0.02, tau_c=0.1)
     _assert_converged(spec)
+
+
+class _OwnController:
+    """A user's own controller, nothing of wmr's classes: a proportional law straight to
+    torques, through the loop's protocol (configure, step, stabiliser)."""
+
+    def __init__(self) -> None:
+        self.configured: list[str] = []
+        self.goal = Pose(0.0, 0.0, 0.0)
+        self.stabiliser = self
+
+    def configure(self, spec: RunSpec) -> None:
+        self.configured.append(spec.name)
+        self.goal = spec.goal
+
+    def converged(self, x: float, y: float, theta: float, v: float, omega: float,
+                  heading_tolerance_rad: float) -> bool:
+        return math.hypot(self.goal.x_m - x, self.goal.y_m - y) < 0.2 and abs(v) < 0.05
+
+    def heading_error(self, theta: float) -> float:
+        return theta - self.goal.heading_rad
+
+    def step(self, x: float, y: float, theta: float, omega_r: float,
+             omega_l: float) -> tuple[float, ...]:
+        ahead = (self.goal.x_m - x) * math.cos(theta) + (self.goal.y_m - y) * math.sin(theta)
+        tau = max(-2.0, min(2.0, 2.0 * ahead - 0.5 * (omega_r + omega_l)))
+        return (*(0.0,) * 14, tau, tau, *(0.0,) * 4)
+
+
+def test_the_loop_runs_a_users_own_controller_through_the_protocol() -> None:
+    """The loop configures the controller it is given with the run and drives it: a straight
+    run to a goal ahead converges on the user's law, whose torques are the logged ones."""
+    own = _OwnController()
+    rec = Recorder()
+    spec = _spec((0, 0, 0), (3, 0, 0), t_max_s=30.0)
+    res = run_closed_loop(spec, ReferencePlant(), rec, controller=own)
+    assert own.configured == ["t"]
+    assert res.status == "converged", res.message
+    assert res.final_position_error_m < 0.2
+    rows = rec.rows
+    assert np.all(rows[:-1, COLUMN["tau_r_nm"]] == rows[:-1, COLUMN["tau_l_nm"]])
+    assert rows[0, COLUMN["tau_r_nm"]] == 2.0  # 3 m ahead: the user's law saturates at 2 N m
+
+
+def test_one_spec_controller_serves_runs_of_different_goals() -> None:
+    """configure builds the law of each run: a SpecController reused for another goal
+    reaches that goal, and gives the bits of a fresh one."""
+    law = SpecController()
+    first = run_closed_loop(_spec((0, 0, 0), (5, 0, 0)), ReferencePlant(), controller=law)
+    again = run_closed_loop(_spec((0, 0, 0), (0, 5, 90)), ReferencePlant(), controller=law)
+    fresh = run_closed_loop(_spec((0, 0, 0), (0, 5, 90)), ReferencePlant(),
+                            controller=SpecController())
+    assert first.status == again.status == "converged"
+    assert again == fresh

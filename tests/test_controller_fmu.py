@@ -38,10 +38,12 @@ from wmr.build.controller_interface import (
 from wmr.build.fmus import BuildResult
 from wmr.build.platforms import CFLAGS
 from wmr.cli import main
-from wmr.config.scenario import RunSpec, load_scenario
+from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control import ALIGN, Controller, Gains, Limits
+from wmr.core.control.from_spec import SpecController
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, CONTROL_SIGNALS, SIGNALS
 from wmr.infra import paths
 from wmr.infra.errors import ConfigError, FmuError
@@ -325,11 +327,11 @@ def test_output_order_follows_the_log_columns() -> None:
 
 
 def test_parameters_carry_the_scenario_names_and_defaults() -> None:
-    from wmr.config.scenario import (
+    from wmr.config.scenario import parse_scenario
+    from wmr.core.runspec import (
         DEFAULT_HEADING_TOLERANCE_DEG,
         DEFAULT_PERIOD_S,
         DEFAULT_STOP_RADIUS_M,
-        parse_scenario,
     )
 
     start = {v.name: v.start for v in controller_model().parameters}
@@ -441,7 +443,7 @@ def _paths(spec: RunSpec, plant: FmuPlant, ctrl: FmuController | None) -> F64:
         def write_block(self, t_ns: npt.NDArray[np.int64], block: F64) -> None:
             rows.append(block.copy())
 
-    result = run_closed_loop(spec, plant, sink=Sink(), controller_fmu=ctrl)
+    result = run_closed_loop(spec, plant, sink=Sink(), controller=ctrl or SpecController())
     assert result.status == "converged", (spec.name, result.message)
     return np.vstack(rows)
 

@@ -17,14 +17,16 @@ from typing import Any
 
 import pytest
 
-import wmr.core.closedloop as closedloop
+import wmr.core.control.peers as peers
 from wmr.adapters.fmi import robot
 from wmr.adapters.fmi.controller import FmuController
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.run import run_to_log
 from wmr.build.fmus import BuildResult, build_stepper
-from wmr.config.scenario import RunSpec, load_scenario, with_overrides
+from wmr.config.scenario import load_scenario, with_overrides
 from wmr.core.closedloop import RunResult, run_closed_loop
+from wmr.core.control.from_spec import SpecController
+from wmr.core.runspec import RunSpec
 
 
 @pytest.fixture(autouse=True)
@@ -65,13 +67,13 @@ def _both(monkeypatch: pytest.MonkeyPatch, fmu: Path, spec: RunSpec, log: Path |
             ctrl = FmuController(controller_fmu) if controller_fmu is not None else None
             try:
                 if log is None:
-                    result = run_closed_loop(spec, plant, controller_fmu=ctrl)
+                    result = run_closed_loop(spec, plant, controller=ctrl or SpecController())
                     got.append((_bits(result), b""))
                 else:
                     run_to_log(spec, log, plant, controller_fmu=ctrl)
                     data = log.read_bytes()
                     log.unlink()
-                    result = run_closed_loop(spec, plant, controller_fmu=ctrl)
+                    result = run_closed_loop(spec, plant, controller=ctrl or SpecController())
                     got.append((_bits(result), data))
             finally:
                 if ctrl is not None:
@@ -118,7 +120,7 @@ def test_run_with_sensors_is_bit_identical(monkeypatch: pytest.MonkeyPatch,
 def test_plant_failure_gives_the_same_status_message_and_rows(
         monkeypatch: pytest.MonkeyPatch, built: BuildResult, tmp_path: Path) -> None:
     """A law that asks for a NaN wheel speed at step 150: the FMU refuses the NaN torque."""
-    make = closedloop.make_controller
+    make = peers.make_controller
 
     class NanAt151:
         def __init__(self, law: Any) -> None:
@@ -135,7 +137,8 @@ def test_plant_failure_gives_the_same_status_message_and_rows(
         ctrl.stabiliser = NanAt151(ctrl.stabiliser)
         return ctrl
 
-    monkeypatch.setattr(closedloop, "make_controller", failing)
+    # the run's own law is built by SpecController.configure, at every run
+    monkeypatch.setattr(peers, "make_controller", failing)
     fast, slow = _both(monkeypatch, built.fmus[3], _fig11(), tmp_path / "r.mcap")
     assert fast[0]["status"] == "failed"
     assert "FmuError at t = 1.5 s: fmi3SetFloat64 returned Error" in fast[0]["message"]
@@ -149,7 +152,7 @@ def test_without_a_compiler_the_python_path_runs(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setattr(wmr.build.fmus, "build_stepper", lambda *a, **k: None)
     assert robot.load_stepper() is None
     with FmuPlant(built.fmus[3]) as plant:
-        result = run_closed_loop(_fig11(t_max_s=1.0), plant)
+        result = run_closed_loop(_fig11(t_max_s=1.0), plant, controller=SpecController())
         assert plant.stepper() is None
     assert result.status == "timeout" and result.steps == 101
 

@@ -247,6 +247,7 @@ def test_our_robot_renamed_by_fmu_manipulation_toolbox_gives_the_same_path(
 
     from wmr.config.scenario import load_scenario
     from wmr.core.closedloop import run_closed_loop
+    from wmr.core.control.from_spec import SpecController
 
     csv_file = tmp_path / "rename.csv"
     csv_file.write_text("".join(f"{a};{b}\n" for a, b in _RENAMED.items()))
@@ -260,7 +261,8 @@ def test_our_robot_renamed_by_fmu_manipulation_toolbox_gives_the_same_path(
     for path, vm in ((built.fmus[fmi], None), (renamed, var_map)):
         sink = _Blocks()
         with FmuPlant(path, var_map=vm) as plant:
-            assert run_closed_loop(spec, plant, sink=sink).status == "converged"
+            assert run_closed_loop(spec, plant, sink=sink,
+                                   controller=SpecController()).status == "converged"
         logs.append(np.vstack(sink.rows))
     assert np.array_equal(logs[0], logs[1])  # every signal of every row
     with pytest.raises(ConfigError, match=r"no input named 'tau_r'.*drive\.torque_right"):

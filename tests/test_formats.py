@@ -14,9 +14,10 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap.schemas import STEP_TOPICS, TORQUE_TOPIC
 from wmr.apps.run import run_metadata, run_to_log
 from wmr.build.fmus import BuildResult
-from wmr.config.scenario import RUN_FIELDS, TOP_FIELDS, RunSpec
+from wmr.config.scenario import RUN_FIELDS, TOP_FIELDS
 from wmr.core.control.stabiliser import Gains, Limits
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.infra.paths import _REPO_ROOT
 
 DOCS = _REPO_ROOT / "docs"

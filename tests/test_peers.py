@@ -12,9 +12,10 @@ import numpy.typing as npt
 import pytest
 
 from wmr.adapters.fmi.robot import FmuPlant
-from wmr.config.scenario import RunSpec, load_scenario, parse_scenario, with_overrides
+from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control import Gains, Limits
+from wmr.core.control.from_spec import SpecController
 from wmr.core.control.peers import (
     AstolfiGains,
     AstolfiStabiliser,
@@ -24,6 +25,7 @@ from wmr.core.control.peers import (
     make_controller,
 )
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
 from wmr.infra.errors import ConfigError
 
@@ -57,7 +59,7 @@ def test_peer_converges_on_the_fmu(fmu: FmuPlant, controller: str, case: str) ->
     start, goal = CASES[case]
     spec = RunSpec(name=case, start=start, goal=goal, controller=controller, t_max_s=80.0)
     keep = _Keep()
-    r = run_closed_loop(spec, fmu, sink=keep)
+    r = run_closed_loop(spec, fmu, sink=keep, controller=SpecController())
     assert r.status == "converged", r.message
     assert r.final_position_error_m <= spec.stop_radius_m
     assert r.final_heading_error_rad <= spec.heading_tolerance_rad + 1e-12
@@ -79,7 +81,8 @@ def test_astolfi_reverses_to_a_goal_behind_and_graceful_does_not(fmu: FmuPlant) 
     for controller in ("astolfi", "graceful"):
         keep = _Keep()
         spec = RunSpec(name="behind", start=start, goal=goal, controller=controller)
-        assert run_closed_loop(spec, fmu, sink=keep).status == "converged"
+        assert run_closed_loop(spec, fmu, sink=keep,
+                               controller=SpecController()).status == "converged"
         v_min[controller] = float(np.min(keep.array()[:, COLUMN["v_mps"]]))
     assert v_min["astolfi"] < -0.5  # the book's backward frame
     assert v_min["graceful"] > -0.05  # forward only (the alignment may creep a few mm/s)
@@ -90,7 +93,7 @@ def test_astolfi_without_reverse_drives_forward(fmu: FmuPlant) -> None:
     keep = _Keep()
     spec = RunSpec(name="behind", start=start, goal=goal, controller="astolfi",
                    controller_gains=(("reverse", 0.0),))
-    assert run_closed_loop(spec, fmu, sink=keep).status == "converged"
+    assert run_closed_loop(spec, fmu, sink=keep, controller=SpecController()).status == "converged"
     assert float(np.min(keep.array()[:, COLUMN["v_mps"]])) > -0.05
 
 

@@ -16,11 +16,13 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from wmr.config.scenario import RunSpec, expand, load_scenario, with_overrides
+from wmr.config.scenario import expand, load_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
+from wmr.core.control.from_spec import SpecController
 from wmr.core.control.stabiliser import Gains, Limits, PointStabiliser
 from wmr.core.physics import ReferencePlant
 from wmr.core.plant import Plant, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS
 
 _TAU = [COLUMN["tau_r_nm"], COLUMN["tau_l_nm"]]
@@ -61,7 +63,7 @@ def test_parameter_overrides_drive_the_plant_not_just_the_spec() -> None:
     heavy = {"m": 40.0, "b_f": 0.02, "tau_c": 0.1}
     spec = _short_fig11(**heavy)
     rec = _Recorder()
-    run_closed_loop(spec, ReferencePlant(), rec)
+    run_closed_loop(spec, ReferencePlant(), rec, controller=SpecController())
     rows = rec.rows
     assert rows.shape[0] > 100
     logged = rows[:, _STATES]
@@ -82,7 +84,7 @@ def test_the_effort_is_the_integral_of_the_logged_torques_squared(period_s: floa
     (spec,) = expand(load_scenario("fig11"))
     spec = with_overrides(spec, goal=(3.0, 1.0, 0.0), period_s=period_s)
     rec = _Recorder()
-    res = run_closed_loop(spec, ReferencePlant(), rec)
+    res = run_closed_loop(spec, ReferencePlant(), rec, controller=SpecController())
     assert res.status == "converged", res.message
     tau = rec.rows[:, _TAU]
     # each logged torque is held over one period; the last row (at rest) applies none

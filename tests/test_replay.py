@@ -30,8 +30,10 @@ from wmr.adapters.rerun.replay import (
 )
 from wmr.apps.run import run_to_log
 from wmr.cli import main
-from wmr.config.scenario import RunSpec, load_scenario, with_overrides
+from wmr.config.scenario import load_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
+from wmr.core.control.from_spec import SpecController
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import SIGNALS
 from wmr.infra.errors import LogError
 
@@ -278,7 +280,8 @@ def test_live_view_sink_through_a_tee(spec: RunSpec, fmu_plant: FmuPlant,
     rrd = tmp_path / "live.rrd"
     recorder = Recorder()
     with live_view_sink(spec.name, spec.goal, rrd) as live:
-        result = run_closed_loop(spec, fmu_plant, sink=TeeSink(recorder, live))
+        result = run_closed_loop(spec, fmu_plant, sink=TeeSink(recorder, live),
+                                 controller=SpecController())
     assert result.status == "converged"
     n = result.steps
     assert sum(len(t) for t in recorder.t) == n

@@ -169,11 +169,12 @@ def test_a_killed_run_leaves_a_log_readable_up_to_its_last_chunk(tmp_path: Path,
 @pytest.mark.parametrize("scenario", ["fig9", "fig10"])
 def test_every_paper_run_converges_on_the_fmu(scenario: str, built: BuildResult) -> None:
     from wmr.core.closedloop import run_closed_loop
+    from wmr.core.control.from_spec import SpecController
 
     failures = []
     with FmuPlant(built.fmus[3]) as plant:
         for spec in load_scenario(scenario).runs:
-            res = run_closed_loop(spec, plant)
+            res = run_closed_loop(spec, plant, controller=SpecController())
             if not (res.status == "converged" and res.final_position_error_m < 0.05
                     and res.final_heading_error_rad < math.radians(2)):
                 failures.append((spec.name, res.status, res.final_position_error_m,

@@ -10,7 +10,6 @@ from typing import Any
 import pytest
 
 from wmr.config.scenario import (
-    RunSpec,
     expand,
     load_scenario,
     parse_scenario,
@@ -18,6 +17,7 @@ from wmr.config.scenario import (
     with_overrides,
 )
 from wmr.core.plant import Pose
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 
 BASE: dict[str, Any] = {"name": "t", "start": [0.0, 0.0, 0.0], "goal": [20.0, 10.0, 0.0]}

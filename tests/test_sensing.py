@@ -14,10 +14,12 @@ from scipy import stats
 
 from wmr.apps.batch.spec import load_batch, parse_batch
 from wmr.apps.batch.summary import summary_table
-from wmr.config.scenario import RunSpec, expand, load_scenario, parse_scenario, with_overrides
+from wmr.config.scenario import expand, load_scenario, parse_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
+from wmr.core.control.from_spec import SpecController
 from wmr.core.physics import ReferencePlant
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.sensing import Sensing, SensorConfig, preset
 from wmr.core.sensing.ekf import PoseEKF
 from wmr.core.sensing.models import Encoders, Gps, Schedule, generators
@@ -222,7 +224,7 @@ def test_ekf_run_on_the_plant_with_exact_sensors_matches_truth() -> None:
                    sensors=SensorConfig(estimator="ekf", heading="none",
                                         initial_heading_sigma_deg=0.0,
                                         odometry_noise_m2_per_m=0.0, gps_rate_hz=1.0))
-    res = run_closed_loop(spec, ReferencePlant())
+    res = run_closed_loop(spec, ReferencePlant(), controller=SpecController())
     assert res.sensing is not None
     est = res.sensing.est_pose[-1]
     assert est[0] == pytest.approx(res.final_pose.x_m, abs=1e-9)
@@ -238,7 +240,7 @@ def test_wheel_radius_error_scales_the_odometry() -> None:
                    sensors=SensorConfig(estimator="ekf", heading="none", gps_rate_hz=0.1,
                                         initial_heading_sigma_deg=0.0,
                                         wheel_radius_error_frac=err))
-    res = run_closed_loop(spec, ReferencePlant())
+    res = run_closed_loop(spec, ReferencePlant(), controller=SpecController())
     assert res.sensing is not None and len(res.sensing.gps_t_ns) == 1
     assert res.sensing.est_pose[-1][0] == pytest.approx((1 + err) * res.final_pose.x_m,
                                                         rel=1e-9)
@@ -340,13 +342,14 @@ def test_sensors_off_is_bit_identical_and_reports_true_errors() -> None:
     (spec,) = expand(load_scenario("fig11"))
     spec = replace(spec, t_max_s=8.0)
     rec = _Rows()
-    res = run_closed_loop(spec, ReferencePlant(), rec)
+    res = run_closed_loop(spec, ReferencePlant(), rec, controller=SpecController())
     assert res.sensing is None
     assert res.estimated_final_position_error_m == res.final_position_error_m
     assert res.estimated_final_heading_error_rad == res.final_heading_error_rad
     exact = SensorConfig(gps_rate_hz=100.0, compass_rate_hz=100.0)
     rec2 = _Rows()
-    res2 = run_closed_loop(with_overrides(spec, sensors=exact), ReferencePlant(), rec2)
+    res2 = run_closed_loop(with_overrides(spec, sensors=exact), ReferencePlant(), rec2,
+                           controller=SpecController())
     assert np.array_equal(np.vstack(rec.blocks), np.vstack(rec2.blocks))
     assert res2.final_pose == res.final_pose
     # the rows as the code before wmr.core.sensing wrote them (commit 9cba7f7, same machine
@@ -446,9 +449,10 @@ def test_wmr_run_sensors_gps_logs_fixes_and_estimate(tmp_path: Path) -> None:
 def test_noisy_run_is_reproducible_and_seeded() -> None:
     (spec,) = expand(load_scenario("fig11"))
     spec = with_overrides(replace(spec, t_max_s=5.0), sensors=preset("gps"))
-    a = run_closed_loop(spec, ReferencePlant())
-    b = run_closed_loop(spec, ReferencePlant())
-    c = run_closed_loop(with_overrides(spec, sensors={"seed": 1}), ReferencePlant())
+    a = run_closed_loop(spec, ReferencePlant(), controller=SpecController())
+    b = run_closed_loop(spec, ReferencePlant(), controller=SpecController())
+    c = run_closed_loop(with_overrides(spec, sensors={"seed": 1}), ReferencePlant(),
+                        controller=SpecController())
     assert a.sensing is not None and b.sensing is not None and c.sensing is not None
     assert np.array_equal(a.sensing.est_pose, b.sensing.est_pose)
     assert a.final_pose == b.final_pose
@@ -473,7 +477,7 @@ def _fix_errors(spec: RunSpec) -> tuple[np.ndarray, np.ndarray]:
     """``spec`` on the reference plant: its GPS fixes minus the true position each measured,
     and the true path, m."""
     rec = _Truth()
-    res = run_closed_loop(spec, ReferencePlant(), rec)
+    res = run_closed_loop(spec, ReferencePlant(), rec, controller=SpecController())
     assert res.sensing is not None and len(res.sensing.gps_t_ns) > 10
     t_ns, xy_m = np.concatenate(rec.t_ns), np.vstack(rec.xy_m)
     idx = np.searchsorted(t_ns, res.sensing.gps_t_ns)
@@ -523,7 +527,8 @@ def test_batch_runs_share_noise_per_trip_and_random_starts_do_not() -> None:
 def test_fig11_converges_with_2cm_gps_at_10hz_and_50ms() -> None:
     """The issue's acceptance case, on the estimate; the true errors beside it."""
     (spec,) = expand(load_scenario("fig11"))
-    res = run_closed_loop(with_overrides(spec, sensors=preset("gps")), ReferencePlant())
+    res = run_closed_loop(with_overrides(spec, sensors=preset("gps")), ReferencePlant(),
+                          controller=SpecController())
     assert res.status == "converged", res.message
     assert res.estimated_final_position_error_m <= spec.stop_radius_m
     assert res.final_position_error_m < 2 * spec.stop_radius_m
@@ -574,9 +579,9 @@ def test_controller_fmu_acts_on_the_estimate_as_python_does(built: Any) -> None:
     (spec,) = expand(load_scenario("fig11"))
     spec = with_overrides(replace(spec, t_max_s=10.0), sensors=preset("gps"))
     py_rows, c_rows = _Rows(), _Rows()
-    py = run_closed_loop(spec, ReferencePlant(), py_rows)
+    py = run_closed_loop(spec, ReferencePlant(), py_rows, controller=SpecController())
     with FmuController(built.controllers[3]) as ctrl:
-        c = run_closed_loop(spec, ReferencePlant(), c_rows, controller_fmu=ctrl)
+        c = run_closed_loop(spec, ReferencePlant(), c_rows, controller=ctrl or SpecController())
     assert py.sensing is not None and c.sensing is not None
     np.testing.assert_allclose(np.vstack(c_rows.blocks), np.vstack(py_rows.blocks),
                                rtol=0, atol=1e-9)

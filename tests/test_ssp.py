@@ -33,7 +33,8 @@ from wmr.adapters.ssp.export import controller_parameters, export_ssp, robot_par
 from wmr.adapters.ssp.package import read_package
 from wmr.build.fmus import BuildResult
 from wmr.cli import main
-from wmr.config.scenario import RunSpec, load_scenario
+from wmr.config.scenario import load_scenario
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import SIGNALS
 
 POSITION_TOL_M = 5e-3

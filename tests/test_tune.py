@@ -11,9 +11,9 @@ import pytest
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.tune import PENALTY_S, case_cost, default_cases, evaluate, tune, with_gains
 from wmr.cli import main
-from wmr.config.scenario import RunSpec
 from wmr.core.closedloop import RunResult
 from wmr.core.plant import Pose
+from wmr.core.runspec import RunSpec
 
 SMALL = """
 name = "small"

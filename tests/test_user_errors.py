@@ -52,8 +52,8 @@ def test_nonsense_is_refused_with_a_reason_before_any_work(
 
 
 def test_the_sanity_limits_sit_where_the_physics_says() -> None:
-    from wmr.config.scenario import RunSpec
     from wmr.core.plant import Pose
+    from wmr.core.runspec import RunSpec
 
     RunSpec("a", Pose(0, 0, 0), Pose(10, 0, 0), period_s=0.08)  # K_pw h / J = 1.92
     with pytest.raises(ConfigError, match="control_period_s"):

@@ -21,7 +21,7 @@ from __future__ import annotations
 import html
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -250,9 +250,14 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
         params: Mapping[str, float] | None = None, gains: Mapping[str, float] | None = None,
         limits: Mapping[str, float] | None = None, period_s: float | None = None,
         stop_radius_m: float | None = None, max_time_s: float | None = None,
-        controller: str | None = None, out: str | Path | None = None,
-        fmi: int = 3, fmu: str | Path | None = None) -> RunResult:
-    """One closed-loop run, as ``wmr run`` makes it; returns its record and its log.
+        controller: str | None = None, controller_gains: Mapping[str, float] | None = None,
+        sensors: str | None = None, sensor: Mapping[str, float | str] | None = None,
+        controller_fmu: bool | str | Path | None = None, out: str | Path | None = None,
+        fmi: int = 3, fmu: str | Path | None = None, fmu_map: str | Path | None = None,
+        log: str | None = None, log_every: int | None = None,
+        view: bool = False) -> RunResult:
+    """One closed-loop run, as ``wmr run`` makes it (the same function runs both:
+    :func:`wmr.apps.run.run_scenario`); returns its record and its log.
 
     Parameters
     ----------
@@ -262,38 +267,37 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
         ``(x_m, y_m, heading_deg)``, as on the command line.
     params, gains, limits
         Overrides by name (``--param``, ``--gain``, ``--limit``).
-    period_s, stop_radius_m, max_time_s, controller
-        Overrides of the run's settings.
+    period_s, stop_radius_m, max_time_s, controller, controller_gains
+        Overrides of the run's settings (``--period``, ``--stop-radius``, ``--max-time``; the
+        scenario keys ``controller`` and ``[controller_gains]``).
+    sensors, sensor
+        ``--sensors``: a preset (``"gps"``, ``"raw"``) or ``"off"``; ``--sensor``: fields of
+        the ``[sensors]`` table over it, e.g. ``{"gps_sigma_m": 0.05}`` (``docs/sensing.md``).
+    controller_fmu
+        ``--controller-fmu``: ``True`` runs the law in the built controller FMU, a path in
+        that FMU; ``False`` runs the Python law although the scenario names an FMU; ``None``
+        (default): as the scenario says.
     out
         The log (default ``runs/NAME.mcap``, NAME after the overrides: ``docs/results.md``).
-    fmi, fmu
-        The project's FMI 2 or 3 build, or another FMU file.
+    fmi, fmu, fmu_map
+        The project's FMI 2 or 3 build, or another FMU file and its variable map
+        (``--map``, ``docs/fmu_map.md``); default: the scenario's ``fmu`` and ``fmu_map``.
+    log, log_every
+        ``--log`` (``"full"``, ``"failed"``, ``"none"``) and ``--log-every`` K.
+    view
+        ``--view``: show the run live in Rerun and save it as ``NAME.rrd`` next to the log.
     """
     _not_in_a_worker_import("run")
-    from wmr.adapters.fmi.robot import FmuPlant
-    from wmr.apps.run import default_fmu, run_to_log
-    from wmr.config.naming import default_log_path, fmu_tokens, name_list, run_name, variant_name
-    from wmr.config.scenario import with_overrides
-    from wmr.infra.outputs import check_output
+    from wmr.apps.run import run_scenario
 
-    sc = load_scenario(scenario)
-    runs = [r for r in sc.runs if run is None or r.name == run]
-    if len(runs) != 1:
-        raise ConfigError("run", f"scenario {sc.name} has no run named {run!r}"
-                          if run is not None else f"scenario {sc.name} has several runs",
-                          "pick one with run=NAME of " + name_list([r.name for r in sc.runs]))
-    base = runs[0]
-    spec = with_overrides(base, start=_pose(start, "start"), goal=_pose(goal, "goal"),
-                          params=params, gains=gains, limits=limits, period_s=period_s,
-                          stop_radius_m=stop_radius_m, t_max_s=max_time_s,
-                          controller=controller)
-    spec = replace(spec, name=run_name(base, spec))  # the FMU names the file only (wmr run)
-    path = check_output(out if out is not None
-                        else default_log_path(variant_name(spec.name, fmu_tokens(fmi, fmu))),
-                        "out", suffix=".mcap")
-    with FmuPlant(Path(fmu) if fmu is not None else default_fmu(fmi)) as plant:
-        record = run_to_log(spec, path, plant, scenario_file=sc.path)
-    return RunResult(record, read_log(path))
+    record, _ = run_scenario(scenario, run=run, start=start, goal=goal, params=params,
+                             gains=gains, limits=limits, period_s=period_s,
+                             stop_radius_m=stop_radius_m, max_time_s=max_time_s,
+                             controller=controller, controller_gains=controller_gains,
+                             sensors=sensors, sensor=sensor, controller_fmu=controller_fmu,
+                             fmi=fmi, fmu=fmu, fmu_map=fmu_map, out=out, log=log,
+                             log_every=log_every, view=view)
+    return RunResult(record, read_log(record["mcap"]) if record.get("mcap") else None)
 
 
 def optimal(start: PoseLike = (0.0, 0.0, 0.0), goal: PoseLike = (20.0, 10.0, 0.0), *,
@@ -349,21 +353,37 @@ class BatchResult:
 
 def batch(spec: str | Path, out: str | Path | None = None, *,
           workers: int | None = None, scheduler: str | None = None,
-          run_timeout_s: float | None = None, fmi: int = 3,
-          fmu: str | Path | None = None) -> BatchResult:
+          run_timeout_s: float | None = None, max_runs: int | None = None, fmi: int = 3,
+          fmu: str | Path | None = None, fmu_map: str | Path | None = None,
+          log: str | None = None, log_every: int | None = None,
+          progress: bool = False) -> BatchResult:
     """Many runs, as ``wmr batch`` makes them (resumable: done runs are kept); returns the
-    summary as a DataFrame (``docs/batch.md``)."""
+    summary as a DataFrame (``docs/batch.md``).
+
+    The keywords are the options of ``wmr batch``: ``max_runs`` (``--max-runs``: refuse a
+    larger spec), ``fmu_map`` (``--map``), ``log`` and ``log_every`` (``--log``,
+    ``--log-every``, over the spec's ``[log]``), ``progress`` (a bar on stderr; default off
+    in the API).
+    """
     _not_in_a_worker_import("batch")
     import pyarrow.parquet as pq
 
+    from wmr.adapters.fmi.varmap import load_map
     from wmr.apps.batch import DEFAULT_RUN_TIMEOUT_S, load_batch, run_batch
+    from wmr.apps.batch.spec import MAX_RUNS
+    from wmr.apps.run import log_policy
     from wmr.infra.outputs import check_output
 
+    if max_runs is not None and max_runs < 1:
+        raise ConfigError("max_runs", f"must be >= 1, got {max_runs}", "give e.g. 2000000")
+    loaded = load_batch(spec, max_runs=MAX_RUNS if max_runs is None else max_runs)
+    policy = log_policy(log, log_every, loaded.log, command_line=False)
     folder = check_output(out if out is not None else Path("batches") / Path(spec).stem, "out",
                           "dir")
-    run_batch(load_batch(spec), folder, workers=workers, scheduler=scheduler,
+    run_batch(loaded, folder, workers=workers, scheduler=scheduler,
               run_timeout_s=DEFAULT_RUN_TIMEOUT_S if run_timeout_s is None else run_timeout_s,
-              fmu_path=fmu, fmi_version=fmi, progress=False)
+              fmu_path=fmu, fmi_version=fmi, progress=progress,
+              var_map=load_map(fmu_map) if fmu_map is not None else None, log=policy)
     return BatchResult(folder, pq.read_table(folder / "summary.parquet").to_pandas())
 
 

@@ -49,12 +49,14 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, RunLogWriter
 from wmr.apps.run import result_record, run_metadata, scenario_attachment_name
 from wmr.apps.tune import TUNED_GAINS, with_gains
-from wmr.config.scenario import RunSpec, load_scenario
+from wmr.config.scenario import load_scenario
 from wmr.config.scenario_file import run_spec_toml
 from wmr.core.closedloop import RunResult, run_closed_loop
 from wmr.core.control import Limits
+from wmr.core.control.from_spec import SpecController
 from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 
 #: Benchmark rows: label -> (controller, use the tuned gains).
@@ -127,14 +129,14 @@ def run_logged(spec: RunSpec, plant: FmuPlant, mcap: Path | None,
     """
     if mcap is None:
         tracker = _RadiusTracker(None, spec.goal, spec.stop_radius_m)
-        return run_closed_loop(spec, plant, sink=tracker), tracker.t_s
+        return run_closed_loop(spec, plant, sink=tracker, controller=SpecController()), tracker.t_s
     mcap.parent.mkdir(parents=True, exist_ok=True)
     meta = run_metadata(spec, plant)
     meta["benchmark_label"] = label or spec.controller
     goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
     with RunLogWriter(mcap, run=meta, goal=goal, attachments=fmu_attachments(plant)) as log:
         tracker = _RadiusTracker(log, spec.goal, spec.stop_radius_m)
-        result = run_closed_loop(spec, plant, sink=tracker)
+        result = run_closed_loop(spec, plant, sink=tracker, controller=SpecController())
         # the record of wmr run (docs/results.md), not RunResult's own field names
         log.close({**result_record(spec.name, result), "mcap": str(mcap),
                    "time_to_radius_s": tracker.t_s})

@@ -35,8 +35,8 @@ from numpy.typing import NDArray
 
 from wmr.adapters.mcap import RunData, read_run
 from wmr.config.naming import plural
-from wmr.config.scenario import RunSpec
 from wmr.core.plant import Plant, Pose
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError, LogError
 
 if TYPE_CHECKING:  # matplotlib is imported where a figure is drawn: `wmr --help` need not wait
@@ -371,6 +371,7 @@ def compute_roa(plant: Plant, base: RunSpec, *, grid: int = ROA_GRID,
     """
     from wmr.config.scenario import with_overrides
     from wmr.core.closedloop import run_closed_loop
+    from wmr.core.control.from_spec import SpecController
 
     if grid < 1 or headings < 1:
         raise ConfigError("--roa-grid", f"{grid} x {grid} positions and {headings} headings",
@@ -389,7 +390,7 @@ def compute_roa(plant: Plant, base: RunSpec, *, grid: int = ROA_GRID,
                 spec = with_overrides(base, start=Pose(float(x), float(y), float(th)), goal=goal,
                                       name=f"roa x={x:g} y={y:g} th={math.degrees(th):g}",
                                       t_max_s=t_max_s)
-                res = run_closed_loop(spec, plant)
+                res = run_closed_loop(spec, plant, controller=SpecController())
                 status[k, i, j] = res.status
                 if res.status == "converged" and res.time_to_goal_s is not None:
                     ttg[k, i, j] = res.time_to_goal_s

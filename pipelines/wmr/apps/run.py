@@ -1,7 +1,7 @@
 """One closed-loop co-simulation of the paper's stabiliser on the FMU, logged to MCAP.
 
 This is the main job (``wmr run``) and the unit of work of a batch: it ties a
-:class:`~wmr.config.scenario.RunSpec`, the FMU (:class:`~wmr.adapters.fmi.robot.FmuPlant`), the
+:class:`~wmr.core.runspec.RunSpec`, the FMU (:class:`~wmr.adapters.fmi.robot.FmuPlant`), the
 master loop (:func:`~wmr.core.closedloop.run_closed_loop`) and the log
 (:class:`~wmr.adapters.mcap.RunLogWriter`).
 """
@@ -13,9 +13,9 @@ import math
 import os
 import sys
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Final
@@ -26,14 +26,16 @@ import numpy.typing as npt
 from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import RunLogWriter
-from wmr.config.scenario import RunSpec
 from wmr.config.scenario_file import run_spec_toml
-from wmr.core.closedloop import BlockSink, Progress, RunResult, run_closed_loop
+from wmr.core.closedloop import BlockSink, Controller, Progress, RunResult, run_closed_loop
+from wmr.core.control.from_spec import SpecController
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import safe_filename
 
 if TYPE_CHECKING:
     from wmr.adapters.fmi.controller import FmuController
+    from wmr.config.scenario import Scenario
 
 
 def _notice(message: str) -> None:
@@ -233,7 +235,8 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
                progress: Progress | None = None,
                also: BlockSink | None = None,
                controller_fmu: FmuController | None = None,
-               durable: bool = True, log: LogPolicy = FULL_LOGS) -> dict[str, Any]:
+               durable: bool = True, log: LogPolicy = FULL_LOGS,
+               controller: Controller | None = None) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
 
     The log attaches the run's effective scenario (:func:`scenario_attachment_name`), not
@@ -245,7 +248,9 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     (without a ``result`` record).  A run that fails is logged with status ``failed`` and its
     error, and the file is closed and readable.  ``also`` receives the same blocks as the log
     (the live Rerun view of ``wmr run --view``).  ``controller_fmu`` runs the controller FMU
-    in place of the Python controller (``wmr run --controller-fmu``).
+    in place of the Python controller (``wmr run --controller-fmu``); ``controller`` runs any
+    other :class:`~wmr.core.closedloop.Controller` (default: the run's own law,
+    :class:`~wmr.core.control.from_spec.SpecController`).
 
     ``log`` decides whether a log is kept (:class:`LogPolicy`): with ``keep="failed"`` the
     rows are held in memory (up to :data:`HOLD_ROWS`) and written only if the run does not
@@ -264,6 +269,9 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
         ``estimated_final_heading_error_rad``: the errors the stabiliser believed (the
         ``final_*`` ones are the true errors; the two agree without sensors).
     """
+    if controller is not None and controller_fmu is not None:
+        raise ConfigError("controller", "both a controller and a controller FMU were given",
+                          "give one of them")
     path = Path(mcap_path)
     goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
     run = run_metadata(spec, plant, controller_fmu)
@@ -301,8 +309,8 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
             from wmr.adapters.rerun.live_view import TeeSink
 
             sink = also if sink is None else TeeSink(sink, also)
-        result = run_closed_loop(spec, plant, sink=sink, progress=progress,
-                                 controller_fmu=controller_fmu)
+        law = controller or controller_fmu or SpecController()
+        result = run_closed_loop(spec, plant, sink=sink, progress=progress, controller=law)
         if thin is not None:
             thin.end()
         record = result_record(spec.name, result)
@@ -354,3 +362,164 @@ def result_json(record: dict[str, Any]) -> str:
     return json.dumps(record, allow_nan=False, sort_keys=False)
 
 
+
+
+def _option(keyword: str, command_line: bool) -> str:
+    """How an error names an input: ``--controller-fmu`` on the command line,
+    ``controller_fmu`` in the API (the keywords are the options' names)."""
+    return f"--{keyword.replace('_', '-')}" if command_line else keyword
+
+
+def select_run(scenario: Scenario, name: str | None, command_line: bool = True) -> RunSpec:
+    """The run ``name`` of ``scenario``, or its only run (``--run NAME``, ``run=NAME``)."""
+    from wmr.config.naming import name_list
+
+    names = [r.name for r in scenario.runs]
+    runs = [r for r in scenario.runs if name is None or r.name == name]
+    if len(runs) == 1:
+        return runs[0]
+    option = _option("run", command_line)
+    problem = (f"scenario {scenario.name} has no run {name!r}" if name is not None
+               else f"scenario {scenario.name} has {len(runs)} runs")
+    how = f"{option} NAME" if command_line else f"{option}=NAME"
+    raise ConfigError(option, problem, f"pick one with {how} of {name_list(names)}"
+                      + (" or run them all with 'wmr batch'" if command_line else ""))
+
+
+#: ``progress_bar(run_name)``: the progress callback of a run and what closes it.
+ProgressBar = Callable[[str], tuple[Progress, Callable[[], None]]]
+
+
+def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
+                 start: Sequence[float] | None = None, goal: Sequence[float] | None = None,
+                 params: Mapping[str, float] | None = None,
+                 gains: Mapping[str, float] | None = None,
+                 limits: Mapping[str, float] | None = None, period_s: float | None = None,
+                 stop_radius_m: float | None = None, max_time_s: float | None = None,
+                 controller: str | None = None,
+                 controller_gains: Mapping[str, float] | None = None,
+                 sensors: str | None = None, sensor: Mapping[str, float | str] | None = None,
+                 controller_fmu: bool | str | Path | None = None, fmi: int = 3,
+                 fmu: str | Path | None = None, fmu_map: str | Path | None = None,
+                 out: str | Path | None = None, log: str | None = None,
+                 log_every: int | None = None, view: bool = False,
+                 progress_bar: ProgressBar | None = None,
+                 command_line: bool = False) -> tuple[dict[str, Any], RunSpec]:
+    """One run of a scenario, as ``wmr run`` and :func:`wmr.run` make it: load, pick the run,
+    apply the overrides, name it, check the log's place, open the FMUs, run and log.
+
+    Every keyword is the option of ``wmr run`` of the same name (``docs/api.md``):
+    ``start``/``goal`` ``(x_m, y_m, heading_deg)``; ``params``, ``gains``, ``limits``,
+    ``controller_gains`` by name; ``sensors`` a preset (``gps``, ``raw``) or ``off``, and
+    ``sensor`` fields of the ``[sensors]`` table over it; ``controller_fmu`` ``True`` (the
+    built controller FMU), a path, ``False`` (the Python law even if the scenario names one),
+    or ``None`` (the scenario's choice); ``fmu``/``fmu_map`` another robot FMU and its map
+    (else the scenario's, else the project's FMI ``fmi`` build); ``log``/``log_every`` the log
+    policy (:class:`LogPolicy`); ``view`` the live Rerun view, saved next to the log.
+    ``command_line`` names inputs in errors as options (``--out``) rather than keywords.
+
+    Returns
+    -------
+    tuple
+        The result record (``docs/results.md``) and the run's spec.
+    """
+    from wmr.adapters.fmi.varmap import load_map
+    from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
+    from wmr.config.scenario import load_scenario, with_overrides
+    from wmr.core.sensing.config import command_line_sensors
+    from wmr.infra.outputs import check_output
+
+    def pose(value: Sequence[float] | None, field: str) -> tuple[float, float, float] | None:
+        if value is None:
+            return None
+        if len(value) != 3:
+            raise ConfigError(_option(field, command_line),
+                              f"must be (x_m, y_m, heading_deg), got {value!r}")
+        return (float(value[0]), float(value[1]), float(value[2]))
+
+    sc = load_scenario(scenario)
+    base = select_run(sc, run, command_line)
+    spec = with_overrides(base, start=pose(start, "start"), goal=pose(goal, "goal"),
+                          gains=gains, limits=limits, params=params, period_s=period_s,
+                          stop_radius_m=stop_radius_m, t_max_s=max_time_s,
+                          controller=controller, controller_gains=controller_gains)
+    if sensors is not None or sensor:
+        spec = replace(spec, sensors=command_line_sensors(
+            spec.sensors, sensors, [f"{k}={v}" for k, v in (sensor or {}).items()]))
+    if controller_fmu is False:
+        ctrl_choice: str | None = None
+    elif controller_fmu is True:
+        ctrl_choice = ""
+    elif controller_fmu is not None:
+        ctrl_choice = str(controller_fmu)
+    else:
+        ctrl_choice = spec.controller_fmu
+    # a variant is named after what it changes, so that its log never overwrites the
+    # scenario's own run (runs/fig11.mcap) nor passes for it; the plant and controller
+    # implementation (FMI version, another FMU, the controller FMU) name the log file only,
+    # not the run, whose name seeds the sensor noise (the same run on another FMU is the same)
+    extra = fmu_tokens(fmi, None if fmu is None else str(fmu))
+    if fmu_map is not None:
+        extra.append(f"map_{Path(fmu_map).stem}")
+    if ctrl_choice is not None and base.controller_fmu is None:
+        extra.append("controller_fmu")
+    spec = replace(spec, name=run_name(base, spec))
+    path = check_output(out if out is not None
+                        else default_log_path(variant_name(spec.name, extra)),
+                        _option("out", command_line), suffix=".mcap")
+    if view:
+        check_output(path.with_suffix(".rrd"), _option("view", command_line))
+    fmu_path = Path(fmu) if fmu is not None else sc.fmu or default_fmu(fmi)
+    map_path = Path(fmu_map) if fmu_map is not None else sc.fmu_map
+    var_map = load_map(map_path) if map_path is not None else None
+    ctrl_path = None
+    if ctrl_choice is not None:
+        option = _option("controller_fmu", command_line)
+        if spec.controller != "pi":
+            raise ConfigError(option, f"the controller FMU is the PI stabiliser, but the run "
+                              f"uses controller = {spec.controller!r}",
+                              f"drop {option} or run the pi controller")
+        ctrl_path = Path(ctrl_choice) if ctrl_choice else default_controller_fmu(fmi)
+        if not ctrl_path.is_file():
+            raise ConfigError(option, f"no such file: {ctrl_path}",
+                              "give a controller .fmu, or no FILE for the built one")
+    policy = log_policy(log, log_every, None, command_line) or FULL_LOGS
+    progress, finish = progress_bar(spec.name) if progress_bar is not None else (None, None)
+    live = None
+    if view:
+        from wmr.adapters.rerun.live_view import live_view_sink
+
+        live = live_view_sink(spec.name, spec.goal, path.with_suffix(".rrd"))
+    with FmuPlant(fmu_path, var_map=var_map) as plant, ExitStack() as stack:
+        ctrl = None
+        if ctrl_path is not None:
+            from wmr.adapters.fmi.controller import FmuController
+
+            ctrl = stack.enter_context(FmuController(ctrl_path))
+        try:
+            record = run_to_log(spec, path, plant, scenario_file=sc.path, progress=progress,
+                                also=live, controller_fmu=ctrl, log=policy)
+        finally:
+            if finish is not None:
+                finish()
+            if live is not None:
+                live.close()
+                print(f"live view recorded in {path.with_suffix('.rrd')}", file=sys.stderr)
+    return record, spec
+
+
+def log_policy(keep: str | None, every_k_steps: int | None, base: LogPolicy | None,
+               command_line: bool = True) -> LogPolicy | None:
+    """The log policy of ``--log``/``log`` and ``--log-every``/``log_every`` over ``base`` (a
+    spec's ``[log]``); ``None`` when neither option nor ``base`` names one."""
+    if every_k_steps is not None and (isinstance(every_k_steps, bool)
+                                      or not isinstance(every_k_steps, int)
+                                      or every_k_steps < 1):
+        option = _option("log_every", command_line)
+        raise ConfigError(option, f"must be >= 1, got {every_k_steps}",
+                          f"give e.g. {option} 10, or 1 for every step" if command_line
+                          else f"give e.g. {option}=10, or 1 for every step")
+    if keep is None and every_k_steps is None:
+        return base
+    start = base or FULL_LOGS
+    return LogPolicy(keep or start.keep, every_k_steps or start.every_k_steps)

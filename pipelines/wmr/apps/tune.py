@@ -35,10 +35,12 @@ from typing import Any, Final
 import numpy as np
 from scipy.optimize import minimize
 
-from wmr.config.scenario import RunSpec, load_scenario, with_overrides
+from wmr.config.scenario import load_scenario, with_overrides
 from wmr.core.closedloop import RunResult, run_closed_loop
+from wmr.core.control.from_spec import SpecController
 from wmr.core.control.peers import CONTROLLER_NAMES
 from wmr.core.plant import Plant
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 
 #: Tuned gains per controller: name -> (gain, initial value, lower bound, upper bound).
@@ -129,7 +131,7 @@ def evaluate(controller: str, gains: Mapping[str, float], specs: Sequence[RunSpe
     results: list[RunResult | None] = []
     costs = []
     for s in tuned:
-        r = run_closed_loop(s, plant)
+        r = run_closed_loop(s, plant, controller=SpecController())
         results.append(r)
         costs.append(case_cost(r, s))
     return float(np.mean(costs)), results

@@ -121,7 +121,7 @@ class ControllerModel(ModelInterface):
 
 def controller_model() -> ControllerModel:
     """The controller FMU's variables with the scenario defaults."""
-    from wmr.config.scenario import (
+    from wmr.core.runspec import (
         DEFAULT_HEADING_TOLERANCE_DEG,
         DEFAULT_MAX_TIME_S,
         DEFAULT_PERIOD_S,

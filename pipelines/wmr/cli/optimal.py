@@ -199,7 +199,8 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.apps.benchmark import run_optimal
     from wmr.apps.tune import DEFAULT_BUDGET, default_cases, tune
-    from wmr.config.scenario import RunSpec, load_scenario
+    from wmr.config.scenario import load_scenario
+    from wmr.core.runspec import RunSpec
     from wmr.infra.outputs import check_output
 
     budget = DEFAULT_BUDGET if args.budget is None else args.budget

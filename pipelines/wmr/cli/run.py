@@ -5,16 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable, Mapping
-from contextlib import ExitStack
-from dataclasses import replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
     from wmr.apps.run import LogPolicy
-    from wmr.config.scenario import RunSpec, Scenario
+    from wmr.config.scenario import Scenario
+    from wmr.core.runspec import RunSpec
 
 
 def _key_values(items: list[str] | None, option: str) -> dict[str, float]:
@@ -82,16 +80,10 @@ def add_log_choice(parser: argparse.ArgumentParser, default: str) -> None:
 
 def log_policy(args: argparse.Namespace, base: LogPolicy | None) -> LogPolicy | None:
     """The log policy of ``--log`` and ``--log-every`` over ``base`` (a spec's ``[log]``);
-    ``None`` when neither option nor ``base`` names one."""
-    from wmr.apps.run import FULL_LOGS, LogPolicy
+    ``None`` when neither option nor ``base`` names one (:func:`wmr.apps.run.log_policy`)."""
+    from wmr.apps.run import log_policy as policy
 
-    if args.log_every is not None and args.log_every < 1:
-        raise ConfigError("--log-every", f"must be >= 1, got {args.log_every}",
-                          "give e.g. --log-every 10, or 1 for every step")
-    if args.log is None and args.log_every is None:
-        return base
-    start = base or FULL_LOGS
-    return LogPolicy(args.log or start.keep, args.log_every or start.every_k_steps)
+    return policy(args.log, args.log_every, base)
 
 
 def add_scenario_choice(parser: argparse.ArgumentParser, doing: str) -> None:
@@ -116,98 +108,26 @@ def result_summary(record: Mapping[str, Any]) -> str:
 
 
 def select_run(scenario: Scenario, name: str | None) -> RunSpec:
-    """The run ``name`` of ``scenario``, or its only run."""
-    runs = list(scenario.runs)
-    if name is not None:
-        chosen = [r for r in runs if r.name == name]
-        if not chosen:
-            raise ConfigError("--run", f"scenario {scenario.name} has no run {name!r}",
-                              "pick one of: " + ", ".join(r.name for r in runs))
-        runs = chosen
-    if len(runs) != 1:
-        raise ConfigError("--run", f"scenario {scenario.name} has {len(runs)} runs",
-                          "pick one with --run NAME ("
-                          + ", ".join(r.name for r in runs[:6])
-                          + (", ..." if len(runs) > 6 else "") + ") or run them all with "
-                          "'wmr batch'")
-    return runs[0]
+    """The run ``name`` of ``scenario``, or its only run (:func:`wmr.apps.run.select_run`)."""
+    from wmr.apps.run import select_run as pick
+
+    return pick(scenario, name)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from wmr.adapters.fmi.robot import FmuPlant
-    from wmr.adapters.fmi.varmap import load_map
-    from wmr.apps.run import (
-        FULL_LOGS,
-        default_controller_fmu,
-        default_fmu,
-        result_json,
-        run_to_log,
-    )
-    from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
-    from wmr.config.scenario import load_scenario, with_overrides
-    from wmr.infra.outputs import check_output
+    from wmr.apps.run import result_json, run_scenario
 
-    scenario = load_scenario(args.scenario)
-    run = select_run(scenario, args.run)
-    spec = with_overrides(
-        run, start=args.start, goal=args.goal,
+    record, spec = run_scenario(
+        args.scenario, run=args.run, start=args.start, goal=args.goal,
         gains=_key_values(args.gain, "--gain"), limits=_key_values(args.limit, "--limit"),
         params=_key_values(args.param, "--param"), period_s=args.period,
-        stop_radius_m=args.stop_radius, t_max_s=args.max_time)
-    if args.sensors is not None or args.sensor:
-        from wmr.core.sensing.config import command_line_sensors
-
-        spec = replace(spec, sensors=command_line_sensors(spec.sensors, args.sensors,
-                                                          args.sensor))
-    # a variant is named after what it changes, so that its log never overwrites the
-    # scenario's own run (runs/fig11.mcap) nor passes for it; the plant and controller
-    # implementation (FMI version, another FMU, the controller FMU) name the log file only,
-    # not the run, whose name seeds the sensor noise (the same run on another FMU is the same)
-    extra = fmu_tokens(args.fmi, args.fmu)
-    if args.map:
-        extra.append(f"map_{Path(args.map).stem}")
-    if args.controller_fmu is not None and run.controller_fmu is None:
-        extra.append("controller_fmu")
-    spec = replace(spec, name=run_name(run, spec))
-    out = check_output(args.out if args.out else default_log_path(variant_name(spec.name, extra)),
-                       "--out", suffix=".mcap")
-    if args.view:
-        check_output(out.with_suffix(".rrd"), "--view")
-    fmu_path = Path(args.fmu) if args.fmu else scenario.fmu or default_fmu(args.fmi)
-    map_path = Path(args.map) if args.map else scenario.fmu_map
-    var_map = load_map(map_path) if map_path is not None else None
-    ctrl_choice = args.controller_fmu if args.controller_fmu is not None else spec.controller_fmu
-    ctrl_path = None
-    if ctrl_choice is not None:
-        if spec.controller != "pi":
-            raise ConfigError("--controller-fmu", f"the controller FMU is the PI stabiliser, "
-                              f"but the run uses controller = {spec.controller!r}",
-                              "drop --controller-fmu or run the pi controller")
-        ctrl_path = Path(ctrl_choice) if ctrl_choice else default_controller_fmu(args.fmi)
-        if not ctrl_path.is_file():
-            raise ConfigError("--controller-fmu", f"no such file: {ctrl_path}",
-                              "give a controller .fmu, or no FILE for the built one")
-    policy = log_policy(args, None) or FULL_LOGS
-    progress, finish = _progress_bar(spec.name, args.json)
-    live = None
-    if args.view:
-        from wmr.adapters.rerun.live_view import live_view_sink
-
-        live = live_view_sink(spec.name, spec.goal, out.with_suffix(".rrd"))
-    with FmuPlant(fmu_path, var_map=var_map) as plant, ExitStack() as stack:
-        ctrl = None
-        if ctrl_path is not None:
-            from wmr.adapters.fmi.controller import FmuController
-
-            ctrl = stack.enter_context(FmuController(ctrl_path))
-        try:
-            record = run_to_log(spec, out, plant, scenario_file=scenario.path, progress=progress,
-                                also=live, controller_fmu=ctrl, log=policy)
-        finally:
-            finish()
-            if live is not None:
-                live.close()
-                print(f"live view recorded in {out.with_suffix('.rrd')}", file=sys.stderr)
+        stop_radius_m=args.stop_radius, max_time_s=args.max_time, sensors=args.sensors,
+        sensor=_sensor_items(args.sensor),
+        controller_fmu=(None if args.controller_fmu is None
+                        else args.controller_fmu or True),
+        fmi=args.fmi, fmu=args.fmu, fmu_map=args.map, out=args.out, log=args.log,
+        log_every=args.log_every, view=args.view,
+        progress_bar=lambda name: _progress_bar(name, args.json), command_line=True)
     if args.json:
         print(result_json(record))
     else:
@@ -217,6 +137,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
                      f"{record['estimated_final_heading_error_rad']:.5f} rad")
         print(line)
     return 0 if record["status"] == "converged" else 3 if record["status"] == "timeout" else 1
+
+
+def _sensor_items(items: list[str] | None) -> dict[str, str]:
+    """``--sensor NAME=VALUE`` items as names to their text (checked and converted by the
+    ``[sensors]`` table's own rules, :func:`wmr.core.sensing.config.command_line_sensors`)."""
+    out: dict[str, str] = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise ConfigError("--sensor", f"{item!r} is not NAME=VALUE",
+                              "e.g. --sensor gps_sigma_m=0.05")
+        out[name.strip()] = value.strip()
+    return out
 
 
 def _progress_bar(name: str, quiet: bool) -> tuple[Callable[[float, float], None],

@@ -44,7 +44,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.apps.run import result_json
     from wmr.cli.run import result_summary
     from wmr.config.naming import default_log_path
-    from wmr.config.scenario import DEFAULT_PERIOD_S, MAX_STEPS
+    from wmr.core.runspec import DEFAULT_PERIOD_S, MAX_STEPS
     from wmr.infra.outputs import check_output
 
     ssp = Path(args.ssp)

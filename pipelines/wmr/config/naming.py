@@ -16,8 +16,8 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Final
 
-from wmr.config.scenario import RunSpec
 from wmr.core.plant import Pose
+from wmr.core.runspec import RunSpec
 from wmr.core.sensing.config import PRESETS, SensorConfig, preset
 from wmr.infra.paths import MAX_STEM_BYTES, safe_filename
 

@@ -41,79 +41,32 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
 from wmr.core.control.peers import controller_gains
 from wmr.core.control.stabiliser import Gains, Limits
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import (
+    DEFAULT_HEADING_TOLERANCE_DEG,
+    DEFAULT_MAX_TIME_S,
+    DEFAULT_PERIOD_S,
+    DEFAULT_STOP_RADIUS_M,
+    RunSpec,
+    check_finite,
+    check_positive,
+)
 from wmr.core.sensing.config import SensorConfig, sensor_config
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import scenarios_dir
 
 DEFAULT_SCENARIO = "fig11"
-DEFAULT_PERIOD_S = 0.01
-DEFAULT_STOP_RADIUS_M = 0.05
-DEFAULT_HEADING_TOLERANCE_DEG = 0.5
-DEFAULT_MAX_TIME_S = 120.0
-#: Upper bound on the number of control steps of one run (keeps a typo from hanging a run).
-MAX_STEPS = 10_000_000
 
 TOP_FIELDS = ("name", "description", "start", "goal", "runs", "gains", "limits", "params",
               "control_period_s", "stop_radius_m", "heading_tolerance_deg", "max_time_s",
               "controller", "controller_gains", "controller_fmu", "sensors", "fmu", "fmu_map")
 RUN_FIELDS = ("name", "start", "goal", "max_time_s")
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """Everything one closed-loop run needs.  Angles in rad, SI units."""
-
-    name: str
-    start: Pose
-    goal: Pose
-    params: RobotParams = field(default_factory=RobotParams)
-    gains: Gains = field(default_factory=Gains)
-    limits: Limits = field(default_factory=Limits)
-    period_s: float = DEFAULT_PERIOD_S
-    stop_radius_m: float = DEFAULT_STOP_RADIUS_M
-    t_max_s: float = DEFAULT_MAX_TIME_S
-    heading_tolerance_rad: float = math.radians(DEFAULT_HEADING_TOLERANCE_DEG)
-    scenario: str = ""
-    #: ``pi`` (the paper's), ``astolfi`` or ``graceful`` (:mod:`wmr.core.control.peers`).
-    controller: str = "pi"
-    #: A peer's own gains as ``(name, value)`` pairs; empty: its published defaults.
-    controller_gains: tuple[tuple[str, float], ...] = ()
-    #: ``None``: the Python controller; ``""``: the built controller FMU; else its path.
-    controller_fmu: str | None = None
-    #: The sensors and estimator (:mod:`wmr.core.sensing`); ``None``: perfect state feedback.
-    sensors: SensorConfig | None = None
-
-    def __post_init__(self) -> None:
-        controller_gains(self.controller, dict(self.controller_gains))
-        if self.sensors is not None:
-            self.sensors.check(self.period_s)
-        _positive("control_period_s", self.period_s)
-        _positive("stop_radius_m", self.stop_radius_m)
-        _positive("max_time_s", self.t_max_s)
-        _positive("heading_tolerance_deg", self.heading_tolerance_rad)
-        if self.t_max_s < self.period_s:
-            raise ConfigError("max_time_s", f"{self.t_max_s!r} s is shorter than one control "
-                              f"period ({self.period_s!r} s)", "give a longer max_time_s")
-        if self.t_max_s / self.period_s > MAX_STEPS:
-            raise ConfigError("max_time_s", f"{self.t_max_s / self.period_s:.3g} control steps "
-                              f"is more than {MAX_STEPS}",
-                              "shorten max_time_s or lengthen control_period_s")
-        for label, pose in (("start", self.start), ("goal", self.goal)):
-            for f in fields(pose):
-                _finite(f"{label}.{f.name}", getattr(pose, f.name))
-        _check_sanity(self)
-
-    @property
-    def n_steps_max(self) -> int:
-        """Number of control periods in ``t_max_s`` (rounded to the nearest step)."""
-        return max(1, round(self.t_max_s / self.period_s))
 
 
 @dataclass(frozen=True)
@@ -130,82 +83,6 @@ class Scenario:
     fmu_map: Path | None = None
 
 
-def _check_sanity(spec: RunSpec) -> None:
-    """Refuse settings that are valid numbers but cannot give a meaningful run.
-
-    * The period against the wheel servos: seen from a wheel the robot is an inertia J
-      (``docs/control.md``: the smaller of the common mode r^2 M11 / 2 and the differential
-      mode r^2 M22 / (2 L^2)); the sampled P loop of gain K_pw on it is stable only for
-      K_pw h / J < 2.
-    * The stop radius against the trip: a radius that reaches the start makes the run
-      "converge" where it stands.
-    """
-    from wmr.core.physics import mass_matrix_diag
-
-    p = spec.params
-    for name in ("r", "L", "l"):  # lengths whose squares eq. 24 and eq. 28 take
-        value = getattr(p, name)
-        if not math.isfinite(value * value):
-            raise ConfigError(f"params.{name}", f"{value:g} m is too large: its square "
-                              "overflows (inf) in the mass matrix of eq. 24",
-                              f"give {name} in metres, e.g. {getattr(RobotParams(), name):g}")
-    m11, m22 = mass_matrix_diag(p)
-    j_min = min(p.r * p.r * m11 / 2.0, p.r * p.r * m22 / (2.0 * p.L * p.L))
-    if not all(math.isfinite(x) for x in (m11, m22, j_min)):
-        name = _most_extreme(p)
-        raise ConfigError(f"params.{name}", f"{getattr(p, name):g} overflows the mass matrix "
-                          f"of eq. 24 (M11 = {m11:g} kg, M22 = {m22:g} kg m^2, wheel inertia "
-                          f"{j_min:g} kg m^2)", f"give {name} in SI units, e.g. "
-                          f"{getattr(RobotParams(), name):g}")
-    if m22 <= 0.0:
-        raise ConfigError("params.Ig", "the platform has no inertia about its vertical axis "
-                          "(Ig + m l^2 + 2 L^2 Iwm / r^2 = 0): the mass matrix of eq. 24 is "
-                          "singular", "give Ig > 0")
-    loop = spec.gains.K_pw * spec.period_s / j_min
-    if loop >= 2.0:
-        raise ConfigError("control_period_s",
-                          f"{spec.period_s:g} s is too long for the wheel servos: K_pw h / J = "
-                          f"{loop:.3g} >= 2 (K_pw = {spec.gains.K_pw:g} N m s/rad, wheel "
-                          f"inertia J = {j_min:.3g} kg m^2) makes the sampled servo unstable",
-                          f"give a period below {2.0 * j_min / spec.gains.K_pw:.3g} s, or a "
-                          "smaller K_pw")
-    distance = math.hypot(spec.goal.x_m - spec.start.x_m, spec.goal.y_m - spec.start.y_m)
-    if spec.stop_radius_m > DEFAULT_STOP_RADIUS_M and spec.stop_radius_m >= distance > 0.0:
-        raise ConfigError("stop_radius_m",
-                          f"{spec.stop_radius_m:g} m reaches the start, {distance:.3g} m from "
-                          "the goal: the run would count as converged where it stands",
-                          f"give a stop radius below {distance:.3g} m (default "
-                          f"{DEFAULT_STOP_RADIUS_M:g})")
-
-
-def _most_extreme(params: RobotParams) -> str:
-    """The parameter furthest from its default, in orders of magnitude (the likeliest cause of
-    an overflow that several parameters share)."""
-    default = RobotParams()
-
-    def distance(name: str) -> float:
-        value, ref = getattr(params, name), getattr(default, name)
-        return abs(math.log10(value / ref)) if value > 0.0 and ref > 0.0 else 0.0
-
-    return max(("m", "r", "L", "l", "Ig", "Iwm"), key=distance)
-
-
-def _finite(field: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(field, f"must be a number, got {value!r}", "write a plain number")
-    if not math.isfinite(value):
-        raise ConfigError(field, f"must be finite, got {value!r}",
-                          "replace nan/inf by a finite number")
-    return float(value)
-
-
-def _positive(field: str, value: object) -> float:
-    v = _finite(field, value)
-    if v <= 0.0:
-        raise ConfigError(field, f"must be > 0, got {value!r}", "give a positive value")
-    return v
-
-
 def _check_keys(table: Mapping[str, Any], allowed: tuple[str, ...], where: str) -> None:
     for key in table:
         if key not in allowed:
@@ -218,9 +95,9 @@ def _pose(value: object, field: str) -> Pose:
     if not isinstance(value, list | tuple) or len(value) != 3:
         raise ConfigError(field, f"must be [x_m, y_m, heading_deg], got {value!r}",
                           "write three numbers, e.g. [20.0, 10.0, 0.0]")
-    x = _finite(f"{field}.x_m", value[0])
-    y = _finite(f"{field}.y_m", value[1])
-    h = _finite(f"{field}.heading_deg", value[2])
+    x = check_finite(f"{field}.x_m", value[0])
+    y = check_finite(f"{field}.y_m", value[1])
+    h = check_finite(f"{field}.heading_deg", value[2])
     return Pose(x, y, math.radians(h))
 
 
@@ -234,7 +111,7 @@ def _table(data: Mapping[str, Any], key: str) -> Mapping[str, Any]:
 def _build(cls: type[Any], values: Mapping[str, Any], section: str, base: Any = None) -> Any:
     allowed = tuple(f.name for f in fields(cls))
     _check_keys(values, allowed, section)
-    checked = {k: _finite(f"{section}.{k}", v) for k, v in values.items()}
+    checked = {k: check_finite(f"{section}.{k}", v) for k, v in values.items()}
     try:
         return cls(**checked) if base is None else replace(base, **checked)
     except ConfigError as exc:
@@ -247,7 +124,8 @@ def _peer_gains(controller: str, values: Mapping[str, Any]) -> tuple[tuple[str, 
     """Validated ``controller_gains`` of ``controller`` as ``(name, value)`` pairs."""
     out: list[tuple[str, float]] = []
     for k, v in values.items():
-        out.append((k, float(v) if isinstance(v, bool) else _finite(f"controller_gains.{k}", v)))
+        out.append((k, float(v) if isinstance(v, bool)
+                    else check_finite(f"controller_gains.{k}", v)))
     controller_gains(controller, dict(out))
     return tuple(out)
 
@@ -289,11 +167,11 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
     gains = _build(Gains, _table(data, "gains"), "gains")
     limits = _build(Limits, _table(data, "limits"), "limits")
     params = _build(RobotParams, _table(data, "params"), "params")
-    period = _positive("control_period_s", data.get("control_period_s", DEFAULT_PERIOD_S))
-    eps = _positive("stop_radius_m", data.get("stop_radius_m", DEFAULT_STOP_RADIUS_M))
-    tol = _positive("heading_tolerance_deg",
+    period = check_positive("control_period_s", data.get("control_period_s", DEFAULT_PERIOD_S))
+    eps = check_positive("stop_radius_m", data.get("stop_radius_m", DEFAULT_STOP_RADIUS_M))
+    tol = check_positive("heading_tolerance_deg",
                     data.get("heading_tolerance_deg", DEFAULT_HEADING_TOLERANCE_DEG))
-    t_max = _positive("max_time_s", data.get("max_time_s", DEFAULT_MAX_TIME_S))
+    t_max = check_positive("max_time_s", data.get("max_time_s", DEFAULT_MAX_TIME_S))
     controller = data.get("controller", "pi")
     if not isinstance(controller, str):
         raise ConfigError("controller", f"must be a string, got {controller!r}",
@@ -336,7 +214,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<scenario>",
             raise ConfigError(f"{where}.name", f"{run_name!r} is already the name of "
                               f"runs[{earlier[0]}]: the second could not be picked with --run",
                               "give each run its own name")
-        run_t_max = _positive(f"{where}.max_time_s", run.get("max_time_s", t_max))
+        run_t_max = check_positive(f"{where}.max_time_s", run.get("max_time_s", t_max))
         runs.append(RunSpec(name=run_name, start=run_start, goal=run_goal, params=params,
                             gains=gains, limits=limits, period_s=period, stop_radius_m=eps,
                             t_max_s=run_t_max, heading_tolerance_rad=math.radians(tol),
@@ -450,14 +328,14 @@ def with_overrides(spec: RunSpec, start: Pose | tuple[float, float, float] | lis
     if params:
         changes["params"] = _build(RobotParams, params, "params", spec.params)
     if period_s is not None:
-        changes["period_s"] = _positive("control_period_s", period_s)
+        changes["period_s"] = check_positive("control_period_s", period_s)
     if stop_radius_m is not None:
-        changes["stop_radius_m"] = _positive("stop_radius_m", stop_radius_m)
+        changes["stop_radius_m"] = check_positive("stop_radius_m", stop_radius_m)
     if t_max_s is not None:
-        changes["t_max_s"] = _positive("max_time_s", t_max_s)
+        changes["t_max_s"] = check_positive("max_time_s", t_max_s)
     if heading_tolerance_deg is not None:
         changes["heading_tolerance_rad"] = math.radians(
-            _positive("heading_tolerance_deg", heading_tolerance_deg))
+            check_positive("heading_tolerance_deg", heading_tolerance_deg))
     if controller is not None and controller != spec.controller:
         changes["controller"] = controller
         changes["controller_gains"] = ()
@@ -475,7 +353,6 @@ def with_overrides(spec: RunSpec, start: Pose | tuple[float, float, float] | lis
 
 __all__ = [
     "DEFAULT_SCENARIO",
-    "RunSpec",
     "Scenario",
     "expand",
     "load_scenario",

@@ -1,7 +1,7 @@
 """A run written back as a scenario file: the effective scenario a log attaches.
 
 :func:`run_spec_toml` gives a one-run scenario (TOML) that :func:`wmr.config.scenario.load_scenario`
-and ``wmr run`` read back into the very same :class:`~wmr.config.scenario.RunSpec`, field for field
+and ``wmr run`` read back into the very same :class:`~wmr.core.runspec.RunSpec`, field for field
 and bit for bit: every parameter, gain, limit and setting is written out (not only those that differ
 from the defaults, so that a later change of a default cannot change the replayed run), floats
 in their shortest round-trip form, and angles in degrees chosen so that ``math.radians`` gives
@@ -15,8 +15,9 @@ from collections.abc import Mapping
 from dataclasses import fields
 
 from wmr import __version__
-from wmr.config.scenario import RunSpec, parse_scenario
+from wmr.config.scenario import parse_scenario
 from wmr.core.plant import Pose
+from wmr.core.runspec import RunSpec
 
 
 def _float(value: float) -> str:

@@ -1,8 +1,10 @@
 """The co-simulation master: one closed-loop run of a controller on any plant.
 
-The controller is the paper's PI stabiliser by default, or a peer (``spec.controller``, built
-by :func:`wmr.core.control.peers.make_controller`), or the controller FMU
-(:class:`wmr.adapters.fmi.controller.FmuController`, the same law in C) when one is given.
+The loop takes any controller through one small protocol, :class:`Controller`, and imports
+none of them: the caller builds it (the run's own Python law,
+:class:`wmr.core.control.from_spec.SpecController`; the controller FMU,
+:class:`wmr.adapters.fmi.controller.FmuController`; or a user's own) and the loop configures it
+with the run.
 
 Plant-agnostic: it takes a :class:`wmr.core.plant.Plant` (the FMU or the reference physics) and one
 code path serves every scenario.  Per control step ``n`` at ``t_n = n h`` (exact, never
@@ -33,17 +35,15 @@ from typing import TYPE_CHECKING, Any, Protocol, cast
 import numpy as np
 import numpy.typing as npt
 
-from wmr.config.scenario import RunSpec
 from wmr.core.control import WheelServo, wrap_angle
-from wmr.core.control.peers import make_controller
 from wmr.core.energy import step_work
 from wmr.core.plant import Plant, Pose
+from wmr.core.runspec import RunSpec
 from wmr.core.sensing import Sensing, SensingRecord
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 
 if TYPE_CHECKING:
-    from wmr.adapters.fmi.controller import FmuController
-    from wmr.core.control import ServoedController
+    from wmr.core.control import Stabiliser
 
 #: Rows per block handed to the sink.
 BLOCK_ROWS = 100
@@ -63,6 +63,54 @@ class BlockSink(Protocol):
 
         The arrays are reused after the call returns: copy them to keep them.
         """
+        ...
+
+
+class LoopStabiliser(Protocol):
+    """The part of a controller's law the loop asks between steps."""
+
+    def converged(self, x: float, y: float, theta: float, v: float, omega: float,
+                  heading_tolerance_rad: float) -> bool:
+        """At the goal, aligned and at rest (on the state before this step's sample): the
+        loop logs a last row with zero torque and stops the run."""
+        ...
+
+    def heading_error(self, theta: float) -> float:
+        """Heading minus the desired heading, wrapped, rad (the message of a timeout)."""
+        ...
+
+
+class Controller(Protocol):
+    """What the loop calls of a controller: configure it once per run, then one ``step`` per
+    control period.
+
+    ``stepper_kind`` (optional; absent means ``""``) tells the C stepper of an FMU plant what
+    it may take over, bit for bit (``docs/architecture.md``, "The C stepper"):
+
+    * ``"servo"``: a Python law feeding two :class:`~wmr.core.control.WheelServo` s; the
+      controller has ``right`` and ``left`` (the servos, of that very class) and its
+      ``stabiliser`` has ``update(x, y, theta)`` (the 18 law columns, wheel references at 12
+      and 13). The C stepper then runs the servos, the row and the plant step.
+    * ``"blocks"``: the whole closed loop runs in C (the controller FMU): the controller has
+      ``fmu_call`` (its :class:`~wmr.adapters.fmi.robot.FmuCall`), ``converged_index``,
+      ``set_clock(n)`` and ``raise_step_error(code)``.
+    * ``""``: Python only, one ``step`` per period.
+    """
+
+    @property
+    def stabiliser(self) -> LoopStabiliser:
+        """The law's convergence test and heading error."""
+        ...
+
+    def configure(self, spec: RunSpec) -> None:
+        """Start a run of ``spec``: take its goal and settings, forget every state."""
+        ...
+
+    def step(self, x: float, y: float, theta: float, omega_r: float,
+             omega_l: float) -> tuple[float, ...]:
+        """One control period: the (estimated) pose and the wheel speeds in; the
+        :data:`wmr.core.signals.CONTROL_SIGNALS` out, ``tau_r, tau_l`` at 14 and 15, held
+        over the period."""
         ...
 
 
@@ -185,18 +233,21 @@ def _loop_state(spec: RunSpec, block: _Block) -> LoopState:
 
 
 def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
-                    progress: Progress | None = None,
-                    controller_fmu: FmuController | None = None) -> RunResult:
-    """Simulate one run of ``spec`` on ``plant``; write rows to ``sink`` if given.
+                    progress: Progress | None = None, *,
+                    controller: Controller) -> RunResult:
+    """Simulate one run of ``spec`` on ``plant`` driven by ``controller``; write rows to
+    ``sink`` if given.
 
-    The plant (and ``controller_fmu``, which replaces the Python controller when given) is
-    reset here but not closed (the caller owns it).
+    The plant is reset and the controller configured with ``spec`` here, but neither is
+    closed (the caller owns them).  The run's own Python law is
+    ``controller=SpecController()`` (:mod:`wmr.core.control.from_spec`).
 
     Three loops give the same bits (``docs/architecture.md``): with the C stepper of an FMU
-    plant (:func:`wmr.adapters.fmi.robot.load_stepper`), a Python law drives the wheel servos,
-    the row and the FMU step through one C call per step, and the controller FMU runs whole
-    blocks of the closed loop in C; any other plant, controller or a run with sensors steps
-    through the plant's and the controller's Python interfaces.
+    plant (:func:`wmr.adapters.fmi.robot.load_stepper`), a ``"servo"`` controller
+    (:class:`Controller`) drives the wheel servos, the row and the FMU step through one C call
+    per step, and a ``"blocks"`` one (the controller FMU) runs whole blocks of the closed loop
+    in C; any other plant, controller or a run with sensors steps through the plant's and the
+    controller's Python interfaces.
     """
     h = spec.period_s
     goal = spec.goal
@@ -204,27 +255,21 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
     block = _Block(h, sink)
     tally = _Tally()
     sensing: Sensing | None = None
-    controller: ServoedController | FmuController | None = None
     try:
-        if controller_fmu is not None:
-            controller_fmu.configure(spec)
-            controller = controller_fmu
-        else:
-            controller = make_controller(spec.controller, goal, spec.gains, spec.limits,
-                                         spec.params, h, spec.stop_radius_m,
-                                         dict(spec.controller_gains))
+        controller.configure(spec)
+        kind = getattr(controller, "stepper_kind", "")
         out = plant.reset(spec.params, spec.start)
         if spec.sensors is not None:
             sensing = Sensing(spec.sensors, h, spec.params, spec.start, spec.goal)
         tally.x, tally.y, tally.theta = float(out[0]), float(out[1]), float(out[2])
         stepper = _stepper(plant)
-        if stepper is not None and controller_fmu is not None and sensing is None:
-            _fmu_loop(spec, plant, stepper, controller_fmu, block, tally, progress)
-        elif (stepper is not None and controller_fmu is None
+        if stepper is not None and kind == "blocks" and sensing is None:
+            _fmu_loop(spec, plant, stepper, controller, block, tally, progress)
+        elif (stepper is not None and kind == "servo"
               and type(getattr(controller, "right", None)) is WheelServo
               and type(getattr(controller, "left", None)) is WheelServo):
-            _servo_loop(spec, plant, stepper, cast("ServoedController", controller), sensing,
-                        out, block, tally, progress)
+            _servo_loop(spec, plant, stepper, controller, sensing, out, block, tally,
+                        progress)
         else:
             _python_loop(spec, plant, controller, sensing, out, block, tally, progress)
         rows_left, tally.row = tally.row, 0
@@ -277,7 +322,7 @@ def _end(spec: RunSpec, tally: _Tally, converged: bool, heading_error: Callable[
                          f"{math.degrees(abs(heading_error(tally.theta))):.2f} deg)")
 
 
-def _python_loop(spec: RunSpec, plant: Plant, controller: ServoedController | FmuController,
+def _python_loop(spec: RunSpec, plant: Plant, controller: Controller,
                  sensing: Sensing | None, out: npt.NDArray[np.float64], block: _Block,
                  tally: _Tally, progress: Progress | None) -> None:
     """Any plant, any controller: one call of each interface per step."""
@@ -352,7 +397,7 @@ _LAW_COLUMNS = np.array([c for c in range(_N_PLANT, _N_SIG) if c not in (_C_TAU_
 
 
 def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
-                controller: ServoedController, sensing: Sensing | None,
+                controller: Any, sensing: Sensing | None,
                 out: npt.NDArray[np.float64], block: _Block, tally: _Tally,
                 progress: Progress | None) -> None:
     """A Python law, the wheel servos and the FMU step in one C call per step.
@@ -366,8 +411,8 @@ def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
     h = spec.period_s
     n_max = spec.n_steps_max
     tol = spec.heading_tolerance_rad
-    stab = controller.stabiliser
-    servo = controller.right
+    stab: Stabiliser = controller.stabiliser
+    servo: WheelServo = controller.right
     st = _loop_state(spec, block)
     st.k_p, st.k_i, st.torque_max, st.h_servo = servo.K_p, servo.K_i, servo.torque_max, servo.h
     st.b_ff, st.tau_c_ff, st.w_c, st.k_t = servo.b_ff, servo.tau_c_ff, servo.w_c, servo.k_t
@@ -435,7 +480,7 @@ def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
 
 
 def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
-              controller: FmuController, block: _Block, tally: _Tally,
+              controller: Any, block: _Block, tally: _Tally,
               progress: Progress | None) -> None:
     """Both sides FMUs: whole blocks of the closed loop in one C call (``wmr_fmu_loop``)."""
     lib, call = stepper
@@ -490,4 +535,5 @@ def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
         plant.raise_step_error(code)  # type: ignore[attr-defined]
 
 
-__all__ = ["BLOCK_ROWS", "BlockSink", "LoopState", "Progress", "RunResult", "run_closed_loop"]
+__all__ = ["BLOCK_ROWS", "BlockSink", "Controller", "LoopStabiliser", "LoopState", "Progress",
+           "RunResult", "run_closed_loop"]

@@ -1,13 +1,13 @@
 """The controller FMU as the master loop's controller (``wmr run --controller-fmu``).
 
-:class:`FmuController` has the interface of :class:`wmr.core.control.ServoedController` that
-:func:`wmr.core.closedloop.run_closed_loop` uses (``reset``, ``step``, and a ``stabiliser`` with
-``converged`` and ``heading_error``), so the master drives the C controller in place of the
-Python one.  Per control step the master calls ``stabiliser.converged`` (set the pose and
-speeds, read the ``converged`` output: the test runs on the state before the sample, as in
-Python) and then ``step`` (set all seven inputs, read the outputs of the sample, then doStep
-over exactly one control period).  As in :class:`wmr.adapters.fmi.robot.FmuPlant` the per-step calls
-go straight to the shared library through ctypes with prebuilt arrays.
+:class:`FmuController` is a :class:`wmr.core.closedloop.Controller` (``configure``, ``step``,
+and a ``stabiliser`` with ``converged`` and ``heading_error``), so the master drives the C
+controller in place of the Python one. Per control step the master calls
+``stabiliser.converged`` (set the pose and speeds, read the ``converged`` output: the test runs
+on the state before the sample, as in Python) and then ``step`` (set all seven inputs, read the
+outputs of the sample, then doStep over exactly one control period). As in
+:class:`wmr.adapters.fmi.robot.FmuPlant` the per-step calls go straight to the shared library
+through ctypes with prebuilt arrays.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ import numpy as np
 from wmr.adapters.fmi.archive import file_sha256, safe_extract
 from wmr.adapters.fmi.robot import fmu_call
 from wmr.build.controller_interface import INPUTS, SIGNAL_OUTPUTS
-from wmr.config.scenario import RunSpec
 from wmr.core.control import wrap_angle
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError, FmuError
 
 _OUTPUTS = (*SIGNAL_OUTPUTS, "phase", "converged")
@@ -89,6 +89,9 @@ class FmuController:
 
     Call :meth:`configure` with a run before the first :meth:`step`.
     """
+
+    #: The C stepper runs whole blocks of the loop (:class:`wmr.core.closedloop.Controller`).
+    stepper_kind = "blocks"
 
     def __init__(self, fmu_path: str | Path, instance_name: str = "controller") -> None:
         from fmpy import read_model_description

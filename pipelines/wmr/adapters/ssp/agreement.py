@@ -20,8 +20,9 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
 from wmr.adapters.ssp.cosim import simulate_libcosim
 from wmr.adapters.ssp.package import fmpy_parameter_set, read_package
-from wmr.config.scenario import RunSpec
 from wmr.core.closedloop import run_closed_loop
+from wmr.core.control.from_spec import SpecController
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
 
 _POSE = [COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]]
@@ -41,7 +42,7 @@ def wmr_run_path(spec: RunSpec, robot_fmu: str | os.PathLike[str],
     ``var_map`` for a robot FMU of another tool)."""
     rows = _Rows()
     with FmuPlant(Path(robot_fmu), var_map=var_map) as plant:
-        result = run_closed_loop(spec, plant, sink=rows)
+        result = run_closed_loop(spec, plant, sink=rows, controller=SpecController())
     return result.status, np.vstack(rows.blocks)
 
 

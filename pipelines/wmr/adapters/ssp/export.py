@@ -35,8 +35,8 @@ from typing import Any, Final
 from wmr.adapters.fmi.archive import check_archive
 from wmr.adapters.fmi.controller import controller_parameters
 from wmr.adapters.fmi.varmap import INPUT_NAMES, ResolvedMap, VariableMap, resolve
-from wmr.config.scenario import RunSpec
 from wmr.core.plant import OUTPUT_NAMES
+from wmr.core.runspec import RunSpec
 from wmr.infra.durable import replacing
 from wmr.infra.errors import ConfigError, FmuError
 

@@ -54,7 +54,7 @@ values drawn already.
 The runs are every combination: base run x grid point x list entry x random sample (a missing
 section counts as one empty variant), in that order (base run slowest).  Each gets a stable id
 ``NNNN-hhhhhhhh``: its index in that order and the first 8 hex digits of the SHA-256 of its
-complete :class:`~wmr.config.scenario.RunSpec`.  Every error is a
+complete :class:`~wmr.core.runspec.RunSpec`.  Every error is a
 :class:`~wmr.infra.errors.ConfigError` naming the field, e.g. ``random.params.m.std``.
 
 Expansion is lazy (:class:`RunList`): the run count comes from the section sizes, and run ``i``
@@ -81,15 +81,10 @@ from typing import Any, Final, overload
 import numpy as np
 
 from wmr.apps.run import LOG_KEEPS, LogPolicy
-from wmr.config.scenario import (
-    RunSpec,
-    parse_scenario,
-    read_toml,
-    resolve_scenario_path,
-    with_overrides,
-)
+from wmr.config.scenario import parse_scenario, read_toml, resolve_scenario_path, with_overrides
 from wmr.core.control.stabiliser import Gains, Limits
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runspec import RunSpec
 from wmr.core.sensing.config import NAME_FIELDS, SensorConfig
 from wmr.core.sensing.models import NOISE_SEEDING
 from wmr.infra.errors import ConfigError

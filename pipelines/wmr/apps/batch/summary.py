@@ -77,7 +77,7 @@ def _float(value: object) -> float | None:
 @dataclass(frozen=True)
 class SummaryRow:
     """What the summary says of a run besides its result: a :class:`BatchRun` without its
-    :class:`~wmr.config.scenario.RunSpec` (the summary of a large batch holds many)."""
+    :class:`~wmr.core.runspec.RunSpec` (the summary of a large batch holds many)."""
 
     run_id: str
     name: str

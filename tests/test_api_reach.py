@@ -1,0 +1,111 @@
+"""Every option of ``wmr run``, ``wmr batch`` and ``wmr optimal`` has its keyword in the API
+(``docs/api.md``), and ``wmr.run`` reaches what ``wmr run`` reaches."""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import wmr
+from wmr.cli import build_parser
+from wmr.infra.errors import ConfigError
+
+#: Options whose keyword has another name (the API's names carry units and plurals).
+KEYWORD_OF = {
+    "gain": "gains", "limit": "limits", "param": "params", "period": "period_s",
+    "stop_radius": "stop_radius_m", "max_time": "max_time_s", "map": "fmu_map",
+    "run_timeout": "run_timeout_s", "final_time": "final_time_s",
+    "torque_limit": "torque_limit_nm",
+}
+
+#: Options with no meaning in the API, each with the reason.
+CLI_ONLY = {
+    # how the result is printed: the API returns it as an object
+    "json",
+    # wmr batch --check makes every run and stops: the API's wmr.apps.batch.load_batch
+    # (which wmr.batch calls first) does that check
+    "check",
+}
+
+API_OF: dict[str, Callable[..., Any]] = {"run": wmr.run, "batch": wmr.batch,
+                                         "optimal": wmr.optimal}
+
+
+def _subparser(command: str) -> argparse.ArgumentParser:
+    parser = build_parser()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action.choices[command]  # type: ignore[no-any-return]
+    raise AssertionError("the wmr parser has no subcommands")
+
+
+def missing_keywords(command: str, function: Callable[..., Any]) -> list[str]:
+    """The options of ``wmr COMMAND`` that ``function`` has no keyword for."""
+    keywords = set(inspect.signature(function).parameters)
+    missing = []
+    for action in _subparser(command)._actions:
+        if isinstance(action, argparse._HelpAction) or action.dest in CLI_ONLY:
+            continue
+        keyword = KEYWORD_OF.get(action.dest, action.dest)
+        if keyword not in keywords:
+            missing.append("/".join(action.option_strings) or action.dest)
+    return missing
+
+
+@pytest.mark.parametrize("command", sorted(API_OF))
+def test_every_cli_option_has_an_api_keyword(command: str) -> None:
+    missing = missing_keywords(command, API_OF[command])
+    assert not missing, (f"wmr {command} has options without a keyword of "
+                         f"wmr.{command}: {', '.join(missing)}")
+
+
+def test_the_check_names_the_option_without_a_keyword() -> None:
+    """The check itself: an API function without ``--sensors`` and ``--map`` is caught, and
+    the options are named."""
+    def old_run(scenario: str | None = None, *, run: str | None = None) -> None: ...
+
+    missing = missing_keywords("run", old_run)
+    assert "--sensors" in missing and "--map" in missing and "--controller-fmu" in missing
+
+
+def test_api_run_with_sensors_and_the_controller_fmu(tmp_path: Path) -> None:
+    """``wmr.run("fig11", sensors="gps", controller_fmu=True)`` gives the one-line error
+    ``wmr run --sensors gps --controller-fmu`` gives (the controller FMU takes the true
+    state only) — or runs, if the command does."""
+    from wmr.apps.run import run_scenario
+
+    def outcome(**kw: Any) -> tuple[str, str]:
+        try:
+            record, _ = run_scenario("fig11", sensors="gps", controller_fmu=True,
+                                     max_time_s=0.5, **kw)
+        except ConfigError as exc:
+            return "error", f"{exc.problem} ({exc.fix})"
+        return record["status"], record["message"]
+
+    by_api = outcome(out=tmp_path / "api.mcap")
+    by_command = outcome(out=tmp_path / "cli.mcap", command_line=True)
+    assert by_api[0] == by_command[0]
+    res = None
+    if by_api[0] != "error":
+        res = wmr.run("fig11", sensors="gps", controller_fmu=True, max_time_s=0.5,
+                      out=tmp_path / "r.mcap")
+        assert res.log is not None
+        run_record = res.log.metadata["run"]
+        assert run_record["sensors"]["estimator"]
+        assert run_record["controller_fmu_file"].startswith("wmr_controller")
+
+
+def test_api_run_takes_the_scenarios_fmu_and_the_log_policy(tmp_path: Path) -> None:
+    """``wmr.run`` honours the log policy (``log="none"``: no log, the record only) and
+    names its errors by keyword (``log_every``, not ``--log-every``)."""
+    res = wmr.run("fig11", max_time_s=0.3, log="none", out=tmp_path / "n.mcap")
+    assert res.mcap is None and res.log is None and res.status == "timeout"
+    assert not (tmp_path / "n.mcap").exists()
+    with pytest.raises(ConfigError) as info:
+        wmr.run("fig11", log_every=0, out=tmp_path / "k.mcap")
+    assert info.value.field == "log_every"
