@@ -20,14 +20,12 @@ from typing import TYPE_CHECKING
 
 import casadi as ca
 
-from wmr.build.flatten import FlatModel
+from wmr.build.flatten import MODEL_IDENTIFIER, FlatModel
 from wmr.infra.errors import BuildError
 
 if TYPE_CHECKING:
     from wmr.build.controller_interface import ControllerModel
     from wmr.build.modeldesc import DependencyRow
-
-MODEL_IDENTIFIER = "wmr_robot"
 
 _KIND = {"parameter": "MODEL_VAR_PARAMETER", "input": "MODEL_VAR_INPUT",
          "output": "MODEL_VAR_OUTPUT", "derivative": "MODEL_VAR_DERIVATIVE"}

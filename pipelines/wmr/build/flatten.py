@@ -27,6 +27,11 @@ from wmr.infra.errors import BuildError
 Kind = Literal["parameter", "input", "output", "derivative"]
 
 
+#: The robot FMU's model identifier (its binaries' and archives' name), in both model
+#: descriptions and the C core.
+MODEL_IDENTIFIER = "wmr_robot"
+
+
 @dataclass(frozen=True)
 class Variable:
     """One variable of the FMU interface.

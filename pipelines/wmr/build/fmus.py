@@ -349,10 +349,10 @@ def _compile_all(compiler: Compiler, jobs: list[tuple[int, Platform, Path, list[
 def _build(out: Path, digest: str, compiler: Compiler, targets: Sequence[Platform],
            product: str = "robot", progress: Progress = _quiet) -> dict[int, Path]:
     """Build one product, ``robot`` or ``controller``, for every FMI version and platform."""
-    from wmr.build.codegen import MODEL_IDENTIFIER, unity_source, write_model_core
+    from wmr.build.codegen import unity_source, write_model_core
     from wmr.build.controller_interface import ControllerModel
     from wmr.build.documentation import index_html, license_files
-    from wmr.build.flatten import FlatModel
+    from wmr.build.flatten import MODEL_IDENTIFIER, FlatModel
     from wmr.build.modeldesc import (
         fmi2_model_description,
         fmi3_build_description,

@@ -18,8 +18,7 @@ from typing import TYPE_CHECKING, TypeAlias
 import casadi as ca
 
 from wmr import __version__
-from wmr.build.codegen import MODEL_IDENTIFIER
-from wmr.build.flatten import FlatModel, Variable
+from wmr.build.flatten import MODEL_IDENTIFIER, FlatModel, Variable
 
 if TYPE_CHECKING:
     from wmr.build.controller_interface import ControllerModel

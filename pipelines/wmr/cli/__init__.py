@@ -10,13 +10,10 @@ import signal
 import sys
 from collections.abc import Callable, Sequence
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from wmr import __version__
 from wmr.infra.errors import ConfigError, DiskFullError, WmrError
-
-if TYPE_CHECKING:
-    from wmr.build.fmus import BuildResult
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -124,41 +121,14 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {error_line(Exception(message))}\n")
 
 
-def build_progress(line: str) -> None:
-    """A build's progress line on standard error (standard output is for results)."""
-    print(f"wmr: {line}", file=sys.stderr, flush=True)
-
-
-def add_platforms_option(parser: argparse.ArgumentParser) -> None:
-    """``--platforms host|all|LIST`` of the commands that build FMUs for other tools."""
-    parser.add_argument(
-        "--platforms", metavar="host|all|LIST", default="all",
-        help="binaries to build: all (default: x86_64-linux, aarch64-linux, x86_64-windows, "
-             "x86_64-darwin, aarch64-darwin with the ziglang package, the host with gcc), "
-             "host (this machine only: seconds), or a comma-separated list of those names")
-
-
-def build_for(args: argparse.Namespace, out: str | None) -> BuildResult:
-    """The FMUs for a command's ``--platforms``, reporting progress; an unknown platform or
-    a folder that cannot be made is the option's one-line error."""
-    from wmr.build.fmus import build_fmus
-
-    try:
-        return build_fmus(out, force=getattr(args, "force", False), platforms=args.platforms,
-                          on_build=build_progress)
-    except ConfigError as exc:
-        option = {"platforms": "--platforms", "out_dir": "--out"}.get(exc.field)
-        if option is None:
-            raise
-        raise ConfigError(option, exc.problem, exc.fix) from None
-
-
 def _cmd_fmu_build(args: argparse.Namespace) -> int:
     from wmr.build.fmus import summarize
     from wmr.infra.outputs import check_output
 
     if args.out is not None:
         check_output(args.out, "--out", "dir")
+    from wmr.cli.building import build_for
+
     result = build_for(args, args.out)
     # Standard output stays one path a line (scripts read it); what each FMU offers goes to
     # standard error.
@@ -174,6 +144,7 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from wmr.cli import crosscheck
+    from wmr.cli.building import add_platforms_option
 
     parser: argparse.ArgumentParser = _Parser(
         prog="wmr",

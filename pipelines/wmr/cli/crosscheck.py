@@ -10,7 +10,7 @@ from pathlib import Path
 
 def _cmd(args: argparse.Namespace) -> int:
     from wmr.build.crosscheck import write_crosscheck
-    from wmr.cli import build_for
+    from wmr.cli.building import build_for
 
     entries = write_crosscheck(build_for(args, args.fmu_dir), Path(args.out))
     # One exported-FMU folder a line on standard output, as `wmr fmu build` prints its FMUs;
@@ -27,7 +27,7 @@ def _cmd(args: argparse.Namespace) -> int:
 
 def register(fmu_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add ``crosscheck`` to the ``wmr fmu`` actions."""
-    from wmr.cli import add_platforms_option
+    from wmr.cli.building import add_platforms_option
 
     parser = fmu_sub.add_parser(
         "crosscheck", help="write the FMUs with reference results in the FMI Cross-Check layout",
