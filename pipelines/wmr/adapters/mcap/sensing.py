@@ -111,6 +111,9 @@ def write_sensing(log: MessageLog, rec: SensingRecord) -> None:
             msgs.append(m.SerializeToString())
         log.write_messages(COVARIANCE_TOPIC, COVARIANCE_SCHEMA, _covariance_schema(),
                            rec.est_t_ns, msgs)
+    from wmr.adapters.mcap.scene import write_sensing_scene  # what Rerun and Foxglove draw
+
+    write_sensing_scene(log, rec.gps_xy_m, rec.est_pose[:, :2])
 
 
 @dataclass(frozen=True)

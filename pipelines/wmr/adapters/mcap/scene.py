@@ -1,0 +1,446 @@
+"""The drawable topics of a run log: what Rerun's and Foxglove's own MCAP loaders draw.
+
+Poses (``foxglove.PoseInFrame``) and transforms (``foxglove.FrameTransform``) carry no
+geometry: opened in Rerun (``rerun run.mcap``) or in Foxglove's 3-D panel, a log holding only
+them shows an empty view.  The one primitive both tools draw from a protobuf MCAP log is
+``foxglove.PointCloud`` (Rerun: ``Points3D`` with the ``red``/``green``/``blue``/``alpha``
+fields as colours; Foxglove: its point-cloud renderer); ``SceneUpdate`` is Foxglove's only,
+``LocationFix`` is geodetic (a map, not our plane), and a URDF needs a ROS 2 ``std_msgs/String``
+topic.  So every drawable topic here is a point cloud in frame ``world`` (z = 0):
+
+==========================  =============================================================
+topic                       content
+==========================  =============================================================
+``/scene/robot``            the robot's outline (chassis, wheels, a 1 m heading arrow),
+                            every :data:`ROBOT_PERIOD_NS` of simulation time; coloured by
+                            the control phase (:data:`PHASE_COLORS`)
+``/scene/path``             the whole path, a point every :data:`PATH_SPACING_M`, coloured
+                            by phase, once at t = 0
+``/scene/goal``             the goal: a 1 m arrow along theta_d and a ring of the stop
+                            radius, once at t = 0
+``/scene/gps``              the position fixes (runs with sensors), once at t = 0
+``/scene/estimate``         the estimated path (runs with sensors), once at t = 0
+``/controller/phase``       ``wmr.ControlPhase``: ``phase`` 0 = approach, 1 = align (the
+                            stabiliser's final alignment inside the stop radius), a
+                            message at the first and last step and on both sides of each
+                            change (a step plot in any plotting tool)
+==========================  =============================================================
+
+They are made from the rows the log already holds (no new column in
+:data:`wmr.core.signals.SIGNALS`) by :class:`SceneRecorder`, which the log writer feeds each
+block and asks to write its topics when the log is closed (one chunk per topic): a run killed
+before its end has no scene topics, and its signal topics are unchanged.  The phase is the
+stabiliser's hysteresis (:func:`control_phases`) replayed on the logged distance ``dr_m``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from collections.abc import Mapping, Sequence
+from typing import Any, Final, Protocol
+
+import numpy as np
+import numpy.typing as npt
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
+
+from wmr.adapters.mcap.schemas import WORLD_FRAME
+from wmr.core.signals import COLUMN
+
+ROBOT_TOPIC: Final = "/scene/robot"
+PATH_TOPIC: Final = "/scene/path"
+GOAL_TOPIC: Final = "/scene/goal"
+GPS_SCENE_TOPIC: Final = "/scene/gps"
+ESTIMATE_SCENE_TOPIC: Final = "/scene/estimate"
+PHASE_TOPIC: Final = "/controller/phase"
+CLOUD_SCHEMA: Final = "foxglove.PointCloud"
+PHASE_SCHEMA: Final = "wmr.ControlPhase"
+
+#: The stabiliser's phases (``wmr.core.control.stabiliser.APPROACH`` / ``ALIGN``).
+APPROACH: Final = 0
+ALIGN: Final = 1
+PHASE_NAMES: Final = ("approach", "align")
+#: The stabiliser enters the alignment at this fraction of the stop radius and leaves it
+#: beyond the other (``Stabiliser.align_radius``, ``exit_radius``; checked by the tests).
+ALIGN_RADIUS_FRACTION: Final = 0.5
+EXIT_RADIUS_FRACTION: Final = 2.0
+
+Rgb = tuple[int, int, int]
+#: Colours of the phases, on the path and the robot, here and in ``wmr replay``.
+PHASE_COLORS: Final[tuple[Rgb, Rgb]] = ((31, 119, 180), (255, 127, 14))
+GOAL_COLOR: Final[Rgb] = (214, 39, 40)
+GPS_COLOR: Final[Rgb] = (90, 90, 90)
+ESTIMATE_COLOR: Final[Rgb] = (204, 0, 153)
+
+#: One robot outline per this much simulation time (20 Hz: smooth playback, small log).
+ROBOT_PERIOD_NS: Final = 50_000_000
+#: Spacing of the path's points, m.
+PATH_SPACING_M: Final = 0.05
+#: Spacing of the points along the outlines, m.
+OUTLINE_SPACING_M: Final = 0.025
+#: Length of the heading arrows of the robot and the goal, m.
+ARROW_M: Final = 1.0
+#: Robot geometry when a log has no ``params`` (the paper's robot, Section 5).
+DEFAULT_HALF_TRACK_M: Final = 0.3
+DEFAULT_WHEEL_RADIUS_M: Final = 0.15
+
+#: x, y, z float32 and red, green, blue, alpha uint8: 16 bytes a point.
+_POINT: Final = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"),
+                          ("green", "u1"), ("blue", "u1"), ("alpha", "u1")])
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def robot_geometry(run: Mapping[str, str]) -> tuple[float, float]:
+    """Half track ``L`` and wheel radius ``r`` (m) from a log's ``run`` record (or the paper's).
+
+    Parameters
+    ----------
+    run
+        The ``run`` metadata record; its ``params`` is a JSON object with ``L`` and ``r``.
+    """
+    try:
+        params = json.loads(run.get("params", "{}"))
+        half_track = float(params.get("L", DEFAULT_HALF_TRACK_M))
+        radius = float(params.get("r", DEFAULT_WHEEL_RADIUS_M))
+    except (ValueError, TypeError, AttributeError):
+        return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
+    if not (half_track > 0 and radius > 0 and math.isfinite(half_track + radius)):
+        return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
+    return half_track, radius
+
+
+def _segment(a: Sequence[float], b: Sequence[float], spacing_m: float) -> npt.NDArray[np.float64]:
+    n = max(2, math.ceil(math.dist(a, b) / spacing_m) + 1)
+    return np.linspace(a, b, n)
+
+
+def _rectangle(cx: float, cy: float, hx: float, hy: float) -> npt.NDArray[np.float64]:
+    c = [(cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy), (cx - hx, cy + hy)]
+    return np.concatenate([_segment(c[i], c[(i + 1) % 4], OUTLINE_SPACING_M)
+                           for i in range(4)])
+
+
+def _arrow(length_m: float) -> npt.NDArray[np.float64]:
+    """An arrow along +x from the origin: shaft and two barbs."""
+    head = 0.25 * length_m
+    tip = (length_m, 0.0)
+    return np.concatenate([
+        _segment((0.0, 0.0), tip, OUTLINE_SPACING_M),
+        _segment(tip, (length_m - head, 0.5 * head), OUTLINE_SPACING_M),
+        _segment(tip, (length_m - head, -0.5 * head), OUTLINE_SPACING_M)])
+
+
+def robot_outline(half_track_m: float, wheel_radius_m: float) -> npt.NDArray[np.float64]:
+    """The robot in its own frame (B at the origin, x forward), as points, shape ``(m, 2)``.
+
+    The chassis and wheels as ``wmr replay`` draws them, and the 1 m heading arrow.
+    """
+    chassis_len = 2.0 * half_track_m + 0.2
+    return np.concatenate([
+        _rectangle(0.5 * chassis_len - 0.3, 0.0, 0.5 * chassis_len, 0.8 * half_track_m),
+        _rectangle(0.0, half_track_m, wheel_radius_m, 0.05),
+        _rectangle(0.0, -half_track_m, wheel_radius_m, 0.05),
+        _arrow(ARROW_M)])
+
+
+def goal_outline(x_m: float, y_m: float, theta_rad: float,
+                 stop_radius_m: float | None) -> npt.NDArray[np.float64]:
+    """The goal as points in the world: the heading arrow and the stop-radius ring."""
+    pts = _arrow(ARROW_M)
+    if stop_radius_m and stop_radius_m > 0:
+        k = max(12, int(2 * math.pi * stop_radius_m / 0.01))
+        a = np.linspace(0.0, 2 * math.pi, k, endpoint=False)
+        pts = np.concatenate([pts, stop_radius_m * np.column_stack([np.cos(a), np.sin(a)])])
+    c, s = math.cos(theta_rad), math.sin(theta_rad)
+    return np.column_stack([x_m + c * pts[:, 0] - s * pts[:, 1],
+                            y_m + s * pts[:, 0] + c * pts[:, 1]])
+
+
+def resample_path(xy: npt.NDArray[np.float64], spacing_m: float = PATH_SPACING_M
+                  ) -> npt.NDArray[np.intp]:
+    """Indices of the rows of a path kept for drawing: the first, then each one at least
+    ``spacing_m`` along the path from the last kept, and the last (non-finite rows skipped)."""
+    ok = np.flatnonzero(np.isfinite(xy).all(axis=1))
+    if ok.size == 0:
+        return ok
+    step = np.linalg.norm(np.diff(xy[ok], axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(step)])
+    bins = np.floor(s / spacing_m).astype(np.int64)
+    keep = np.concatenate([[True], bins[1:] != bins[:-1]])
+    keep[-1] = True
+    return ok[keep]
+
+
+# --------------------------------------------------------------------------- phase
+
+
+def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float) -> npt.NDArray[np.int8]:
+    """The stabiliser's phase at each step, from the distance to the goal it saw.
+
+    The stabiliser (``wmr.core.control.stabiliser``, and its peers) starts in the approach,
+    enters the alignment when ``dr <= 0.5 * stop_radius`` and goes back to the approach only
+    when ``dr > 2 * stop_radius``; ``dr_m`` is the logged column (the distance the controller
+    computed, from the estimate in runs with sensors), so this is its phase exactly.
+
+    Parameters
+    ----------
+    dr_m
+        The ``dr_m`` column, shape ``(n,)``; NaN (no controller) stays in the approach.
+    stop_radius_m
+        The run's stop radius epsilon.
+
+    Returns
+    -------
+    numpy.ndarray
+        :data:`APPROACH` (0) or :data:`ALIGN` (1) per step, int8.
+    """
+    dr = np.asarray(dr_m, dtype=np.float64)
+    enter = dr <= ALIGN_RADIUS_FRACTION * stop_radius_m
+    leave = dr > EXIT_RADIUS_FRACTION * stop_radius_m
+    # a two-state hysteresis: the state is that of the last step that was a switch point
+    switch = np.where(enter, ALIGN, np.where(leave, APPROACH, -1))
+    idx = np.where(switch >= 0, np.arange(dr.size), -1)
+    last = np.maximum.accumulate(idx) if dr.size else idx
+    out = np.where(last >= 0, switch[np.maximum(last, 0)], APPROACH)
+    return out.astype(np.int8)
+
+
+def phase_changes(t_ns: npt.NDArray[np.int64], phase: npt.NDArray[np.int8]
+                  ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int8]]:
+    """The rows of a step plot of ``phase``: the first and last step and both sides of each
+    change, in time order."""
+    if phase.size == 0:
+        return t_ns[:0], phase[:0]
+    change = np.flatnonzero(phase[1:] != phase[:-1]) + 1
+    rows = np.unique(np.concatenate([[0, phase.size - 1], change - 1, change]))
+    return t_ns[rows], phase[rows]
+
+
+def _phase_file() -> descriptor_pb2.FileDescriptorProto:
+    fdt = descriptor_pb2.FieldDescriptorProto
+    fdp = descriptor_pb2.FileDescriptorProto(
+        name="wmr/phase.proto", package="wmr", syntax="proto3",
+        dependency=["google/protobuf/timestamp.proto"])
+    msg = fdp.message_type.add(name=PHASE_SCHEMA.split(".", 1)[1])
+    msg.field.add(name="timestamp", number=1, type=fdt.TYPE_MESSAGE, label=fdt.LABEL_OPTIONAL,
+                  type_name=".google.protobuf.Timestamp")
+    # a double, like every other plotted field: 0 approach, 1 align
+    msg.field.add(name="phase", number=2, type=fdt.TYPE_DOUBLE, label=fdt.LABEL_OPTIONAL)
+    return fdp
+
+
+_POOL: Final = descriptor_pool.DescriptorPool()
+_POOL.AddSerializedFile(timestamp_pb2.DESCRIPTOR.serialized_pb)
+_POOL.Add(_phase_file())
+ControlPhase: Any = message_factory.GetMessageClass(_POOL.FindMessageTypeByName(PHASE_SCHEMA))
+
+
+def _phase_schema() -> bytes:
+    fds = descriptor_pb2.FileDescriptorSet()
+    timestamp_pb2.DESCRIPTOR.CopyToProto(fds.file.add())
+    fds.file.add().CopyFrom(_phase_file())
+    return fds.SerializeToString(deterministic=True)
+
+
+# --------------------------------------------------------------------------- point clouds
+
+
+_FIELDS: Final = [PackedElementField(name=name, offset=offset,
+                                     type=PackedElementField.FLOAT32 if name in "xyz"
+                                     else PackedElementField.UINT8)
+                  for name, offset in (("x", 0), ("y", 4), ("z", 8), ("red", 12),
+                                       ("green", 13), ("blue", 14), ("alpha", 15))]
+
+
+def cloud_points(xy: npt.ArrayLike, colors: npt.ArrayLike) -> npt.NDArray[np.void]:
+    """Points for :func:`cloud_message`: ``xy`` shape ``(m, 2)`` at z = 0, ``colors`` one
+    RGB for all or one per point."""
+    p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    c = np.broadcast_to(np.asarray(colors, dtype=np.uint8).reshape(-1, 3), (len(p), 3))
+    out = np.zeros(len(p), _POINT)
+    out["x"], out["y"] = p[:, 0], p[:, 1]
+    out["red"], out["green"], out["blue"] = c[:, 0], c[:, 1], c[:, 2]
+    out["alpha"] = 255
+    return out
+
+
+def cloud_message(t_ns: int, points: npt.NDArray[np.void],
+                  pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> bytes:
+    """A ``foxglove.PointCloud`` of ``points`` in frame ``world``, placed at ``pose``.
+
+    Parameters
+    ----------
+    t_ns
+        Its timestamp, ns.
+    points
+        From :func:`cloud_points`, in the cloud's own frame.
+    pose
+        ``(x_m, y_m, theta_rad)`` of the cloud's frame in the world (Rerun draws it as the
+        entity's ``InstancePoses3D``, Foxglove as the cloud's origin): the robot's outline is
+        the same bytes at every step, so its topic compresses to almost nothing.
+    """
+    msg = PointCloud(frame_id=WORLD_FRAME, point_stride=_POINT.itemsize, fields=_FIELDS,
+                     data=points.tobytes())
+    msg.timestamp.FromNanoseconds(int(t_ns))
+    x, y, theta = pose
+    msg.pose.position.x, msg.pose.position.y = x, y
+    msg.pose.orientation.z = math.sin(0.5 * theta)
+    msg.pose.orientation.w = math.cos(0.5 * theta)
+    return bytes(msg.SerializeToString(deterministic=True))
+
+
+def _cloud_schema() -> bytes:
+    """The ``FileDescriptorSet`` of ``foxglove.PointCloud``, dependencies first."""
+    fds = descriptor_pb2.FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(fd: Any) -> None:
+        for dep in fd.dependencies:
+            if dep.name not in seen:
+                seen.add(dep.name)
+                add(dep)
+        fd.CopyToProto(fds.file.add())
+
+    add(PointCloud.DESCRIPTOR.file)
+    return fds.SerializeToString(deterministic=True)
+
+
+class MessageLog(Protocol):
+    """What the scene needs of a log writer (:class:`wmr.adapters.mcap.RunLogWriter`)."""
+
+    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                       t_ns: npt.ArrayLike, messages: list[bytes]) -> None:
+        """Log serialised messages on a topic of their own."""
+        ...
+
+
+def _write_clouds(log: MessageLog, topic: str, t_ns: Sequence[int],
+                  clouds: Sequence[npt.NDArray[np.void]],
+                  poses: npt.NDArray[np.float64] | None = None) -> None:
+    placed = [(0.0, 0.0, 0.0)] * len(t_ns) if poses is None else [
+        (float(x), float(y), float(th)) for x, y, th in poses]
+    log.write_messages(topic, CLOUD_SCHEMA, _cloud_schema(), list(t_ns),
+                       [cloud_message(t, c, p) for t, c, p in zip(t_ns, clouds, placed,
+                                                                  strict=True)])
+
+
+def write_sensing_scene(log: MessageLog, gps_xy_m: npt.ArrayLike,
+                        est_xy_m: npt.ArrayLike) -> None:
+    """The fixes and the estimated path as point clouds at t = 0 (runs with sensors)."""
+    gps = np.asarray(gps_xy_m, dtype=np.float64).reshape(-1, 2)
+    est = np.asarray(est_xy_m, dtype=np.float64).reshape(-1, 2)
+    if len(gps):
+        _write_clouds(log, GPS_SCENE_TOPIC, [0], [cloud_points(gps, GPS_COLOR)])
+    if len(est):
+        keep = resample_path(est)
+        _write_clouds(log, ESTIMATE_SCENE_TOPIC, [0], [cloud_points(est[keep], ESTIMATE_COLOR)])
+
+
+# --------------------------------------------------------------------------- the recorder
+
+
+_X, _Y, _TH, _DR = COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"], COLUMN["dr_m"]
+
+
+class SceneRecorder:
+    """Keeps what the scene topics need of each block, and writes them when the log closes.
+
+    Parameters
+    ----------
+    run
+        The log's ``run`` record (strings): ``params`` (robot geometry) and ``stop_radius_m``
+        (the phase and the goal ring; without it, no phase topic).
+    goal
+        ``(x_m, y_m, theta_rad)`` of the goal.
+    controlled
+        Whether the rows come from the closed loop (``dr_m`` is the controller's): the phase
+        topic is written only then.
+    """
+
+    def __init__(self, run: Mapping[str, str], goal: tuple[float, float, float], *,
+                 controlled: bool) -> None:
+        self._goal = goal
+        self._half_track, self._wheel_radius = robot_geometry(run)
+        try:
+            eps = float(run.get("stop_radius_m", "nan"))
+        except ValueError:
+            eps = math.nan
+        self._stop_radius = eps if math.isfinite(eps) and eps > 0 else None
+        self._controlled = controlled
+        self._t: list[npt.NDArray[np.int64]] = []
+        self._rows: list[npt.NDArray[np.float64]] = []
+
+    def add(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
+        """Keep the pose and ``dr_m`` of the rows (the caller's arrays are not kept)."""
+        self._t.append(np.array(t_ns, dtype=np.int64))
+        self._rows.append(block[:, [_X, _Y, _TH, _DR]].copy())
+
+    def write(self, log: MessageLog) -> None:
+        """Write the scene topics to ``log``; a failure here warns and leaves the log as is."""
+        try:
+            self._write(log)
+        except Exception as exc:  # the signal topics matter more than their drawing
+            warnings.warn(f"the scene topics were not written: {type(exc).__name__}: {exc}",
+                          RuntimeWarning, stacklevel=2)
+
+    def _write(self, log: MessageLog) -> None:
+        gx, gy, gth = self._goal
+        _write_clouds(log, GOAL_TOPIC, [0],
+                      [cloud_points(goal_outline(gx, gy, gth, self._stop_radius), GOAL_COLOR)])
+        if not self._t:
+            return
+        t = np.concatenate(self._t)
+        rows = np.concatenate(self._rows)
+        xy = rows[:, :2]
+        phase = (control_phases(rows[:, 3], self._stop_radius)
+                 if self._controlled and self._stop_radius is not None
+                 else np.zeros(len(t), np.int8))
+        colors = np.asarray(PHASE_COLORS, np.uint8)[phase]
+        keep = resample_path(xy)
+        _write_clouds(log, PATH_TOPIC, [0], [cloud_points(xy[keep], colors[keep])])
+        # one outline per ROBOT_PERIOD_NS: the first row of each period
+        slot = t // ROBOT_PERIOD_NS
+        first = np.flatnonzero(np.concatenate([[True], slot[1:] != slot[:-1]]))
+        first = first[np.isfinite(rows[first, :3]).all(axis=1)]
+        body = robot_outline(self._half_track, self._wheel_radius)
+        shapes = [cloud_points(body, c) for c in PHASE_COLORS]
+        _write_clouds(log, ROBOT_TOPIC, t[first].tolist(), [shapes[p] for p in phase[first]],
+                      poses=rows[first, :3])
+        if self._controlled and self._stop_radius is not None:
+            pt, pv = phase_changes(t, phase)
+            msgs = []
+            for ti, v in zip(pt.tolist(), pv.tolist(), strict=True):
+                m = ControlPhase(phase=float(v))
+                m.timestamp.FromNanoseconds(ti)
+                msgs.append(m.SerializeToString(deterministic=True))
+            log.write_messages(PHASE_TOPIC, PHASE_SCHEMA, _phase_schema(), pt, msgs)
+
+
+def read_cloud(data: bytes) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+    """Positions ``(m, 3)`` and colours ``(m, 4)`` of a ``foxglove.PointCloud`` message, read
+    through its own ``fields`` and ``point_stride`` as Foxglove's reader does (for tests)."""
+    msg = PointCloud.FromString(data)
+    fields = {f.name: f for f in msg.fields}
+    raw = np.frombuffer(msg.data, np.uint8).reshape(-1, msg.point_stride)
+    types = {PackedElementField.FLOAT32: "<f4", PackedElementField.UINT8: "u1"}
+
+    def col(name: str) -> npt.NDArray[Any]:
+        f = fields[name]
+        dt = np.dtype(types[f.type])
+        return raw[:, f.offset:f.offset + dt.itemsize].copy().view(dt).ravel()
+
+    pos = np.column_stack([col(n) for n in "xyz"]).astype(np.float32)
+    rgba = np.column_stack([col(n) for n in ("red", "green", "blue", "alpha")])
+    return pos, rgba.astype(np.uint8)
+
+
+__all__ = ["ALIGN", "APPROACH", "CLOUD_SCHEMA", "ESTIMATE_SCENE_TOPIC", "GOAL_TOPIC",
+           "GPS_SCENE_TOPIC", "PATH_TOPIC", "PHASE_COLORS", "PHASE_NAMES", "PHASE_TOPIC",
+           "ROBOT_TOPIC", "ControlPhase", "SceneRecorder", "cloud_message", "cloud_points",
+           "control_phases", "phase_changes", "read_cloud", "resample_path", "robot_geometry",
+           "robot_outline", "write_sensing_scene"]
