@@ -50,6 +50,7 @@ from mcap.records import (
 from numpy.typing import ArrayLike, NDArray
 
 import wmr
+from wmr.adapters.mcap.scene import SceneRecorder
 from wmr.adapters.mcap.schemas import (
     GOAL_SCHEMA,
     GOAL_TOPIC,
@@ -517,6 +518,7 @@ class RunLogWriter:
             for name, (media_type, data) in (attachments or {}).items():
                 self._file.add_attachment(name, media_type, bytes(data))
             self._encoder = _row_encoder(channel_ids, topics)
+            self._scene = SceneRecorder(run_record, goal, controlled=topics == STEP_TOPICS)
             self._channel_ids = channel_ids
             self._write_goal(goal_channel, goal)
         except BaseException:
@@ -594,6 +596,7 @@ class RunLogWriter:
         self._pending_t.append(t)
         self._pending_x.append(x)
         self._pending_rows += n
+        self._scene.add(t, x)
         if self._last_t >= self._boundary:
             self._flush_chunks(final=False)
 
@@ -668,6 +671,7 @@ class RunLogWriter:
         """
         if self._closed:
             raise LogError(f"{self.path}: closed twice")
+        self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
         self._closed = True
         try:
             self._flush_chunks(final=True)
