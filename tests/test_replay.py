@@ -128,10 +128,21 @@ def test_replay_rrd_holds_path_pose_goal_and_every_series(fig11_log: Path,
     # the path: one static strip through every logged position
     path = ents[f"{root}/world/path"]
     assert path.rows == 0 and path.static_rows == 1
-    strip = np.array(path.column("LineStrips2D:strips")[0][0])
+    # a strip per control phase, each starting where the previous one ends
+    strips = [np.array(s) for s in path.column("LineStrips2D:strips")[0]]
+    assert len(strips) == 2  # the approach, then the alignment in place
+    assert np.array_equal(strips[0][-1], strips[1][0])
+    strip = np.concatenate([strips[0], *(s[1:] for s in strips[1:])])
     assert strip.shape == (n, 2)
     np.testing.assert_allclose(strip[:, 0], run.signals["x_m"], atol=1e-5)
     np.testing.assert_allclose(strip[:, 1], run.signals["y_m"], atol=1e-5)
+    colors = path.column("LineStrips2D:colors")[0]
+    assert len(colors) == 2 and colors[0] != colors[1]
+    # the phase: the stabiliser's, approach until it is within half the stop radius
+    phase = np.array(ents[f"{root}/phase"].column("Scalars:scalars")).ravel()
+    assert phase.shape == (n,) and phase[0] == 0 and phase[-1] == 1
+    first_align = int(np.argmax(phase == 1))
+    assert run.signals["dr_m"][first_align] <= 0.5 * 0.05 < run.signals["dr_m"][first_align - 1]
     # the pose: a transform per step, on sim_time
     robot = ents[f"{root}/world/robot"]
     assert robot.rows == n
@@ -172,7 +183,7 @@ def test_replay_rrd_holds_path_pose_goal_and_every_series(fig11_log: Path,
         values = np.array(ent.column("Scalars:scalars"))
         assert values.shape == (n, len(panel.series))
         for j, series in enumerate(panel.series):
-            np.testing.assert_array_equal(values[:, j], run.signals[series.signal])
+            np.testing.assert_array_equal(values[:, j], run.signals[series.signal] * series.scale)
         names = ent.column("SeriesLines:names")[0]
         assert names == [s.label for s in panel.series]
 
@@ -200,9 +211,9 @@ def test_truncated_log_replays_its_prefix_with_a_warning(fig11_log: Path,
     assert out == tmp_path / "cut.rrd" and out.is_file()
     ents, _ = read_rrd(out)
     assert ents["/runs/cut/world/robot"].rows == prefix.n_steps
-    assert ents["/runs/cut/errors"].rows == prefix.n_steps
+    assert ents["/runs/cut/distance"].rows == prefix.n_steps
     strip = ents["/runs/cut/world/path"].column("LineStrips2D:strips")[0][0]
-    assert len(strip) == prefix.n_steps
+    assert len(strip) == prefix.n_steps  # cut before the alignment: one strip
 
 
 @pytest.mark.parametrize("content", [b"", os.urandom(4096), b"\x89MCAP0\r\n" + b"\0" * 64])
@@ -237,8 +248,22 @@ def test_folder_of_runs_is_one_recording(fig11_log: Path, spec: RunSpec, fmu_pla
         root = f"/runs/{lg.name.replace('+', chr(92) + '+')}"
         assert ents[f"{root}/world/robot"].rows == read_run(lg.path).n_steps
         assert ents[f"{root}/world/path"].static_rows == 1
-        names = ents[f"{root}/errors"].column("SeriesLines:names")[0]
-        assert all(name.startswith(f"{lg.name}: ") for name in names)  # comparable in one plot
+    for k, lg in enumerate(logs):  # each run's lines are named by its number, in its colour
+        root = f"/runs/{lg.name.replace('+', chr(92) + '+')}"
+        style = ents[f"{root}/distance"]
+        assert style.column("SeriesLines:names")[0][0] == f"#{k}: Δr"
+        assert ents[f"{root}/world/start"].column("Points2D:labels")[0] == [f"#{k}"]
+    colors = [ents[f"/runs/{lg.name.replace('+', chr(92) + '+')}/distance"]
+              .column("SeriesLines:colors")[0][0] for lg in logs]
+    assert len(set(colors)) == len(logs)
+    # one summary document (not one per run: the view shows a single document), a row per run
+    # naming its log, its start, and the input that differs (the start only, here)
+    docs = [path for path, e in ents.items() if "TextDocument:text" in e.components]
+    assert docs == ["/summary"]
+    [text] = ents["/summary"].column("TextDocument:text")[0]
+    for k, lg in enumerate(logs):
+        assert f"| #{k} | `{lg.name}` |" in text
+    assert "(10.00, 10.00, 90°)" in text
 
 
 def test_find_logs_errors(tmp_path: Path) -> None:
@@ -294,7 +319,8 @@ def test_live_view_sink_through_a_tee(spec: RunSpec, fmu_plant: FmuPlant,
         values = np.array(ents[f"{root}/{panel.entity}"].column("Scalars:scalars"))
         assert values.shape == (n, len(panel.series))
         for j, series in enumerate(panel.series):
-            np.testing.assert_array_equal(values[:, j], block[:, SIGNALS.index(series.signal)])
+            np.testing.assert_array_equal(values[:, j],
+                                          block[:, SIGNALS.index(series.signal)] * series.scale)
     assert ents[f"{root}/world/robot"].rows == n
     # the path grows block by block; its last version ends where the robot stopped
     path = ents[f"{root}/world/path"]
@@ -315,7 +341,7 @@ def test_live_view_default_rrd_without_screen(spec: RunSpec, tmp_path: Path,
     out = tmp_path / "runs" / "a%20run%2Fwith%20spaces.rrd"  # one-to-one with the name
     assert out.is_file()
     ents, _ = read_rrd(out)
-    assert ents["/runs/a\\ run\\/with\\ spaces/errors"].rows == 3
+    assert ents["/runs/a\\ run\\/with\\ spaces/distance"].rows == 3
 
 
 def test_rerun_reads_our_mcap_log_natively(fig11_log: Path) -> None:

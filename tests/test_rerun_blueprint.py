@@ -29,7 +29,10 @@ def test_the_blueprint_maps_every_field_rerun_loads(tmp_path: Path,
                 time_types.add(str(f.type))
     assert time_types == {"duration[ns]"}  # simulation time, not dates in 1970
     mappings = signal_mappings()
-    closed_loop = {t: m for t, m in mappings.items() if t != "/robot/torques"}
+    # open-loop logs hold /robot/torques, runs with sensors the covariance
+    closed_loop = {t: m for t, m in mappings.items()
+                   if t not in ("/robot/torques", "/robot/pose_estimate/covariance")}
+    assert "/controller/phase" in closed_loop
     assert set(closed_loop) <= set(components)
     for topic, pairs in closed_loop.items():
         for component, selector in pairs:

@@ -84,7 +84,7 @@ def make_recordings(logs: dict[str, Path], folder: Path,
         rrd = folder / f"{shot}.rrd"
         if shot == "raw":
             rbl = folder / "wmr.rbl"
-            _run([*_wmr(), "replay", "--blueprint", rbl], quiet=True)
+            _run([*_wmr(), "replay", "--blueprint", rbl, logs["raw"]], quiet=True)
             rerun = shutil.which("rerun") or "rerun"
             _run([rerun, "mcap", "convert", logs["raw"], "--timeline-type", "duration",
                   "--application-id", "wmr-run", "-o", rrd], quiet=True)

@@ -19,15 +19,19 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if args.blueprint is not None:
         from wmr.adapters.rerun.blueprint import APPLICATION_ID, write_blueprint
 
+        frame = None
+        if args.logs:  # look straight down on these runs
+            from wmr.adapters.rerun.replay import framing
+
+            frame = framing(args.logs)
         out = check_output(args.blueprint, "--blueprint", suffix=".rbl")
         out.parent.mkdir(parents=True, exist_ok=True)  # as --rrd does
-        path = write_blueprint(out)
+        path = write_blueprint(out, frame=frame)
         print(path)
         print(f"wrote the blueprint; open a log with Rerun's own loader: rerun mcap convert "
               f"RUN.mcap --timeline-type duration --application-id {APPLICATION_ID} -o RUN.rrd"
               f" && rerun RUN.rrd {path}", file=sys.stderr)
-        if not args.logs:
-            return 0
+        return 0
     if not args.logs:
         raise ConfigError("FILE.mcap|DIR", "no log given", "give run logs or folders of them")
     if args.rrd is not None:
@@ -85,7 +89,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--rrd", metavar="OUT.rrd", help="write the recording to this file")
     p.add_argument("--blueprint", metavar="OUT.rbl",
                    help="write a Rerun blueprint that plots a log opened with Rerun's own MCAP "
-                        "loader (docs/replay.md)")
+                        "loader (docs/replay.md), and stop; logs given with it are not replayed: "
+                        "the blueprint's scene view looks straight down on them")
     p.add_argument("--no-viewer", action="store_true",
                    help="do not open a viewer even if there is a screen (write the .rrd)")
     p.set_defaults(handler=_cmd_replay)

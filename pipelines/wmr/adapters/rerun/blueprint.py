@@ -1,11 +1,13 @@
-"""A Rerun blueprint that plots a run log as Rerun's own MCAP loader reads it.
+"""A Rerun blueprint for a run log as Rerun's own MCAP loader reads it (no ``wmr replay``).
 
-Rerun's MCAP loader turns each ``wmr.*`` protobuf message into one struct component
+The log draws itself: its scene topics (``/scene/*``, :mod:`wmr.adapters.mcap.scene`) are
+``foxglove.PointCloud`` messages, which Rerun's loader turns into ``Points3D`` (the robot placed
+by ``InstancePoses3D``).  The signals arrive as one struct component per ``wmr.*`` message
 (``wmr.RobotState:message`` with fields ``x_m``, ``v_mps``, ...), which a time series view
-does not plot by itself.  This blueprint maps every field of every signal topic onto a
-``SeriesLines`` visualizer (a Rerun component mapping with a ``.field`` selector), one time
-series view per topic, beside a 3-D view of the poses, so that the log itself shows the
-plots without ``wmr replay``.  Steps (``docs/replay.md``)::
+does not plot by itself: this blueprint maps each plotted field onto a ``SeriesLines``
+visualizer (a Rerun component mapping with a ``.field`` selector).  Its views match the
+dashboard of ``wmr replay`` (one unit per axis): a top view of the scene with a metre grid,
+and the panels of :data:`RAW_PANELS`.  Steps (``docs/replay.md``)::
 
     wmr replay --blueprint wmr.rbl
     rerun mcap convert run.mcap --timeline-type duration --application-id wmr-run -o run.rrd
@@ -18,52 +20,155 @@ duration timeline instead of dates in 1970; ``--application-id`` must be the blu
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
+from wmr.adapters.mcap.scene import PHASE_TOPIC
 from wmr.adapters.mcap.schemas import STEP_TOPICS, TORQUE_TOPIC, TopicLayout
+from wmr.adapters.mcap.sensing import COVARIANCE_TOPIC
 
 #: The application id the blueprint is saved for (``rerun mcap convert --application-id``).
 APPLICATION_ID: Final = "wmr-run"
 #: The scalar slot of Rerun's ``SeriesLines`` visualizer.
 SCALARS: Final = "Scalars:scalars"
+#: The timeline of Rerun's MCAP loader (the messages' log time).
+LOG_TIMELINE: Final = "message_log_time"
+
+_SCHEMAS: Final = {layout.topic: layout.schema_name for layout in (*STEP_TOPICS, TORQUE_TOPIC)}
+_SCHEMAS[PHASE_TOPIC] = "wmr.ControlPhase"
+_SCHEMAS[COVARIANCE_TOPIC] = "wmr.PoseCovariance"
+
+Rgb = tuple[int, int, int]
+
+
+@dataclass(frozen=True)
+class RawLine:
+    """One plotted field: the topic, its message field, the line's name and colour."""
+
+    topic: str
+    field: str
+    label: str
+    color: Rgb
+
+
+@dataclass(frozen=True)
+class RawPanel:
+    """A time series view of the raw log."""
+
+    title: str
+    lines: tuple[RawLine, ...]
+
+
+_S, _E, _C = "/robot/state", "/controller/errors", "/controller/commands"
+#: The time series views, one unit per axis (angles stay in radians: a selector cannot scale).
+RAW_PANELS: Final[tuple[RawPanel, ...]] = (
+    RawPanel("Distance to goal Δr and error e_s [m]", (
+        RawLine(_E, "dr_m", "Δr", (110, 110, 110)), RawLine(_E, "e_s_m", "e_s", (31, 119, 180)))),
+    RawPanel("Heading error e_θ [rad]", (RawLine(_E, "e_theta_rad", "e_θ", (214, 39, 40)),)),
+    RawPanel("Speed v and command u_s [m/s]", (
+        RawLine(_S, "v_mps", "v", (31, 119, 180)),
+        RawLine(_C, "u_s_mps", "u_s", (255, 187, 120)))),
+    RawPanel("Turn rate ω and command u_θ [rad/s]", (
+        RawLine(_S, "omega_radps", "ω", (44, 160, 44)),
+        RawLine(_C, "u_theta_radps", "u_θ", (255, 187, 120)))),
+    RawPanel("Wheel speeds and references [rad/s]", (
+        RawLine(_S, "omega_r_radps", "ω_r", (255, 127, 14)),
+        RawLine(_S, "omega_l_radps", "ω_l", (148, 103, 189)),
+        RawLine(_C, "omega_r_ref_radps", "ω_r ref", (255, 187, 120)),
+        RawLine(_C, "omega_l_ref_radps", "ω_l ref", (197, 176, 213)))),
+    RawPanel("Motor torques [N m]", (
+        RawLine(_C, "tau_r_nm", "τ_r", (255, 127, 14)),
+        RawLine(_C, "tau_l_nm", "τ_l", (148, 103, 189)),
+        # an open-loop log (no controller) carries its torques on a topic of their own
+        RawLine(TORQUE_TOPIC.topic, "tau_r_nm", "τ_r", (255, 127, 14)),
+        RawLine(TORQUE_TOPIC.topic, "tau_l_nm", "τ_l", (148, 103, 189)))),
+    RawPanel("Control phase: 0 approach, 1 align", (
+        RawLine(PHASE_TOPIC, "phase", "phase", (110, 110, 110)),)),
+    RawPanel("Estimate covariance [m²] (runs with sensors)", (
+        RawLine(COVARIANCE_TOPIC, "xx_m2", "σ_x²", (204, 0, 153)),
+        RawLine(COVARIANCE_TOPIC, "yy_m2", "σ_y²", (140, 86, 75)))),
+)
 
 
 def signal_mappings() -> dict[str, list[tuple[str, str]]]:
-    """Per signal topic, ``(source component, selector)`` of each plotted field: the struct
+    """Per topic, ``(source component, selector)`` of each plotted field: the struct
     component Rerun's MCAP loader makes of the topic's message, and ``.field``."""
     out: dict[str, list[tuple[str, str]]] = {}
-    for layout in (*STEP_TOPICS, TORQUE_TOPIC):
-        if layout.signals:
-            out[layout.topic] = [(f"{layout.schema_name}:message", f".{s}")
-                                 for s in layout.signals]
+    for panel in RAW_PANELS:
+        for line in panel.lines:
+            pair = (f"{_SCHEMAS[line.topic]}:message", f".{line.field}")
+            if pair not in out.setdefault(line.topic, []):
+                out[line.topic].append(pair)
     return out
 
 
-def _view(layout_topic: str, pairs: list[tuple[str, str]]) -> object:
+def _view(panel: RawPanel) -> Any:
     import rerun as rr
     import rerun.blueprint as rrb
     from rerun.blueprint.encodings import ComponentSourceKind, VisualizerComponentMapping
 
-    visualizers = [
-        rr.SeriesLines(names=selector[1:]).visualizer(mappings=[VisualizerComponentMapping(
-            SCALARS, ComponentSourceKind.SourceComponent, source_component=component,
-            selector=selector)])
-        for component, selector in pairs]
-    return rrb.TimeSeriesView(name=layout_topic, origin=layout_topic,
-                              overrides={layout_topic: visualizers})
+    overrides: dict[str, list[Any]] = {}
+    for line in panel.lines:
+        mapping = VisualizerComponentMapping(
+            SCALARS, ComponentSourceKind.SourceComponent,
+            source_component=f"{_SCHEMAS[line.topic]}:message", selector=f".{line.field}")
+        overrides.setdefault(line.topic, []).append(
+            # min-max: a step (the phase) sampled only at its changes stays a step; the
+            # default average merges the two sides of a change into a ramp
+            rr.SeriesLines(names=line.label, colors=[line.color],
+                           aggregation_policy="minmax").visualizer(
+                mappings=[mapping]))
+    return rrb.TimeSeriesView(name=panel.title, origin="/",
+                              contents=[f"+ {t}" for t in overrides],
+                              overrides=overrides,  # type: ignore[arg-type]
+                              plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightTop))
 
 
-def write_blueprint(path: str | Path, application_id: str = APPLICATION_ID) -> Path:
-    """Write the blueprint to ``path`` (``.rbl``) and return it."""
+def raw_blueprint(frame: tuple[float, float, float, float] | None = None) -> Any:
+    """The blueprint: the scene's top view beside a two-column grid of the signal panels.
+
+    Parameters
+    ----------
+    frame
+        ``(x_min, x_max, y_min, y_max)`` [m] to look straight down on (the runs' paths and
+        goals); None: Rerun's own camera (a slanted view of the whole scene).
+    """
+    import rerun as rr
     import rerun.blueprint as rrb
 
-    views = [_view(topic, pairs) for topic, pairs in signal_mappings().items()]
-    blueprint = rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(name="poses", origin="/"),
-                                             rrb.Grid(*views)))  # type: ignore[arg-type]
+    eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=(0.0, 0.0, 1.0))
+    if frame is not None:
+        x_min, x_max, y_min, y_max = frame
+        cx, cy = 0.5 * (x_min + x_max), 0.5 * (y_min + y_max)
+        # high enough for the larger side to fit a ~60 degree field of view
+        height = 1.1 * max(x_max - x_min, y_max - y_min, 4.0)
+        eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=(cx, cy - 1e-3, height),
+                                look_target=(cx, cy, 0.0), eye_up=(0.0, 1.0, 0.0))
+    scene = rrb.Spatial3DView(
+        name="Scene: robot, path, goal (x right, y up) [m]", origin="/",
+        contents=["+ /scene/**"],
+        background=(252, 252, 252),
+        line_grid=rrb.LineGrid3D(visible=True, spacing=1.0, plane=rr.components.Plane3D.XY,
+                                 color=(200, 200, 200)),
+        eye_controls=eye,
+    )
+    views = [_view(p) for p in RAW_PANELS]
+    return rrb.Blueprint(
+        rrb.Horizontal(scene, rrb.Grid(*views, grid_columns=2), column_shares=[5, 6]),
+        rrb.TimePanel(timeline=LOG_TIMELINE, state="collapsed"),
+        collapse_panels=True,
+    )
+
+
+def write_blueprint(path: str | Path, application_id: str = APPLICATION_ID,
+                    frame: tuple[float, float, float, float] | None = None) -> Path:
+    """Write the blueprint to ``path`` (``.rbl``) and return it (``frame``: see
+    :func:`raw_blueprint`)."""
     out = Path(path)
-    blueprint.save(application_id, out)
+    raw_blueprint(frame).save(application_id, out)
     return out
 
 
-__all__ = ["APPLICATION_ID", "TopicLayout", "signal_mappings", "write_blueprint"]
+__all__ = ["APPLICATION_ID", "LOG_TIMELINE", "RAW_PANELS", "RawLine", "RawPanel", "TopicLayout",
+           "raw_blueprint", "signal_mappings", "write_blueprint"]

@@ -1,30 +1,38 @@
-"""Replay run logs in Rerun, and watch a run live while it is simulated.
+"""Replay run logs in Rerun as a dashboard, and watch a run live while it is simulated.
 
 ``wmr replay`` reads one or more MCAP run logs (:func:`wmr.adapters.mcap.read_run`) and sends them
 to Rerun as whole columns (``send_columns``): one recording, one ``sim_time`` timeline (simulation
 seconds from the log's ``t_ns``), and a default blueprint with
 
-* a 2-D world view: the path of each run (a line strip), the robot's pose (body and heading
-  arrow, moved by a transform per control step), the goal pose, the point D on the heading line
-  (Fig. 4) and the ROC reference point R (Fig. 6) with their construction lines from B;
-* time series of the errors :math:`e_s`, :math:`e_\\theta` (Fig. 11), of the platform angular
-  velocity and the wheel speeds (Fig. 12), of the motor torques and of the PI terms (eq. 29).
+* a 2-D world view with a metre grid and fixed bounds (every start, goal and path in frame): the
+  path of each run (coloured by the control phase for one run, by run for several), the robot
+  (body and heading arrow, moved by a transform per control step, its arrow coloured by phase),
+  the goal (arrow along theta_d, ring of the stop radius), the point D on the heading line
+  (Fig. 4) and the ROC reference point R (Fig. 6) with their construction lines from B; for runs
+  with sensors the GPS fixes and the estimated path on top of the true one;
+* one time-series panel per quantity (:data:`PANELS`: one unit per axis, angles in degrees),
+  the control phase, and for runs with sensors the estimation error;
+* a run summary: status, times, final errors, start, goal, gains and limits (angles in degrees),
+  and, for several runs, one row per run with its start, goal and the inputs that vary.
 
 Entity layout, one subtree per run (``<run>`` is the log's file name without ``.mcap``)::
 
+    grid                          static: the metre grid and its labels (y-up flip)
+    summary                       static TextDocument: the run(s) at a glance
     runs/<run>/world              static: y-up flip (2-D views draw y downwards)
-    runs/<run>/world/path         static LineStrips2D, the whole path
-    runs/<run>/world/goal         static Arrows2D, the goal pose
-    runs/<run>/world/robot        Transform3D per step; static Boxes2D + Arrows2D body
+    runs/<run>/world/path         static LineStrips2D: the path, a strip per phase
+    runs/<run>/world/goal         static Arrows2D + LineStrips2D ring; .../goal/label Points2D
+    runs/<run>/world/start        static Points2D: the start, labelled with the run's number
+    runs/<run>/world/robot        Transform3D per step (+ its arrow's phase colour);
+                                  static Boxes2D body
     runs/<run>/world/D, .../R     Points2D per step (Figs. 4 and 6)
     runs/<run>/world/construction LineStrips2D per step: B -> D and B -> R
     runs/<run>/world/gps          static Points2D: the position fixes (runs with sensors)
     runs/<run>/world/estimate     static LineStrips2D: the estimated path (runs with sensors)
-    runs/<run>/errors             Scalars [e_s, e_theta]
-    runs/<run>/speeds             Scalars [omega, omega_r, omega_l]
-    runs/<run>/torques            Scalars [tau_r, tau_l]
-    runs/<run>/pi                 Scalars [p_s, i_s, u_s, p_theta, i_theta, u_theta]
-    runs/<run>/info               static TextDocument: the run and result metadata
+    runs/<run>/<panel>            Scalars per step, one instance per series (PANELS)
+    runs/<run>/phase              Scalars per step: 0 approach, 1 align
+    runs/<run>/estimation/...     Scalars: position error of the estimate (per step) and
+                                  of each fix (runs with sensors)
 
 :class:`~wmr.adapters.rerun.live_view.LiveViewSink` (in :mod:`wmr.adapters.rerun.live_view`,
 importable from here too) sends the same layout block by block from the closed loop, and
@@ -33,10 +41,12 @@ importable from here too) sends the same layout block by block from the closed l
 
 from __future__ import annotations
 
+import colorsys
+import json
 import math
 import os
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -48,6 +58,14 @@ from numpy.typing import NDArray
 
 from wmr.adapters.mcap import Pose2D, RunData, read_run
 from wmr.adapters.mcap.reader import metadata_json
+from wmr.adapters.mcap.scene import (
+    ESTIMATE_COLOR,
+    GOAL_COLOR,
+    GPS_COLOR,
+    PHASE_COLORS,
+    control_phases,
+    robot_geometry,
+)
 from wmr.core.signals import COLUMN
 from wmr.infra.errors import LogError, WmrError
 
@@ -57,76 +75,117 @@ APPLICATION_ID: Final = "wmr-cosim"
 TIMELINE: Final = "sim_time"
 #: Root of the per-run subtrees.
 RUNS_ROOT: Final = "runs"
+#: The metre grid of the world view, and the run summary.
+GRID_ENTITY: Final = "grid"
+SUMMARY_ENTITY: Final = "summary"
 
 Rgb = tuple[int, int, int]
 
-#: Run colours (matplotlib's tab10), in the order the runs are given.
+#: Run colours (matplotlib's tab10), in the order the runs are given; beyond ten runs the
+#: hues are spread by the golden angle instead (:func:`run_color`), so no two runs share one.
 RUN_COLORS: Final[tuple[Rgb, ...]] = (
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
     (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
 )
-GOAL_COLOR: Final[Rgb] = (230, 50, 50)
 D_COLOR: Final[Rgb] = (0, 170, 255)
-R_COLOR: Final[Rgb] = (255, 170, 0)
+R_COLOR: Final[Rgb] = (230, 150, 0)
+LABEL_COLOR: Final[Rgb] = (60, 60, 60)
+GRID_COLOR: Final[Rgb] = (215, 215, 215)
+AXIS_COLOR: Final[Rgb] = (150, 150, 150)
+#: Label text takes the colour of its point: dark, to read on the label's light box.
+GRID_LABEL_COLOR: Final[Rgb] = (70, 70, 70)
+_DEG: Final = 180.0 / math.pi
 
 
 @dataclass(frozen=True)
 class Series:
-    """One plotted signal: its column in :data:`wmr.core.signals.SIGNALS`, its label and colour."""
+    """One plotted signal: its column in :data:`wmr.core.signals.SIGNALS`, its label and colour,
+    and the factor from the column's unit to the plotted one (rad -> degrees)."""
 
     signal: str
     label: str
     color: Rgb
+    scale: float = 1.0
 
 
 @dataclass(frozen=True)
 class Panel:
-    """A time-series view: one multi-instance ``Scalars`` entity per run, one line per series."""
+    """A time-series view: one multi-instance ``Scalars`` entity per run, one line per series.
+
+    ``overlay`` series (the first ones) are drawn per run when several runs share the plots,
+    under ``overlay_title``; ``limit`` names the run's ``limits`` entry that fixes a symmetric
+    axis range (so a saturated start-up does not flatten the rest).
+    """
 
     entity: str
     title: str
     series: tuple[Series, ...]
+    overlay: int = 1
+    overlay_title: str = ""
+    limit: str | None = None
 
 
-#: The time-series panels of the default blueprint, top to bottom.
+_BLUE, _ORANGE, _GREEN = (31, 119, 180), (255, 127, 14), (44, 160, 44)
+_RED, _PURPLE, _GREY = (214, 39, 40), (148, 103, 189), (110, 110, 110)
+_LIGHT_ORANGE, _LIGHT_PURPLE = (255, 187, 120), (197, 176, 213)
+
+#: The time-series panels, in reading order (two columns); one unit per axis.
 PANELS: Final[tuple[Panel, ...]] = (
-    Panel("errors", "Errors e_s [m], e_θ [rad] (Fig. 11)", (
-        Series("e_s_m", "e_s [m]", (31, 119, 180)),
-        Series("e_theta_rad", "e_θ [rad]", (214, 39, 40)),
-    )),
-    Panel("speeds", "Angular velocity ω and wheel speeds [rad/s] (Fig. 12)", (
-        Series("omega_radps", "ω [rad/s]", (44, 160, 44)),
-        Series("omega_r_radps", "ω_r [rad/s]", (255, 127, 14)),
-        Series("omega_l_radps", "ω_l [rad/s]", (148, 103, 189)),
-    )),
+    Panel("distance", "Distance to goal Δr and error e_s [m] (Fig. 11)", (
+        Series("dr_m", "Δr", _GREY),
+        Series("e_s_m", "e_s", _BLUE),
+    ), overlay_title="Distance to goal Δr [m]"),
+    Panel("heading", "Heading error e_θ [°] (Fig. 11)", (
+        Series("e_theta_rad", "e_θ", _RED, _DEG),
+    ), overlay_title="Heading error e_θ [°]"),
+    Panel("speed", "Speed v and command u_s [m/s]", (
+        Series("v_mps", "v", _BLUE),
+        Series("u_s_mps", "u_s", _LIGHT_ORANGE),
+    ), overlay_title="Speed v [m/s]"),
+    Panel("turn_rate", "Turn rate ω and command u_θ [rad/s] (Fig. 12)", (
+        Series("omega_radps", "ω", _GREEN),
+        Series("u_theta_radps", "u_θ", _LIGHT_ORANGE),
+    ), overlay_title="Turn rate ω [rad/s]"),
+    Panel("wheels", "Wheel speeds and references [rad/s] (Fig. 12)", (
+        Series("omega_r_radps", "ω_r", _ORANGE),
+        Series("omega_l_radps", "ω_l", _PURPLE),
+        Series("omega_r_ref_radps", "ω_r ref", _LIGHT_ORANGE),
+        Series("omega_l_ref_radps", "ω_l ref", _LIGHT_PURPLE),
+    ), overlay_title="Right wheel speed ω_r [rad/s]"),
     Panel("torques", "Motor torques [N m]", (
-        Series("tau_r_nm", "τ_r [N m]", (255, 127, 14)),
-        Series("tau_l_nm", "τ_l [N m]", (148, 103, 189)),
-    )),
-    Panel("pi", "PI terms (eq. 29): distance [m/s], angle [rad/s]", (
-        Series("p_s_mps", "P_s [m/s]", (31, 119, 180)),
-        Series("i_s_mps", "I_s [m/s]", (158, 202, 225)),
-        Series("u_s_mps", "u_s [m/s]", (8, 48, 107)),
-        Series("p_theta_radps", "P_θ [rad/s]", (214, 39, 40)),
-        Series("i_theta_radps", "I_θ [rad/s]", (252, 146, 114)),
-        Series("u_theta_radps", "u_θ [rad/s]", (103, 0, 13)),
-    )),
+        Series("tau_r_nm", "τ_r", _ORANGE),
+        Series("tau_l_nm", "τ_l", _PURPLE),
+    ), overlay_title="Right motor torque τ_r [N m]", limit="torque_max_nm"),
+    Panel("pi_distance", "Distance PI, eq. 29 [m/s]", (
+        Series("p_s_mps", "P_s", _BLUE),
+        Series("i_s_mps", "I_s", (158, 202, 225)),
+        Series("u_s_mps", "u_s", (8, 48, 107)),
+    ), overlay_title="Distance PI output u_s [m/s]"),
+    Panel("pi_heading", "Heading PI, eq. 29 [rad/s]", (
+        Series("p_theta_radps", "P_θ", _RED),
+        Series("i_theta_radps", "I_θ", (252, 146, 114)),
+        Series("u_theta_radps", "u_θ", (103, 0, 13)),
+    ), overlay_title="Heading PI output u_θ [rad/s]"),
 )
+#: The control phase panel (0 approach, 1 align) and the estimation error (runs with sensors).
+PHASE_ENTITY: Final = "phase"
+ESTIMATION_ENTITY: Final = "estimation"
 
 #: Entities under ``runs/<run>/world`` that get one row per control step.
 WORLD_SERIES: Final = ("robot", "D", "R", "construction")
 #: Entities under ``runs/<run>/world`` logged once (static).
-WORLD_STATIC: Final = ("path", "goal")
+WORLD_STATIC: Final = ("path", "goal", "start")
 
 _PANEL_COLUMNS: Final = {p.entity: [COLUMN[s.signal] for s in p.series] for p in PANELS}
+_PANEL_SCALES: Final = {p.entity: np.array([s.scale for s in p.series]) for p in PANELS}
 _X, _Y, _TH = COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]
 _DX, _DY, _RX, _RY = COLUMN["D_x_m"], COLUMN["D_y_m"], COLUMN["R_x_m"], COLUMN["R_y_m"]
+_DR = COLUMN["dr_m"]
 
-#: Robot geometry used when a log has no ``params`` (the paper's robot, Section 5).
-_DEFAULT_L_M: Final = 0.3
-_DEFAULT_R_M: Final = 0.15
 #: Length of the heading arrow of the robot and of the goal, m.
 _ARROW_M: Final = 1.0
+#: Beyond this many runs the world view labels only every k-th start (k = n // this + 1).
+_MAX_LABELS: Final = 25
 
 
 # --------------------------------------------------------------------------- inputs
@@ -218,30 +277,99 @@ def run_entity(name: str) -> str:
     return f"{RUNS_ROOT}/{rr.escape_entity_path_part(name)}"
 
 
-def _shade(color: Rgb, k: int) -> Rgb:
-    """The ``k``-th shade of ``color``: 0 is the colour, then ever lighter/darker ones."""
-    if k == 0:
-        return color
-    f = (0.45, -0.35, 0.7, -0.55, 0.25)[(k - 1) % 5]
-    if f > 0:
-        return tuple(round(c + (255 - c) * f) for c in color)  # type: ignore[return-value]
-    return tuple(round(c * (1 + f)) for c in color)  # type: ignore[return-value]
+def run_color(k: int, n_runs: int) -> Rgb:
+    """Colour of the ``k``-th of ``n_runs`` runs: tab10 up to ten runs, else golden-angle hues
+    (distinct for any number of runs, alternating two lightnesses)."""
+    if n_runs <= len(RUN_COLORS):
+        return RUN_COLORS[k % len(RUN_COLORS)]
+    hue = (0.6 + 0.381966 * k) % 1.0
+    r, g, b = colorsys.hls_to_rgb(hue, 0.42 if k % 2 else 0.55, 0.75)
+    return round(255 * r), round(255 * g), round(255 * b)
 
 
-def _series_style(panel: Panel, run_name: str, run_color: Rgb | None) -> rr.SeriesLines:
-    """Line names and colours of a panel: per signal, or per run (in shades) for comparisons."""
+def _series_style(panel: Panel, label: str | None, run_color: Rgb | None) -> rr.SeriesLines:
+    """Line names and colours of a panel: per signal, or (several runs) the overlay series in
+    the run's colour, named after the run."""
     if run_color is None:
         return rr.SeriesLines(names=[s.label for s in panel.series],
-                              colors=[s.color for s in panel.series])
-    return rr.SeriesLines(names=[f"{run_name}: {s.label}" for s in panel.series],
-                          colors=[_shade(run_color, k) for k in range(len(panel.series))])
+                              colors=[s.color for s in panel.series], widths=[1.5])
+    shown = panel.series[:panel.overlay]
+    return rr.SeriesLines(names=[f"{label}: {s.label}" for s in shown],
+                          colors=[run_color] * len(shown), widths=[1.0],
+                          visible_series=[True] * len(shown) + [False] * (
+                              len(panel.series) - len(shown)))
+
+
+# --------------------------------------------------------------------------- world bounds
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """A rectangle of the world plane, m."""
+
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+
+    @classmethod
+    def around(cls, points: NDArray[np.float64], margin_frac: float = 0.08,
+               min_size_m: float = 4.0) -> Bounds:
+        """The finite ``points`` (shape ``(n, 2)``) with a margin on every side."""
+        p = points[np.isfinite(points).all(axis=1)]
+        if p.size == 0:
+            p = np.zeros((1, 2))
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        size = np.maximum(hi - lo, min_size_m)
+        mid = 0.5 * (lo + hi)
+        half = 0.5 * size * (1.0 + 2.0 * margin_frac) + 0.5  # + room for labels and arrows
+        return cls(float(mid[0] - half[0]), float(mid[0] + half[0]),
+                   float(mid[1] - half[1]), float(mid[1] + half[1]))
+
+    def view(self) -> rrb.VisualBounds2D:
+        """The 2-D view's bounds: its y axis points down, the world's is mirrored up."""
+        return rrb.VisualBounds2D(x_range=[self.x_min, self.x_max],
+                                  y_range=[-self.y_max, -self.y_min])
+
+
+def grid_spacing(span_m: float) -> float:
+    """A round grid spacing (1, 2 or 5 times a power of ten) giving 5 to 12 lines over
+    ``span_m``."""
+    raw = span_m / 8.0
+    power = 10.0 ** math.floor(math.log10(raw))
+    return next(k * power for k in (1.0, 2.0, 5.0, 10.0) if k * power >= raw)
+
+
+def log_grid(rec: rr.RecordingStream, bounds: Bounds) -> None:
+    """The metre grid of the world view, its labelled lines and the axes through the origin."""
+    step = grid_spacing(max(bounds.x_max - bounds.x_min, bounds.y_max - bounds.y_min))
+    xs = np.arange(math.ceil(bounds.x_min / step), math.floor(bounds.x_max / step) + 1) * step
+    ys = np.arange(math.ceil(bounds.y_min / step), math.floor(bounds.y_max / step) + 1) * step
+    lines = ([[[x, bounds.y_min], [x, bounds.y_max]] for x in xs]
+             + [[[bounds.x_min, y], [bounds.x_max, y]] for y in ys])
+    colors = [AXIS_COLOR if abs(v) < 1e-9 else GRID_COLOR for v in (*xs, *ys)]
+    rec.log(GRID_ENTITY, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+    rec.log(f"{GRID_ENTITY}/lines", rr.LineStrips2D(lines, colors=colors, radii=[-0.6],
+                                                    draw_order=-10.0), static=True)
+    # the line values along the bottom and the left edge (a ruler: the view has no axes)
+    pad = 0.02 * step
+    marks = ([[x + pad, bounds.y_min + pad] for x in xs]
+             + [[bounds.x_min + pad, y + pad] for y in ys])
+    texts = [f"{v:g} m" for v in (*xs, *ys)]
+    rec.log(f"{GRID_ENTITY}/labels",
+            rr.Points2D(marks, radii=[0.0], colors=[GRID_LABEL_COLOR], labels=texts,
+                        show_labels=True,
+                        draw_order=-9.0), static=True)
 
 
 # --------------------------------------------------------------------------- blueprint
 
 
-def replay_blueprint(run_names: Sequence[str], *, live: bool = False) -> rrb.Blueprint:
-    """The default layout: world view on the left, the time-series panels on the right.
+def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
+                     bounds: Bounds | None = None, sensing: bool = False,
+                     torque_range_nm: float | None = None) -> rrb.Blueprint:
+    """The dashboard: world view and run summary on the left, the time-series panels on the
+    right (two columns), the phase strip below them; side panels collapsed.
 
     Parameters
     ----------
@@ -249,33 +377,56 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False) -> rrb.Blu
         The runs of the recording (their subtrees ``runs/<name>``).
     live
         For a live view: the plots follow the latest 30 s instead of the whole run.
+    bounds
+        Fixed bounds of the world view (every start, goal and path); None: Rerun's own
+        (follows what is drawn, for a live run whose path is not known yet).
+    sensing
+        Add the estimation-error panel (runs with sensors).
+    torque_range_nm
+        The torque axis spans ``[-range, range]`` (:func:`torque_range`: the saturated
+        start-up runs off the top instead of flattening the rest).
     """
     roots = [f"/{run_entity(n)}" for n in run_names]
+    many = len(run_names) > 1
     world = rrb.Spatial2DView(
-        name="World (x right, y up) [m]", origin="/",
-        contents=[f"+ {r}/world/**" for r in roots],
-        background=(250, 250, 250),
+        name="World: x right, y up [m]", origin="/",
+        contents=[f"/{GRID_ENTITY}/**", *(f"{r}/world/**" for r in roots)],
+        background=(252, 252, 252),
+        visual_bounds=bounds.view() if bounds is not None else None,
     )
     time_range = (
         rrb.VisibleTimeRange(TIMELINE, start=rrb.TimeRangeBoundary.cursor_relative(seconds=-30.0),
                              end=rrb.TimeRangeBoundary.cursor_relative())
         if live else None
     )
-    plots = [
-        rrb.TimeSeriesView(name=p.title, origin="/", contents=[f"+ {r}/{p.entity}" for r in roots],
-                           plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightTop),
-                           time_ranges=time_range)
-        for p in PANELS
-    ]
-    info = rrb.TextDocumentView(name="Run", origin="/", contents=[f"+ {r}/info" for r in roots])
+    # several runs: the run's colour names it (world view labels, summary): no legend
+    legend = rrb.PlotLegend(visible=not many, corner=rrb.Corner2D.RightTop)
+
+    def plot(entity: str, title: str, axis: rrb.ScalarAxis | None = None) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(name=title, origin="/",
+                                  contents=[f"{r}/{entity}/**" for r in roots],
+                                  plot_legend=legend, time_ranges=time_range, axis_y=axis)
+
+    plots = []
+    for p in PANELS:
+        axis = (rrb.ScalarAxis(range=(-torque_range_nm, torque_range_nm))
+                if p.limit and torque_range_nm else None)
+        plots.append(plot(p.entity, p.overlay_title if many else p.title, axis))
+    if sensing:
+        plots.append(plot(ESTIMATION_ENTITY, "Position error of the estimate and the GPS "
+                                             "fixes [m]"))
+    phase = plot(PHASE_ENTITY, "Control phase: 0 approach, 1 align",
+                 rrb.ScalarAxis(range=(-0.2, 1.2)))
+    summary = rrb.TextDocumentView(name="Run summary" if not many else
+                                   f"{len(run_names)} runs", origin=f"/{SUMMARY_ENTITY}")
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(world, info, row_shares=[5, 1]),
-            rrb.Vertical(*plots),
-            column_shares=[3, 2],
+            rrb.Vertical(world, summary, row_shares=[3, 2]),
+            rrb.Vertical(rrb.Grid(*plots, grid_columns=2), phase, row_shares=[9, 1]),
+            column_shares=[5, 6],
         ),
-        rrb.TimePanel(timeline=TIMELINE, state="expanded"),
-        collapse_panels=False,
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed" if not live else "expanded"),
+        collapse_panels=True,
     )
 
 
@@ -294,23 +445,25 @@ def _time_column(t_ns: NDArray[np.int64]) -> rr.TimeColumn:
     return rr.TimeColumn(TIMELINE, duration=np.asarray(t_ns, np.int64).astype("timedelta64[ns]"))
 
 
-def _params(meta: dict[str, dict[str, str]]) -> tuple[float, float]:
-    """Half track ``L`` and wheel radius ``r`` from a log's ``run`` record (or the paper's)."""
-    try:  # bounded: a stranger's log may hold a value nested too deep for json.loads
-        params = metadata_json(meta.get("run", {}).get("params", "{}"))
-        half_track, radius = float(params.get("L", _DEFAULT_L_M)), float(
-            params.get("r", _DEFAULT_R_M))
-    except (ValueError, TypeError, AttributeError, LogError):
-        return _DEFAULT_L_M, _DEFAULT_R_M
-    if not (half_track > 0 and radius > 0 and math.isfinite(half_track + radius)):
-        return _DEFAULT_L_M, _DEFAULT_R_M
-    return half_track, radius
+def _phase_strips(path_xy: NDArray[np.float64], phase: NDArray[np.int8] | None
+                  ) -> tuple[list[NDArray[np.float64]], list[Rgb]]:
+    """The path cut where the phase changes (each piece shares its end point with the next),
+    and the colour of each piece."""
+    if phase is None or phase.size != len(path_xy):
+        return [path_xy], [PHASE_COLORS[0]]
+    cuts = np.flatnonzero(phase[1:] != phase[:-1]) + 1
+    starts = np.concatenate([[0], cuts])
+    ends = np.concatenate([cuts + 1, [len(path_xy)]])
+    return ([path_xy[a:b] for a, b in zip(starts, ends, strict=True)],
+            [PHASE_COLORS[int(phase[a])] for a in starts])
 
 
 def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
                    path_xy: NDArray[np.float64] | None, color: Rgb,
-                   run_color: Rgb | None = None, half_track_m: float = _DEFAULT_L_M,
-                   wheel_radius_m: float = _DEFAULT_R_M, info: str | None = None) -> None:
+                   run_color: Rgb | None = None, half_track_m: float = 0.3,
+                   wheel_radius_m: float = 0.15, info: str | None = None,
+                   phase: NDArray[np.int8] | None = None, start_label: str | None = None,
+                   stop_radius_m: float | None = None, goal_label: bool = True) -> None:
     """Log the timeless part of a run once: frame flip, path, goal, robot shape, plot styles.
 
     Parameters
@@ -324,54 +477,99 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
     path_xy
         The whole path, shape ``(n, 2)``; None for a live run (logged block by block).
     color
-        Colour of the path and the robot.
+        Colour of the robot (and of the path when ``run_color`` is given).
     run_color
-        When several runs share the plots: the run's colour for its lines (None: per signal).
+        When several runs share the plots: the run's colour for its path and lines (None: the
+        path coloured by phase, the lines per signal).
     half_track_m, wheel_radius_m
         Robot geometry for the body drawing.
     info
-        Markdown shown in the run panel.
+        Kept for callers of the single-run API: Markdown of the run panel (the summary).
+    phase
+        The control phase per row of ``path_xy`` (colours the path of a single run).
+    start_label
+        Label at the start of the path (the run's number in a multi-run replay).
+    stop_radius_m
+        Radius of the ring drawn around the goal.
+    goal_label
+        Label the goal with its pose (off for a goal another run already labelled).
     """
     root = run_entity(name)
     world = f"{root}/world"
     # 2-D views draw y downwards: a mirror about the x axis puts y up, as in the paper's plots
     rec.log(world, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
     if path_xy is not None and path_xy.shape[0] >= 1:
-        rec.log(f"{world}/path", rr.LineStrips2D([path_xy], colors=[color], radii=[0.03],
-                                                 labels=[name], show_labels=False), static=True)
+        if run_color is None:
+            strips, colors = _phase_strips(path_xy, phase)
+        else:
+            strips, colors = [path_xy], [run_color]
+        rec.log(f"{world}/path", rr.LineStrips2D(strips, colors=colors,
+                                                 radii=[0.03 if run_color is None else 0.02],
+                                                 draw_order=10.0), static=True)
+        if start_label is not None:
+            # the number behind the start (the robot stands on the start at t = 0)
+            back = path_xy[0] - 0.6 * (path_xy[min(len(path_xy) - 1, 50)] - path_xy[0]) / max(
+                1e-9, float(np.linalg.norm(path_xy[min(len(path_xy) - 1, 50)] - path_xy[0])))
+            rec.log(f"{world}/start",
+                    rr.Points2D([back], colors=[color], radii=[0.06],
+                                labels=[start_label], show_labels=bool(start_label),
+                                draw_order=30.0),
+                    static=True)
     if goal is not None:
         gx, gy, gth = goal
         vec = [_ARROW_M * math.cos(gth), _ARROW_M * math.sin(gth)]
+        ring = []
+        if stop_radius_m and stop_radius_m > 0:
+            a = np.linspace(0.0, 2 * math.pi, 48)
+            ring = [np.column_stack([gx + stop_radius_m * np.cos(a),
+                                     gy + stop_radius_m * np.sin(a)])]
         rec.log(f"{world}/goal",
-                rr.Arrows2D(origins=[[gx, gy]], vectors=[vec], colors=[GOAL_COLOR], radii=[0.05],
-                            labels=[f"goal θ_d={math.degrees(gth):.0f}°"], show_labels=True),
+                rr.Arrows2D(origins=[[gx, gy]], vectors=[vec], colors=[GOAL_COLOR],
+                            radii=[0.04], draw_order=20.0),
+                rr.LineStrips2D(ring, colors=[GOAL_COLOR], radii=[0.01], draw_order=20.0),
                 static=True)
-    # the robot in its own frame (B at the origin, x forward): chassis, two wheels, heading
+        # the label apart from the arrow, in a neutral colour (red on red did not read)
+        rec.log(f"{world}/goal/label",
+                rr.Points2D([[gx, gy - 0.45]], radii=[0.0], colors=[LABEL_COLOR],
+                            labels=[f"goal ({gx:g}, {gy:g}, {math.degrees(gth):.0f}°)"],
+                            show_labels=goal_label, draw_order=21.0), static=True)
+    # the robot in its own frame (B at the origin, x forward): chassis, two wheels, heading;
+    # the heading arrow's colour is sent per step (the phase), so it is not static here
     chassis_len = 2.0 * half_track_m + 0.2
     rec.log(f"{world}/robot",
             rr.Boxes2D(centers=[[0.5 * chassis_len - 0.3, 0.0], [0.0, half_track_m],
                                 [0.0, -half_track_m]],
                        half_sizes=[[0.5 * chassis_len, 0.8 * half_track_m],
                                    [wheel_radius_m, 0.05], [wheel_radius_m, 0.05]],
-                       colors=[color, (40, 40, 40), (40, 40, 40)], radii=[0.025]),
-            rr.Arrows2D(origins=[[0.0, 0.0]], vectors=[[_ARROW_M, 0.0]], colors=[color],
-                        radii=[0.04]),
+                       colors=[color, (40, 40, 40), (40, 40, 40)], radii=[0.025],
+                       draw_order=40.0),
+            rr.Arrows2D.from_fields(origins=[[0.0, 0.0]], vectors=[[_ARROW_M, 0.0]],
+                                    radii=[0.04], draw_order=41.0),
             static=True)
-    rec.log(f"{world}/D", rr.Points2D.from_fields(colors=[D_COLOR], radii=[0.12], labels=["D"],
-                                                   show_labels=True), static=True)
-    rec.log(f"{world}/R", rr.Points2D.from_fields(colors=[R_COLOR], radii=[0.12], labels=["R"],
-                                                   show_labels=True), static=True)
+    rec.log(f"{world}/D", rr.Points2D.from_fields(colors=[D_COLOR], radii=[0.1], labels=["D"],
+                                                   show_labels=True, draw_order=35.0),
+            static=True)
+    rec.log(f"{world}/R", rr.Points2D.from_fields(colors=[R_COLOR], radii=[0.1], labels=["R"],
+                                                   show_labels=True, draw_order=35.0),
+            static=True)
     rec.log(f"{world}/construction",
-            rr.LineStrips2D.from_fields(colors=[D_COLOR, R_COLOR], radii=[0.015]), static=True)
+            rr.LineStrips2D.from_fields(colors=[D_COLOR, R_COLOR], radii=[0.012],
+                                        draw_order=34.0), static=True)
+    label = start_label if start_label is not None else name
     for panel in PANELS:
-        rec.log(f"{root}/{panel.entity}", _series_style(panel, name, run_color), static=True)
+        rec.log(f"{root}/{panel.entity}", _series_style(panel, label, run_color), static=True)
+    rec.log(f"{root}/{PHASE_ENTITY}",
+            rr.SeriesLines(names=[f"{label}: phase" if run_color else "phase"],
+                           colors=[run_color or _GREY], widths=[1.5],
+                           aggregation_policy="minmax"), static=True)
     if info:
-        rec.log(f"{root}/info", rr.TextDocument(info, media_type=rr.MediaType.MARKDOWN),
+        rec.log(SUMMARY_ENTITY, rr.TextDocument(info, media_type=rr.MediaType.MARKDOWN),
                 static=True)
 
 
 def send_run_columns(rec: rr.RecordingStream, name: str, t_ns: NDArray[np.int64],
-                     block: NDArray[np.float64]) -> None:
+                     block: NDArray[np.float64], phase: NDArray[np.int8] | None = None, *,
+                     construction: bool = True) -> None:
     """Send rows of a run as whole columns: the pose, D, R and every time-series panel.
 
     Parameters
@@ -384,6 +582,12 @@ def send_run_columns(rec: rr.RecordingStream, name: str, t_ns: NDArray[np.int64]
         Simulation times, ns, shape ``(n,)``.
     block
         The rows, shape ``(n, len(SIGNALS))``, columns as :data:`wmr.core.signals.SIGNALS`.
+    phase
+        The control phase of each row (:func:`wmr.adapters.mcap.scene.control_phases`): the
+        phase panel and the colour of the robot's heading arrow; None: not known (live view).
+    construction
+        Send the points D and R and their construction lines (off for several runs: one pair
+        per run hides the paths).
     """
     n = int(t_ns.shape[0])
     if n == 0:
@@ -393,37 +597,242 @@ def send_run_columns(rec: rr.RecordingStream, name: str, t_ns: NDArray[np.int64]
     times = [_time_column(t_ns)]
     x, y, theta = block[:, _X], block[:, _Y], block[:, _TH]
     translation = np.column_stack([x, y, np.zeros(n)])
-    rec.send_columns(f"{world}/robot", indexes=times, columns=rr.Transform3D.columns(
-        translation=translation, quaternion=_yaw_quaternions(theta)))
-    d_xy = np.ascontiguousarray(block[:, [_DX, _DY]])
-    r_xy = np.ascontiguousarray(block[:, [_RX, _RY]])
-    rec.send_columns(f"{world}/D", indexes=times, columns=rr.Points2D.columns(positions=d_xy))
-    rec.send_columns(f"{world}/R", indexes=times, columns=rr.Points2D.columns(positions=r_xy))
-    b_xy = np.column_stack([x, y])
-    strips = np.stack([np.stack([b_xy, d_xy], axis=1), np.stack([b_xy, r_xy], axis=1)],
-                      axis=1).reshape(2 * n, 2, 2)
-    rec.send_columns(f"{world}/construction", indexes=times,
-                     columns=rr.LineStrips2D.columns(strips=strips.astype(np.float32))
-                     .partition(np.full(n, 2)))
+    colors = np.asarray(PHASE_COLORS, np.uint8)[phase if phase is not None
+                                                 else np.zeros(n, np.int8)]
+    rec.send_columns(f"{world}/robot", indexes=times, columns=[
+        *rr.Transform3D.columns(translation=translation, quaternion=_yaw_quaternions(theta)),
+        *rr.Arrows2D.columns(colors=colors)])
+    if construction:
+        d_xy = np.ascontiguousarray(block[:, [_DX, _DY]])
+        r_xy = np.ascontiguousarray(block[:, [_RX, _RY]])
+        rec.send_columns(f"{world}/D", indexes=times,
+                         columns=rr.Points2D.columns(positions=d_xy))
+        rec.send_columns(f"{world}/R", indexes=times,
+                         columns=rr.Points2D.columns(positions=r_xy))
+        b_xy = np.column_stack([x, y])
+        strips = np.stack([np.stack([b_xy, d_xy], axis=1), np.stack([b_xy, r_xy], axis=1)],
+                          axis=1).reshape(2 * n, 2, 2)
+        rec.send_columns(f"{world}/construction", indexes=times,
+                         columns=rr.LineStrips2D.columns(strips=strips.astype(np.float32))
+                         .partition(np.full(n, 2)))
     for panel in PANELS:
-        values = np.ascontiguousarray(block[:, _PANEL_COLUMNS[panel.entity]])
+        values = block[:, _PANEL_COLUMNS[panel.entity]] * _PANEL_SCALES[panel.entity]
         rec.send_columns(f"{root}/{panel.entity}", indexes=times,
-                         columns=rr.Scalars.columns(scalars=values))
+                         columns=rr.Scalars.columns(scalars=np.ascontiguousarray(values)))
+    if phase is not None:
+        rec.send_columns(f"{root}/{PHASE_ENTITY}", indexes=times,
+                         columns=rr.Scalars.columns(scalars=phase.astype(np.float64)))
 
 
-def _info_markdown(name: str, run: RunData) -> str:
-    """The run panel: where the log is, and its ``run`` and ``result`` records."""
-    lines = [f"### {name}", f"`{run.path}`: {run.n_steps} steps, "
-             f"{run.t_s[-1] if run.n_steps else 0.0:.2f} s"
-             + (" **(truncated)**" if run.truncated else "")]
-    result = run.metadata.get("result", {})
-    if result:
-        lines.append(f"**{result.get('status', '?')}**: {result.get('message', '')}")
+# --------------------------------------------------------------------------- summary
+
+
+def _json(meta: Mapping[str, str], key: str) -> Any:
+    """A JSON value of a metadata record, or None (bounded: a stranger's log may hold a value
+    nested too deep for ``json.loads``)."""
+    try:
+        return metadata_json(meta[key])
+    except (KeyError, ValueError, TypeError, LogError):
+        return None
+
+
+def _float(value: object) -> float | None:
+    try:
+        f = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def _pose_text(pose: object) -> str:
+    """``(x, y, θ°)`` of a ``{"x_m", "y_m", "heading_rad"}`` record."""
+    if not isinstance(pose, dict):
+        return "?"
+    x, y, th = (_float(pose.get(k)) for k in ("x_m", "y_m", "heading_rad"))
+    if x is None or y is None or th is None:
+        return "?"
+    return f"({x:.2f}, {y:.2f}, {math.degrees(th):.0f}°)"
+
+
+def _status_text(result: Mapping[str, str], run: RunData) -> str:
+    status = result.get("status", "no result record (a cut log)")
+    t_goal = _float(result.get("time_to_goal_s"))
+    t_end = float(run.t_s[-1]) if run.n_steps else 0.0
+    when = f"at t = {t_goal:.2f} s" if t_goal is not None else f"ran {t_end:.2f} s"
+    return f"**{status}** {when}" + (" (**log truncated**)" if run.truncated else "")
+
+
+def _final_errors(result: Mapping[str, str]) -> str:
+    pos, head = (_float(result.get(k)) for k in ("final_position_error_m",
+                                                  "final_heading_error_rad"))
+    if pos is None or head is None:
+        return "?"
+    return f"{1000 * pos:.1f} mm, {math.degrees(head):.2f}°"
+
+
+_LIMIT_TEXT: Final = {"v_max_mps": ("v_max", "m/s", 1.0),
+                      "omega_max_radps": ("ω_max", "°/s", _DEG),
+                      "wheel_speed_max_radps": ("wheel_max", "rad/s", 1.0),
+                      "torque_max_nm": ("τ_max", "N m", 1.0)}
+
+
+def _summary_single(name: str, run: RunData, sensing: bool) -> str:
+    """The run summary of a single-run replay: reads in one glance."""
+    meta, result = run.metadata.get("run", {}), run.metadata.get("result", {})
+    gains = _json(meta, "gains") or {}
+    limits = _json(meta, "limits") or {}
+    eps = _float(meta.get("stop_radius_m"))
+    h = _float(meta.get("control_period_s"))
+    rows = [f"### {name}: {_status_text(result, run)}", "",
+            "| | |", "|---|---|",
+            f"| start → goal (x, y [m], θ) | {_pose_text(_json(meta, 'start'))} → "
+            f"{_pose_text(_json(meta, 'goal'))} |",
+            f"| final error (position, heading) | {_final_errors(result)} |"]
+    if sensing:
+        rows.append("| believed final error | " + _final_errors(
+            {"final_position_error_m": result.get("estimated_final_position_error_m", ""),
+             "final_heading_error_rad": result.get("estimated_final_heading_error_rad", "")})
+            + " |")
+    length = _float(result.get("path_length_m"))
+    energy = _float(result.get("energy_positive_j"))
+    rows.append(f"| path, energy | {length or 0:.2f} m, {energy or 0:.1f} J |")
+    rows.append("| gains | " + ", ".join(f"{k} {v:g}" for k, v in gains.items()
+                                         if isinstance(v, int | float)) + " |")
+    rows.append("| limits | " + ", ".join(
+        f"{label} {float(limits[k]) * f:.3g} {unit}" for k, (label, unit, f)
+        in _LIMIT_TEXT.items() if k in limits) + " |")
+    rows.append(f"| steps, h, ε | {run.n_steps}, {1000 * (h or 0):g} ms, "
+                f"{100 * (eps or 0):g} cm |")
+    legend = ("**World:** path blue = approach, orange = align (turn in place), red = goal "
+              "(arrow along θ_d, ring = stop radius ε); D cyan (Fig. 4), R amber (Fig. 6)")
+    if sensing:
+        legend += "; magenta = estimated path, grey dots = GPS fixes"
+    return "\n".join([*rows, "", legend, "", f"`{run.path}`"])
+
+
+def _flat(prefix: str, value: object) -> dict[str, object]:
+    if isinstance(value, dict):
+        out: dict[str, object] = {}
+        for k, v in value.items():
+            out.update(_flat(f"{prefix}.{k}", v))
+        return out
+    return {prefix: value}
+
+
+def varied_inputs(runs: Sequence[RunData]) -> list[str]:
+    """The ``run`` record's inputs (``params.m``, ``gains.K_ps``, ...) whose values differ
+    between the runs, start and goal left out (every row shows them)."""
+    keys = ("params", "gains", "limits", "controller", "controller_gains", "stop_radius_m",
+            "control_period_s", "sensors", "fmu_file")
+    flats = []
+    for r in runs:
+        meta = r.metadata.get("run", {})
+        flat: dict[str, object] = {}
+        for k in keys:
+            parsed = _json(meta, k) if k in meta else None
+            flat.update(_flat(k, parsed if parsed is not None else meta.get(k)))
+        flats.append(flat)
+    names = sorted(set().union(*flats)) if flats else []
+    return [k for k in names if len({json.dumps(f.get(k), sort_keys=True) for f in flats}) > 1]
+
+
+def _cell(value: object) -> str:
+    f = _float(value)
+    if f is not None and not isinstance(value, bool):
+        return f"{f:.3g}"
+    return "?" if value is None else str(value)
+
+
+def _summary_many(labels: Sequence[str], names: Sequence[str], runs: Sequence[RunData]) -> str:
+    """The summary of a multi-run replay: one row per run, with the inputs that vary."""
+    varied = varied_inputs(runs)
+    flats = [dict(_flat_meta(r)) for r in runs]
+    statuses = [r.metadata.get("result", {}).get("status", "cut") for r in runs]
+    counts = ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses))
+    short = [k.split(".", 1)[1] if k.startswith(("params.", "gains.", "limits.")) else k
+             for k in varied]
+    head = ["run", "log", "status", "t [s]", "start (x, y, θ)", "goal (x, y, θ)",
+            "final error", *short]
+    lines = [f"### {len(runs)} runs: {counts}", "",
+             "Each run's number labels its start in the world view; its lines share its "
+             "colour.", "", "| " + " | ".join(head) + " |",
+             "|" + "---|" * len(head)]
+    for label, name, run, flat in zip(labels, names, runs, flats, strict=True):
+        meta, result = run.metadata.get("run", {}), run.metadata.get("result", {})
+        t_goal = _float(result.get("time_to_goal_s"))
+        t = f"{t_goal:.2f}" if t_goal is not None else f"{run.t_s[-1]:.1f}+"
+        cells = [label, f"`{name}`", result.get("status", "cut"), t,
+                 _pose_text(_json(meta, "start")), _pose_text(_json(meta, "goal")),
+                 _final_errors(result), *(_cell(flat.get(k)) for k in varied)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _flat_meta(run: RunData) -> dict[str, object]:
     meta = run.metadata.get("run", {})
-    for key in ("scenario", "start", "goal", "gains", "limits", "fmu_file", "software_version"):
-        if key in meta:
-            lines.append(f"- {key}: `{meta[key]}`")
-    return "\n\n".join(lines[:3]) + "\n\n" + "\n".join(lines[3:])
+    out: dict[str, object] = {}
+    for k, v in meta.items():
+        parsed = _json(meta, k)
+        out.update(_flat(k, parsed if parsed is not None else v))
+    return out
+
+
+# --------------------------------------------------------------------------- sensing
+
+
+def log_sensing(rec: rr.RecordingStream, name: str, path: str | os.PathLike[str],
+                run: RunData) -> bool:
+    """Draw a log's fixes and estimated path over the true one, and plot the position error
+    of the estimate (per step) and of each fix (at its measurement time) against the truth.
+
+    Returns
+    -------
+    bool
+        Whether the log had sensing topics.
+    """
+    from wmr.adapters.mcap.sensing import read_sensing
+
+    trace = read_sensing(path)
+    if trace is None:
+        return False
+    root = run_entity(name)
+    world = f"{root}/world"
+    t_true = run.t_ns.astype(np.float64)
+    x_true, y_true = run.signals["x_m"], run.signals["y_m"]
+
+    def error(t_ns: NDArray[np.int64], xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        tx = np.interp(t_ns.astype(np.float64), t_true, x_true)
+        ty = np.interp(t_ns.astype(np.float64), t_true, y_true)
+        return np.asarray(np.hypot(xy[:, 0] - tx, xy[:, 1] - ty))
+
+    if len(trace.gps_xy_m):
+        # dots of 1.5 UI points (not metres: a fix's noise is a few cm, the view tens of m),
+        # drawn above the paths
+        rec.log(f"{world}/gps", rr.Points2D(trace.gps_xy_m, colors=[GPS_COLOR], radii=[-1.5],
+                                            draw_order=15.0), static=True)
+        inside = trace.gps_t_ns <= run.t_ns[-1]
+        rec.log(f"{root}/{ESTIMATION_ENTITY}/gps",
+                rr.SeriesPoints(names=["GPS fix"], colors=[GPS_COLOR], marker_sizes=[1.5]),
+                static=True)
+        rec.send_columns(f"{root}/{ESTIMATION_ENTITY}/gps",
+                         indexes=[_time_column(trace.gps_t_ns[inside])],
+                         columns=rr.Scalars.columns(
+                             scalars=error(trace.gps_t_ns[inside], trace.gps_xy_m[inside])))
+    if len(trace.est_pose):
+        # thinner than the true path and above it: both stay visible where they overlap
+        rec.log(f"{world}/estimate",
+                rr.LineStrips2D([trace.est_pose[:, :2]], colors=[ESTIMATE_COLOR], radii=[0.012],
+                                draw_order=12.0), static=True)
+        inside = trace.est_t_ns <= run.t_ns[-1]
+        rec.log(f"{root}/{ESTIMATION_ENTITY}/estimate",
+                rr.SeriesLines(names=["estimate"], colors=[ESTIMATE_COLOR], widths=[1.5]),
+                static=True)
+        rec.send_columns(f"{root}/{ESTIMATION_ENTITY}/estimate",
+                         indexes=[_time_column(trace.est_t_ns[inside])],
+                         columns=rr.Scalars.columns(
+                             scalars=error(trace.est_t_ns[inside],
+                                           trace.est_pose[inside, :2])))
+    return True
 
 
 # --------------------------------------------------------------------------- replay
@@ -464,6 +873,49 @@ def read_logs(logs: Sequence[RunLog]) -> tuple[list[tuple[RunLog, RunData]], lis
     return runs, warnings
 
 
+def _run_phase(run: RunData) -> NDArray[np.int8] | None:
+    """The control phase of each step, from the logged ``dr_m`` and the run's stop radius."""
+    eps = _float(run.metadata.get("run", {}).get("stop_radius_m"))
+    dr = run.signals.get("dr_m")
+    if eps is None or eps <= 0 or dr is None or not np.isfinite(dr).any():
+        return None
+    return control_phases(dr, eps)
+
+
+def torque_range(runs: Sequence[RunData], limit_nm: float | None) -> float | None:
+    """Half-span of the torque axis: 1.5 times the 98th percentile of |tau| over the runs
+    (at least 0.5 N m, at most the limit): the start-up spike at the limit lasts a few hundred
+    ms and would flatten everything else on a +-limit axis."""
+    taus = [np.abs(np.concatenate([r.signals["tau_r_nm"], r.signals["tau_l_nm"]]))
+            for r in runs]
+    tau = np.concatenate(taus) if taus else np.zeros(0)
+    tau = tau[np.isfinite(tau)]
+    if tau.size == 0:
+        return limit_nm
+    span = max(0.5, 1.5 * float(np.percentile(tau, 98.0)))
+    return min(span, 1.05 * limit_nm) if limit_nm else span
+
+
+def _world_points(runs: Sequence[RunData]) -> NDArray[np.float64]:
+    """Every point the world view must show: paths, and goals with their arrow tips."""
+    pts = [np.column_stack([r.signals["x_m"], r.signals["y_m"]]) for r in runs]
+    for r in runs:
+        if r.goal is not None:
+            gx, gy, gth = r.goal
+            pts.append(np.array([[gx, gy], [gx + _ARROW_M * math.cos(gth),
+                                            gy + _ARROW_M * math.sin(gth)]]))
+    return np.concatenate(pts)
+
+
+def framing(inputs: Sequence[str | os.PathLike[str]]) -> tuple[float, float, float, float]:
+    """``(x_min, x_max, y_min, y_max)`` [m] of the world view of these logs: every path,
+    start and goal, with a margin (the bounds ``wmr replay`` fixes; also the top view of the
+    raw-log blueprint, :func:`wmr.adapters.rerun.blueprint.raw_blueprint`)."""
+    runs, _ = read_logs(find_logs(inputs))
+    b = Bounds.around(_world_points([d for _, d in runs]))
+    return b.x_min, b.x_max, b.y_min, b.y_max
+
+
 def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[str] | None = None,
            spawn: bool | None = None) -> ReplayResult:
     """Replay run logs in one Rerun recording: a viewer, or an ``.rrd`` file.
@@ -493,7 +945,15 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
         raise WmrError(f"{rrd}: the recording file must end in .rrd")
     runs, warnings = read_logs(find_logs(inputs))
     names = [log.name for log, _ in runs]
-    blueprint = replay_blueprint(names)
+    datas = [d for _, d in runs]
+    many = len(runs) > 1
+    sensing = [("sensors" in d.metadata.get("run", {})) for d in datas]
+    limits = [_float((_json(d.metadata.get("run", {}), "limits") or {}).get("torque_max_nm"))
+              for d in datas]
+    torque_limit = max((v for v in limits if v is not None), default=None)
+    bounds = Bounds.around(_world_points(datas))
+    blueprint = replay_blueprint(names, bounds=bounds, sensing=any(sensing),
+                                 torque_range_nm=torque_range(datas, torque_limit))
     rec = rr.RecordingStream(APPLICATION_ID)
     rec.send_recording_name(names[0] if len(names) == 1 else f"{len(names)} runs")
 
@@ -513,20 +973,35 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
         out.parent.mkdir(parents=True, exist_ok=True)
         rec.save(out, default_blueprint=blueprint)
 
-    many = len(runs) > 1
+    log_grid(rec, bounds)
+    labels = [f"#{k}" for k in range(len(runs))]
+    label_every = len(runs) // _MAX_LABELS + 1
+    goals_labelled: set[tuple[float, float, float]] = set()
     for k, (log, data) in enumerate(runs):
-        color = RUN_COLORS[k % len(RUN_COLORS)]
-        half_track, radius = _params(data.metadata)
+        color = run_color(k, len(runs))
+        half_track, radius = robot_geometry(data.metadata.get("run", {}))
         path_xy = np.column_stack([data.signals["x_m"], data.signals["y_m"]])
-        path_xy = path_xy[np.isfinite(path_xy).all(axis=1)]
-        log_run_static(rec, log.name, goal=data.goal, path_xy=path_xy, color=color,
+        phase = _run_phase(data)
+        finite = np.isfinite(path_xy).all(axis=1)
+        goal_key = tuple(round(v, 2) for v in data.goal) if data.goal is not None else None
+        new_goal = goal_key is not None and goal_key not in goals_labelled
+        if goal_key is not None:
+            goals_labelled.add(goal_key)  # type: ignore[arg-type]
+        log_run_static(rec, log.name, goal=data.goal, path_xy=path_xy[finite], color=color,
                        run_color=color if many else None, half_track_m=half_track,
-                       wheel_radius_m=radius, info=_info_markdown(log.name, data))
-        send_run_columns(rec, log.name, data.t_ns, data.block())
-        if "sensors" in data.metadata.get("run", {}):  # measured and estimated paths too
-            from wmr.adapters.mcap.sensing import replay_sensing
-
-            replay_sensing(rec, run_entity(log.name), log.path, color)
+                       wheel_radius_m=radius,
+                       phase=phase[finite] if phase is not None else None,
+                       start_label=(labels[k] if k % label_every == 0 else "")
+                       if many else None,
+                       stop_radius_m=_float(data.metadata.get("run", {}).get("stop_radius_m")),
+                       goal_label=new_goal)
+        send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many)
+        if sensing[k]:
+            log_sensing(rec, log.name, log.path, data)
+    summary = (_summary_many(labels, names, datas) if many
+               else _summary_single(names[0], datas[0], sensing[0]))
+    rec.log(SUMMARY_ENTITY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN),
+            static=True)
     rec.flush()
     if out is not None:
         rec.disconnect()
@@ -557,17 +1032,23 @@ __all__ = [
     "APPLICATION_ID",
     "PANELS",
     "TIMELINE",
+    "Bounds",
     "Panel",
     "ReplayResult",
     "RunLog",
     "Series",
     "default_rrd_path",
     "find_logs",
+    "framing",
+    "grid_spacing",
     "has_screen",
     "log_run_static",
+    "log_sensing",
     "read_logs",
     "replay",
     "replay_blueprint",
+    "run_color",
     "run_entity",
     "send_run_columns",
+    "varied_inputs",
 ]

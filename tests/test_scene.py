@@ -1,0 +1,137 @@
+"""The drawable topics of a run log (wmr.adapters.mcap.scene): the phase is the stabiliser's,
+the point clouds decode as Foxglove's schema says, and a failing scene never costs the log."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from wmr.adapters.mcap import RunLogWriter, read_run
+from wmr.adapters.mcap import scene as scene_mod
+from wmr.adapters.mcap.scene import (
+    GOAL_TOPIC,
+    PATH_TOPIC,
+    PHASE_COLORS,
+    PHASE_TOPIC,
+    ROBOT_PERIOD_NS,
+    ROBOT_TOPIC,
+    ControlPhase,
+    control_phases,
+    phase_changes,
+    read_cloud,
+    robot_outline,
+)
+from wmr.core.control.peers import CONTROLLER_NAMES, make_controller
+from wmr.core.control.stabiliser import Gains, Limits
+from wmr.core.plant import Pose, RobotParams
+from wmr.core.signals import COLUMN, SIGNALS
+
+EPS_M = 0.05
+
+
+def _distances() -> np.ndarray:
+    """A distance history that crosses every threshold of the hysteresis both ways: in to
+    the alignment, out but not beyond 2 eps (stays aligned), beyond it (back to approach),
+    and in again."""
+    return np.concatenate([np.linspace(1.0, 0.03, 40), [0.025, 0.02, 0.06, 0.09, 0.1, 0.1001,
+                                                         0.08, 0.03, 0.0249, 0.0]])
+
+
+@pytest.mark.parametrize("name", CONTROLLER_NAMES)
+def test_phases_are_the_stabilisers(name: str) -> None:
+    """Replayed on the distance it logged, the hysteresis gives the controller's own phase at
+    every step (for the PI and its peers)."""
+    ctrl = make_controller(name, Pose(0.0, 0.0, 0.0), Gains(), Limits(), RobotParams(), 0.01,
+                           EPS_M)
+    seen, dr = [], []
+    for k, d in enumerate(_distances()):
+        a = 0.3 * k  # from all sides
+        x, y = -d * math.cos(a), -d * math.sin(a)
+        out = ctrl.stabiliser.update(x, y, 0.1 * k)
+        dr.append(out[0])
+        seen.append(ctrl.stabiliser.phase)
+    assert set(seen) == {0, 1} and seen.count(1) > 2
+    np.testing.assert_array_equal(control_phases(np.array(dr), EPS_M), seen)
+
+
+def test_phase_topic_is_a_step_at_each_change() -> None:
+    t = np.arange(10, dtype=np.int64) * 10
+    phase = np.array([0, 0, 0, 1, 1, 0, 0, 0, 1, 1], np.int8)
+    pt, pv = phase_changes(t, phase)
+    np.testing.assert_array_equal(pt, [0, 20, 30, 40, 50, 70, 80, 90])
+    np.testing.assert_array_equal(pv, [0, 0, 1, 1, 0, 0, 1, 1])
+
+
+def _log(path: Path, n: int = 300) -> tuple[np.ndarray, np.ndarray]:
+    """A made-up closed-loop log: a straight approach to the goal at (3, 0), then a turn in
+    place inside the stop radius."""
+    t = np.arange(n, dtype=np.int64) * 10_000_000
+    block = np.zeros((n, len(SIGNALS)))
+    x = np.minimum(np.linspace(0.0, 3.2, n), 3.0)
+    block[:, COLUMN["x_m"]] = x
+    block[:, COLUMN["theta_rad"]] = np.where(x >= 3.0, np.linspace(0, 1, n), 0.0)
+    block[:, COLUMN["dr_m"]] = np.abs(3.0 - x)
+    run = {"stop_radius_m": EPS_M, "params": {"L": 0.3, "r": 0.15}}
+    with RunLogWriter(path, run=run, goal=(3.0, 0.0, 1.0)) as log:
+        log.write_block(t, block)
+        log.close({"status": "converged"})
+    return t, block
+
+
+def _messages(path: Path, topic: str) -> list[tuple[int, bytes]]:
+    with open(path, "rb") as f:
+        return [(m.log_time, m.data) for _, _, m in make_reader(f).iter_messages(topics=[topic])]
+
+
+def test_scene_clouds_decode_through_their_own_fields(tmp_path: Path) -> None:
+    """Read the way Foxglove's reader does (fields, offsets, stride from the message): the
+    robot is its outline placed at the logged pose every 50 ms, coloured by phase; the path
+    passes through the logged positions; the goal arrow starts at the goal."""
+    path = tmp_path / "run.mcap"
+    t, block = _log(path)
+    robot = _messages(path, ROBOT_TOPIC)
+    first = np.flatnonzero(np.diff(t // ROBOT_PERIOD_NS, prepend=-1) != 0)
+    assert [lt for lt, _ in robot] == t[first].tolist()
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
+    body = robot_outline(0.3, 0.15)
+    phase = control_phases(block[:, COLUMN["dr_m"]], EPS_M)
+    assert phase[0] == 0 and phase[-1] == 1
+    for (_, data), row in zip(robot, first, strict=True):
+        pos, rgba = read_cloud(data)
+        np.testing.assert_allclose(pos[:, :2], body, atol=1e-6)  # the body, in its own frame
+        msg = PointCloud.FromString(data)
+        assert msg.frame_id == "world"
+        assert msg.pose.position.x == pytest.approx(block[row, COLUMN["x_m"]])
+        theta = 2 * math.atan2(msg.pose.orientation.z, msg.pose.orientation.w)
+        assert theta == pytest.approx(block[row, COLUMN["theta_rad"]])
+        assert tuple(rgba[0, :3]) == PHASE_COLORS[phase[row]]
+    [(t0, data)] = _messages(path, PATH_TOPIC)
+    pos, _ = read_cloud(data)
+    assert t0 == 0 and len(pos) > 10
+    assert np.allclose(pos[:, 1], 0.0) and pos[0, 0] == 0.0 and pos[-1, 0] == pytest.approx(3.0)
+    [(_, data)] = _messages(path, GOAL_TOPIC)
+    pos, _ = read_cloud(data)
+    np.testing.assert_allclose(pos[0, :2], [3.0, 0.0], atol=1e-6)
+    phases = [ControlPhase.FromString(d).phase for _, d in _messages(path, PHASE_TOPIC)]
+    assert phases[0] == 0.0 and phases[-1] == 1.0
+    # the signal topics are those of a log without a scene: read back bit for bit
+    back = read_run(path)
+    np.testing.assert_array_equal(back.block(), block)
+
+
+def test_a_failing_scene_keeps_the_log(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def broken(*args: object) -> bytes:
+        raise ValueError("no scene today")
+
+    monkeypatch.setattr(scene_mod, "cloud_message", broken)
+    path = tmp_path / "run.mcap"
+    with pytest.warns(RuntimeWarning, match="scene topics were not written"):
+        _, block = _log(path)
+    back = read_run(path)
+    assert back.metadata["result"]["status"] == "converged"
+    np.testing.assert_array_equal(back.block(), block)
