@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -47,13 +48,14 @@ def test_phases_are_the_stabilisers(name: str) -> None:
     every step (for the PI and its peers)."""
     ctrl = make_controller(name, Pose(0.0, 0.0, 0.0), Gains(), Limits(), RobotParams(), 0.01,
                            EPS_M)
+    stab: Any = ctrl.stabiliser  # the PI's Stabiliser or a peer's: each has .phase
     seen, dr = [], []
     for k, d in enumerate(_distances()):
         a = 0.3 * k  # from all sides
         x, y = -d * math.cos(a), -d * math.sin(a)
-        out = ctrl.stabiliser.update(x, y, 0.1 * k)
+        out = stab.update(x, y, 0.1 * k)
         dr.append(out[0])
-        seen.append(ctrl.stabiliser.phase)
+        seen.append(stab.phase)
     assert set(seen) == {0, 1} and seen.count(1) > 2
     np.testing.assert_array_equal(control_phases(np.array(dr), EPS_M), seen)
 
