@@ -78,7 +78,7 @@ def _log(path: Path, n: int = 300) -> tuple[np.ndarray, np.ndarray]:
     block[:, COLUMN["theta_rad"]] = np.where(x >= 3.0, np.linspace(0, 1, n), 0.0)
     block[:, COLUMN["dr_m"]] = np.abs(3.0 - x)
     run = {"stop_radius_m": EPS_M, "params": {"L": 0.3, "r": 0.15}}
-    with RunLogWriter(path, run=run, goal=(3.0, 0.0, 1.0)) as log:
+    with RunLogWriter(path, run=run, goal=(3.0, 0.0, 1.0), scene=True) as log:
         log.write_block(t, block)
         log.close({"status": "converged"})
     return t, block

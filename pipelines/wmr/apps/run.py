@@ -283,7 +283,7 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     def open_log() -> RunLogWriter:
         path.parent.mkdir(parents=True, exist_ok=True)
         return RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant),
-                            durable=durable)
+                            durable=durable, scene=True)
 
     with ExitStack() as stack:
         held: _Held | None = None

@@ -469,6 +469,9 @@ class RunLogWriter:
     durable
         fsync the finished log before its rename (default); off, a power loss (not a kill)
         may damage a finished log.
+    scene
+        Also write, when closed, the topics Rerun and Foxglove draw by themselves
+        (:mod:`wmr.adapters.mcap.scene`; ``wmr run`` and ``wmr batch`` turn it on).
 
     Raises
     ------
@@ -490,6 +493,7 @@ class RunLogWriter:
         chunk_period_ns: int = 1_000_000_000,
         topics: tuple[TopicLayout, ...] = STEP_TOPICS,
         durable: bool = True,
+        scene: bool = False,
     ) -> None:
         self.path = os.fspath(path)
         if chunk_period_ns <= 0:
@@ -518,7 +522,8 @@ class RunLogWriter:
             for name, (media_type, data) in (attachments or {}).items():
                 self._file.add_attachment(name, media_type, bytes(data))
             self._encoder = _row_encoder(channel_ids, topics)
-            self._scene = SceneRecorder(run_record, goal, controlled=topics == STEP_TOPICS)
+            self._scene = (SceneRecorder(run_record, goal, controlled=topics == STEP_TOPICS)
+                           if scene else None)
             self._channel_ids = channel_ids
             self._write_goal(goal_channel, goal)
         except BaseException:
@@ -596,7 +601,8 @@ class RunLogWriter:
         self._pending_t.append(t)
         self._pending_x.append(x)
         self._pending_rows += n
-        self._scene.add(t, x)
+        if self._scene is not None:
+            self._scene.add(t, x)
         if self._last_t >= self._boundary:
             self._flush_chunks(final=False)
 
@@ -671,7 +677,8 @@ class RunLogWriter:
         """
         if self._closed:
             raise LogError(f"{self.path}: closed twice")
-        self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
+        if self._scene is not None:
+            self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
         self._closed = True
         try:
             self._flush_chunks(final=True)
