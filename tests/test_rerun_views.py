@@ -135,13 +135,19 @@ def test_raw_blueprint_views_name_what_the_loader_makes(logs: dict[str, Path],
                     "-o", str(rrd)], check=True, capture_output=True)
     held = set(rrd_print(rrd))
     plots = [v for v in vs if v["class"] == "TimeSeries"]
-    assert len(plots) == 8
+    assert len(plots) == 7  # no covariance panel for a run without sensors: it stays empty
     for v in plots:
         topics = {q.split()[-1] for q in v["ViewContents:query"]}
-        if "covariance" in v["name"]:
-            assert topics == {"/robot/pose_estimate/covariance"}
-        else:
-            assert topics - {"/robot/torques"} <= held, v["name"]
+        assert topics - {"/robot/torques"} <= held, v["name"]  # open-loop logs: the torques
+    # a run with sensors: its covariance too, on the topic Rerun makes of it
+    assert main(["replay", "--blueprint", str(rbl), str(logs["gps"])]) == 0
+    _, ents = blueprint(rbl)
+    [cov] = [v for v in views(ents) if "covariance" in v["name"]]
+    assert {q.split()[-1] for q in cov["ViewContents:query"]} == {
+        "/robot/pose_estimate/covariance"}
+    subprocess.run([RERUN, "mcap", "convert", str(logs["gps"]), "--timeline-type", "duration",
+                    "-o", str(rrd)], check=True, capture_output=True)
+    assert "wmr.PoseCovariance:message" in rrd_print(rrd)["/robot/pose_estimate/covariance"][1]
 
 
 def test_replay_is_a_dashboard(logs: dict[str, Path], tmp_path: Path) -> None:

@@ -19,14 +19,14 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if args.blueprint is not None:
         from wmr.adapters.rerun.blueprint import APPLICATION_ID, write_blueprint
 
-        frame = None
-        if args.logs:  # look straight down on these runs
+        frame, sensing = None, False
+        if args.logs:  # look straight down on these runs (and plot their covariance)
             from wmr.adapters.rerun.replay import framing
 
-            frame = framing(args.logs)
+            frame, sensing = framing(args.logs)
         out = check_output(args.blueprint, "--blueprint", suffix=".rbl")
         out.parent.mkdir(parents=True, exist_ok=True)  # as --rrd does
-        path = write_blueprint(out, frame=frame)
+        path = write_blueprint(out, frame=frame, sensing=sensing)
         print(path)
         print(f"wrote the blueprint; open a log with Rerun's own loader: rerun mcap convert "
               f"RUN.mcap --timeline-type duration --application-id {APPLICATION_ID} -o RUN.rrd"

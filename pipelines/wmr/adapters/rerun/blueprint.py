@@ -125,7 +125,8 @@ def _view(panel: RawPanel) -> Any:
                               plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightTop))
 
 
-def raw_blueprint(frame: tuple[float, float, float, float] | None = None) -> Any:
+def raw_blueprint(frame: tuple[float, float, float, float] | None = None, *,
+                  sensing: bool = False) -> Any:
     """The blueprint: the scene's top view beside a two-column grid of the signal panels.
 
     Parameters
@@ -133,6 +134,9 @@ def raw_blueprint(frame: tuple[float, float, float, float] | None = None) -> Any
     frame
         ``(x_min, x_max, y_min, y_max)`` [m] to look straight down on (the runs' paths and
         goals); None: Rerun's own camera (a slanted view of the whole scene).
+    sensing
+        Add the estimate covariance panel (a run with sensors): without sensors it would
+        stay empty.
     """
     import rerun as rr
     import rerun.blueprint as rrb
@@ -153,7 +157,8 @@ def raw_blueprint(frame: tuple[float, float, float, float] | None = None) -> Any
                                  color=(200, 200, 200)),
         eye_controls=eye,
     )
-    views = [_view(p) for p in RAW_PANELS]
+    views = [_view(p) for p in RAW_PANELS
+             if sensing or all(line.topic != COVARIANCE_TOPIC for line in p.lines)]
     return rrb.Blueprint(
         rrb.Horizontal(scene, rrb.Grid(*views, grid_columns=2), column_shares=[5, 6]),
         rrb.TimePanel(timeline=LOG_TIMELINE, state="collapsed"),
@@ -162,11 +167,12 @@ def raw_blueprint(frame: tuple[float, float, float, float] | None = None) -> Any
 
 
 def write_blueprint(path: str | Path, application_id: str = APPLICATION_ID,
-                    frame: tuple[float, float, float, float] | None = None) -> Path:
-    """Write the blueprint to ``path`` (``.rbl``) and return it (``frame``: see
+                    frame: tuple[float, float, float, float] | None = None, *,
+                    sensing: bool = False) -> Path:
+    """Write the blueprint to ``path`` (``.rbl``) and return it (``frame``, ``sensing``: see
     :func:`raw_blueprint`)."""
     out = Path(path)
-    raw_blueprint(frame).save(application_id, out)
+    raw_blueprint(frame, sensing=sensing).save(application_id, out)
     return out
 
 

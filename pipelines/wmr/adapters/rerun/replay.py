@@ -94,6 +94,8 @@ GRID_COLOR: Final[Rgb] = (215, 215, 215)
 AXIS_COLOR: Final[Rgb] = (150, 150, 150)
 #: Label text takes the colour of its point: dark, to read on the label's light box.
 GRID_LABEL_COLOR: Final[Rgb] = (70, 70, 70)
+#: The GPS fixes in the world view: lighter than the log's scene colour, under the paths.
+GPS_DOT_COLOR: Final[Rgb] = (150, 150, 150)
 _DEG: Final = 180.0 / math.pi
 
 
@@ -351,10 +353,11 @@ def log_grid(rec: rr.RecordingStream, bounds: Bounds) -> None:
     rec.log(GRID_ENTITY, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
     rec.log(f"{GRID_ENTITY}/lines", rr.LineStrips2D(lines, colors=colors, radii=[-0.6],
                                                     draw_order=-10.0), static=True)
-    # the line values along the bottom and the left edge (a ruler: the view has no axes)
-    pad = 0.02 * step
-    marks = ([[x + pad, bounds.y_min + pad] for x in xs]
-             + [[bounds.x_min + pad, y + pad] for y in ys])
+    # the line values along the bottom and the left edge (a ruler: the view has no axes),
+    # far enough inside for the label, centred on its point, not to be cut by the edge
+    inset = 0.035 * max(bounds.x_max - bounds.x_min, bounds.y_max - bounds.y_min)
+    marks = ([[x, bounds.y_min + inset] for x in xs]
+             + [[bounds.x_min + inset, y] for y in ys])
     texts = [f"{v:g} m" for v in (*xs, *ys)]
     rec.log(f"{GRID_ENTITY}/labels",
             rr.Points2D(marks, radii=[0.0], colors=[GRID_LABEL_COLOR], labels=texts,
@@ -463,7 +466,7 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
                    run_color: Rgb | None = None, half_track_m: float = 0.3,
                    wheel_radius_m: float = 0.15, info: str | None = None,
                    phase: NDArray[np.int8] | None = None, start_label: str | None = None,
-                   stop_radius_m: float | None = None, goal_label: bool = True) -> None:
+                   stop_radius_m: float | None = None, goal_label: str | None = "") -> None:
     """Log the timeless part of a run once: frame flip, path, goal, robot shape, plot styles.
 
     Parameters
@@ -492,7 +495,8 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
     stop_radius_m
         Radius of the ring drawn around the goal.
     goal_label
-        Label the goal with its pose (off for a goal another run already labelled).
+        The goal's label: ``""`` its pose ``goal (x, y, θ_d°)``, None none (a goal another
+        run already labelled), else this text.
     """
     root = run_entity(name)
     world = f"{root}/world"
@@ -503,8 +507,9 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
             strips, colors = _phase_strips(path_xy, phase)
         else:
             strips, colors = [path_xy], [run_color]
+        # widths in UI points: a path stays visible (and no wider) at any zoom
         rec.log(f"{world}/path", rr.LineStrips2D(strips, colors=colors,
-                                                 radii=[0.03 if run_color is None else 0.02],
+                                                 radii=[-1.5 if run_color is None else -1.0],
                                                  draw_order=10.0), static=True)
         if start_label is not None:
             # the number behind the start (the robot stands on the start at t = 0)
@@ -531,8 +536,9 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
         # the label apart from the arrow, in a neutral colour (red on red did not read)
         rec.log(f"{world}/goal/label",
                 rr.Points2D([[gx, gy - 0.45]], radii=[0.0], colors=[LABEL_COLOR],
-                            labels=[f"goal ({gx:g}, {gy:g}, {math.degrees(gth):.0f}°)"],
-                            show_labels=goal_label, draw_order=21.0), static=True)
+                            labels=[goal_label or f"goal ({gx:g}, {gy:g}, "
+                                                  f"{math.degrees(gth):.0f}°)"],
+                            show_labels=goal_label is not None, draw_order=21.0), static=True)
     # the robot in its own frame (B at the origin, x forward): chassis, two wheels, heading;
     # the heading arrow's colour is sent per step (the phase), so it is not static here
     chassis_len = 2.0 * half_track_m + 0.2
@@ -806,10 +812,10 @@ def log_sensing(rec: rr.RecordingStream, name: str, path: str | os.PathLike[str]
         return np.asarray(np.hypot(xy[:, 0] - tx, xy[:, 1] - ty))
 
     if len(trace.gps_xy_m):
-        # dots of 1.5 UI points (not metres: a fix's noise is a few cm, the view tens of m),
-        # drawn above the paths
-        rec.log(f"{world}/gps", rr.Points2D(trace.gps_xy_m, colors=[GPS_COLOR], radii=[-1.5],
-                                            draw_order=15.0), static=True)
+        # light dots of 1 UI point (not metres: a fix's noise is a few cm, the view tens of
+        # m), drawn under the true path and the estimate
+        rec.log(f"{world}/gps", rr.Points2D(trace.gps_xy_m, colors=[GPS_DOT_COLOR],
+                                            radii=[-1.0], draw_order=5.0), static=True)
         inside = trace.gps_t_ns <= run.t_ns[-1]
         rec.log(f"{root}/{ESTIMATION_ENTITY}/gps",
                 rr.SeriesPoints(names=["GPS fix"], colors=[GPS_COLOR], marker_sizes=[1.5]),
@@ -819,10 +825,10 @@ def log_sensing(rec: rr.RecordingStream, name: str, path: str | os.PathLike[str]
                          columns=rr.Scalars.columns(
                              scalars=error(trace.gps_t_ns[inside], trace.gps_xy_m[inside])))
     if len(trace.est_pose):
-        # thinner than the true path and above it: both stay visible where they overlap
+        # half the true path's width and above it: both stay visible where they overlap
         rec.log(f"{world}/estimate",
-                rr.LineStrips2D([trace.est_pose[:, :2]], colors=[ESTIMATE_COLOR], radii=[0.012],
-                                draw_order=12.0), static=True)
+                rr.LineStrips2D([trace.est_pose[:, :2]], colors=[ESTIMATE_COLOR],
+                                radii=[-0.75], draw_order=12.0), static=True)
         inside = trace.est_t_ns <= run.t_ns[-1]
         rec.log(f"{root}/{ESTIMATION_ENTITY}/estimate",
                 rr.SeriesLines(names=["estimate"], colors=[ESTIMATE_COLOR], widths=[1.5]),
@@ -907,13 +913,16 @@ def _world_points(runs: Sequence[RunData]) -> NDArray[np.float64]:
     return np.concatenate(pts)
 
 
-def framing(inputs: Sequence[str | os.PathLike[str]]) -> tuple[float, float, float, float]:
-    """``(x_min, x_max, y_min, y_max)`` [m] of the world view of these logs: every path,
-    start and goal, with a margin (the bounds ``wmr replay`` fixes; also the top view of the
-    raw-log blueprint, :func:`wmr.adapters.rerun.blueprint.raw_blueprint`)."""
+def framing(inputs: Sequence[str | os.PathLike[str]]
+            ) -> tuple[tuple[float, float, float, float], bool]:
+    """``(x_min, x_max, y_min, y_max)`` [m] of the world view of these logs (every path,
+    start and goal, with a margin: the bounds ``wmr replay`` fixes, and the top view of the
+    raw-log blueprint, :func:`wmr.adapters.rerun.blueprint.raw_blueprint`), and whether any
+    of them is a run with sensors."""
     runs, _ = read_logs(find_logs(inputs))
     b = Bounds.around(_world_points([d for _, d in runs]))
-    return b.x_min, b.x_max, b.y_min, b.y_max
+    sensing = any("sensors" in d.metadata.get("run", {}) for _, d in runs)
+    return (b.x_min, b.x_max, b.y_min, b.y_max), sensing
 
 
 def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[str] | None = None,
@@ -976,17 +985,21 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     log_grid(rec, bounds)
     labels = [f"#{k}" for k in range(len(runs))]
     label_every = len(runs) // _MAX_LABELS + 1
-    goals_labelled: set[tuple[float, float, float]] = set()
+    goals_labelled: set[tuple[float, float]] = set()
     for k, (log, data) in enumerate(runs):
         color = run_color(k, len(runs))
         half_track, radius = robot_geometry(data.metadata.get("run", {}))
         path_xy = np.column_stack([data.signals["x_m"], data.signals["y_m"]])
         phase = _run_phase(data)
         finite = np.isfinite(path_xy).all(axis=1)
-        goal_key = tuple(round(v, 2) for v in data.goal) if data.goal is not None else None
-        new_goal = goal_key is not None and goal_key not in goals_labelled
-        if goal_key is not None:
-            goals_labelled.add(goal_key)  # type: ignore[arg-type]
+        # one label per goal position (runs to one goal with several headings: one label;
+        # the summary has each run's heading)
+        goal_label: str | None = None
+        if data.goal is not None:
+            key = (round(data.goal.x_m, 2), round(data.goal.y_m, 2))
+            if key not in goals_labelled:
+                goals_labelled.add(key)
+                goal_label = f"goal ({key[0]:g}, {key[1]:g})" if many else ""
         log_run_static(rec, log.name, goal=data.goal, path_xy=path_xy[finite], color=color,
                        run_color=color if many else None, half_track_m=half_track,
                        wheel_radius_m=radius,
@@ -994,7 +1007,7 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                        start_label=(labels[k] if k % label_every == 0 else "")
                        if many else None,
                        stop_radius_m=_float(data.metadata.get("run", {}).get("stop_radius_m")),
-                       goal_label=new_goal)
+                       goal_label=goal_label)
         send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many)
         if sensing[k]:
             log_sensing(rec, log.name, log.path, data)
