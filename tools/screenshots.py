@@ -18,7 +18,8 @@ Shots (``NAME.png``):
 ``sensors``  ``wmr replay`` of the Fig. 11 run with ``--sensors gps``;
 ``overlay``  ``wmr replay`` of a 20-run batch folder (random starts, robot parameters);
 ``raw``      the raw log through Rerun's own loader: ``rerun mcap convert --timeline-type
-             duration --application-id wmr-run`` and the blueprint of ``wmr replay --blueprint``.
+             duration --application-id wmr-run`` and the blueprint of ``wmr replay --blueprint``;
+``direct``   the raw log opened as it is, ``rerun fig11.mcap`` (Rerun's own layout).
 
 Xvfb needs ``-extension COMPOSITE`` (else every grab is black); each viewer gets a private
 ``--port`` and ``XDG_RUNTIME_DIR``, and is stopped by its own process id.  A grab that is
@@ -39,7 +40,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-SHOTS = ("single", "sensors", "overlay", "raw")
+SHOTS = ("single", "sensors", "overlay", "raw", "direct")
 #: Screen size of the X server and of the viewer window, pixels.
 WIDTH, HEIGHT = 1600, 1000
 #: The 20-run overlay: the Monte Carlo spec of Fig. 10 cut to 20 runs.
@@ -74,7 +75,7 @@ def make_logs(folder: Path) -> dict[str, Path]:
         (folder / "mc20.toml").write_text(spec)
         _run([*_wmr(), "batch", folder / "mc20.toml", "--out", folder / "mc20", "--no-progress",
               "--workers", "1"], quiet=True)
-    logs["raw"] = logs["single"]
+    logs["raw"] = logs["direct"] = logs["single"]
     return logs
 
 
@@ -84,7 +85,9 @@ def make_recordings(logs: dict[str, Path], folder: Path,
     out: dict[str, list[Path]] = {}
     for shot in only:
         rrd = folder / f"{shot}.rrd"
-        if shot == "raw":
+        if shot == "direct":
+            out[shot] = [logs["direct"]]
+        elif shot == "raw":
             rbl = folder / "wmr.rbl"
             _run([*_wmr(), "replay", "--blueprint", rbl, logs["raw"]], quiet=True)
             rerun = shutil.which("rerun") or "rerun"
