@@ -35,7 +35,6 @@ stabiliser's hysteresis (:func:`control_phases`) replayed on the logged distance
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from collections.abc import Mapping, Sequence
@@ -47,8 +46,10 @@ from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
+from wmr.adapters.mcap.reader import metadata_json
 from wmr.adapters.mcap.schemas import WORLD_FRAME
 from wmr.core.signals import COLUMN
+from wmr.infra.errors import LogError
 
 ROBOT_TOPIC: Final = "/scene/robot"
 PATH_TOPIC: Final = "/scene/path"
@@ -103,11 +104,11 @@ def robot_geometry(run: Mapping[str, str]) -> tuple[float, float]:
     run
         The ``run`` metadata record; its ``params`` is a JSON object with ``L`` and ``r``.
     """
-    try:
-        params = json.loads(run.get("params", "{}"))
+    try:  # bounded: a stranger's log may hold a value nested too deep for json.loads
+        params = metadata_json(run.get("params", "{}"))
         half_track = float(params.get("L", DEFAULT_HALF_TRACK_M))
         radius = float(params.get("r", DEFAULT_WHEEL_RADIUS_M))
-    except (ValueError, TypeError, AttributeError):
+    except (ValueError, TypeError, AttributeError, LogError):
         return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
     if not (half_track > 0 and radius > 0 and math.isfinite(half_track + radius)):
         return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
