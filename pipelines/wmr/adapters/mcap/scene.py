@@ -46,7 +46,6 @@ from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
-from wmr.adapters.mcap.reader import metadata_json
 from wmr.adapters.mcap.schemas import WORLD_FRAME
 from wmr.core.signals import COLUMN
 from wmr.infra.errors import LogError
@@ -104,6 +103,9 @@ def robot_geometry(run: Mapping[str, str]) -> tuple[float, float]:
     run
         The ``run`` metadata record; its ``params`` is a JSON object with ``L`` and ``r``.
     """
+    # here, not at the top: the reader imports the writer, which imports this module
+    from wmr.adapters.mcap.reader import metadata_json
+
     try:  # bounded: a stranger's log may hold a value nested too deep for json.loads
         params = metadata_json(run.get("params", "{}"))
         half_track = float(params.get("L", DEFAULT_HALF_TRACK_M))
