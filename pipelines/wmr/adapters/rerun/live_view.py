@@ -52,9 +52,10 @@ def _as_pose2d(goal: _GoalLike | Pose2D | Sequence[float] | None) -> Pose2D | No
 class LiveViewSink:
     """A :class:`wmr.core.closedloop.BlockSink` that shows a run in Rerun while it is simulated.
 
-    Each block of rows (100 per call in the master loop) goes out as a handful of
-    ``send_columns`` calls; the path so far (every ``path_stride``-th row) is re-sent once per
-    block as one line strip.
+    Rows are sent every ``send_rows`` rows (four blocks of the master loop: about 20 ms of
+    computing, still a live view) as a handful of ``send_columns`` calls, whose fixed cost
+    the dashboard's twelve entities would otherwise pay per 100-row block; the path so far
+    (every ``path_stride``-th row) is re-sent with each as one line strip.
 
     Parameters
     ----------
@@ -65,17 +66,22 @@ class LiveViewSink:
     goal
         The goal pose (``x_m``, ``y_m``, ``heading_rad``), or None.
     path_stride
-        Keep every this many rows of the path (the path strip is re-sent per block).
+        Keep every this many rows of the path (the path strip is re-sent per send).
+    send_rows
+        Send once this many rows are waiting (and what is left at :meth:`close`).
     """
 
     def __init__(self, rec: rr.RecordingStream, name: str,
                  goal: _GoalLike | Pose2D | Sequence[float] | None, *,
-                 path_stride: int = 5) -> None:
+                 path_stride: int = 5, send_rows: int = 400) -> None:
         self.rec = rec
         self.name = name
         self.rows = 0
         self._stride = max(1, int(path_stride))
         self._path: list[NDArray[np.float64]] = []
+        self._send_rows = max(1, int(send_rows))
+        self._waiting_t: list[NDArray[np.int64]] = []
+        self._waiting: list[NDArray[np.float64]] = []
         self._color = RUN_COLORS[0]
         self._path_entity = f"{run_entity(name)}/world/path"
         log_run_static(rec, name, goal=_as_pose2d(goal), path_xy=None, color=self._color,
@@ -87,8 +93,20 @@ class LiveViewSink:
         if n == 0:
             return
         # the master reuses its arrays: take our own copies before they leave
-        t = np.array(t_ns, dtype=np.int64, copy=True)
-        rows = np.array(block, dtype=np.float64, copy=True).reshape(n, len(SIGNALS))
+        self._waiting_t.append(np.array(t_ns, dtype=np.int64, copy=True))
+        self._waiting.append(np.array(block, dtype=np.float64, copy=True).reshape(n,
+                                                                                   len(SIGNALS)))
+        if sum(len(w) for w in self._waiting_t) >= self._send_rows:
+            self._send()
+
+    def _send(self) -> None:
+        """Send the waiting rows, and the path so far."""
+        if not self._waiting_t:
+            return
+        t = np.concatenate(self._waiting_t)
+        rows = np.concatenate(self._waiting)
+        self._waiting_t, self._waiting = [], []
+        n = len(t)
         send_run_columns(self.rec, self.name, t, rows)
         first = (-self.rows) % self._stride
         self._path.append(rows[first::self._stride, [_X, _Y]])
@@ -100,7 +118,8 @@ class LiveViewSink:
                                                         radii=[0.03]))
 
     def close(self) -> None:
-        """Flush what is buffered (and finish the ``.rrd`` file, if any)."""
+        """Send the waiting rows, flush (and finish the ``.rrd`` file, if any)."""
+        self._send()
         self.rec.flush()
         self.rec.disconnect()
 
