@@ -4,8 +4,8 @@
 2. ``wmr replay``: read the log, send everything with ``send_columns``, write the ``.rrd``;
 3. ``send_columns`` of the already-read rows (what ``wmr replay`` does after reading);
 4. per-row ``rr.log`` of the same entities and components (the naive way);
-5. the live view: :class:`wmr.adapters.rerun.replay.LiveViewSink` fed 100-row blocks as the master
-loop does.
+5. the live view: :class:`wmr.adapters.rerun.live_view.LiveViewSink` fed 100-row blocks as the
+   master loop does.
 
 Run: ``PYTHONPATH=pipelines python benchmarks/replay.py``.  Prints medians, rows per second
 and the ratio of each to ``send_columns``.
@@ -24,11 +24,11 @@ from numpy.typing import NDArray
 from _common import median_seconds
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import read_run
+from wmr.adapters.rerun.live_view import LiveViewSink
 from wmr.adapters.rerun.replay import (
     APPLICATION_ID,
     PANELS,
     TIMELINE,
-    LiveViewSink,
     log_run_static,
     replay,
     run_entity,

@@ -25,8 +25,7 @@ from mcap.writer import CompressionType, Writer
 from wmr.adapters.mcap import RunLogWriter, read_run
 from wmr.adapters.mcap.reader import ReadLimits
 from wmr.adapters.mcap.recover import recover_log
-from wmr.adapters.mcap.schemas import STEP_TOPICS, file_descriptor_set, message_class
-from wmr.adapters.mcap.writer import MAGIC
+from wmr.adapters.mcap.schemas import MAGIC, STEP_TOPICS, file_descriptor_set, message_class
 from wmr.adapters.rerun.replay import replay
 from wmr.api import read_log
 from wmr.cli import main

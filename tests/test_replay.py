@@ -18,14 +18,13 @@ from numpy.typing import NDArray
 
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import read_run
+from wmr.adapters.rerun.live_view import TeeSink, live_view_sink
 from wmr.adapters.rerun.replay import (
     PANELS,
     TIMELINE,
-    TeeSink,
     default_rrd_path,
     find_logs,
     has_screen,
-    live_view_sink,
     replay,
 )
 from wmr.apps.run import run_to_log

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from wmr.adapters.mcap.schemas import (
     GOAL_SCHEMA,
     GOAL_TOPIC,
+    MAGIC,
     OPEN_LOOP_TOPICS,
     STEP_TOPICS,
     TORQUE_TOPIC,
@@ -40,7 +41,6 @@ from wmr.adapters.mcap.schemas import (
     file_descriptor_set,
     message_class,
 )
-from wmr.adapters.mcap.writer import MAGIC
 from wmr.core.signals import SIGNALS
 from wmr.infra.durable import partial_path
 from wmr.infra.errors import LogError

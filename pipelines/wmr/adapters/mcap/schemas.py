@@ -37,6 +37,8 @@ from wmr.core.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
 
 WORLD_FRAME: Final = "world"
 BASE_FRAME: Final = "base_link"
+#: The MCAP magic, at the start and the end of every file (MCAP spec, "Magic").
+MAGIC: Final = bytes([137, 77, 67, 65, 80, 48, 13, 10])
 
 # Extra source columns derived from the block: the heading as a quaternion about z.
 SRC_QZ: Final = len(SIGNALS)

@@ -54,6 +54,7 @@ from wmr.adapters.mcap.scene import SceneRecorder
 from wmr.adapters.mcap.schemas import (
     GOAL_SCHEMA,
     GOAL_TOPIC,
+    MAGIC,
     N_SOURCES,
     SRC_QW,
     SRC_QZ,
@@ -69,7 +70,6 @@ from wmr.infra.durable import AtomicFile
 from wmr.infra.errors import LogError
 
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
-MAGIC: Final = bytes([137, 77, 67, 65, 80, 48, 13, 10])
 Compression = Literal["zstd", "lz4", ""]
 
 try:

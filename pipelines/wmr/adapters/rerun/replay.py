@@ -35,8 +35,9 @@ Entity layout, one subtree per run (``<run>`` is the log's file name without ``.
                                   of each fix (runs with sensors)
 
 :class:`~wmr.adapters.rerun.live_view.LiveViewSink` (in :mod:`wmr.adapters.rerun.live_view`,
-importable from here too) sends the same layout block by block from the closed loop, and
-:class:`~wmr.adapters.rerun.live_view.TeeSink` feeds it next to the MCAP writer.
+which imports this module, never the other way) sends the same layout block by block from the
+closed loop, and :class:`~wmr.adapters.rerun.live_view.TeeSink` feeds it next to the MCAP
+writer.
 """
 
 from __future__ import annotations
@@ -1043,18 +1044,6 @@ def iter_signal_names() -> Iterable[str]:
     for panel in PANELS:
         for s in panel.series:
             yield s.signal
-
-
-#: The live view lives in wmr.adapters.rerun.live_view; these names stay importable from here.
-_LIVE_VIEW: Final = ("LiveViewSink", "TeeSink", "live_view_sink")
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LIVE_VIEW:
-        from wmr.adapters.rerun import live_view
-
-        return getattr(live_view, name)
-    raise AttributeError(f"module 'wmr.adapters.rerun.replay' has no attribute {name!r}")
 
 
 __all__ = [

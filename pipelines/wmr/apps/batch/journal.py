@@ -18,7 +18,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from wmr.adapters.mcap.writer import MAGIC
+from wmr.adapters.mcap.schemas import MAGIC
 from wmr.infra.durable import open_own, write_all
 
 JOURNAL = "journal.jsonl"
