@@ -273,7 +273,8 @@ def cloud_points(xy: npt.ArrayLike, colors: npt.ArrayLike) -> npt.NDArray[np.voi
 
 
 def cloud_message(t_ns: int, points: npt.NDArray[np.void],
-                  pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> bytes:
+                  pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                  tail: bytes | None = None) -> bytes:
     """A ``foxglove.PointCloud`` of ``points`` in frame ``world``, placed at ``pose``.
 
     Parameters
@@ -286,15 +287,33 @@ def cloud_message(t_ns: int, points: npt.NDArray[np.void],
         ``(x_m, y_m, theta_rad)`` of the cloud's frame in the world (Rerun draws it as the
         entity's ``InstancePoses3D``, Foxglove as the cloud's origin): the robot's outline is
         the same bytes at every step, so its topic compresses to almost nothing.
+    tail
+        :func:`cloud_tail` of ``points``, when the caller sends the same points many times.
+
+    Protobuf writes the fields of a message one after another in field-number order
+    (timestamp 1, frame_id 2, pose 3, point_stride 4, fields 5, data 6), so the message is the
+    concatenation of its parts' serialisations: the parts that do not change (the frame, and
+    the points of a cloud sent at every step) are serialised once.
     """
-    msg = PointCloud(frame_id=WORLD_FRAME, point_stride=_POINT.itemsize, fields=_FIELDS,
-                     data=points.tobytes())
-    msg.timestamp.FromNanoseconds(int(t_ns))
+    head = PointCloud()
+    head.timestamp.FromNanoseconds(int(t_ns))
+    placed = PointCloud()
     x, y, theta = pose
-    msg.pose.position.x, msg.pose.position.y = x, y
-    msg.pose.orientation.z = math.sin(0.5 * theta)
-    msg.pose.orientation.w = math.cos(0.5 * theta)
-    return bytes(msg.SerializeToString(deterministic=True))
+    placed.pose.position.x, placed.pose.position.y = x, y
+    placed.pose.orientation.z = math.sin(0.5 * theta)
+    placed.pose.orientation.w = math.cos(0.5 * theta)
+    return (head.SerializeToString(deterministic=True) + _FRAME
+            + placed.SerializeToString(deterministic=True)
+            + (cloud_tail(points) if tail is None else tail))
+
+
+def cloud_tail(points: npt.NDArray[np.void]) -> bytes:
+    """The serialised ``point_stride``, ``fields`` and ``data`` of a cloud of ``points``."""
+    return bytes(PointCloud(point_stride=_POINT.itemsize, fields=_FIELDS,
+                            data=points.tobytes()).SerializeToString(deterministic=True))
+
+
+_FRAME: Final = PointCloud(frame_id=WORLD_FRAME).SerializeToString(deterministic=True)
 
 
 def _cloud_schema() -> bytes:
@@ -327,9 +346,14 @@ def _write_clouds(log: MessageLog, topic: str, t_ns: Sequence[int],
                   poses: npt.NDArray[np.float64] | None = None) -> None:
     placed = [(0.0, 0.0, 0.0)] * len(t_ns) if poses is None else [
         (float(x), float(y), float(th)) for x, y, th in poses]
-    log.write_messages(topic, CLOUD_SCHEMA, _cloud_schema(), list(t_ns),
-                       [cloud_message(t, c, p) for t, c, p in zip(t_ns, clouds, placed,
-                                                                  strict=True)])
+    tails: dict[int, bytes] = {}  # the robot's outline is one array sent at every step
+    messages = []
+    for t, c, p in zip(t_ns, clouds, placed, strict=True):
+        tail = tails.get(id(c))
+        if tail is None:
+            tail = tails[id(c)] = cloud_tail(c)
+        messages.append(cloud_message(t, c, p, tail))
+    log.write_messages(topic, CLOUD_SCHEMA, _cloud_schema(), list(t_ns), messages)
 
 
 def write_sensing_scene(log: MessageLog, gps_xy_m: npt.ArrayLike,
