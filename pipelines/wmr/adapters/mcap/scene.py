@@ -44,9 +44,8 @@ import numpy as np
 import numpy.typing as npt
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
-from wmr.adapters.mcap.schemas import WORLD_FRAME
+from wmr.adapters.mcap.schemas import WORLD_FRAME, descriptor_set, timestamped_doubles
 from wmr.core.signals import COLUMN
 from wmr.infra.errors import LogError
 
@@ -224,30 +223,9 @@ def phase_changes(t_ns: npt.NDArray[np.int64], phase: npt.NDArray[np.int8]
     return t_ns[rows], phase[rows]
 
 
-def _phase_file() -> descriptor_pb2.FileDescriptorProto:
-    fdt = descriptor_pb2.FieldDescriptorProto
-    fdp = descriptor_pb2.FileDescriptorProto(
-        name="wmr/phase.proto", package="wmr", syntax="proto3",
-        dependency=["google/protobuf/timestamp.proto"])
-    msg = fdp.message_type.add(name=PHASE_SCHEMA.split(".", 1)[1])
-    msg.field.add(name="timestamp", number=1, type=fdt.TYPE_MESSAGE, label=fdt.LABEL_OPTIONAL,
-                  type_name=".google.protobuf.Timestamp")
-    # a double, like every other plotted field: 0 approach, 1 align
-    msg.field.add(name="phase", number=2, type=fdt.TYPE_DOUBLE, label=fdt.LABEL_OPTIONAL)
-    return fdp
-
-
-_POOL: Final = descriptor_pool.DescriptorPool()
-_POOL.AddSerializedFile(timestamp_pb2.DESCRIPTOR.serialized_pb)
-_POOL.Add(_phase_file())
-ControlPhase: Any = message_factory.GetMessageClass(_POOL.FindMessageTypeByName(PHASE_SCHEMA))
-
-
-def _phase_schema() -> bytes:
-    fds = descriptor_pb2.FileDescriptorSet()
-    timestamp_pb2.DESCRIPTOR.CopyToProto(fds.file.add())
-    fds.file.add().CopyFrom(_phase_file())
-    return fds.SerializeToString(deterministic=True)
+#: The control phase's message (a double, like every other plotted field: 0 approach, 1 align)
+#: and its MCAP schema data.
+ControlPhase, _PHASE_SCHEMA_DATA = timestamped_doubles(PHASE_SCHEMA, "wmr/phase.proto", ("phase",))
 
 
 # --------------------------------------------------------------------------- point clouds
@@ -316,20 +294,8 @@ def cloud_tail(points: npt.NDArray[np.void]) -> bytes:
 _FRAME: Final = PointCloud(frame_id=WORLD_FRAME).SerializeToString(deterministic=True)
 
 
-def _cloud_schema() -> bytes:
-    """The ``FileDescriptorSet`` of ``foxglove.PointCloud``, dependencies first."""
-    fds = descriptor_pb2.FileDescriptorSet()
-    seen: set[str] = set()
-
-    def add(fd: Any) -> None:
-        for dep in fd.dependencies:
-            if dep.name not in seen:
-                seen.add(dep.name)
-                add(dep)
-        fd.CopyToProto(fds.file.add())
-
-    add(PointCloud.DESCRIPTOR.file)
-    return fds.SerializeToString(deterministic=True)
+#: The ``FileDescriptorSet`` of ``foxglove.PointCloud``, dependencies first.
+_CLOUD_SCHEMA_DATA: Final = descriptor_set(PointCloud.DESCRIPTOR.file)
 
 
 class MessageLog(Protocol):
@@ -353,7 +319,7 @@ def _write_clouds(log: MessageLog, topic: str, t_ns: Sequence[int],
         if tail is None:
             tail = tails[id(c)] = cloud_tail(c)
         messages.append(cloud_message(t, c, p, tail))
-    log.write_messages(topic, CLOUD_SCHEMA, _cloud_schema(), list(t_ns), messages)
+    log.write_messages(topic, CLOUD_SCHEMA, _CLOUD_SCHEMA_DATA, list(t_ns), messages)
 
 
 def write_sensing_scene(log: MessageLog, gps_xy_m: npt.ArrayLike,
@@ -445,7 +411,7 @@ class SceneRecorder:
                 m = ControlPhase(phase=float(v))
                 m.timestamp.FromNanoseconds(ti)
                 msgs.append(m.SerializeToString(deterministic=True))
-            log.write_messages(PHASE_TOPIC, PHASE_SCHEMA, _phase_schema(), pt, msgs)
+            log.write_messages(PHASE_TOPIC, PHASE_SCHEMA, _PHASE_SCHEMA_DATA, pt, msgs)
 
 
 def read_cloud(data: bytes) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:

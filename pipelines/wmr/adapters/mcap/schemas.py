@@ -118,6 +118,12 @@ def file_descriptor_set(schema_name: str) -> bytes:
     bytes
         Deterministic serialisation, dependencies first.
     """
+    return descriptor_set(message_class(schema_name).DESCRIPTOR.file)
+
+
+def descriptor_set(file: FileDescriptor) -> bytes:
+    """Serialised ``FileDescriptorSet`` of a proto file and its dependencies, dependencies
+    first (deterministic): the MCAP schema data of any of its messages."""
     fds = descriptor_pb2.FileDescriptorSet()
     seen: set[str] = set()
 
@@ -128,8 +134,35 @@ def file_descriptor_set(schema_name: str) -> bytes:
                 add(dep)
         fd.CopyToProto(fds.file.add())
 
-    add(message_class(schema_name).DESCRIPTOR.file)
+    add(file)
     return fds.SerializeToString(deterministic=True)
+
+
+def timestamped_doubles(schema_name: str, proto_file: str,
+                        fields: tuple[str, ...]) -> tuple[Any, bytes]:
+    """A proto3 message ``schema_name`` (``package.Name``) of a ``timestamp`` (field 1) and
+    ``fields`` as doubles (2, 3, ...), in a file of its own: the message class and the MCAP
+    schema data (the ``FileDescriptorSet``, ``google/protobuf/timestamp.proto`` first).
+
+    The logs' own small topics (the EKF covariance, the control phase) are such messages."""
+    package, name = schema_name.split(".", 1)
+    fdt = descriptor_pb2.FieldDescriptorProto
+    fdp = descriptor_pb2.FileDescriptorProto(
+        name=proto_file, package=package, syntax="proto3",
+        dependency=["google/protobuf/timestamp.proto"])
+    msg = fdp.message_type.add(name=name)
+    msg.field.add(name="timestamp", number=1, type=fdt.TYPE_MESSAGE, label=fdt.LABEL_OPTIONAL,
+                  type_name=".google.protobuf.Timestamp")
+    for i, field in enumerate(fields):
+        msg.field.add(name=field, number=i + 2, type=fdt.TYPE_DOUBLE, label=fdt.LABEL_OPTIONAL)
+    pool = descriptor_pool.DescriptorPool()
+    pool.AddSerializedFile(timestamp_pb2.DESCRIPTOR.serialized_pb)
+    pool.Add(fdp)
+    fds = descriptor_pb2.FileDescriptorSet()
+    timestamp_pb2.DESCRIPTOR.CopyToProto(fds.file.add())
+    fds.file.add().CopyFrom(fdp)
+    return (message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name)),
+            fds.SerializeToString(deterministic=True))
 
 
 # --------------------------------------------------------------------------------------------

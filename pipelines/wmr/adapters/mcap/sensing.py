@@ -31,9 +31,8 @@ from typing import Any, Final, Protocol
 import numpy as np
 import numpy.typing as npt
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
-from wmr.adapters.mcap.schemas import WORLD_FRAME, file_descriptor_set
+from wmr.adapters.mcap.schemas import WORLD_FRAME, file_descriptor_set, timestamped_doubles
 from wmr.core.sensing.estimator import SensingRecord
 
 GPS_TOPIC: Final = "/sensors/gps"
@@ -44,31 +43,9 @@ COVARIANCE_SCHEMA: Final = "wmr.PoseCovariance"
 COVARIANCE_FIELDS: Final = ("xx_m2", "xy_m2", "yy_m2", "theta_theta_rad2")
 
 
-def _covariance_file() -> descriptor_pb2.FileDescriptorProto:
-    fdt = descriptor_pb2.FieldDescriptorProto
-    fdp = descriptor_pb2.FileDescriptorProto(
-        name="wmr/sensing.proto", package="wmr", syntax="proto3",
-        dependency=["google/protobuf/timestamp.proto"])
-    msg = fdp.message_type.add(name=COVARIANCE_SCHEMA.split(".", 1)[1])
-    msg.field.add(name="timestamp", number=1, type=fdt.TYPE_MESSAGE, label=fdt.LABEL_OPTIONAL,
-                  type_name=".google.protobuf.Timestamp")
-    for i, name in enumerate(COVARIANCE_FIELDS):
-        msg.field.add(name=name, number=i + 2, type=fdt.TYPE_DOUBLE, label=fdt.LABEL_OPTIONAL)
-    return fdp
-
-
-_POOL: Final = descriptor_pool.DescriptorPool()
-_POOL.AddSerializedFile(timestamp_pb2.DESCRIPTOR.serialized_pb)
-_POOL.Add(_covariance_file())
-PoseCovariance: Any = message_factory.GetMessageClass(
-    _POOL.FindMessageTypeByName(COVARIANCE_SCHEMA))
-
-
-def _covariance_schema() -> bytes:
-    fds = descriptor_pb2.FileDescriptorSet()
-    timestamp_pb2.DESCRIPTOR.CopyToProto(fds.file.add())
-    fds.file.add().CopyFrom(_covariance_file())
-    return fds.SerializeToString(deterministic=True)
+#: The EKF's covariance message and its MCAP schema data.
+PoseCovariance, _COVARIANCE_SCHEMA_DATA = timestamped_doubles(
+    COVARIANCE_SCHEMA, "wmr/sensing.proto", COVARIANCE_FIELDS)
 
 
 def _pose_bytes(t_ns: int, x: float, y: float, theta: float | None) -> bytes:
@@ -109,7 +86,7 @@ def write_sensing(log: MessageLog, rec: SensingRecord) -> None:
             m = PoseCovariance(**dict(zip(COVARIANCE_FIELDS, c, strict=True)))
             m.timestamp.FromNanoseconds(t)
             msgs.append(m.SerializeToString())
-        log.write_messages(COVARIANCE_TOPIC, COVARIANCE_SCHEMA, _covariance_schema(),
+        log.write_messages(COVARIANCE_TOPIC, COVARIANCE_SCHEMA, _COVARIANCE_SCHEMA_DATA,
                            rec.est_t_ns, msgs)
     from wmr.adapters.mcap.scene import write_sensing_scene  # what Rerun and Foxglove draw
 
