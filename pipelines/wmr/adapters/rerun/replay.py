@@ -828,33 +828,31 @@ def log_sensing(rec: rr.RecordingStream, name: str, path: str | os.PathLike[str]
         ty = np.interp(t_ns.astype(np.float64), t_true, y_true)
         return np.asarray(np.hypot(xy[:, 0] - tx, xy[:, 1] - ty))
 
+    def send_error(name: str, style: Any, t_ns: NDArray[np.int64],
+                   xy: NDArray[np.float64]) -> None:
+        """The distance of ``xy`` from the true path over the run's time, as series ``name``."""
+        inside = t_ns <= run.t_ns[-1]
+        entity = f"{root}/{ESTIMATION_ENTITY}/{name}"
+        rec.log(entity, style, static=True)
+        rec.send_columns(entity, indexes=[_time_column(t_ns[inside])],
+                         columns=rr.Scalars.columns(scalars=error(t_ns[inside], xy[inside])))
+
     if len(trace.gps_xy_m):
         # light dots of 1 UI point (not metres: a fix's noise is a few cm, the view tens of
         # m), drawn under the true path and the estimate
         rec.log(f"{world}/gps", rr.Points2D(trace.gps_xy_m, colors=[GPS_DOT_COLOR],
                                             radii=[-1.0], draw_order=5.0), static=True)
-        inside = trace.gps_t_ns <= run.t_ns[-1]
-        rec.log(f"{root}/{ESTIMATION_ENTITY}/gps",
-                rr.SeriesPoints(names=["GPS fix"], colors=[GPS_COLOR], marker_sizes=[1.5]),
-                static=True)
-        rec.send_columns(f"{root}/{ESTIMATION_ENTITY}/gps",
-                         indexes=[_time_column(trace.gps_t_ns[inside])],
-                         columns=rr.Scalars.columns(
-                             scalars=error(trace.gps_t_ns[inside], trace.gps_xy_m[inside])))
+        send_error("gps", rr.SeriesPoints(names=["GPS fix"], colors=[GPS_COLOR],
+                                          marker_sizes=[1.5]),
+                   trace.gps_t_ns, trace.gps_xy_m)
     if len(trace.est_pose):
         # half the true path's width and above it: both stay visible where they overlap
         rec.log(f"{world}/estimate",
                 rr.LineStrips2D([trace.est_pose[:, :2]], colors=[ESTIMATE_COLOR],
                                 radii=[-0.75], draw_order=12.0), static=True)
-        inside = trace.est_t_ns <= run.t_ns[-1]
-        rec.log(f"{root}/{ESTIMATION_ENTITY}/estimate",
-                rr.SeriesLines(names=["estimate"], colors=[ESTIMATE_COLOR], widths=[1.5]),
-                static=True)
-        rec.send_columns(f"{root}/{ESTIMATION_ENTITY}/estimate",
-                         indexes=[_time_column(trace.est_t_ns[inside])],
-                         columns=rr.Scalars.columns(
-                             scalars=error(trace.est_t_ns[inside],
-                                           trace.est_pose[inside, :2])))
+        send_error("estimate", rr.SeriesLines(names=["estimate"], colors=[ESTIMATE_COLOR],
+                                              widths=[1.5]),
+                   trace.est_t_ns, trace.est_pose[:, :2])
     return True
 
 
