@@ -91,9 +91,11 @@ class Controller(Protocol):
       controller has ``right`` and ``left`` (the servos, of that very class) and its
       ``stabiliser`` has ``update(x, y, theta)`` (the 18 law columns, wheel references at 12
       and 13). The C stepper then runs the servos, the row and the plant step.
-    * ``"blocks"``: the whole closed loop runs in C (the controller FMU): the controller has
-      ``fmu_call`` (its :class:`~wmr.adapters.fmi.robot.FmuCall`), ``converged_index``,
-      ``set_clock(n)`` and ``raise_step_error(code)``.
+    * ``"blocks"``: the whole closed loop runs in C (the controller FMU, or the paper's law
+      compiled into the stepper): the controller has ``block_loop(lib, plant_call, state)``
+      (the C call that fills the block of ``state`` and steps the plant of ``plant_call``
+      until the block is full or the run ends), ``set_clock(n)`` and
+      ``raise_step_error(code)``.
     * ``""``: Python only, one ``step`` per period.
     """
 
@@ -482,13 +484,12 @@ def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
 def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
               controller: Any, block: _Block, tally: _Tally,
               progress: Progress | None) -> None:
-    """Both sides FMUs: whole blocks of the closed loop in one C call (``wmr_fmu_loop``)."""
+    """The whole closed loop in C: one call per block (``wmr_fmu_loop`` with the controller
+    FMU, ``wmr_law_loop`` with the compiled law; the controller's ``block_loop``)."""
     lib, call = stepper
     h = spec.period_s
     st = _loop_state(spec, block)
-    st.i_converged = controller.converged_index
-    run = partial(lib.wmr_fmu_loop, ctypes.byref(call), ctypes.byref(controller.fmu_call),
-                  ctypes.byref(st))
+    run = controller.block_loop(lib, call, st)
     o = (ctypes.c_double * _N_PLANT).from_address(call.out_val)
     hypot = math.hypot
     path = 0.0
