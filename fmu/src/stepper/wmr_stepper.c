@@ -11,8 +11,8 @@
  * expression it replaces, in the same order, each operation rounded on its own (no fused
  * multiply-add: built with -ffp-contract=off, and the pragma for clang).
  *
- * Built with WMR_STEPPER_LAW (and the controller FMU's generated model_sizes.h and
- * model_indices.h on the include path), the library also holds the paper's law itself, the
+ * The library also holds the paper's law itself (with the controller FMU's generated
+ * model_sizes.h and model_indices.h on the include path), the
  * controller FMU's own core (fmu/src/controller/controller.c), so that a run of the Python
  * stabiliser on the robot FMU runs whole blocks of the closed loop in C (wmr_law_loop) with
  * the bits of the Python law: the same operations in the same order, math.hypot's algorithm,
@@ -44,6 +44,10 @@
 #define WMR_DONE 512
 #define WMR_FULL 1024
 
+/* the paper's law: the controller FMU's core (its index headers come from the build) */
+#define WMR_UNITY /* the law's functions get internal linkage, as in the FMU */
+#include "controller.c"
+
 /* One FMU instance and its prebuilt exchange arrays (mirrored by ctypes in robot.py). */
 typedef struct {
     int fmi_version;
@@ -70,6 +74,8 @@ typedef struct {
     /* run_closed_loop's accumulators */
     double energy_net, energy_pos, tau_sq, peak;
     double h;          /* control period, s */
+    double path;       /* path length, m: the sum of math.hypot of the steps, in their order */
+    double x_prev, y_prev; /* the position before the last step */
     long long n;       /* control step: the FMUs are at t = n h */
     long long n_max;   /* last step of a run that does not converge */
     double *block;     /* (rows, n_cols) float64, C order */
@@ -142,6 +148,9 @@ static int plant_step(const wmr_fmu *f, wmr_loop *s, double tau_r, double tau_l)
     code = exchange(f, tau_r, tau_l, 0.0 + (double)s->n * s->h, s->h);
     if (code) return code;
     s->n += 1;
+    s->path += py_hypot(o[0] - s->x_prev, o[1] - s->y_prev);
+    s->x_prev = o[0];
+    s->y_prev = o[1];
     a = tau_r * w_r0;
     b = tau_r * o[5];
     c = tau_l * w_l0;
@@ -213,9 +222,7 @@ WMR_API int wmr_fmu_loop(const wmr_fmu *f, const wmr_fmu *c, wmr_loop *s) {
     }
 }
 
-#ifdef WMR_STEPPER_LAW
-#define WMR_UNITY /* the law's functions get internal linkage, as in the FMU */
-#include "controller.c"
+
 
 /* One run of the compiled law: its parameters (the controller FMU's, in its order), its
  * discrete state and the goal heading and tolerance in rad (mirrored by ctypes). */
@@ -277,7 +284,6 @@ WMR_API int wmr_law_loop(const wmr_fmu *f, wmr_law *c, wmr_loop *s) {
         if (done) return WMR_FULL;
     }
 }
-#endif
 
 /* ---------------------------------------------------------------------------------------------
  * The MCAP Message records of a block of rows, all per-step topics: the bytes of

@@ -493,7 +493,7 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
                   cc: str | None = None) -> Path | None:
     """Compile (or reuse) the C stepper for this host beside the FMUs; None without a compiler.
 
-    The stepper holds the paper's law too (``WMR_STEPPER_LAW``: the controller FMU's core
+    The stepper holds the paper's law too (the controller FMU's core
     ``fmu/src/controller/controller.c`` with its generated index headers), so that a run of the
     Python stabiliser can run whole blocks of the closed loop in C with the same bits.
 
@@ -550,7 +550,7 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
         try:
             includes = [f"-I{gen}", f"-I{paths.fmu_src_dir()}",
                         f"-I{law_sources[1].parent}", f"-I{headers}"]
-            proc = subprocess.run([cc, *STEPPER_CFLAGS, "-DWMR_STEPPER_LAW", *includes,
+            proc = subprocess.run([cc, *STEPPER_CFLAGS, *includes,
                                    str(src), "-o", tmp, "-lm"], capture_output=True, text=True)
             if proc.returncode != 0 or proc.stderr.strip():
                 return None
