@@ -109,11 +109,11 @@ def executors(n_runs: int, repeats: int) -> None:
 
 def phases(n_runs: int) -> None:
     """Where a run's time goes, in one process (no pool, no pipes)."""
+    from wmr.adapters.fmi.compiled_law import CompiledLawController
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.apps.batch.journal import Journal
     from wmr.apps.run import run_to_log
     from wmr.core.closedloop import run_closed_loop
-    from wmr.adapters.fmi.compiled_law import CompiledLawController
 
     batch = _mc_fig10(n_runs)
     fmu = default_fmu()

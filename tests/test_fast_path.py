@@ -74,7 +74,7 @@ def _both(monkeypatch: pytest.MonkeyPatch, fmu: Path, spec: RunSpec, log: Path |
             assert (plant.stepper() is not None) == (loop != "python")
             ctrl = FmuController(controller_fmu) if controller_fmu is not None else None
 
-            def law() -> Controller:
+            def law(loop: str = loop, ctrl: FmuController | None = ctrl) -> Controller:
                 if ctrl is not None:
                     return ctrl
                 if loop == "compiled":

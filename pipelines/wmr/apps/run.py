@@ -24,11 +24,11 @@ import numpy as np
 import numpy.typing as npt
 
 from wmr import __version__
+from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import RunLogWriter
 from wmr.config.scenario_file import run_spec_toml
 from wmr.core.closedloop import BlockSink, Controller, Progress, RunResult, run_closed_loop
-from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import safe_filename

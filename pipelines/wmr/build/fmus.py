@@ -510,12 +510,12 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
     cc
         Host C compiler; the ``CC`` environment variable, else ``cc``, else ``gcc``.
     """
+    from wmr.build.codegen import sizes_header
     from wmr.build.controller_interface import (
         controller_model,
         controller_sources,
         indices_header,
     )
-    from wmr.build.codegen import sizes_header
 
     cc = cc or os.environ.get("CC") or next((c for c in ("cc", "gcc") if shutil.which(c)), None)
     if cc is None or shutil.which(cc) is None:

@@ -23,7 +23,7 @@ import ctypes
 import math
 from collections.abc import Callable
 from functools import partial
-from typing import Any, Final
+from typing import Any, Final, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -153,7 +153,7 @@ def compiled_law_agrees(lib: Any, n_states: int = 200, seed: int = 20261124) -> 
     on the same distances and on pairs of wide exponent range.
     """
     from wmr.core.control import Controller, Gains, Limits
-    from wmr.core.control.stabiliser import ALIGN, APPROACH
+    from wmr.core.control.stabiliser import ALIGN, APPROACH, PointStabiliser
     from wmr.core.plant import Pose, RobotParams
 
     sizes = _bind(lib)
@@ -170,7 +170,8 @@ def compiled_law_agrees(lib: Any, n_states: int = 200, seed: int = 20261124) -> 
     y = np.zeros(n_y)
     z_next = np.zeros(n_x)
     for _ in range(n_states // 40):
-        goal = Pose(*rng.uniform(-20, 20, 2).tolist(), float(rng.uniform(-math.pi, math.pi)))
+        gx, gy = rng.uniform(-20, 20, 2).tolist()
+        goal = Pose(gx, gy, float(rng.uniform(-math.pi, math.pi)))
         gains = Gains(**{k: float(v * rng.uniform(0.5, 2.0))
                          for k, v in Gains().as_dict().items()})
         params = RobotParams(tau_c=float(rng.choice([0.0, 0.3])), b_f=float(rng.choice([0.0, 0.1])))
@@ -186,7 +187,7 @@ def compiled_law_agrees(lib: Any, n_states: int = 200, seed: int = 20261124) -> 
             theta = float(rng.uniform(-4.0, 4.0))
             v, omega = rng.uniform(-0.02, 0.02, 2).tolist()
             w_r, w_l = rng.uniform(-10, 10, 2).tolist()
-            st = py.stabiliser
+            st = cast(PointStabiliser, py.stabiliser)
             st.phase = ALIGN if near and rng.random() < 0.7 else APPROACH
             st.i_s, st.i_theta = rng.uniform(-0.5, 0.5, 2).tolist()
             st.prev_gamma, st.prev_beta = rng.uniform(-4.0, 4.0, 2).tolist()
