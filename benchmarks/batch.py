@@ -109,11 +109,11 @@ def executors(n_runs: int, repeats: int) -> None:
 
 def phases(n_runs: int) -> None:
     """Where a run's time goes, in one process (no pool, no pipes)."""
+    from wmr.adapters.fmi.compiled_law import CompiledLawController
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.apps.batch.journal import Journal
     from wmr.apps.run import run_to_log
     from wmr.core.closedloop import run_closed_loop
-    from wmr.core.control.from_spec import SpecController
 
     batch = _mc_fig10(n_runs)
     fmu = default_fmu()
@@ -133,7 +133,7 @@ def phases(n_runs: int) -> None:
                 plant.reset(run.spec.params, run.spec.start)
                 times["FMU reset"].append(time.perf_counter() - t0)
                 t0 = time.perf_counter()
-                result = run_closed_loop(run.spec, plant, controller=SpecController())
+                result = run_closed_loop(run.spec, plant, controller=CompiledLawController())
                 times["loop, no log"].append(time.perf_counter() - t0)
                 steps.append(result.steps)
                 # the three variants take turns on each run: a load that comes and goes

@@ -12,10 +12,13 @@ two, and it is what a batch that keeps every core busy pays).  Each repetition r
 once, in turn (interleaved), and the table shows medians over ``REPEATS``.  Every row must stop
 at the floor's step counts (the same closed loop), or the script stops.
 
-Rows: the floor; the Python stabiliser (``wmr run``, and batch with the default controller)
-logged and unlogged; the controller FMU (``--controller-fmu``) logged and unlogged; each of the
-four with the C stepper (:func:`wmr.adapters.fmi.robot.load_stepper`) and without it
-(``WMR_STEPPER=0``, the pure-Python path, which was the only one before the stepper).
+Rows: the floor; the paper's PI compiled into the C stepper (``wmr run`` and ``wmr batch``
+with the default controller, :mod:`wmr.adapters.fmi.compiled_law`: the Python law's bits)
+logged and unlogged; the Python stabiliser (``SpecController``: what the default ran before,
+and what every peer controller and every run with sensors runs) logged and unlogged; the
+controller FMU (``--controller-fmu``) logged and unlogged; the last four with the C stepper
+(:func:`wmr.adapters.fmi.robot.load_stepper`) and without it (``WMR_STEPPER=0``, the
+pure-Python path, which was the only one before the stepper).
 
 Run: ``python benchmarks/loop_vs_c_floor.py``.
 """
@@ -34,6 +37,7 @@ from collections.abc import Callable
 from pathlib import Path
 from time import perf_counter, process_time
 
+from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.controller import FmuController, controller_parameters
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.run import run_to_log
@@ -115,9 +119,15 @@ def main() -> None:
 
         def python_rows(mode: str, tag: str) -> dict[str, Callable[[RunSpec], int]]:
             plant, cfmu = plants[mode], ctrls[mode]
-            return {
-                f"wmr run, Python stabiliser, logged{tag}":
+            compiled = {
+                "wmr run (the PI compiled into the stepper: the default), logged":
                     lambda s: int(run_to_log(s, log, plant)["steps"]),
+                "the PI compiled into the stepper, no log":
+                    lambda s: run_closed_loop(s, plant, controller=CompiledLawController()).steps,
+            } if mode == "1" else {}
+            return compiled | {
+                f"wmr run, Python stabiliser, logged{tag}":
+                    lambda s: int(run_to_log(s, log, plant, controller=SpecController())["steps"]),
                 f"Python stabiliser, no log{tag}":
                     lambda s: run_closed_loop(s, plant, controller=SpecController()).steps,
                 f"wmr run --controller-fmu, logged{tag}":

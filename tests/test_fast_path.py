@@ -19,12 +19,13 @@ import pytest
 
 import wmr.core.control.peers as peers
 from wmr.adapters.fmi import robot
+from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.controller import FmuController
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.run import run_to_log
 from wmr.build.fmus import BuildResult, build_stepper
 from wmr.config.scenario import load_scenario, with_overrides
-from wmr.core.closedloop import RunResult, run_closed_loop
+from wmr.core.closedloop import Controller, RunResult, run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.runspec import RunSpec
 
@@ -55,25 +56,40 @@ def _bits(result: RunResult) -> dict[str, Any]:
     return out
 
 
+#: The loops a run can take: the paper's law compiled into the stepper (whole blocks in C),
+#: the Python law with the stepper (one C call per step), and the pure-Python loop.
+LOOPS = ("compiled", "stepper", "python")
+
+
 def _both(monkeypatch: pytest.MonkeyPatch, fmu: Path, spec: RunSpec, log: Path | None,
-          controller_fmu: Path | None = None) -> list[tuple[dict[str, Any], bytes]]:
-    """The run with the stepper and without it: its result's bits and its log's bytes."""
+          controller_fmu: Path | None = None, loops: tuple[str, ...] = LOOPS
+          ) -> list[tuple[dict[str, Any], bytes]]:
+    """The run in each of ``loops`` (with a controller FMU: with the stepper and without):
+    its result's bits and its log's bytes."""
     got = []
-    for mode in ("1", "0"):
-        monkeypatch.setenv("WMR_STEPPER", mode)
+    for loop in loops if controller_fmu is None else ("stepper", "python"):
+        monkeypatch.setenv("WMR_STEPPER", "0" if loop == "python" else "1")
         with FmuPlant(fmu) as plant:
             plant.reset(spec.params, spec.start)  # instantiated here, with or without
-            assert (plant.stepper() is not None) == (mode == "1")
+            assert (plant.stepper() is not None) == (loop != "python")
             ctrl = FmuController(controller_fmu) if controller_fmu is not None else None
+
+            def law(loop: str = loop, ctrl: FmuController | None = ctrl) -> Controller:
+                if ctrl is not None:
+                    return ctrl
+                if loop == "compiled":
+                    return CompiledLawController()
+                return SpecController()
+
             try:
                 if log is None:
-                    result = run_closed_loop(spec, plant, controller=ctrl or SpecController())
+                    result = run_closed_loop(spec, plant, controller=law())
                     got.append((_bits(result), b""))
                 else:
-                    run_to_log(spec, log, plant, controller_fmu=ctrl)
+                    run_to_log(spec, log, plant, controller=law())
                     data = log.read_bytes()
                     log.unlink()
-                    result = run_closed_loop(spec, plant, controller=ctrl or SpecController())
+                    result = run_closed_loop(spec, plant, controller=law())
                     got.append((_bits(result), data))
             finally:
                 if ctrl is not None:
@@ -85,9 +101,10 @@ def _both(monkeypatch: pytest.MonkeyPatch, fmu: Path, spec: RunSpec, log: Path |
 def test_python_law_converged_run_is_bit_identical_and_its_log_byte_identical(
         monkeypatch: pytest.MonkeyPatch, built: BuildResult, tmp_path: Path,
         version: int) -> None:
-    fast, slow = _both(monkeypatch, built.fmus[version], _fig11(), tmp_path / "r.mcap")
+    compiled, fast, slow = _both(monkeypatch, built.fmus[version], _fig11(),
+                                 tmp_path / "r.mcap")
     assert fast[0]["status"] == "converged" and fast[0]["steps"] == 2672
-    assert fast == slow
+    assert compiled == fast == slow
 
 
 def test_controller_fmu_converged_run_is_bit_identical_and_its_log_byte_identical(
@@ -104,8 +121,8 @@ def test_timeout_in_the_middle_of_a_block_is_bit_identical(
     spec = _fig11(t_max_s=2.555)  # 256 steps: the last block is not full
     if controller == "astolfi":
         spec = dataclasses.replace(spec, controller="astolfi")
-    fast, slow = _both(monkeypatch, built.fmus[3], spec, None,
-                       built.controllers[3] if controller == "fmu" else None)
+    *_, fast, slow = _both(monkeypatch, built.fmus[3], spec, None,
+                           built.controllers[3] if controller == "fmu" else None)
     assert fast[0]["status"] == "timeout" and fast[0]["steps"] == 257
     assert fast == slow
 
@@ -113,8 +130,8 @@ def test_timeout_in_the_middle_of_a_block_is_bit_identical(
 def test_run_with_sensors_is_bit_identical(monkeypatch: pytest.MonkeyPatch,
                                            built: BuildResult) -> None:
     spec = _fig11(t_max_s=3.0, sensors={"gps_sigma_m": 0.2})
-    fast, slow = _both(monkeypatch, built.fmus[2], spec, None)
-    assert fast == slow
+    compiled, fast, slow = _both(monkeypatch, built.fmus[2], spec, None)
+    assert compiled == fast == slow
 
 
 def test_plant_failure_gives_the_same_status_message_and_rows(
@@ -139,7 +156,8 @@ def test_plant_failure_gives_the_same_status_message_and_rows(
 
     # the run's own law is built by SpecController.configure, at every run
     monkeypatch.setattr(peers, "make_controller", failing)
-    fast, slow = _both(monkeypatch, built.fmus[3], _fig11(), tmp_path / "r.mcap")
+    fast, slow = _both(monkeypatch, built.fmus[3], _fig11(), tmp_path / "r.mcap",
+                       loops=("stepper", "python"))
     assert fast[0]["status"] == "failed"
     assert "FmuError at t = 1.5 s: fmi3SetFloat64 returned Error" in fast[0]["message"]
     assert fast == slow
@@ -209,3 +227,90 @@ def test_the_hot_path_wrap_is_wrap_then_unwrap_bit_for_bit() -> None:
         for prev in (0.0, -0.0, 1.0, -1.0, rng.uniform(-4.0, 4.0)):
             assert struct.pack("<d", _wrapped_near(a, prev)) == \
                 struct.pack("<d", unwrap_near(wrap_angle(a), prev)), (a, prev)
+
+
+def test_compiled_law_runs_the_monte_carlo_with_the_python_law_s_bits(
+        monkeypatch: pytest.MonkeyPatch, built: BuildResult, tmp_path: Path) -> None:
+    """Six runs of the Fig. 10 Monte Carlo (random starts all around the goal, goal headings
+    of 0 and 180 deg, random mass, centre of gravity, inertia and friction feed-forward): the
+    compiled law gives the Python law's results and log bytes, and it did run in C."""
+    from wmr.apps.batch.spec import load_batch
+
+    runs = [run.spec for run in load_batch("mc_fig10").runs[:6]]
+    used = []
+    real = CompiledLawController.block_loop
+
+    def spy(self: CompiledLawController, *args: Any) -> Any:
+        used.append(self)
+        return real(self, *args)
+
+    monkeypatch.setattr(CompiledLawController, "block_loop", spy)
+    for spec in runs:
+        compiled, fast = _both(monkeypatch, built.fmus[3], spec, tmp_path / "r.mcap",
+                               loops=("compiled", "stepper"))
+        assert compiled[0]["status"] in ("converged", "timeout"), spec.name
+        assert compiled == fast, spec.name
+    assert len(used) == 2 * len(runs)  # the log's run and the result's run, each in C
+
+
+def test_compiled_law_agrees_with_the_python_law_on_many_states() -> None:
+    """20,000 random states (both phases, across the angle wrap, random goals, gains and
+    friction): every output and next state of the compiled law is the Python law's."""
+    from wmr.adapters.fmi.compiled_law import compiled_law_agrees
+
+    lib = robot.load_stepper()
+    assert lib is not None
+    assert compiled_law_agrees(lib, n_states=20_000, seed=7)
+
+
+def test_a_compiled_law_that_disagrees_in_one_bit_is_not_used(
+        monkeypatch: pytest.MonkeyPatch, built: BuildResult) -> None:
+    """A library whose hypot is one ulp off on one pair (another Python's math.hypot, say) is
+    refused by the self-check, and the runs take the Python law with the stepper."""
+    import ctypes
+
+    from wmr.adapters.fmi import compiled_law
+
+    real = robot.load_stepper()
+    assert real is not None
+
+    class OneUlpOff:
+        _name = "one-ulp-off"
+
+        def __getattr__(self, name: str) -> Any:
+            return getattr(real, name)
+
+        def __init__(self) -> None:
+            self.calls = 0
+            hypot = real.wmr_law_hypot
+
+            def off(a: float, b: float) -> float:
+                self.calls += 1
+                h = float(hypot(ctypes.c_double(a), ctypes.c_double(b)))
+                return math.nextafter(h, math.inf) if self.calls == 300 else h
+
+            self.wmr_law_hypot = off
+
+    fake = OneUlpOff()
+    assert not compiled_law.compiled_law_agrees(fake)
+    monkeypatch.setattr(compiled_law, "load_stepper", lambda: OneUlpOff())
+    ctrl = CompiledLawController()
+    ctrl.configure(_fig11())
+    assert ctrl.stepper_kind == "servo"
+
+
+@pytest.mark.parametrize("change", [{"controller": "astolfi"},
+                                    {"sensors": {"gps_sigma_m": 0.2}}])
+def test_the_compiled_law_is_only_the_paper_s_law_without_sensors(change: dict[str, Any]
+                                                                   ) -> None:
+    spec = _fig11()
+    assert robot.load_stepper() is not None
+    ctrl = CompiledLawController()
+    ctrl.configure(spec)
+    assert ctrl.stepper_kind == "blocks"
+    if "controller" in change:
+        spec = dataclasses.replace(spec, **change)
+    else:
+        spec = _fig11(**change)
+    ctrl.configure(spec)
+    assert ctrl.stepper_kind == "servo"

@@ -137,3 +137,32 @@ def test_a_failing_scene_keeps_the_log(tmp_path: Path, monkeypatch: pytest.Monke
     back = read_run(path)
     assert back.metadata["result"]["status"] == "converged"
     np.testing.assert_array_equal(back.block(), block)
+
+
+def test_cloud_messages_are_protobuf_s_own_bytes() -> None:
+    """The concatenated parts (cached timestamps, directly packed poses) against one
+    PointCloud serialised whole by protobuf: random poses and times, and every zero, -0.0
+    and sign case of x, y and the heading."""
+    import random
+
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
+    from wmr.adapters.mcap.scene import _FIELDS, cloud_message, cloud_points
+
+    rng = random.Random(11)
+    pts = cloud_points([[0.0, 0.0], [1.0, -2.5], [3.25, 0.5]], (10, 20, 30))
+    specials = [0.0, -0.0, 1e-300, -7.5, 12.0]
+    cases = [(x, y, th, t) for x in specials for y in specials
+             for th in (0.0, -0.0, math.pi, -math.pi, 2 * math.pi, 1.0)
+             for t in (0, 1, 999_999_999, 1_000_000_000, 12_345_678_901)]
+    cases += [(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(-10, 10),
+               rng.randrange(0, 10**12)) for _ in range(3000)]
+    for x, y, th, t in cases:
+        whole = PointCloud(frame_id="world", point_stride=16, fields=_FIELDS,
+                           data=pts.tobytes())
+        whole.timestamp.FromNanoseconds(t)
+        whole.pose.position.x, whole.pose.position.y = x, y
+        whole.pose.orientation.z = math.sin(0.5 * th)
+        whole.pose.orientation.w = math.cos(0.5 * th)
+        assert cloud_message(t, pts, (x, y, th)) == whole.SerializeToString(
+            deterministic=True), (x, y, th, t)

@@ -11,6 +11,13 @@
  * expression it replaces, in the same order, each operation rounded on its own (no fused
  * multiply-add: built with -ffp-contract=off, and the pragma for clang).
  *
+ * The library also holds the paper's law itself (with the controller FMU's generated
+ * model_sizes.h and model_indices.h on the include path), the
+ * controller FMU's own core (fmu/src/controller/controller.c), so that a run of the Python
+ * stabiliser on the robot FMU runs whole blocks of the closed loop in C (wmr_law_loop) with
+ * the bits of the Python law: the same operations in the same order, math.hypot's algorithm,
+ * and the run's goal heading and tolerance in the Python run's own radians.
+ *
  * Status codes: 0 OK; 16 * (call + 1) + FMI status for a call that returned above Warning
  * (call 0 set, 1 doStep, 2 get) of the robot FMU, 64 + the same for the controller FMU;
  * WMR_NONFINITE for a non-finite pose; WMR_DONE and WMR_FULL from wmr_fmu_loop.
@@ -36,6 +43,10 @@
 #define WMR_NONFINITE 256
 #define WMR_DONE 512
 #define WMR_FULL 1024
+
+/* the paper's law: the controller FMU's core (its index headers come from the build) */
+#define WMR_UNITY /* the law's functions get internal linkage, as in the FMU */
+#include "controller.c"
 
 /* One FMU instance and its prebuilt exchange arrays (mirrored by ctypes in robot.py). */
 typedef struct {
@@ -63,6 +74,8 @@ typedef struct {
     /* run_closed_loop's accumulators */
     double energy_net, energy_pos, tau_sq, peak;
     double h;          /* control period, s */
+    double path;       /* path length, m: the sum of math.hypot of the steps, in their order */
+    double x_prev, y_prev; /* the position before the last step */
     long long n;       /* control step: the FMUs are at t = n h */
     long long n_max;   /* last step of a run that does not converge */
     double *block;     /* (rows, n_cols) float64, C order */
@@ -108,7 +121,7 @@ WMR_API int wmr_exchange(const wmr_fmu *f, double tau_r, double tau_l, double t,
 }
 
 /* WheelServo.update */
-static double servo(const wmr_loop *s, double *integral, double omega_ref, double omega) {
+static double wheel_servo(const wmr_loop *s, double *integral, double omega_ref, double omega) {
     double e = omega_ref - omega;
     double ff = s->b_ff * omega_ref;
     double v, tau;
@@ -135,6 +148,9 @@ static int plant_step(const wmr_fmu *f, wmr_loop *s, double tau_r, double tau_l)
     code = exchange(f, tau_r, tau_l, 0.0 + (double)s->n * s->h, s->h);
     if (code) return code;
     s->n += 1;
+    s->path += py_hypot(o[0] - s->x_prev, o[1] - s->y_prev);
+    s->x_prev = o[0];
+    s->y_prev = o[1];
     a = tau_r * w_r0;
     b = tau_r * o[5];
     c = tau_l * w_l0;
@@ -152,8 +168,8 @@ static int plant_step(const wmr_fmu *f, wmr_loop *s, double tau_r, double tau_l)
 WMR_API int wmr_servo_step(const wmr_fmu *f, wmr_loop *s, double w_r_ref, double w_l_ref,
                            int mode) {
     const double *o = f->out_val;
-    double tau_r = servo(s, &s->integral_r, w_r_ref, o[5]);
-    double tau_l = servo(s, &s->integral_l, w_l_ref, o[6]);
+    double tau_r = wheel_servo(s, &s->integral_r, w_r_ref, o[5]);
+    double tau_l = wheel_servo(s, &s->integral_l, w_l_ref, o[6]);
     double *row = s->block + (size_t)s->row * (size_t)s->n_cols;
     memcpy(row, o, (size_t)s->n_plant * sizeof(double));
     row[s->col_tau_r] = mode == 1 ? 0.0 : tau_r;
@@ -202,6 +218,69 @@ WMR_API int wmr_fmu_loop(const wmr_fmu *f, const wmr_fmu *c, wmr_loop *s) {
         if (s->n >= s->n_max) return WMR_DONE | 2;
         done = s->row == s->rows_max;
         if ((code = plant_step(f, s, row[s->col_tau_r], row[s->col_tau_l]))) return code;
+        if (done) return WMR_FULL;
+    }
+}
+
+
+
+/* One run of the compiled law: its parameters (the controller FMU's, in its order), its
+ * discrete state and the goal heading and tolerance in rad (mirrored by ctypes). */
+typedef struct {
+    const double *p;
+    double *z;
+    double theta_d;
+    double tol;
+} wmr_law;
+
+WMR_API void wmr_law_sizes(int *np, int *nu, int *ny, int *nx) {
+    *np = MODEL_NP;
+    *nu = MODEL_NU;
+    *ny = MODEL_NY;
+    *nx = MODEL_NX;
+}
+
+/* One sample of the law (for the tests and the self-check: the Python law, bit for bit). */
+WMR_API void wmr_law_sample(const wmr_law *c, const double *u, double *y, double *z_next) {
+    sample(c->z, u, c->p, c->theta_d, c->tol, y, z_next);
+}
+
+WMR_API double wmr_law_hypot(double a, double b) { return py_hypot(a, b); }
+
+/* The closed loop of the compiled law and the robot FMU, rows until the block is full or the
+ * run ends: per step the Python path's order (converged on the state before the sample, the
+ * sample, the row, then the plant step unless the run ends).  Returns as wmr_fmu_loop. */
+WMR_API int wmr_law_loop(const wmr_fmu *f, wmr_law *c, wmr_loop *s) {
+    const double *o = f->out_val;
+    double u[MODEL_NU], y[MODEL_NY], z_next[MODEL_NX];
+    for (;;) {
+        double *row;
+        int done;
+        if (!(isfinite(o[0]) && isfinite(o[1]) && isfinite(o[2]))) return WMR_NONFINITE;
+        u[U_x] = o[0];
+        u[U_y] = o[1];
+        u[U_theta] = o[2];
+        u[U_v] = o[3];
+        u[U_omega] = o[4];
+        u[U_omega_r] = o[5];
+        u[U_omega_l] = o[6];
+        sample(c->z, u, c->p, c->theta_d, c->tol, y, z_next);
+        memcpy(c->z, z_next, sizeof z_next);
+        row = s->block + (size_t)s->row * (size_t)s->n_cols;
+        memcpy(row, o, (size_t)s->n_plant * sizeof(double));
+        memcpy(row + s->n_plant, y, (size_t)s->n_sig * sizeof(double));
+        s->row += 1;
+        if (y[Y_converged] != 0.0) {
+            row[s->col_tau_r] = 0.0;
+            row[s->col_tau_l] = 0.0;
+            return WMR_DONE | 1;
+        }
+        if (s->n >= s->n_max) return WMR_DONE | 2;
+        done = s->row == s->rows_max;
+        {
+            int code = plant_step(f, s, row[s->col_tau_r], row[s->col_tau_l]);
+            if (code) return code;
+        }
         if (done) return WMR_FULL;
     }
 }

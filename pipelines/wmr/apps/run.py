@@ -24,11 +24,11 @@ import numpy as np
 import numpy.typing as npt
 
 from wmr import __version__
+from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import RunLogWriter
 from wmr.config.scenario_file import run_spec_toml
 from wmr.core.closedloop import BlockSink, Controller, Progress, RunResult, run_closed_loop
-from wmr.core.control.from_spec import SpecController
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import safe_filename
@@ -250,7 +250,8 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     (the live Rerun view of ``wmr run --view``).  ``controller_fmu`` runs the controller FMU
     in place of the Python controller (``wmr run --controller-fmu``); ``controller`` runs any
     other :class:`~wmr.core.closedloop.Controller` (default: the run's own law,
-    :class:`~wmr.core.control.from_spec.SpecController`).
+    :class:`~wmr.adapters.fmi.compiled_law.CompiledLawController`, which runs the paper's PI
+    compiled into the C stepper with the Python law's bits, and any other law in Python).
 
     ``log`` decides whether a log is kept (:class:`LogPolicy`): with ``keep="failed"`` the
     rows are held in memory (up to :data:`HOLD_ROWS`) and written only if the run does not
@@ -309,7 +310,7 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
             from wmr.adapters.rerun.live_view import TeeSink
 
             sink = also if sink is None else TeeSink(sink, also)
-        law = controller or controller_fmu or SpecController()
+        law = controller or controller_fmu or CompiledLawController()
         result = run_closed_loop(spec, plant, sink=sink, progress=progress, controller=law)
         if thin is not None:
             thin.end()

@@ -493,10 +493,15 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
                   cc: str | None = None) -> Path | None:
     """Compile (or reuse) the C stepper for this host beside the FMUs; None without a compiler.
 
-    The library is named by a digest of its source, the flags and the compiler's version, so
-    that a changed source is never served by an old binary.  The stepper is host-only (it is
-    loaded by this Python, never shipped): without a host C compiler, or when the compile
-    fails, the master loop runs its pure-Python path, which gives the same bits.
+    The stepper holds the paper's law too (the controller FMU's core
+    ``fmu/src/controller/controller.c`` with its generated index headers), so that a run of the
+    Python stabiliser can run whole blocks of the closed loop in C with the same bits.
+
+    The library is named by a digest of its sources, the generated headers, the flags and the
+    compiler's version, so that a changed source is never served by an old binary.  The stepper
+    is host-only (it is loaded by this Python, never shipped): without a host C compiler, or
+    when the compile fails, the master loop runs its pure-Python path, which gives the same
+    bits.
 
     Parameters
     ----------
@@ -505,30 +510,48 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
     cc
         Host C compiler; the ``CC`` environment variable, else ``cc``, else ``gcc``.
     """
+    from wmr.build.codegen import sizes_header
+    from wmr.build.controller_interface import (
+        controller_model,
+        controller_sources,
+        indices_header,
+    )
+
     cc = cc or os.environ.get("CC") or next((c for c in ("cc", "gcc") if shutil.which(c)), None)
     if cc is None or shutil.which(cc) is None:
         return None
     src = stepper_source()
     try:
         headers = _fmi_headers()
+        law_sources = [paths.fmu_src_dir() / "model.h", *controller_sources()]
         version = subprocess.run([cc, "--version"], capture_output=True, text=True,
                                  check=True).stdout.splitlines()[0]
     except (BuildError, OSError, subprocess.CalledProcessError, IndexError):
         return None
+    model = controller_model()
+    generated = {"model_sizes.h": sizes_header(model), "model_indices.h": indices_header(model)}
     h = hashlib.sha256(src.read_bytes())
+    for f in law_sources:
+        h.update(f.read_bytes())
+    for text in generated.values():
+        h.update(text.encode())
     h.update(" ".join([version, *STEPPER_CFLAGS]).encode())
     out = Path(out_dir) if out_dir is not None else paths.default_fmu_dir()
     lib = out / f"wmr_stepper-{h.hexdigest()[:16]}.so"
     if lib.exists():
         return lib
-    with _locked(out):
+    with _locked(out), tempfile.TemporaryDirectory(dir=out, prefix=".stepper-") as gen:
         if lib.exists():
             return lib
+        for name, text in generated.items():
+            Path(gen, name).write_text(text)
         fd, tmp = tempfile.mkstemp(dir=out, prefix=".", suffix=".so.part")
         os.close(fd)
         try:
-            proc = subprocess.run([cc, *STEPPER_CFLAGS, f"-I{headers}", str(src), "-o", tmp,
-                                   "-lm"], capture_output=True, text=True)
+            includes = [f"-I{gen}", f"-I{paths.fmu_src_dir()}",
+                        f"-I{law_sources[1].parent}", f"-I{headers}"]
+            proc = subprocess.run([cc, *STEPPER_CFLAGS, *includes,
+                                   str(src), "-o", tmp, "-lm"], capture_output=True, text=True)
             if proc.returncode != 0 or proc.stderr.strip():
                 return None
             os.chmod(tmp, 0o755)

@@ -91,9 +91,11 @@ class Controller(Protocol):
       controller has ``right`` and ``left`` (the servos, of that very class) and its
       ``stabiliser`` has ``update(x, y, theta)`` (the 18 law columns, wheel references at 12
       and 13). The C stepper then runs the servos, the row and the plant step.
-    * ``"blocks"``: the whole closed loop runs in C (the controller FMU): the controller has
-      ``fmu_call`` (its :class:`~wmr.adapters.fmi.robot.FmuCall`), ``converged_index``,
-      ``set_clock(n)`` and ``raise_step_error(code)``.
+    * ``"blocks"``: the whole closed loop runs in C (the controller FMU, or the paper's law
+      compiled into the stepper): the controller has ``block_loop(lib, plant_call, state)``
+      (the C call that fills the block of ``state`` and steps the plant of ``plant_call``
+      until the block is full or the run ends), ``set_clock(n)`` and
+      ``raise_step_error(code)``.
     * ``""``: Python only, one ``step`` per period.
     """
 
@@ -209,7 +211,8 @@ class LoopState(ctypes.Structure):
 
     _fields_ = [*((name, ctypes.c_double) for name in (
         "k_p", "k_i", "torque_max", "h_servo", "b_ff", "tau_c_ff", "w_c", "k_t",
-        "integral_r", "integral_l", "energy_net", "energy_pos", "tau_sq", "peak", "h")),
+        "integral_r", "integral_l", "energy_net", "energy_pos", "tau_sq", "peak", "h",
+        "path", "x_prev", "y_prev")),
         ("n", ctypes.c_longlong), ("n_max", ctypes.c_longlong),
         ("block", ctypes.c_void_p),
         *((name, ctypes.c_int) for name in (
@@ -221,9 +224,10 @@ class LoopState(ctypes.Structure):
 STEP_CONTROLLER, STEP_NONFINITE, STEP_DONE, STEP_FULL = 64, 256, 512, 1024
 
 
-def _loop_state(spec: RunSpec, block: _Block) -> LoopState:
+def _loop_state(spec: RunSpec, block: _Block, tally: _Tally) -> LoopState:
     st = LoopState()
     st.h = spec.period_s
+    st.x_prev, st.y_prev = tally.x, tally.y  # the path starts at the start pose
     st.n_max = spec.n_steps_max
     st.block = block.rows.ctypes.data
     st.n_cols, st.rows_max, st.n_plant = _N_SIG, BLOCK_ROWS, _N_PLANT
@@ -413,7 +417,7 @@ def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
     tol = spec.heading_tolerance_rad
     stab: Stabiliser = controller.stabiliser
     servo: WheelServo = controller.right
-    st = _loop_state(spec, block)
+    st = _loop_state(spec, block, tally)
     st.k_p, st.k_i, st.torque_max, st.h_servo = servo.K_p, servo.K_i, servo.torque_max, servo.h
     st.b_ff, st.tau_c_ff, st.w_c, st.k_t = servo.b_ff, servo.tau_c_ff, servo.w_c, servo.k_t
     left = controller.left
@@ -427,9 +431,8 @@ def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
     laws: list[tuple[float, ...]] = []
     keep = laws.append
     converged_test, update = stab.converged, stab.update
-    isfinite, hypot = math.isfinite, math.hypot
+    isfinite = math.isfinite
     n = n_first = 0
-    path = 0.0
     x, y, theta = tally.x, tally.y, tally.theta
     converged = False
 
@@ -465,15 +468,13 @@ def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
             if converged or n >= n_max:
                 break
             n += 1
-            nx, ny, theta = o[0], o[1], o[2]
-            path += hypot(nx - x, ny - y)
-            x, y = nx, ny
+            x, y, theta = o[0], o[1], o[2]
     finally:
         fill(st.row)
         plant.set_clock(h, int(st.n))  # type: ignore[attr-defined]
         servo.integral, left.integral = st.integral_r, st.integral_l
         tally.n, tally.row, tally.steps = n, st.row, n_first + st.row
-        tally.x, tally.y, tally.theta, tally.path = x, y, theta, path
+        tally.x, tally.y, tally.theta, tally.path = x, y, theta, st.path
         tally.energy, tally.energy_pos = st.energy_net, st.energy_pos
         tally.tau_sq, tally.peak = st.tau_sq, st.peak
     _end(spec, tally, converged, stab.heading_error)
@@ -482,31 +483,19 @@ def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
 def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
               controller: Any, block: _Block, tally: _Tally,
               progress: Progress | None) -> None:
-    """Both sides FMUs: whole blocks of the closed loop in one C call (``wmr_fmu_loop``)."""
+    """The whole closed loop in C: one call per block (``wmr_fmu_loop`` with the controller
+    FMU, ``wmr_law_loop`` with the compiled law; the controller's ``block_loop``)."""
     lib, call = stepper
     h = spec.period_s
-    st = _loop_state(spec, block)
-    st.i_converged = controller.converged_index
-    run = partial(lib.wmr_fmu_loop, ctypes.byref(call), ctypes.byref(controller.fmu_call),
-                  ctypes.byref(st))
+    st = _loop_state(spec, block, tally)
+    run = controller.block_loop(lib, call, st)
     o = (ctypes.c_double * _N_PLANT).from_address(call.out_val)
-    hypot = math.hypot
-    path = 0.0
-    x, y = tally.x, tally.y
     logged = 0  # rows of the run delivered or in the block
     code = 0
     try:
         while True:
             code = run()
             rows = st.row
-            xs, ys = block.rows[:rows, 0].tolist(), block.rows[:rows, 1].tolist()
-            start = 1 if logged == 0 else 0  # the first row of the run has no step before it
-            if start < rows:
-                for nx, ny in zip(xs[start:], ys[start:], strict=True):
-                    path += hypot(nx - x, ny - y)
-                    x, y = nx, ny
-            elif rows:
-                x, y = xs[0], ys[0]
             block.set_times(logged, rows)
             logged += rows
             if code != STEP_FULL:
@@ -515,14 +504,11 @@ def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
             block.flush(BLOCK_ROWS)
             if progress is not None:
                 progress((logged - 1) * h, spec.t_max_s)
-        if st.n >= logged:  # the plant stepped past the last row: that step's path counts
-            path += hypot(o[0] - x, o[1] - y)
-            x, y = o[0], o[1]
     finally:
         plant.set_clock(h, int(st.n))  # type: ignore[attr-defined]
         controller.set_clock(logged)
         tally.n, tally.row, tally.steps = int(st.n), st.row, logged
-        tally.x, tally.y, tally.theta, tally.path = o[0], o[1], o[2], path
+        tally.x, tally.y, tally.theta, tally.path = o[0], o[1], o[2], st.path
         tally.energy, tally.energy_pos = st.energy_net, st.energy_pos
         tally.tau_sq, tally.peak = st.tau_sq, st.peak
     if code & STEP_DONE:

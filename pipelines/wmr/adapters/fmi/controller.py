@@ -16,6 +16,7 @@ import ctypes
 import math
 import shutil
 import tempfile
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -23,8 +24,9 @@ from typing import Any
 import numpy as np
 
 from wmr.adapters.fmi.archive import file_sha256, safe_extract
-from wmr.adapters.fmi.robot import fmu_call
+from wmr.adapters.fmi.robot import FmuCall, fmu_call
 from wmr.build.controller_interface import INPUTS, SIGNAL_OUTPUTS
+from wmr.core.closedloop import LoopState
 from wmr.core.control import wrap_angle
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError, FmuError
@@ -190,10 +192,12 @@ class FmuController:
         self._n = n
         self._t = n * self._h
 
-    @property
-    def converged_index(self) -> int:
-        """Index of the ``converged`` output in the stepper's output array."""
-        return _I_CONVERGED
+    def block_loop(self, lib: Any, plant_call: FmuCall, state: LoopState) -> Callable[[], int]:
+        """The C call that runs both FMUs' closed loop until the block of ``state`` is full or
+        the run ends (``wmr_fmu_loop``)."""
+        state.i_converged = _I_CONVERGED
+        return partial(lib.wmr_fmu_loop, ctypes.byref(plant_call), ctypes.byref(self.fmu_call),
+                       ctypes.byref(state))
 
     def configure(self, spec: RunSpec) -> None:
         """Set the run's goal, gains, limits, robot and timing, and start at t = 0."""

@@ -35,7 +35,9 @@ stabiliser's hysteresis (:func:`control_phases`) replayed on the logged distance
 
 from __future__ import annotations
 
+import functools
 import math
+import struct
 import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any, Final, Protocol
@@ -142,6 +144,11 @@ def robot_outline(half_track_m: float, wheel_radius_m: float) -> npt.NDArray[np.
 
     The chassis and wheels as ``wmr replay`` draws them, and the 1 m heading arrow.
     """
+    return _robot_outline(half_track_m, wheel_radius_m).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _robot_outline(half_track_m: float, wheel_radius_m: float) -> npt.NDArray[np.float64]:
     chassis_len = 2.0 * half_track_m + 0.2
     return np.concatenate([
         _rectangle(0.5 * chassis_len - 0.3, 0.0, 0.5 * chassis_len, 0.8 * half_track_m),
@@ -271,18 +278,41 @@ def cloud_message(t_ns: int, points: npt.NDArray[np.void],
     Protobuf writes the fields of a message one after another in field-number order
     (timestamp 1, frame_id 2, pose 3, point_stride 4, fields 5, data 6), so the message is the
     concatenation of its parts' serialisations: the parts that do not change (the frame, and
-    the points of a cloud sent at every step) are serialised once.
+    the points of a cloud sent at every step) are serialised once, the timestamps of a run
+    (multiples of the robot's period, the same in every run) once per process, and a pose
+    whose four numbers are all non-zero is packed directly (:func:`_pose_bytes`).
     """
-    head = PointCloud()
-    head.timestamp.FromNanoseconds(int(t_ns))
-    placed = PointCloud()
-    x, y, theta = pose
-    placed.pose.position.x, placed.pose.position.y = x, y
-    placed.pose.orientation.z = math.sin(0.5 * theta)
-    placed.pose.orientation.w = math.cos(0.5 * theta)
-    return (head.SerializeToString(deterministic=True) + _FRAME
-            + placed.SerializeToString(deterministic=True)
+    return (_stamp_bytes(int(t_ns)) + _FRAME + _pose_bytes(*pose)
             + (cloud_tail(points) if tail is None else tail))
+
+
+@functools.lru_cache(maxsize=8192)
+def _stamp_bytes(t_ns: int) -> bytes:
+    """The serialised ``timestamp`` field of a cloud at ``t_ns``."""
+    head = PointCloud()
+    head.timestamp.FromNanoseconds(t_ns)
+    return head.SerializeToString(deterministic=True)
+
+
+#: The serialised ``pose`` field when x, y and the quaternion's z and w are all non-zero: tag
+#: 3 and length 40, then ``position`` (tag 1, length 18: x as field 1, y as field 2; z = 0 is
+#: left out) and ``orientation`` (tag 2, length 18: z as field 3, w as field 4; x = y = 0 are
+#: left out), each double after its tag byte, little-endian.
+_POSE: Final = struct.Struct("<BBBBBdBdBBBdBd")
+
+
+def _pose_bytes(x: float, y: float, theta: float) -> bytes:
+    """The serialised ``pose`` field of a cloud placed at ``(x, y, theta)``: the bytes protobuf
+    writes (checked on random and zero poses by ``tests/test_scene.py``)."""
+    qz, qw = math.sin(0.5 * theta), math.cos(0.5 * theta)
+    if x != 0.0 and y != 0.0 and qz != 0.0 and qw != 0.0:
+        return _POSE.pack(0x1A, 40, 0x0A, 18, 0x09, x, 0x11, y, 0x12, 18, 0x19, qz, 0x21, qw)
+    # a zero (or -0.0, which protobuf runtimes treat alike or not) is left to protobuf
+    placed = PointCloud()
+    placed.pose.position.x, placed.pose.position.y = x, y
+    placed.pose.orientation.z = qz
+    placed.pose.orientation.w = qw
+    return placed.SerializeToString(deterministic=True)
 
 
 def cloud_tail(points: npt.NDArray[np.void]) -> bytes:
@@ -332,6 +362,15 @@ def write_sensing_scene(log: MessageLog, gps_xy_m: npt.ArrayLike,
     if len(est):
         keep = resample_path(est)
         _write_clouds(log, ESTIMATE_SCENE_TOPIC, [0], [cloud_points(est[keep], ESTIMATE_COLOR)])
+
+
+@functools.lru_cache(maxsize=64)
+def _robot_clouds(half_track_m: float, wheel_radius_m: float
+                  ) -> tuple[tuple[npt.NDArray[np.void], ...], tuple[bytes, ...]]:
+    """The robot's outline as a cloud in each phase's colour, and their :func:`cloud_tail`."""
+    body = _robot_outline(half_track_m, wheel_radius_m)
+    shapes = tuple(cloud_points(body, c) for c in PHASE_COLORS)
+    return shapes, tuple(cloud_tail(c) for c in shapes)
 
 
 # --------------------------------------------------------------------------- the recorder
@@ -400,10 +439,12 @@ class SceneRecorder:
         slot = t // ROBOT_PERIOD_NS
         first = np.flatnonzero(np.concatenate([[True], slot[1:] != slot[:-1]]))
         first = first[np.isfinite(rows[first, :3]).all(axis=1)]
-        body = robot_outline(self._half_track, self._wheel_radius)
-        shapes = [cloud_points(body, c) for c in PHASE_COLORS]
-        _write_clouds(log, ROBOT_TOPIC, t[first].tolist(), [shapes[p] for p in phase[first]],
-                      poses=rows[first, :3])
+        shapes, tails = _robot_clouds(self._half_track, self._wheel_radius)
+        poses = rows[first, :3].tolist()
+        log.write_messages(ROBOT_TOPIC, CLOUD_SCHEMA, _CLOUD_SCHEMA_DATA, t[first], [
+            cloud_message(ti, shapes[p], (x, y, th), tails[p])
+            for ti, p, (x, y, th) in zip(t[first].tolist(), phase[first].tolist(), poses,
+                                         strict=True)])
         if self._controlled and self._stop_radius is not None:
             pt, pv = phase_changes(t, phase)
             msgs = []

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from wmr.adapters.fmi.compiled_law import law_library
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
 from wmr.apps.run import FULL_LOGS, LogPolicy
@@ -188,6 +189,8 @@ class PlantHolder:
         self.fmu_path = fmu_path
         self.var_map = var_map
         self.plant = FmuPlant(fmu_path, var_map=var_map)
+        # the compiled law's one check in this process, before any run's wall clock starts
+        law_library()
 
     def run(self, task: Task, mcap_path: Path, attachment: Path | None) -> dict[str, Any]:
         """:func:`execute` on the held plant; a fresh plant after a failure.

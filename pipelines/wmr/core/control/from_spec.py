@@ -10,7 +10,7 @@ own methods, without a forwarding call per step.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING
 
 from wmr.core.control import peers
 
@@ -28,7 +28,7 @@ class SpecController:
     """
 
     #: The C stepper may run the wheel servos (``wmr.core.closedloop``, "The C stepper").
-    stepper_kind: ClassVar[str] = "servo"
+    stepper_kind: str = "servo"
 
     def __init__(self) -> None:
         self.law: ServoedController | None = None
