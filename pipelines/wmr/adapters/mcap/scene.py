@@ -189,7 +189,8 @@ def resample_path(xy: npt.NDArray[np.float64], spacing_m: float = PATH_SPACING_M
 # --------------------------------------------------------------------------- phase
 
 
-def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float) -> npt.NDArray[np.int8]:
+def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float,
+                   start_phase: int = APPROACH) -> npt.NDArray[np.int8]:
     """The stabiliser's phase at each step, from the distance to the goal it saw.
 
     The stabiliser (``wmr.core.control.stabiliser``, and its peers) starts in the approach,
@@ -203,6 +204,9 @@ def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float) -> npt.NDArray[np.
         The ``dr_m`` column, shape ``(n,)``; NaN (no controller) stays in the approach.
     stop_radius_m
         The run's stop radius epsilon.
+    start_phase
+        The phase before the first row (the last of the previous block, for a run seen
+        block by block); a run starts in the approach.
 
     Returns
     -------
@@ -216,7 +220,7 @@ def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float) -> npt.NDArray[np.
     switch = np.where(enter, ALIGN, np.where(leave, APPROACH, -1))
     idx = np.where(switch >= 0, np.arange(dr.size), -1)
     last = np.maximum.accumulate(idx) if dr.size else idx
-    out = np.where(last >= 0, switch[np.maximum(last, 0)], APPROACH)
+    out = np.where(last >= 0, switch[np.maximum(last, 0)], start_phase)
     return out.astype(np.int8)
 
 
