@@ -387,7 +387,8 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
     run_names
         The runs of the recording (their subtrees ``runs/<name>``).
     live
-        For a live view: the plots follow the latest 30 s instead of the whole run.
+        For a live view: the time follows the newest rows, and the plots show the latest
+        30 s instead of the whole run.
     bounds
         Fixed bounds of the world view (every start, goal and path); None: Rerun's own
         (follows what is drawn, for a live run whose path is not known yet).
@@ -436,7 +437,10 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
             rrb.Vertical(rrb.Grid(*plots, grid_columns=2), phase, row_shares=[9, 1]),
             column_shares=[5, 6],
         ),
-        rrb.TimePanel(timeline=TIMELINE, state="collapsed" if not live else "expanded"),
+        # live: the time cursor follows the newest rows (a live .rrd opens at its end); the
+        # collapsed time panel keeps its play bar and leaves the phase strip its height
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed",
+                      play_state="following" if live else None),
         collapse_panels=True,
     )
 
