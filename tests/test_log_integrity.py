@@ -4,6 +4,7 @@ recovery into a file any MCAP reader opens, and a fuzz of damaged files (issue 1
 from __future__ import annotations
 
 import io
+import json
 import os
 import random
 import struct
@@ -19,6 +20,7 @@ from mcap.records import DataEnd
 from mcap.stream_reader import StreamReader
 
 from wmr.adapters.mcap import RunData, RunLogWriter, read_run
+from wmr.adapters.mcap.reader import scan_file
 from wmr.adapters.mcap.recover import recover_log
 from wmr.cli import main
 from wmr.core.signals import SIGNALS
@@ -213,7 +215,7 @@ def test_recover_makes_a_killed_log_readable_by_the_plain_mcap_reader(
     partial = partial_path(path)
     before = read_run(partial)
     assert before.truncated and before.n_steps == 300
-    assert main(["log", "recover", str(partial)]) == 0
+    assert main(["log", "recover", str(partial), "--no-scene"]) == 0
     out = Path(capsys.readouterr().out.strip())
     assert out == tmp_path / "killed.recovered.mcap"
     assert plain_mcap_messages(out) == (300 * 6 + 1, 300 * 6 + 1)
@@ -228,6 +230,74 @@ def test_recover_makes_a_killed_log_readable_by_the_plain_mcap_reader(
     assert main(["log", "recover", str(partial)]) == 1
     assert "exists" in capsys.readouterr().err
     assert main(["log", "recover", str(partial), "--force"]) == 0
+
+
+def _scene_rows(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A drive to the goal: the distance falls through half the stop radius (the phase
+    changes) within the first 300 rows."""
+    t = np.arange(n, dtype=np.int64) * STEP_NS
+    x = np.zeros((n, N_SIG))
+    s = np.linspace(0.0, 6.0, n)
+    x[:, SIGNALS.index("x_m")], x[:, SIGNALS.index("y_m")] = s, 0.3 * np.sin(s)
+    x[:, SIGNALS.index("theta_rad")] = 0.3 * np.cos(s)
+    x[:, SIGNALS.index("dr_m")] = 6.0 - s
+    return t, x
+
+
+_SCENE_RUN = {"scenario": "k", "stop_radius_m": "2.0", "params": '{"L": 0.25, "r": 0.1}'}
+
+
+def _topic_messages(path: Path) -> dict[str, list[tuple[int, bytes]]]:
+    out: dict[str, list[tuple[int, bytes]]] = {}
+    with open(path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            out.setdefault(channel.topic, []).append((message.log_time, message.data))
+    return out
+
+
+def test_recover_draws_the_rows_of_a_killed_run(tmp_path: Path) -> None:
+    """A killed run's log has no scene topics (the recorder writes them at close); the
+    recovered one has those of its rows: the same messages a log of exactly those rows gets
+    when it is closed.  The copied messages stay as they were."""
+    path = tmp_path / "killed.mcap"
+    t, x = _scene_rows(350)
+    np.save(tmp_path / "t.npy", t)
+    np.save(tmp_path / "x.npy", x)
+    script = textwrap.dedent(f"""
+        import os
+        import numpy as np
+        from wmr.adapters.mcap import RunLogWriter
+        w = RunLogWriter({str(path)!r}, run={_SCENE_RUN!r}, goal=(6.0, 0.0, 0.5), scene=True)
+        w.write_block(np.load({str(tmp_path / "t.npy")!r}), np.load({str(tmp_path / "x.npy")!r}))
+        os._exit(9)  # like SIGKILL: no close, no scene
+        """)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.run([sys.executable, "-c", script], env=env, check=False, timeout=60)
+    assert proc.returncode == 9
+    partial = partial_path(path)
+    held = read_run(partial).n_steps
+    assert held == 300  # three 1-s chunks flushed; the rest died with the run
+    reference = tmp_path / "finished.mcap"
+    with RunLogWriter(reference, run=_SCENE_RUN, goal=(6.0, 0.0, 0.5), scene=True) as w:
+        w.write_block(t[:held], x[:held])
+        w.close({"status": "failed"})
+    rec = recover_log(partial, tmp_path / "recovered.mcap")
+    scene = ["/scene/goal", "/scene/path", "/scene/robot", "/controller/phase"]
+    assert sorted(rec.scene_added) == sorted(scene)
+    got, want = _topic_messages(rec.output), _topic_messages(reference)
+    scan = scan_file(str(partial))  # no footer: mcap's own reader stops at the cut
+    source = {c.topic: scan.messages[cid] for cid, c in scan.channels.items()
+              if cid in scan.messages}
+    for topic in scene:
+        assert topic not in source
+        assert got[topic] == want[topic], topic
+    assert [v for _, v in want["/controller/phase"]]  # the phase changes within the rows
+    for topic, messages in source.items():  # the rest byte for byte
+        assert got[topic] == messages, topic
+    assert read_run(rec.output).metadata["recovery"]["scene_added"] == json.dumps(rec.scene_added)
+    # without the scene: exactly the source's messages
+    bare = recover_log(partial, tmp_path / "bare.mcap", scene=False)
+    assert not bare.scene_added and set(_topic_messages(bare.output)) == set(source)
 
 
 def test_recover_keeps_the_chunks_after_a_damaged_one(tmp_path: Path) -> None:

@@ -303,7 +303,8 @@ def test_live_view_sink_through_a_tee(spec: RunSpec, fmu_plant: FmuPlant,
                                       tmp_path: Path) -> None:
     rrd = tmp_path / "live.rrd"
     recorder = Recorder()
-    with live_view_sink(spec.name, spec.goal, rrd) as live:
+    with live_view_sink(spec.name, spec.goal, rrd, start=spec.start,
+                        stop_radius_m=spec.stop_radius_m) as live:
         result = run_closed_loop(spec, fmu_plant, sink=TeeSink(recorder, live),
                                  controller=SpecController())
     assert result.status == "converged"
@@ -311,9 +312,13 @@ def test_live_view_sink_through_a_tee(spec: RunSpec, fmu_plant: FmuPlant,
     assert sum(len(t) for t in recorder.t) == n
     assert live.rows == n
     ents, n_bp = read_rrd(rrd)
-    assert n_bp == 1
+    assert n_bp == 1 + live.reframed  # the fig11 path leaves the start-goal frame once
     root = f"/runs/{spec.name}"
     block = np.concatenate(recorder.blocks)
+    x_min, x_max, y_min, y_max = _world_bounds(rrd)[-1]
+    xy = block[:, [SIGNALS.index("x_m"), SIGNALS.index("y_m")]]
+    assert x_min <= xy[:, 0].min() and xy[:, 0].max() <= x_max
+    assert y_min <= xy[:, 1].min() and xy[:, 1].max() <= y_max
     for panel in PANELS:
         values = np.array(ents[f"{root}/{panel.entity}"].column("Scalars:scalars"))
         assert values.shape == (n, len(panel.series))
@@ -324,10 +329,63 @@ def test_live_view_sink_through_a_tee(spec: RunSpec, fmu_plant: FmuPlant,
     # the path grows every 400 rows (4 blocks); its last version ends where the robot stopped
     path = ents[f"{root}/world/path"]
     assert path.rows == -(-n // 400)
-    last = np.array(path.column("LineStrips2D:strips")[-1][0])
+    last = np.array(path.column("LineStrips2D:strips")[-1][-1])  # a strip per phase
     np.testing.assert_allclose(last[-1], [result.final_pose.x_m, result.final_pose.y_m],
                                atol=1e-5)
     assert ents[f"{root}/world/goal"].static_rows == 1
+
+
+def _world_bounds(rrd: Path) -> list[tuple[float, float, float, float]]:
+    """``(x_min, x_max, y_min, y_max)`` of the world view of each blueprint in ``rrd``, in
+    the order sent (the view's y axis points down: the range is mirrored back)."""
+    reader = rrc.RrdReader(rrd)
+    out = []
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store):
+            batch = chunk.to_record_batch()
+            if "VisualBounds2D:range" in batch.schema.names:
+                [r] = batch.column("VisualBounds2D:range").to_pylist()[0]
+                out.append((*r["x_range"], -r["y_range"][1], -r["y_range"][0]))
+    return out
+
+
+def test_live_view_has_the_phase_and_a_fixed_world_frame(tmp_path: Path) -> None:
+    """The live view, as the replay: the phase (the hysteresis carried across sends: the
+    distance sits between the two radii at a send boundary) as a signal and as the colours
+    of the path and the heading; the world framed on the start and the goal from the first
+    blueprint, re-framed only when the path leaves it, and then holding all of it."""
+    n, eps = 1000, 0.5
+    t = np.arange(n, dtype=np.int64) * 10_000_000
+    rows = np.zeros((n, len(SIGNALS)))
+    s = np.linspace(0.0, 1.0, n)
+    rows[:, SIGNALS.index("x_m")], rows[:, SIGNALS.index("y_m")] = 4 * s, 6 * np.sin(np.pi * s)
+    dr = np.full(n, 3.0)
+    dr[350:380], dr[380:700], dr[800:] = 0.2, 0.5, 0.1  # align, hold it past row 400, ...
+    rows[:, SIGNALS.index("dr_m")] = dr
+    rrd = tmp_path / "live.rrd"
+    with live_view_sink("live", (4.0, 0.0, 0.0), rrd, spawn=False, start=(0.0, 0.0, 0.0),
+                        stop_radius_m=eps) as live:
+        for i in range(0, n, 100):
+            live.write_block(t[i:i + 100], rows[i:i + 100])
+    want = np.zeros(n)
+    want[350:700], want[800:] = 1, 1  # approach, align, approach again (dr > 2 eps), align
+    ents, _ = read_rrd(rrd)
+    np.testing.assert_array_equal(np.ravel(ents["/runs/live/phase"].column("Scalars:scalars")),
+                                  want)
+    heading = np.array(ents["/runs/live/world/robot"].column("Arrows2D:colors"))
+    np.testing.assert_array_equal(heading != heading[0], want[:, None] != 0)
+    path = ents["/runs/live/world/path"]
+    strips = path.column("LineStrips2D:strips")[-1]
+    assert len(strips) == 4 and len(set(path.column("LineStrips2D:colors")[-1])) == 2
+    first, *later = _world_bounds(rrd)
+    inside = [(0.0, 0.0), (4.0, 0.0), (5.0, 0.0)]  # start, goal, the goal's arrow tip
+    assert all(first[0] <= x <= first[1] and first[2] <= y <= first[3] for x, y in inside)
+    assert first[3] < 6.0 and len(later) == live.reframed == 1  # the path left it once
+    xy = rows[:, [SIGNALS.index("x_m"), SIGNALS.index("y_m")]]
+    last = later[-1]
+    assert (xy[:, 0] >= last[0]).all() and (xy[:, 0] <= last[1]).all()
+    assert (xy[:, 1] >= last[2]).all() and (xy[:, 1] <= last[3]).all()
+    assert ents["/grid/lines"].static_rows >= 1
 
 
 def test_live_view_default_rrd_without_screen(spec: RunSpec, tmp_path: Path,

@@ -19,10 +19,20 @@ Shots (``NAME.png``):
 ``overlay``  ``wmr replay`` of a 20-run batch folder (random starts, robot parameters);
 ``raw``      the raw log through Rerun's own loader: ``rerun mcap convert --timeline-type
              duration --application-id wmr-run`` and the blueprint of ``wmr replay --blueprint``;
-``direct``   the raw log opened as it is, ``rerun fig11.mcap`` (Rerun's own layout).
+``direct``   the raw log opened as it is with the blueprint beside it, ``rerun fig11.mcap
+             fig11.rbl`` (``wmr replay --blueprint-for``), in a viewer with the two settings
+             of docs/replay.md (:data:`DIRECT_SETTINGS`: files not loaded via the Viewer
+             catalog, times as seconds since the Unix epoch); a ``wmr`` without that option:
+             the log alone in a viewer as installed (Rerun's own layout);
+``live``     the ``.rrd`` of ``wmr run fig11 --view`` without a screen (the live view);
+``recovered`` the log of a Fig. 11 run killed after 15 s of simulation, recovered by ``wmr
+             log recover`` and opened as it is (``rerun X.recovered.mcap``, Rerun's own
+             layout).
 
 Xvfb needs ``-extension COMPOSITE`` (else every grab is black); each viewer gets a private
-``--port`` and ``XDG_RUNTIME_DIR``, and is stopped by its own process id.  A grab that is
+``--port``, ``XDG_RUNTIME_DIR`` and ``XDG_DATA_HOME`` (its settings: never the user's), and is
+stopped by its own process id.  The shots that open an MCAP file or play a live recording wait
+longer (:data:`WAIT_FACTOR`): the software-rendered viewer imports and plays slowly.  A grab that is
 nearly one colour (the viewer not drawn yet) is retried after another wait.
 """
 
@@ -40,7 +50,35 @@ from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-SHOTS = ("single", "sensors", "overlay", "raw", "direct")
+SHOTS = ("single", "sensors", "overlay", "raw", "direct", "live", "recovered")
+#: The viewer settings of the ``direct`` shot (a partial ``app.ron`` of the native viewer's
+#: persisted state): a blueprint given next to a file applies only when the file is not
+#: loaded via the Viewer catalog (Rerun 0.41's release notes), and the log time (ns from the
+#: start) reads as seconds only in the "seconds since Unix epoch" time format.
+DIRECT_SETTINGS = (
+    '{"app": "(app_options:(use_viewer_catalog:false,timestamp_format:'
+    '(format_kind:SecondsSinceUnixEpoch,date_visibility:HideDateToday,short:false)))"}\n')
+#: Longer waits before the grab (times ``--wait``).
+WAIT_FACTOR = {"direct": 2.0, "recovered": 2.0, "live": 2.5}
+#: The killed run of the ``recovered`` shot dies after this many rows (15 s of the Fig. 11 run).
+KILL_AFTER_ROWS = 1500
+#: Runs the Fig. 11 run into ``argv[1]`` and dies like a SIGKILL after ``argv[2]`` rows.
+_KILLED_RUN = """
+import os, sys
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.apps.run import default_fmu, run_to_log
+from wmr.config.scenario import load_scenario
+
+class Kill:
+    rows = 0
+    def write_block(self, t_ns, block):
+        self.rows += len(t_ns)
+        if self.rows >= int(sys.argv[2]):
+            os._exit(9)
+
+with FmuPlant(default_fmu()) as plant:
+    run_to_log(load_scenario("fig11").runs[0], sys.argv[1], plant, also=Kill())
+"""
 #: Screen size of the X server and of the viewer window, pixels.
 WIDTH, HEIGHT = 1600, 1000
 #: The 20-run overlay: the Monte Carlo spec of Fig. 10 cut to 20 runs.
@@ -49,10 +87,23 @@ OVERLAY_RUNS = 20
 MAX_PNG_BYTES = 200_000
 
 
-def _run(cmd: Sequence[str | Path], *, quiet: bool = False) -> None:
+def _run(cmd: Sequence[str | Path], *, quiet: bool = False, check: bool = True,
+         env: dict[str, str] | None = None) -> int:
     print("+", " ".join(str(c) for c in cmd), file=sys.stderr, flush=True)
-    subprocess.run([str(c) for c in cmd], check=True,
-                   stdout=subprocess.DEVNULL if quiet else None)
+    return subprocess.run([str(c) for c in cmd], check=check, env=env,
+                          stdout=subprocess.DEVNULL if quiet else None).returncode
+
+
+def _no_screen() -> dict[str, str]:
+    """The environment without a display: ``wmr run --view`` writes its ``.rrd``."""
+    return {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+
+
+def _has_blueprint_for() -> bool:
+    """Whether the ``wmr`` of this ``PYTHONPATH`` has ``replay --blueprint-for``."""
+    res = subprocess.run([*map(str, _wmr()), "replay", "--help"], capture_output=True,
+                         text=True, check=True)
+    return "--blueprint-for" in res.stdout
 
 
 def _wmr() -> list[str | Path]:
@@ -87,6 +138,23 @@ def make_recordings(logs: dict[str, Path], folder: Path,
         rrd = folder / f"{shot}.rrd"
         if shot == "direct":
             out[shot] = [logs["direct"]]
+            if _has_blueprint_for():  # X.rbl beside X.mcap, named for Rerun's import of it
+                _run([*_wmr(), "replay", "--blueprint-for", logs["direct"]], quiet=True)
+                out[shot].append(logs["direct"].with_suffix(".rbl"))
+        elif shot == "live":
+            log = folder / "live" / "fig11.mcap"
+            _run([*_wmr(), "run", "fig11", "--view", "--out", log], quiet=True,
+                 env=_no_screen())
+            out[shot] = [log.with_suffix(".rrd")]
+        elif shot == "recovered":
+            killed = folder / "killed" / "fig11.mcap"
+            killed.parent.mkdir(parents=True, exist_ok=True)
+            code = _run([sys.executable, "-c", _KILLED_RUN, killed, str(KILL_AFTER_ROWS)],
+                        check=False)
+            if code != 9:
+                raise SystemExit(f"the killed run ended with {code}, not 9")
+            _run([*_wmr(), "log", "recover", f"{killed}.partial"], quiet=True)
+            out[shot] = [killed.with_name("fig11.recovered.mcap")]
         elif shot == "raw":
             rbl = folder / "wmr.rbl"
             _run([*_wmr(), "replay", "--blueprint", rbl, logs["raw"]], quiet=True)
@@ -138,15 +206,25 @@ def _colours(png: Path) -> int:
 
 
 def grab(files: Sequence[Path], png: Path, *, display: int, port: int, wait_s: float,
-         runtime: Path) -> None:
-    """Open ``files`` in a viewer, wait, grab the screen into ``png``, stop the viewer."""
+         runtime: Path, settings: str | None = None) -> None:
+    """Open ``files`` in a viewer, wait, grab the screen into ``png``, stop the viewer.
+
+    ``settings``: the viewer's persisted state to start from (``app.ron``); None: the
+    viewer's defaults.
+    """
+    data = Path(tempfile.mkdtemp(prefix="data-", dir=runtime))
     env = {**os.environ, "DISPLAY": f":{display}", "WGPU_BACKEND": "vulkan",
-           "XDG_RUNTIME_DIR": str(runtime)}
+           "XDG_RUNTIME_DIR": str(runtime), "XDG_DATA_HOME": str(data)}
+    persist = []
+    if settings is not None:
+        (data / "rerun").mkdir()
+        (data / "rerun" / "app.ron").write_text(settings)
+        persist = ["--persist-state"]
     # the binary itself, in a session of its own: the `rerun` script of the wheel is a Python
     # wrapper whose child would outlive a signal sent to the wrapper
     viewer = subprocess.Popen(
         [viewer_binary(), "--port", str(port), "--window-size", f"{WIDTH}x{HEIGHT}",
-         "--hide-welcome-screen", *map(str, files)],
+         "--hide-welcome-screen", *persist, *map(str, files)],
         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         raw = png.with_suffix(".full.png")
@@ -191,9 +269,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         recordings = make_recordings(logs, work, args.only)
         with Screen(args.display):
             for k, shot in enumerate(args.only):  # a port per viewer: never an old one
-                grab(recordings[shot], args.out / f"{args.prefix}{shot}.png",
-                     display=args.display, port=args.port + k, wait_s=args.wait,
-                     runtime=runtime)
+                files = recordings[shot]
+                settings = (DIRECT_SETTINGS if shot == "direct"
+                            and any(f.suffix == ".rbl" for f in files) else None)
+                grab(files, args.out / f"{args.prefix}{shot}.png", display=args.display,
+                     port=args.port + k, wait_s=args.wait * WAIT_FACTOR.get(shot, 1.0),
+                     runtime=runtime, settings=settings)
     return 0
 
 

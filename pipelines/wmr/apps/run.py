@@ -506,7 +506,8 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
     if view:
         from wmr.adapters.rerun.live_view import live_view_sink
 
-        live = live_view_sink(spec.name, spec.goal, path.with_suffix(".rrd"))
+        live = live_view_sink(spec.name, spec.goal, path.with_suffix(".rrd"), start=spec.start,
+                              stop_radius_m=spec.stop_radius_m)
     with FmuPlant(fmu_path, var_map=var_map) as plant, ExitStack() as stack:
         ctrl = None
         if ctrl_path is not None:

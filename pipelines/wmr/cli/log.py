@@ -9,11 +9,13 @@ import sys
 def _cmd_recover(args: argparse.Namespace) -> int:
     from wmr.adapters.mcap.recover import recover_log
 
-    rec = recover_log(args.file, args.out, overwrite=args.force)
+    rec = recover_log(args.file, args.out, overwrite=args.force, scene=not args.no_scene)
     for line in rec.lost:
         print(f"wmr: lost: {line}", file=sys.stderr)
     print(f"recovered {rec.messages} messages in {rec.chunks} chunks from {rec.source}",
           file=sys.stderr)
+    if rec.scene_added:
+        print(f"drew the recovered rows: {', '.join(rec.scene_added)}", file=sys.stderr)
     print(rec.output)
     return 0
 
@@ -27,9 +29,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         description="Read every intact record of FILE (a log, or the X.mcap.partial a killed "
                     "run leaves) and write them as a finished MCAP file with its summary and "
                     "index, which any MCAP reader opens; a 'recovery' metadata record says "
-                    "what was lost.  Prints the output's path.")
+                    "what was lost.  The scene topics a killed run did not write (what Rerun "
+                    "and Foxglove draw) are made from the rows it holds.  Prints the output's "
+                    "path.")
     r.add_argument("file", metavar="FILE", help="the log to recover")
     r.add_argument("-o", "--out", metavar="OUT.mcap",
                    help="output file (default: X.recovered.mcap next to FILE)")
     r.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    r.add_argument("--no-scene", action="store_true",
+                   help="do not make the missing scene topics (/scene/*, /controller/phase): "
+                        "the output holds exactly the source's intact messages")
     r.set_defaults(handler=_cmd_recover)

@@ -11,11 +11,36 @@ def _warn(line: str) -> None:
     print(f"wmr: warning: {line}", file=sys.stderr, flush=True)
 
 
+def _blueprints_for(inputs: list[str]) -> int:
+    """``--blueprint-for``: ``X.rbl`` beside each log ``X.mcap``, for ``rerun X.mcap X.rbl``."""
+    from wmr.adapters.rerun.blueprint import log_blueprint_path, write_log_blueprint
+    from wmr.adapters.rerun.replay import find_logs, framing
+    from wmr.infra.errors import ConfigError
+    from wmr.infra.outputs import check_output
+
+    if not inputs:
+        raise ConfigError("--blueprint-for", "no log given",
+                          "give run logs or folders of them: wmr replay --blueprint-for X.mcap")
+    logs = find_logs(inputs)
+    for log in logs:
+        check_output(log_blueprint_path(log.path), "--blueprint-for", suffix=".rbl")
+    for log in logs:
+        frame, sensing = framing([log.path])  # each blueprint looks down on its own run
+        print(write_log_blueprint(log.path, frame, sensing=sensing))
+    first = logs[0].path
+    print(f"wrote {len(logs)} blueprint{'s' if len(logs) != 1 else ''}; open a log with "
+          f"Rerun's own loader and its blueprint: rerun {first} "
+          f"{log_blueprint_path(first)}", file=sys.stderr)
+    return 0
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from wmr.adapters.rerun.replay import replay
     from wmr.infra.errors import ConfigError
     from wmr.infra.outputs import check_output
 
+    if args.blueprint_for:
+        return _blueprints_for(args.logs)
     if args.blueprint is not None:
         from wmr.adapters.rerun.blueprint import APPLICATION_ID, write_blueprint
 
@@ -91,6 +116,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="write a Rerun blueprint that plots a log opened with Rerun's own MCAP "
                         "loader (docs/replay.md), and stop; logs given with it are not replayed: "
                         "the blueprint's scene view looks straight down on them")
+    p.add_argument("--blueprint-for", action="store_true",
+                   help="write X.rbl beside each log X.mcap (named for it, looking down on its "
+                        "run), so that Rerun opening the raw log applies it: rerun X.mcap "
+                        "X.rbl (docs/replay.md); and stop")
     p.add_argument("--no-viewer", action="store_true",
                    help="do not open a viewer even if there is a screen (write the .rrd)")
     p.set_defaults(handler=_cmd_replay)

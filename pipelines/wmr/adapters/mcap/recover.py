@@ -9,6 +9,13 @@ attachment, data section and summary CRCs) and writes them again with
 intact chunk's Message records byte for byte (channel ids renumbered if needed), then the
 summary.  A ``recovery`` Metadata record says what was read and what was lost.  The output is
 written like every log (``.partial``, fsync, rename): recovery never damages a file either.
+
+A killed run's log has no scene topics (``/scene/*``, ``/controller/phase``: the
+:class:`~wmr.adapters.mcap.scene.SceneRecorder` writes them when the log is closed), so Rerun
+and Foxglove would draw nothing of it.  For a log without a ``result`` record (the run did not
+finish), recovery makes them from the rows the recovered log holds (:func:`_add_scene`), each
+missing topic on a channel of its own after the copied chunks; the copied messages stay byte
+for byte, and the ``recovery`` record lists the topics it made (``scene_added``).
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ from pathlib import Path
 from typing import Final
 
 import numpy as np
+import numpy.typing as npt
 
 from wmr.adapters.mcap.reader import (
     DEFAULT_LIMITS,
@@ -32,6 +40,14 @@ from wmr.adapters.mcap.reader import (
     open_log,
     scan_log,
 )
+from wmr.adapters.mcap.scene import (
+    GOAL_TOPIC,
+    PATH_TOPIC,
+    PHASE_TOPIC,
+    ROBOT_TOPIC,
+    SceneRecorder,
+)
+from wmr.adapters.mcap.schemas import TORQUE_TOPIC
 from wmr.adapters.mcap.writer import McapFile
 from wmr.infra.durable import PARTIAL_SUFFIX, AtomicFile, partial_path
 from wmr.infra.errors import LogError
@@ -41,6 +57,10 @@ RECOVERY_RECORD: Final = "recovery"
 _MESSAGE: Final = 0x05
 _HEAD = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQ")
+#: A Message record's opcode, length, channel id, sequence, log time and publish time.
+_MSG_RECORD = struct.Struct("<BQHIQQ")
+#: The topics of :class:`wmr.adapters.mcap.scene.SceneRecorder` (made by recovery if missing).
+SCENE_TOPICS: Final = (GOAL_TOPIC, PATH_TOPIC, ROBOT_TOPIC, PHASE_TOPIC)
 #: Smallest chunk recovery writes when the source's chunks are smaller (mcap's default size).
 _CHUNK_BYTES: Final = 1 << 20
 
@@ -61,6 +81,8 @@ class Recovery:
         Messages left out because their channel or schema was lost.
     lost
         What could not be kept, one line each (the reader's warnings and the drops).
+    scene_added
+        The scene topics made from the recovered rows (those the source lacked).
     """
 
     source: Path
@@ -69,6 +91,7 @@ class Recovery:
     chunks: int = 0
     dropped_messages: int = 0
     lost: list[str] = field(default_factory=list)
+    scene_added: list[str] = field(default_factory=list)
 
 
 def default_output(source: str | os.PathLike[str]) -> Path:
@@ -95,7 +118,8 @@ def _messages(buf: bytes) -> list[tuple[int, int, bytes]]:
 
 
 def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] | None = None,
-                *, overwrite: bool = False, limits: ReadLimits = DEFAULT_LIMITS) -> Recovery:
+                *, overwrite: bool = False, limits: ReadLimits = DEFAULT_LIMITS,
+                scene: bool = True) -> Recovery:
     """Write what is intact in ``source`` as a finished MCAP log at ``output``.
 
     Parameters
@@ -109,6 +133,10 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
     limits
         How much the source may make the reader hold (see
         :class:`wmr.adapters.mcap.reader.ReadLimits`).
+    scene
+        Make the scene topics an unfinished source (no ``result`` record: a killed run)
+        lacks from the rows it holds; off, the output holds exactly the source's intact
+        messages.
 
     Returns
     -------
@@ -147,11 +175,66 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
             src = aside
         scan = scan_log(log, limits, keep_chunks=True)
         rec = Recovery(source=src, output=dst)
-        _write(scan, src, log.size, rec)
+        _write(scan, src, log.size, rec, limits if scene else None)
     return rec
 
 
-def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery) -> None:
+class _SceneSink:
+    """The log writer's ``write_messages`` (what :class:`SceneRecorder` needs) on the recovered
+    file, for the topics in ``missing`` only."""
+
+    def __init__(self, file: McapFile, missing: set[str], rec: Recovery) -> None:
+        self._file = file
+        self._missing = missing
+        self._rec = rec
+        self._schemas: dict[tuple[str, bytes], int] = {}  # the clouds share one schema
+
+    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                       t_ns: npt.ArrayLike, messages: list[bytes]) -> None:
+        if topic not in self._missing or not messages:
+            return
+        key = (schema_name, schema_data)
+        if key not in self._schemas:
+            self._schemas[key] = self._file.add_schema(schema_name, schema_data)
+        cid = self._file.add_channel(topic, self._schemas[key])
+        records = [(cid, t, _MSG_RECORD.pack(_MESSAGE, _MSG_RECORD.size - 9 + len(data), cid,
+                                             seq, t, t) + data)
+                   for seq, (t, data) in enumerate(zip(np.asarray(t_ns, np.int64).tolist(),
+                                                       messages, strict=True))]
+        _write_chunk(self._file, records)
+        self._rec.chunks += 1
+        self._rec.messages += len(records)
+        self._rec.scene_added.append(topic)
+
+
+def _add_scene(file: McapFile, src: Path, scan: LogScan, limits: ReadLimits,
+               rec: Recovery) -> None:
+    """Write the scene topics ``scan`` lacks, made from the rows of ``src`` that recovery kept
+    (read again by :func:`wmr.adapters.mcap.reader.read_run`: the same checks, so the same
+    rows), when the run did not finish (no ``result`` record); nothing without rows or a
+    ``run`` record."""
+    from wmr.adapters.mcap.reader import read_run
+
+    topics = {c.topic for c in scan.channels.values()}
+    missing = set(SCENE_TOPICS) - topics
+    # a finished log without them was written without a scene on purpose
+    # (RunLogWriter(scene=False)); a killed run never reached the close that writes them
+    if not missing or "result" in scan.metadata or "run" not in scan.metadata:
+        return
+    run = read_run(src, limits)
+    if not run.n_steps:
+        return
+    if run.goal is None:  # no goal to draw: the path and the robot all the same
+        missing.discard(GOAL_TOPIC)
+    goal = run.goal or (0.0, 0.0, 0.0)
+    recorder = SceneRecorder(run.metadata["run"], (goal[0], goal[1], goal[2]),
+                             controlled=TORQUE_TOPIC.topic not in topics)
+    recorder.add(run.t_ns, run.block())
+    recorder.write(_SceneSink(file, missing, rec))
+
+
+def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery,
+           scene_limits: ReadLimits | None) -> None:
     """Write what ``scan`` kept to ``rec.output`` as a finished log; on failure nothing
     stays."""
     rec.lost = list(scan.warnings)
@@ -200,6 +283,8 @@ def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery) -> None:
                                         if c not in channel_ids and t <= MAX_LOG_TIME_NS)
             pending += kept
             pending_bytes += sum(len(r) for _, _, r in kept)
+        if scene_limits is not None:
+            _add_scene(file, src, scan, scene_limits, rec)
         if rec.dropped_messages:
             rec.lost.append(f"{rec.dropped_messages} messages of lost channels left out")
         if late:
@@ -212,6 +297,7 @@ def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery) -> None:
             "messages": str(rec.messages),
             "chunks": str(rec.chunks),
             "lost": json.dumps(rec.lost),
+            "scene_added": json.dumps(rec.scene_added),
         })
         file.finish()
     except BaseException:
@@ -247,4 +333,4 @@ def _write_chunk(file: McapFile, messages: list[tuple[int, int, bytes]]) -> None
                                      for cid, (t, o) in index.items()})
 
 
-__all__ = ["RECOVERY_RECORD", "Recovery", "default_output", "recover_log"]
+__all__ = ["RECOVERY_RECORD", "SCENE_TOPICS", "Recovery", "default_output", "recover_log"]

@@ -29,7 +29,8 @@ topic                       content
 They are made from the rows the log already holds (no new column in
 :data:`wmr.core.signals.SIGNALS`) by :class:`SceneRecorder`, which the log writer feeds each
 block and asks to write its topics when the log is closed (one chunk per topic): a run killed
-before its end has no scene topics, and its signal topics are unchanged.  The phase is the
+before its end has no scene topics (``wmr log recover`` makes them from the rows it holds,
+:mod:`wmr.adapters.mcap.recover`), and its signal topics are unchanged.  The phase is the
 stabiliser's hysteresis (:func:`control_phases`) replayed on the logged distance ``dr_m``.
 """
 
@@ -188,7 +189,8 @@ def resample_path(xy: npt.NDArray[np.float64], spacing_m: float = PATH_SPACING_M
 # --------------------------------------------------------------------------- phase
 
 
-def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float) -> npt.NDArray[np.int8]:
+def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float,
+                   start_phase: int = APPROACH) -> npt.NDArray[np.int8]:
     """The stabiliser's phase at each step, from the distance to the goal it saw.
 
     The stabiliser (``wmr.core.control.stabiliser``, and its peers) starts in the approach,
@@ -202,6 +204,9 @@ def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float) -> npt.NDArray[np.
         The ``dr_m`` column, shape ``(n,)``; NaN (no controller) stays in the approach.
     stop_radius_m
         The run's stop radius epsilon.
+    start_phase
+        The phase before the first row (the last of the previous block, for a run seen
+        block by block); a run starts in the approach.
 
     Returns
     -------
@@ -215,7 +220,7 @@ def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float) -> npt.NDArray[np.
     switch = np.where(enter, ALIGN, np.where(leave, APPROACH, -1))
     idx = np.where(switch >= 0, np.arange(dr.size), -1)
     last = np.maximum.accumulate(idx) if dr.size else idx
-    out = np.where(last >= 0, switch[np.maximum(last, 0)], APPROACH)
+    out = np.where(last >= 0, switch[np.maximum(last, 0)], start_phase)
     return out.astype(np.int8)
 
 

@@ -16,6 +16,12 @@ and the panels of :data:`RAW_PANELS`.  Steps (``docs/replay.md``)::
 ``--timeline-type duration`` makes the log times (simulation time, ns from the start) a
 duration timeline instead of dates in 1970; ``--application-id`` must be the blueprint's
 (:data:`APPLICATION_ID`) for the viewer to apply it.
+
+A log opened directly (``rerun run.mcap``) is named by Rerun after its file
+(:func:`log_application_id`): the blueprint written beside it for that name
+(:func:`write_log_blueprint`, ``wmr replay --blueprint-for run.mcap``) applies when both are
+opened together, ``rerun run.mcap run.rbl``; the log time then stays a timestamp (Rerun's
+viewer shows it as seconds from the start with its "seconds since Unix epoch" time format).
 """
 
 from __future__ import annotations
@@ -166,6 +172,33 @@ def raw_blueprint(frame: tuple[float, float, float, float] | None = None, *,
     )
 
 
+def log_application_id(log: str | Path) -> str:
+    """The application id Rerun's viewer gives a log it opens itself (``rerun run.mcap``).
+
+    Rerun 0.41's importer names the recording after the file: its stem with each ``.`` made
+    ``_`` (``run.v2.mcap`` -> ``run_v2``); a name with other characters Rerun does not take
+    (``+``, non-ASCII, ...) is then migrated (``a+b`` -> ``a-b53b7``), which saving a
+    blueprint under the same name does identically (checked by ``tests/test_rerun_views.py``
+    against ``rerun run.mcap --save``).
+    """
+    return Path(log).stem.replace(".", "_")
+
+
+def log_blueprint_path(log: str | Path) -> Path:
+    """Where :func:`write_log_blueprint` writes the blueprint of ``log``: ``X.rbl`` beside
+    ``X.mcap``."""
+    return Path(log).with_suffix(".rbl")
+
+
+def write_log_blueprint(log: str | Path, frame: tuple[float, float, float, float] | None = None,
+                        *, sensing: bool = False) -> Path:
+    """Write the blueprint for ``log`` opened directly in Rerun (``rerun X.mcap X.rbl``):
+    ``X.rbl`` beside it, saved under :func:`log_application_id` (``frame``, ``sensing``: see
+    :func:`raw_blueprint`; the caller gives this log's)."""
+    return write_blueprint(log_blueprint_path(log), log_application_id(log), frame,
+                           sensing=sensing)
+
+
 def write_blueprint(path: str | Path, application_id: str = APPLICATION_ID,
                     frame: tuple[float, float, float, float] | None = None, *,
                     sensing: bool = False) -> Path:
@@ -177,4 +210,5 @@ def write_blueprint(path: str | Path, application_id: str = APPLICATION_ID,
 
 
 __all__ = ["APPLICATION_ID", "LOG_TIMELINE", "RAW_PANELS", "RawLine", "RawPanel", "TopicLayout",
-           "raw_blueprint", "signal_mappings", "write_blueprint"]
+           "log_application_id", "log_blueprint_path", "raw_blueprint", "signal_mappings",
+           "write_blueprint", "write_log_blueprint"]

@@ -3,6 +3,11 @@
 :class:`LiveViewSink` sends the layout of :mod:`wmr.adapters.rerun.replay` block by block from the
 closed loop
 (:class:`wmr.core.closedloop.BlockSink`), and :class:`TeeSink` feeds it next to the MCAP writer.
+As in the replay, the control phase is a signal and the colour of the path and of the robot's
+heading (the stabiliser's hysteresis on the logged ``dr_m``, carried from block to block), and
+the world view has fixed bounds with a grid: around the start and the goal, widened only when
+the path would leave them (on that side, by a quarter more than needed: a few re-framings a
+run at most).
 """
 
 from __future__ import annotations
@@ -17,12 +22,16 @@ import rerun as rr
 from numpy.typing import NDArray
 
 from wmr.adapters.mcap import Pose2D
+from wmr.adapters.mcap.scene import APPROACH, control_phases
 from wmr.adapters.rerun.replay import (
     APPLICATION_ID,
     RUN_COLORS,
     TIMELINE,
+    Bounds,
     has_screen,
+    log_grid,
     log_run_static,
+    phase_strips,
     replay_blueprint,
     run_entity,
     send_run_columns,
@@ -30,13 +39,40 @@ from wmr.adapters.rerun.replay import (
 from wmr.core.closedloop import BlockSink
 from wmr.core.signals import COLUMN, SIGNALS
 
-_X, _Y = COLUMN["x_m"], COLUMN["y_m"]
+_X, _Y, _DR = COLUMN["x_m"], COLUMN["y_m"], COLUMN["dr_m"]
+#: When the path leaves the world view's bounds, they grow to hold it and this much more of
+#: their size on the sides it left by (a few re-framings over a run, not one per send).
+GROW_FRACTION = 0.25
 
 
 class _GoalLike(Protocol):
     x_m: float
     y_m: float
     heading_rad: float
+
+
+def live_bounds(start: Pose2D | None, goal: Pose2D | None,
+                path_xy: NDArray[np.float64] | None = None) -> Bounds:
+    """The live world view's bounds: the start, the goal with its arrow, and the path so far,
+    as the replay frames them (:meth:`Bounds.around`)."""
+    pts = [np.zeros((0, 2))] if path_xy is None else [path_xy]
+    for pose in (start, goal):
+        if pose is not None:
+            x, y, th = pose
+            pts.append(np.array([[x, y], [x + np.cos(th), y + np.sin(th)]]))
+    return Bounds.around(np.concatenate(pts))
+
+
+def _grown(bounds: Bounds, need: Bounds) -> Bounds:
+    """``bounds`` widened to hold ``need``, each side that grows by :data:`GROW_FRACTION` of
+    the new size more (the path goes on that way); the other sides stay."""
+    old_lo, old_hi = np.array([bounds.x_min, bounds.y_min]), np.array([bounds.x_max, bounds.y_max])
+    lo = np.minimum(old_lo, [need.x_min, need.y_min])
+    hi = np.maximum(old_hi, [need.x_max, need.y_max])
+    pad = GROW_FRACTION * (hi - lo)
+    lo = np.where(lo < old_lo, lo - pad, lo)
+    hi = np.where(hi > old_hi, hi + pad, hi)
+    return Bounds(float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
 
 
 def _as_pose2d(goal: _GoalLike | Pose2D | Sequence[float] | None) -> Pose2D | None:
@@ -55,7 +91,7 @@ class LiveViewSink:
     Rows are sent every ``send_rows`` rows (four blocks of the master loop: about 20 ms of
     computing, still a live view) as a handful of ``send_columns`` calls, whose fixed cost
     the dashboard's twelve entities would otherwise pay per 100-row block; the path so far
-    (every ``path_stride``-th row) is re-sent with each as one line strip.
+    (every ``path_stride``-th row) is re-sent with each, one line strip per control phase.
 
     Parameters
     ----------
@@ -69,23 +105,41 @@ class LiveViewSink:
         Keep every this many rows of the path (the path strip is re-sent per send).
     send_rows
         Send once this many rows are waiting (and what is left at :meth:`close`).
+    start
+        The start pose (framed from the first send on when None).
+    stop_radius_m
+        The run's stop radius: the control phase (panel and colours) and the goal's ring;
+        None: no phase (one colour).
+    bounds
+        The world view's bounds the recording's blueprint was given (default
+        :func:`live_bounds` of the start and the goal); the sink widens them, re-sending the
+        blueprint, when the path would leave them.
     """
 
     def __init__(self, rec: rr.RecordingStream, name: str,
                  goal: _GoalLike | Pose2D | Sequence[float] | None, *,
-                 path_stride: int = 5, send_rows: int = 400) -> None:
+                 path_stride: int = 5, send_rows: int = 400,
+                 start: _GoalLike | Pose2D | Sequence[float] | None = None,
+                 stop_radius_m: float | None = None, bounds: Bounds | None = None) -> None:
         self.rec = rec
         self.name = name
         self.rows = 0
         self._stride = max(1, int(path_stride))
         self._path: list[NDArray[np.float64]] = []
+        self._path_phase: list[NDArray[np.int8]] = []
         self._send_rows = max(1, int(send_rows))
         self._waiting_t: list[NDArray[np.int64]] = []
         self._waiting: list[NDArray[np.float64]] = []
         self._color = RUN_COLORS[0]
         self._path_entity = f"{run_entity(name)}/world/path"
-        log_run_static(rec, name, goal=_as_pose2d(goal), path_xy=None, color=self._color,
-                       info=f"### {name}\n\nlive run")
+        self._eps = stop_radius_m if stop_radius_m and stop_radius_m > 0 else None
+        self._phase = APPROACH
+        goal_pose = _as_pose2d(goal)
+        self.bounds = bounds or live_bounds(_as_pose2d(start), goal_pose)
+        self.reframed = 0
+        log_grid(rec, self.bounds)
+        log_run_static(rec, name, goal=goal_pose, path_xy=None, color=self._color,
+                       info=f"### {name}\n\nlive run", stop_radius_m=self._eps)
 
     def write_block(self, t_ns: NDArray[np.int64], block: NDArray[np.float64]) -> None:
         """Send ``block`` (shape ``(n, len(SIGNALS))``) at times ``t_ns`` (ns)."""
@@ -107,15 +161,38 @@ class LiveViewSink:
         rows = np.concatenate(self._waiting)
         self._waiting_t, self._waiting = [], []
         n = len(t)
-        send_run_columns(self.rec, self.name, t, rows)
+        phase = None
+        if self._eps is not None:  # the hysteresis goes on from the last row sent
+            phase = control_phases(rows[:, _DR], self._eps, start_phase=self._phase)
+            self._phase = int(phase[-1])
+        send_run_columns(self.rec, self.name, t, rows, phase)
         first = (-self.rows) % self._stride
         self._path.append(rows[first::self._stride, [_X, _Y]])
+        self._path_phase.append(np.zeros(0, np.int8) if phase is None
+                                else phase[first::self._stride])
         self.rows += n
         path = np.concatenate([*self._path, rows[-1:, [_X, _Y]]])
-        path = path[np.isfinite(path).all(axis=1)]
+        path_phase = (None if phase is None
+                      else np.concatenate([*self._path_phase, phase[-1:]]))
+        ok = np.isfinite(path).all(axis=1)
+        path = path[ok]
+        path_phase = None if path_phase is None else path_phase[ok]
         self.rec.set_time(TIMELINE, duration=np.timedelta64(int(t[-1]), "ns"))
-        self.rec.log(self._path_entity, rr.LineStrips2D([path], colors=[self._color],
-                                                        radii=[0.03]))
+        strips, colors = phase_strips(path, path_phase)
+        if path_phase is None:
+            colors = [self._color]
+        self.rec.log(self._path_entity, rr.LineStrips2D(strips, colors=colors, radii=[-1.5],
+                                                        draw_order=10.0))
+        if len(path) and not self.bounds.contains(path):
+            self._reframe(path)
+
+    def _reframe(self, path: NDArray[np.float64]) -> None:
+        """Widen the world view to hold ``path`` (the blueprint and the grid)."""
+        self.bounds = _grown(self.bounds, Bounds.around(path))
+        self.reframed += 1
+        log_grid(self.rec, self.bounds)
+        self.rec.send_blueprint(replay_blueprint([self.name], live=True, bounds=self.bounds),
+                                make_active=True)
 
     def close(self) -> None:
         """Send the waiting rows, flush (and finish the ``.rrd`` file, if any)."""
@@ -146,7 +223,8 @@ class TeeSink:
 
 
 def live_view_sink(spec_name: str, goal: Any, rrd: Path | None = None, *,
-                   spawn: bool | None = None) -> LiveViewSink:
+                   spawn: bool | None = None, start: Any = None,
+                   stop_radius_m: float | None = None) -> LiveViewSink:
     """A live view of one run: a spawned viewer when there is a screen, else an ``.rrd`` file.
 
     Parameters
@@ -161,6 +239,12 @@ def live_view_sink(spec_name: str, goal: Any, rrd: Path | None = None, *,
         ``rrd``: ``runs/<spec_name>.rrd``.
     spawn
         Open a viewer; default: when there is a screen.
+    start
+        The start pose (same forms as ``goal``): framed from the start; None: from the
+        first rows sent.
+    stop_radius_m
+        The run's stop radius (``RunSpec.stop_radius_m``): the control phase as a signal and
+        as colours, and the goal's ring; None: no phase.
 
     Returns
     -------
@@ -171,7 +255,8 @@ def live_view_sink(spec_name: str, goal: Any, rrd: Path | None = None, *,
 
     rec = rr.RecordingStream(APPLICATION_ID)
     rec.send_recording_name(f"{spec_name} (live)")
-    blueprint = replay_blueprint([spec_name], live=True)
+    bounds = live_bounds(_as_pose2d(start), _as_pose2d(goal))
+    blueprint = replay_blueprint([spec_name], live=True, bounds=bounds)
     spawned = False
     if spawn if spawn is not None else has_screen():
         try:
@@ -189,7 +274,8 @@ def live_view_sink(spec_name: str, goal: Any, rrd: Path | None = None, *,
             rec.set_sinks(rr.GrpcSink(), rr.FileSink(rrd), default_blueprint=blueprint)
         else:
             rec.save(rrd, default_blueprint=blueprint)
-    return LiveViewSink(rec, spec_name, goal)
+    return LiveViewSink(rec, spec_name, goal, start=start, stop_radius_m=stop_radius_m,
+                        bounds=bounds)
 
 
-__all__ = ["LiveViewSink", "TeeSink", "live_view_sink"]
+__all__ = ["GROW_FRACTION", "LiveViewSink", "TeeSink", "live_bounds", "live_view_sink"]

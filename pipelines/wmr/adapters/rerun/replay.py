@@ -330,6 +330,12 @@ class Bounds:
         return cls(float(mid[0] - half[0]), float(mid[0] + half[0]),
                    float(mid[1] - half[1]), float(mid[1] + half[1]))
 
+    def contains(self, points: NDArray[np.float64]) -> bool:
+        """Whether every finite point of ``points`` (shape ``(n, 2)``) is inside."""
+        p = points[np.isfinite(points).all(axis=1)]
+        return bool(np.all((p[:, 0] >= self.x_min) & (p[:, 0] <= self.x_max)
+                           & (p[:, 1] >= self.y_min) & (p[:, 1] <= self.y_max)))
+
     def view(self) -> rrb.VisualBounds2D:
         """The 2-D view's bounds: its y axis points down, the world's is mirrored up."""
         return rrb.VisualBounds2D(x_range=[self.x_min, self.x_max],
@@ -381,7 +387,8 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
     run_names
         The runs of the recording (their subtrees ``runs/<name>``).
     live
-        For a live view: the plots follow the latest 30 s instead of the whole run.
+        For a live view: the time follows the newest rows, and the plots show the latest
+        30 s instead of the whole run.
     bounds
         Fixed bounds of the world view (every start, goal and path); None: Rerun's own
         (follows what is drawn, for a live run whose path is not known yet).
@@ -430,7 +437,10 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
             rrb.Vertical(rrb.Grid(*plots, grid_columns=2), phase, row_shares=[9, 1]),
             column_shares=[5, 6],
         ),
-        rrb.TimePanel(timeline=TIMELINE, state="collapsed" if not live else "expanded"),
+        # live: the time cursor follows the newest rows (a live .rrd opens at its end); the
+        # collapsed time panel keeps its play bar and leaves the phase strip its height
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed",
+                      play_state="following" if live else None),
         collapse_panels=True,
     )
 
@@ -466,7 +476,7 @@ def _segments_column(strips: NDArray[np.float64], per_row: int) -> rr.ComponentC
                               lengths=np.full(len(strips) // per_row, per_row))
 
 
-def _phase_strips(path_xy: NDArray[np.float64], phase: NDArray[np.int8] | None
+def phase_strips(path_xy: NDArray[np.float64], phase: NDArray[np.int8] | None
                   ) -> tuple[list[NDArray[np.float64]], list[Rgb]]:
     """The path cut where the phase changes (each piece shares its end point with the next),
     and the colour of each piece."""
@@ -522,7 +532,7 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
     rec.log(world, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
     if path_xy is not None and path_xy.shape[0] >= 1:
         if run_color is None:
-            strips, colors = _phase_strips(path_xy, phase)
+            strips, colors = phase_strips(path_xy, phase)
         else:
             strips, colors = [path_xy], [run_color]
         # widths in UI points: a path stays visible (and no wider) at any zoom
@@ -1060,6 +1070,7 @@ __all__ = [
     "has_screen",
     "log_run_static",
     "log_sensing",
+    "phase_strips",
     "read_logs",
     "replay",
     "replay_blueprint",
