@@ -64,6 +64,31 @@ def test_every_cli_option_has_an_api_keyword(command: str) -> None:
                          f"wmr.{command}: {', '.join(missing)}")
 
 
+#: The executors' test hooks (``wmr.apps.batch.runner._test_hooks``): never a public keyword.
+TEST_HOOKS = ("faults", "stop_after")
+
+
+def test_no_public_batch_signature_carries_a_test_hook() -> None:
+    from wmr.apps.batch import run_batch
+
+    for function in (run_batch, wmr.batch):
+        hooks = set(TEST_HOOKS) & set(inspect.signature(function).parameters)
+        assert not hooks, f"{function.__qualname__} has test hooks {sorted(hooks)}"
+
+
+def test_the_hooks_reach_only_the_batches_inside_their_block(tmp_path: Path) -> None:
+    from wmr.apps.batch.runner import _HOOKS, _test_hooks
+
+    with _test_hooks(stop_after=2, faults={"r": "crash"}):
+        hooks = _HOOKS.get()
+        assert hooks is not None
+        assert hooks.stop_after == 2 and dict(hooks.faults) == {"r": "crash"}
+    assert _HOOKS.get() is None
+    with pytest.raises(ConfigError, match="unknown fault 'melt'"), \
+            _test_hooks(faults={"r": "melt"}):
+        pass
+
+
 def test_the_check_names_the_option_without_a_keyword() -> None:
     """The check itself: an API function without ``--sensors`` and ``--map`` is caught, and
     the options are named."""
