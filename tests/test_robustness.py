@@ -25,7 +25,8 @@ import pyarrow.parquet as pq
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
-from wmr.adapters.fmi.robot import FmuPlant, remove_stale_folders
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.fmi.slave import remove_stale_folders
 from wmr.adapters.mcap import read_run
 from wmr.adapters.mcap.recover import recover_log
 from wmr.apps.batch import load_batch, parse_batch, run_batch
