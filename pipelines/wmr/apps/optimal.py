@@ -10,6 +10,7 @@ from typing import Any
 
 from wmr.core.control import Limits
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.record import RECORD_KEYS, record
 from wmr.infra.errors import ConfigError
 
 #: The advice of a failed solve, for users of this function and of the command line (who
@@ -41,11 +42,14 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
     """Solve, replay on the FMU at ``fmu_path`` and log to ``out``; return the result record.
 
     ``objective="energy"`` without ``final_time_s`` takes 1.5 times the minimum time.  The
-    record holds the fields of ``wmr optimal --json`` (``status``, ``final_time_s``,
-    ``path_length_m``, the energy keys of ``docs/results.md`` with the replay's
-    ``torque_sq_integral_n2m2s``, the absolute ``final_heading_error_rad``, ``mcap``, ...); the
-    log is written only when the solve succeeded.  ``progress`` receives a line at least every
-    few seconds while IPOPT iterates (:func:`wmr.adapters.ocp.solve_optimal`).
+    record is the record of a run (:data:`wmr.core.record.RECORD_KEYS`, ``docs/results.md``)
+    of the open-loop FMU replay (``status`` the solver's, ``time_to_goal_s`` the optimum's
+    final time), then the optimal's own fields (``objective``, ``final_time_s``, the
+    optimiser's ``ocp_*`` estimates, ``solve_time_s``, ``iterations``, ``limits``,
+    ``time_to_radius_s``, ``final_speed_mps``); the log, with the scene topics
+    (:mod:`wmr.adapters.mcap.scene`), is written only when the solve succeeded.
+    ``progress`` receives a line at least every few seconds while IPOPT iterates
+    (:func:`wmr.adapters.ocp.solve_optimal`).
     """
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.adapters.ocp import FAILED_ADVICE, replay_open_loop, solve_optimal
@@ -70,32 +74,45 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
     res = solve_optimal(start, goal, params, objective=objective,  # type: ignore[arg-type]
                         limits=limits, final_time_s=final_time_s, progress=progress)
     res.message = res.message.replace(FAILED_ADVICE, _CASE_ADVICE)
-    record: dict[str, Any] = {
-        "name": name,
-        "status": res.status, "message": res.message + (f"; {note}" if note else ""),
+    message = res.message + (f"; {note}" if note else "")
+    own: dict[str, Any] = {
         "objective": res.objective,
         "final_time_s": res.final_time_s if res.status == "solved" else None,
-        "path_length_m": None, "mcap": None,
         "ocp_path_length_m": res.path_length_m,
         "ocp_energy_positive_j": res.energy_positive_j,
         "solve_time_s": res.solve_time_s,
         "iterations": res.iterations, "limits": res.summary()["limits"],
     }
     if res.status != "solved":
-        return record
+        return {**dict.fromkeys(RECORD_KEYS), "name": name, "status": res.status,
+                "message": message, "steps": 0, **own}
     with FmuPlant(fmu_path) as plant:
         replay = replay_open_loop(res, plant, params=params, start=start,
                                   control_period_s=period_s)
-        record.update(replay_figures(replay, goal, 0.05))
-        record["mcap"] = str(out)
-        record["final_speed_mps"] = replay.final_speed_mps
+        figures = replay_figures(replay, goal, 0.05)
+        # an open-loop replay has no stabiliser: what it "believed" is the truth
+        done = {**record(name=name, status=res.status, message=message,
+                         final_position_error_m=figures["final_position_error_m"],
+                         final_heading_error_rad=figures["final_heading_error_rad"],
+                         time_to_goal_s=res.final_time_s,
+                         path_length_m=figures["path_length_m"],
+                         energy_net_j=figures["energy_net_j"],
+                         energy_positive_j=figures["energy_positive_j"],
+                         energy_abs_j=figures["energy_abs_j"],
+                         torque_sq_integral_n2m2s=figures["torque_sq_integral_n2m2s"],
+                         peak_torque_nm=figures["peak_torque_nm"], steps=len(replay.t_s),
+                         estimated_final_position_error_m=figures["final_position_error_m"],
+                         estimated_final_heading_error_rad=figures["final_heading_error_rad"],
+                         mcap=str(out)),
+                **own, "time_to_radius_s": figures["time_to_radius_s"],
+                "final_speed_mps": replay.final_speed_mps}
         write_optimal_log(out, res, replay, plant,
                           optimal_metadata(name, "", start, goal, params, limits, objective,
                                            plant, period_s),
-                          {k: v for k, v in record.items() if not isinstance(v, dict)},
+                          {k: v for k, v in done.items() if not isinstance(v, dict)},
                           scenario=optimal_scenario(name, "", start, goal, params, limits,
-                                                    period_s))
-    return record
+                                                    period_s), scene=True)
+    return done
 
 
 __all__ = ["optimal_limits", "optimal_to_log"]
