@@ -75,7 +75,7 @@ def c_loop_seconds(fmu: Path, n: int, repeats: int = 7) -> float:
 
 def _fmpy_stepper(plant: FmuPlant, version: int) -> Callable[[int], None]:
     """Steps through fmpy's own FMU2Slave/FMU3Slave API on the plant's instance."""
-    fmu = plant._fmu
+    fmu = plant._slave.fmu
     vr_in = [int(v) for v in plant._in_vr]
     vr_out = [int(v) for v in plant._out_vr]
     set_values = fmu.setReal if version == 2 else fmu.setFloat64

@@ -1,10 +1,12 @@
-"""Every option of ``wmr run``, ``wmr batch`` and ``wmr optimal`` has its keyword in the API
-(``docs/api.md``), and ``wmr.run`` reaches what ``wmr run`` reaches."""
+"""Every option of ``wmr run``, ``wmr batch``, ``wmr optimal`` and ``wmr replay`` has its keyword
+in the API (``docs/api.md``), ``wmr.run`` reaches what ``wmr run`` reaches, and the API's
+batch, optimal and replay give the command's one-line errors, naming their keywords."""
 
 from __future__ import annotations
 
 import argparse
 import inspect
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,7 +22,7 @@ KEYWORD_OF = {
     "gain": "gains", "limit": "limits", "param": "params", "period": "period_s",
     "stop_radius": "stop_radius_m", "max_time": "max_time_s", "map": "fmu_map",
     "run_timeout": "run_timeout_s", "final_time": "final_time_s",
-    "torque_limit": "torque_limit_nm",
+    "torque_limit": "torque_limit_nm", "no_viewer": "viewer",
 }
 
 #: Options with no meaning in the API, each with the reason.
@@ -33,7 +35,7 @@ CLI_ONLY = {
 }
 
 API_OF: dict[str, Callable[..., Any]] = {"run": wmr.run, "batch": wmr.batch,
-                                         "optimal": wmr.optimal}
+                                         "optimal": wmr.optimal, "replay": wmr.replay}
 
 
 def _subparser(command: str) -> argparse.ArgumentParser:
@@ -62,6 +64,31 @@ def test_every_cli_option_has_an_api_keyword(command: str) -> None:
     missing = missing_keywords(command, API_OF[command])
     assert not missing, (f"wmr {command} has options without a keyword of "
                          f"wmr.{command}: {', '.join(missing)}")
+
+
+#: The executors' test hooks (``wmr.apps.batch.runner._test_hooks``): never a public keyword.
+TEST_HOOKS = ("faults", "stop_after")
+
+
+def test_no_public_batch_signature_carries_a_test_hook() -> None:
+    from wmr.apps.batch import run_batch
+
+    for function in (run_batch, wmr.batch):
+        hooks = set(TEST_HOOKS) & set(inspect.signature(function).parameters)
+        assert not hooks, f"{function.__qualname__} has test hooks {sorted(hooks)}"
+
+
+def test_the_hooks_reach_only_the_batches_inside_their_block(tmp_path: Path) -> None:
+    from wmr.apps.batch.runner import _HOOKS, _test_hooks
+
+    with _test_hooks(stop_after=2, faults={"r": "crash"}):
+        hooks = _HOOKS.get()
+        assert hooks is not None
+        assert hooks.stop_after == 2 and dict(hooks.faults) == {"r": "crash"}
+    assert _HOOKS.get() is None
+    with pytest.raises(ConfigError, match="unknown fault 'melt'"), \
+            _test_hooks(faults={"r": "melt"}):
+        pass
 
 
 def test_the_check_names_the_option_without_a_keyword() -> None:
@@ -109,3 +136,54 @@ def test_api_run_takes_the_scenarios_fmu_and_the_log_policy(tmp_path: Path) -> N
     with pytest.raises(ConfigError) as info:
         wmr.run("fig11", log_every=0, out=tmp_path / "k.mcap")
     assert info.value.field == "log_every"
+
+
+#: Inputs that ``wmr batch``, ``wmr optimal`` and ``wmr replay`` refuse before any work, as
+#: command-line arguments and as API keywords, with the field each error names in each.
+BAD_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
+    (["batch", "fig11", "--max-runs", "0"], lambda: wmr.batch("fig11", max_runs=0),
+     "--max-runs", "max_runs"),
+    (["batch", "fig11", "--workers", "0"], lambda: wmr.batch("fig11", workers=0),
+     "--workers", "workers"),
+    (["batch", "fig11", "--workers", "1", "--scheduler", "tcp://127.0.0.1:1"],
+     lambda: wmr.batch("fig11", workers=1, scheduler="tcp://127.0.0.1:1"),
+     "--workers", "workers"),
+    (["batch", "fig11", "--run-timeout", "-1"], lambda: wmr.batch("fig11", run_timeout_s=-1),
+     "--run-timeout", "run_timeout_s"),
+    (["batch", "fig11", "--scheduler", "nope://x"],
+     lambda: wmr.batch("fig11", scheduler="nope://x"), "--scheduler", "scheduler"),
+    (["optimal", "--period", "0"], lambda: wmr.optimal(period_s=0.0), "--period", "period_s"),
+    (["optimal", "--goal", "1", "nan", "0"], lambda: wmr.optimal(goal=(1.0, math.nan, 0.0)),
+     "--goal y", "goal y"),
+    (["optimal", "--final-time", "3"], lambda: wmr.optimal(final_time_s=3.0),
+     "--final-time", "final_time_s"),
+    (["optimal", "--out", "o.txt"], lambda: wmr.optimal(out="o.txt"), "--out", "out"),
+    (["replay"], lambda: wmr.replay(), "FILE.mcap|DIR", "logs"),
+    (["replay", "x.mcap", "--rrd", "o.txt"], lambda: wmr.replay("x.mcap", rrd="o.txt"),
+     "--rrd", "rrd"),
+    (["replay", "--blueprint", "o.txt"], lambda: wmr.replay(blueprint="o.txt"),
+     "--blueprint", "blueprint"),
+    (["replay", "--blueprint-for"], lambda: wmr.replay(blueprint_for=True),
+     "--blueprint-for", "blueprint_for"),
+]
+
+
+@pytest.mark.parametrize(("argv", "call", "flag", "keyword"), BAD_INPUTS,
+                         ids=[" ".join(case[0]) for case in BAD_INPUTS])
+def test_the_api_gives_the_command_s_one_line_errors(
+        argv: list[str], call: Callable[[], object], flag: str, keyword: str, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """The checks live below the CLI: ``wmr.batch(max_runs=0)`` is refused as ``wmr batch
+    --max-runs 0`` is, the same problem and fix, naming ``max_runs`` (issue 22)."""
+    from wmr.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"wmr: error: {flag}: "), err
+    with pytest.raises(ConfigError) as info:
+        call()
+    assert info.value.field == keyword
+    # the same problem, another option in it named as each front door names it
+    problem = err[0].removeprefix(f"wmr: error: {flag}: ").replace("--scheduler", "scheduler")
+    assert problem.startswith(info.value.problem), (problem, info.value.problem)

@@ -27,6 +27,7 @@ from wmr.adapters.mcap import read_run
 from wmr.apps.batch import BatchSpec, load_batch, parse_batch, run_batch
 from wmr.apps.batch.journal import Journal, log_complete
 from wmr.apps.batch.report import write_report
+from wmr.apps.batch.runner import _test_hooks
 from wmr.apps.batch.spec import RunList, run_index
 from wmr.apps.batch.summary import write_summary
 from wmr.cli import main
@@ -383,7 +384,8 @@ def test_dask_scheduler_address_with_worker_processes(reference: Path, spec20: P
 def test_interrupted_batch_resumes_with_only_the_missing_runs(reference: Path, spec20: Path,
                                                               fmu3: Path, tmp_path: Path) -> None:
     batch = load_batch(spec20)
-    first = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False, stop_after=7)
+    with _test_hooks(stop_after=7):
+        first = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False)
     assert first.interrupted and len(first.executed) == 7
     assert pq.read_table(tmp_path / "summary.parquet").num_rows == 7
     # a run killed mid-write: a half log without its journal line; and a finished run whose
@@ -407,7 +409,8 @@ def test_interrupted_batch_resumes_with_only_the_missing_runs(reference: Path, s
 def test_a_cut_journal_line_is_ignored_and_redone(spec20: Path, fmu3: Path,
                                                   tmp_path: Path) -> None:
     batch = load_batch(spec20)
-    run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False, stop_after=3)
+    with _test_hooks(stop_after=3):
+        run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False)
     journal = tmp_path / "journal.jsonl"
     journal.write_bytes(journal.read_bytes()[:-40])  # the third line is cut
     assert len(Journal(journal).load()) == 2
@@ -552,8 +555,9 @@ def test_failures_timeouts_hangs_and_crashes_are_rows(fmu3: Path, tmp_path: Path
     out = tmp_path / "out"
     # 2 s of wall clock: the short runs finish well inside it on a loaded machine, "slow" (300 000
     # steps) cannot
-    result = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False, run_timeout_s=2.0,
-                       faults={by_variant["hang"]: "hang", by_variant["crash"]: "crash"})
+    with _test_hooks(faults={by_variant["hang"]: "hang", by_variant["crash"]: "crash"}):
+        result = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False,
+                           run_timeout_s=2.0)
     assert not result.interrupted and result.finished == 7
     table = pq.read_table(out / "summary.parquet").to_pylist()
     rows = {row["variant"]: row for row in table}

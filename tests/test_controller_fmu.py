@@ -14,6 +14,7 @@ import ctypes
 import math
 import shutil
 import subprocess
+import tempfile
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from mcap.reader import make_reader
 
 from wmr.adapters.fmi.controller import FmuController
 from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.fmi.slave import remove_stale_folders
 from wmr.adapters.mcap import read_run
 from wmr.build.controller_interface import (
     INPUTS,
@@ -525,6 +527,32 @@ def test_a_nan_wheel_speed_fails_the_run_with_the_fmu_error(built: BuildResult) 
             ctrl.step(0.0, 0.0, 0.0, math.nan, 0.0)
 
 
+@pytest.mark.parametrize("version", [2, 3])
+def test_the_controller_fmu_is_held_and_logs_like_the_robot(
+        built: BuildResult, version: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capfd: pytest.CaptureFixture[str]) -> None:
+    """The controller FMU's instance is an FmuSlave, as the robot's: its folder is locked while
+    it lives (a cleaner leaves it), and its log messages go to stderr, never to stdout (where
+    ``--json`` puts its line; fmpy's default logger prints there; checked on FMI 3)."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    spec = load_scenario("fig11").runs[0]
+    with FmuController(built.controllers[version]) as ctrl:
+        [folder] = tmp_path.glob("wmr-fmu-*")
+        assert remove_stale_folders(tmp_path) == [] and folder.is_dir()
+        ctrl.configure(spec)
+        ctrl.stabiliser.converged(0.0, 0.0, 0.0, 0.0, 0.0, spec.heading_tolerance_rad)
+        with pytest.raises(FmuError, match="returned Error"):
+            ctrl.step(0.0, 0.0, 0.0, math.nan, 0.0)
+    assert not folder.exists()
+    if version == 2:
+        # FMI 2 messages pass fmpy's logger proxy, one per process: after an fmpy
+        # simulate_fmu in the same process (other tests) they go to its logger, not ours
+        return
+    out, err = capfd.readouterr()
+    assert "[ERROR]" in err and "omega_r" in err, err
+    assert "[ERROR]" not in out, out
+
+
 def test_the_variables_table_of_docs_control_md_matches_the_code() -> None:
     text = (Path(__file__).parent.parent / "docs" / "control.md").read_text()
     section = text.split("## The controller FMU", 1)[1].split("\n## ", 1)[0]
@@ -636,7 +664,7 @@ def test_model_exchange_is_refused_and_not_declared(built: BuildResult, version:
 
     try:
         if version == 2:
-            from wmr.adapters.fmi.robot import fmi2_callbacks
+            from wmr.adapters.fmi.slave import fmi2_callbacks
 
             callbacks = fmi2_callbacks(logger)
             fmu2 = FMU2Model(guid=md.guid, unzipDirectory=unzipdir,

@@ -500,10 +500,11 @@ def test_a_worker_gone_while_a_helper_keeps_its_pipe_open_is_seen_dead(fmu3: Pat
     script = (
         "import sys\n"
         "from wmr.apps.batch import load_batch, run_batch\n"
+        "from wmr.apps.batch.runner import _test_hooks\n"
         f"batch = load_batch({str(spec)!r})\n"
-        "faults = {batch.runs[0].run_id: 'crash-keeping-pipe'}\n"
-        f"r = run_batch(batch, {str(out)!r}, workers=1, fmu_path={str(fmu3)!r},\n"
-        "              progress=False, faults=faults)\n"
+        "with _test_hooks(faults={batch.runs[0].run_id: 'crash-keeping-pipe'}):\n"
+        f"    r = run_batch(batch, {str(out)!r}, workers=1, fmu_path={str(fmu3)!r},\n"
+        "                  progress=False)\n"
         "print(r.counts['failed'], r.counts['converged'])\n")
     err = tmp_path / "stderr.txt"
     try:  # files, not pipes: the helper keeps the forkserver, and its stderr, alive

@@ -27,6 +27,7 @@ from wmr.adapters.rerun.replay import find_logs
 from wmr.apps.batch import load_batch, run_batch
 from wmr.apps.batch.journal import log_complete
 from wmr.apps.batch.report import write_report
+from wmr.apps.batch.runner import _test_hooks
 from wmr.apps.batch.summary import log_relpath
 from wmr.apps.run import LogPolicy, run_to_log
 from wmr.cli import main
@@ -226,8 +227,9 @@ def test_a_sharded_batch_resumes_replays_and_reports(
         spec8: Path, fmu3: Path, tmp_path: Path, batches: dict[str, Path],
         shards_of_3: None) -> None:
     batch = load_batch(spec8)
-    first = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False,
-                      log=LogPolicy("full"), stop_after=5)
+    with _test_hooks(stop_after=5):
+        first = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False,
+                          log=LogPolicy("full"))
     assert first.interrupted
     again = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False,
                       log=LogPolicy("full"))

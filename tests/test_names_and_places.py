@@ -12,6 +12,7 @@ import pytest
 import wmr
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import read_run
+from wmr.adapters.mcap.scene import GOAL_TOPIC, PATH_TOPIC, ROBOT_TOPIC
 from wmr.adapters.ssp.package import read_package
 from wmr.apps.benchmark import run_logged
 from wmr.apps.run import run_to_log
@@ -26,7 +27,7 @@ from wmr.config.naming import (
     run_name,
 )
 from wmr.config.scenario import load_scenario
-from wmr.core.plant import RobotParams
+from wmr.core.plant import Pose, RobotParams
 from wmr.core.sensing.config import SensorConfig, command_line_sensors
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import _REPO_ROOT
@@ -101,6 +102,52 @@ def test_a_benchmark_log_holds_the_documented_record(built: BuildResult, tmp_pat
     assert list(bench) == [*keys, "time_to_radius_s"]
     assert list(own) == keys  # the one record of both paths is the documented one
     assert float(bench["torque_sq_integral_n2m2s"]) == own["torque_sq_integral_n2m2s"]
+
+
+def _topics(path: Path) -> set[str]:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return {c.topic for c in make_reader(f).get_summary().channels.values()}
+
+
+#: The drawable topics every log of a robot path carries (wmr.adapters.mcap.scene).
+SCENE_TOPICS = {ROBOT_TOPIC, PATH_TOPIC, GOAL_TOPIC}
+
+
+def test_an_ssp_log_holds_the_documented_record_and_the_scene(built: BuildResult,
+                                                             tmp_path: Path) -> None:
+    """``wmr ssp run``'s record is the record of a run, then ``master``; its log draws."""
+    from wmr.adapters.ssp.cosim import log_ssp_run, simulate_libcosim
+    from wmr.adapters.ssp.export import export_ssp
+
+    keys = _documented_record_keys()
+    spec = load_scenario("fig11").runs[0]
+    package = export_ssp(spec, tmp_path / "fig11.ssp", built.fmus[2], built.controllers[2])
+    record = log_ssp_run(simulate_libcosim(package, stop_time_s=1.0), tmp_path / "ssp.mcap")
+    assert list(record) == [*keys, "master"]
+    log = read_run(tmp_path / "ssp.mcap")
+    assert record["torque_sq_integral_n2m2s"] > 0.0 and record["steps"] == log.n_steps
+    assert list(log.metadata["result"]) == list(record)
+    assert SCENE_TOPICS <= _topics(tmp_path / "ssp.mcap")
+
+
+def test_an_optimal_log_holds_the_documented_record_and_the_scene(built: BuildResult,
+                                                                 tmp_path: Path) -> None:
+    """``wmr optimal``'s record is the record of a run (its figures the FMU replay's), then
+    its own fields; its log holds the record (but the ``limits`` table) and draws."""
+    from wmr.apps.optimal import optimal_to_log
+
+    keys = _documented_record_keys()
+    out = tmp_path / "o.mcap"
+    record = optimal_to_log(Pose(0.0, 0.0, 0.0), Pose(2.0, 1.0, 0.0), out, built.fmus[3],
+                            name="o")
+    assert record["status"] == "solved"
+    assert list(record)[:len(keys)] == keys
+    logged = read_run(out).metadata["result"]
+    assert list(logged) == [k for k in record if k != "limits"]
+    assert logged["torque_sq_integral_n2m2s"] == str(record["torque_sq_integral_n2m2s"])
+    assert SCENE_TOPICS <= _topics(out)
 
 
 def _sensors_name(preset: str | None, *items: str) -> str:

@@ -14,6 +14,7 @@ import pytest
 from mcap.reader import make_reader
 
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, read_run
+from wmr.adapters.mcap.scene import GOAL_TOPIC, PATH_TOPIC, ROBOT_TOPIC
 from wmr.cli import main
 from wmr.config.scenario import parse_scenario
 
@@ -55,7 +56,9 @@ def test_the_optimal_log_is_named_complete_and_exact(
     # only the topics that apply, each with every field finite
     with path.open("rb") as fh:
         topics = {c.topic for c in make_reader(fh).get_summary().channels.values()}  # type: ignore[union-attr]
-    assert topics == {t.topic for t in OPEN_LOOP_TOPICS} | {"/goal"}
+    # the open-loop topics, and the scene (no controller: no /controller/phase)
+    assert topics == {t.topic for t in OPEN_LOOP_TOPICS} | {"/goal", ROBOT_TOPIC, PATH_TOPIC,
+                                                            GOAL_TOPIC}
     for layout in OPEN_LOOP_TOPICS:
         for sig in layout.signals:
             assert np.all(np.isfinite(log.signals[sig])), sig

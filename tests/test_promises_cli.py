@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-import wmr.apps.batch
+import wmr.apps.batch.command
 from wmr.cli import build_parser, main
 from wmr.infra.errors import ConfigError
 
@@ -70,7 +70,7 @@ def test_an_internal_error_is_one_line_exit_2_and_debug_raises_it(
     def broken(*args: object, **kwargs: object) -> None:
         raise RuntimeError("a bug\nover two lines")
 
-    monkeypatch.setattr(wmr.apps.batch, "load_batch", broken)
+    monkeypatch.setattr(wmr.apps.batch.command, "load_batch", broken)
     args = ["batch", "fig10", "--out", str(tmp_path / "o")]
     assert main(args) == 2
     err = capsys.readouterr().err

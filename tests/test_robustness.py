@@ -25,12 +25,14 @@ import pyarrow.parquet as pq
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
-from wmr.adapters.fmi.robot import FmuPlant, remove_stale_folders
+from wmr.adapters.fmi.robot import FmuPlant
+from wmr.adapters.fmi.slave import remove_stale_folders
 from wmr.adapters.mcap import read_run
 from wmr.adapters.mcap.recover import recover_log
 from wmr.apps.batch import load_batch, parse_batch, run_batch
 from wmr.apps.batch.journal import Journal
 from wmr.apps.batch.local import DIED_TWICE
+from wmr.apps.batch.runner import _test_hooks
 from wmr.cli import main
 from wmr.config.scenario import load_scenario
 from wmr.infra.durable import partial_path, write_all
@@ -208,11 +210,12 @@ def _processes_with(marker: str) -> list[int]:
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and PR_SET_PDEATHSIG")
 def test_workers_die_with_a_killed_batch(tmp_path: Path, fmu3: Path) -> None:
     marker = f"WMR_TEST_{uuid.uuid4().hex}"
-    code = ("import sys; from pathlib import Path; "
-            "from wmr.apps.batch import load_batch, run_batch; "
-            f"b = load_batch({str(_spec(tmp_path))!r}); "
-            f"run_batch(b, {str(tmp_path / 'o')!r}, workers=2, fmu_path={str(fmu3)!r}, "
-            "progress=False, faults={r.run_id: 'hang' for r in b.runs})")
+    code = ("from wmr.apps.batch import load_batch, run_batch\n"
+            "from wmr.apps.batch.runner import _test_hooks\n"
+            f"b = load_batch({str(_spec(tmp_path))!r})\n"
+            "with _test_hooks(faults={r.run_id: 'hang' for r in b.runs}):\n"
+            f"    run_batch(b, {str(tmp_path / 'o')!r}, workers=2, fmu_path={str(fmu3)!r},\n"
+            "              progress=False)\n")
     proc = subprocess.Popen([sys.executable, "-c", code], env=_env(**{marker: "1"}))
     logs = [tmp_path / "o" / "logs" / f"worker-{i}.log" for i in (0, 1)]
     _wait_for(lambda: all(log.exists() for log in logs))  # each worker opens its own
@@ -432,8 +435,8 @@ def test_a_dangling_value_reference_is_named(tmp_path: Path, fmu3: Path) -> None
 def test_a_dead_worker_gets_its_run_once_more(tmp_path: Path, fmu3: Path) -> None:
     batch = load_batch(_spec(tmp_path, SPEC.replace("max_time_s = 60.0", "max_time_s = 2.0")))
     first, second = batch.runs[0].run_id, batch.runs[1].run_id
-    result = run_batch(batch, tmp_path / "o", workers=1, fmu_path=fmu3, progress=False,
-                       faults={first: "crash-once", second: "crash"})
+    with _test_hooks(faults={first: "crash-once", second: "crash"}):
+        result = run_batch(batch, tmp_path / "o", workers=1, fmu_path=fmu3, progress=False)
     rows = {r["run_id"]: r for r in pq.read_table(tmp_path / "o" / "summary.parquet").to_pylist()}
     assert rows[first]["status"] == "timeout", "the retry ran it"
     assert rows[second]["status"] == "failed" and rows[second]["message"] == DIED_TWICE
@@ -448,11 +451,11 @@ def test_dask_retries_a_dead_worker_s_run_like_the_local_pool(tmp_path: Path,
 
     batch = load_batch(_spec(tmp_path, SPEC.replace("max_time_s = 60.0", "max_time_s = 2.0")))
     faults = {batch.runs[0].run_id: "crash-once", batch.runs[1].run_id: "crash"}
-    run_batch(batch, tmp_path / "local", workers=1, fmu_path=fmu3, progress=False,
-              faults=faults)
+    with _test_hooks(faults=faults):
+        run_batch(batch, tmp_path / "local", workers=1, fmu_path=fmu3, progress=False)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
-        run_batch(batch, tmp_path / "dask", client=client, fmu_path=fmu3, progress=False,
-                  faults=faults)
+                      dashboard_address=None) as cluster, Client(cluster) as client, \
+            _test_hooks(faults=faults):
+        run_batch(batch, tmp_path / "dask", client=client, fmu_path=fmu3, progress=False)
     local, dask = ((tmp_path / d / "summary.csv").read_bytes() for d in ("local", "dask"))
     assert dask == local, "the same summary whichever executor ran it"

@@ -7,6 +7,7 @@ The notebook API (``docs/api.md``), loaded on first use so that ``import wmr`` s
     wmr.read_log(path)               # a log's signals (pandas DataFrame) and metadata -> Log
     wmr.batch(spec, out, ...)        # many runs; the summary as a DataFrame -> BatchResult
     wmr.optimal(start, goal, ...)    # the optimal manoeuvre, replayed and logged -> RunResult
+    wmr.replay(logs, ...)            # run logs in Rerun (a viewer or an .rrd) -> ReplayResult
 
 The package is layered, each layer importing only those below it (``docs/architecture.md``):
 :mod:`wmr.infra` < :mod:`wmr.core` < :mod:`wmr.config` < :mod:`wmr.build` < :mod:`wmr.adapters`
@@ -18,15 +19,25 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ loads wmr.api
-    from wmr.api import BatchResult, Log, RunResult, batch, load_scenario, optimal, read_log, run
+    from wmr.api import (
+        BatchResult,
+        Log,
+        RunResult,
+        batch,
+        load_scenario,
+        optimal,
+        read_log,
+        replay,
+        run,
+    )
 
 __all__ = ["BatchResult", "Log", "RunResult", "__version__", "batch", "load_scenario", "optimal",
-           "read_log", "run"]
+           "read_log", "replay", "run"]
 
 __version__ = "0.1.0"
 
 #: Names of the API (wmr.api) that ``import wmr`` offers without importing it.
-_API = ("load_scenario", "run", "read_log", "batch", "optimal", "Log", "RunResult",
+_API = ("load_scenario", "run", "read_log", "batch", "optimal", "replay", "Log", "RunResult",
         "BatchResult")
 
 

@@ -31,6 +31,7 @@ if TYPE_CHECKING:  # pandas and matplotlib load only when a result is used
     import pandas as pd
     from matplotlib.axes import Axes
 
+    from wmr.adapters.rerun.replay import ReplayResult
     from wmr.config.scenario import Scenario
 
 PoseLike = Sequence[float]
@@ -306,31 +307,19 @@ def optimal(start: PoseLike = (0.0, 0.0, 0.0), goal: PoseLike = (20.0, 10.0, 0.0
             period_s: float = 0.01, out: str | Path | None = None,
             fmi: int = 3, fmu: str | Path | None = None) -> RunResult:
     """The optimal manoeuvre, as ``wmr optimal`` makes it (solved, replayed on the FMU,
-    logged); ``start`` and ``goal`` are ``(x_m, y_m, heading_deg)``."""
-    _not_in_a_worker_import("optimal")
-    from wmr.apps.optimal import optimal_to_log
-    from wmr.apps.run import default_fmu
-    from wmr.config.naming import default_log_path, fmu_tokens, pose_token, variant_name
-    from wmr.core.plant import Pose
-    from wmr.infra.outputs import check_output
+    logged); ``start`` and ``goal`` are ``(x_m, y_m, heading_deg)``.
 
-    poses: list[Pose] = []
-    tokens: list[str] = []
-    for field_name, label, value, default in (("start", "from", start, (0.0, 0.0, 0.0)),
-                                              ("goal", "to", goal, (20.0, 10.0, 0.0))):
-        x, y, heading_deg = _pose(value, field_name) or default
-        poses.append(Pose(x, y, math.radians(heading_deg)))
-        if (x, y, heading_deg) != default:  # named after what differs, as wmr optimal
-            tokens.append(pose_token(label, poses[-1]))
-    name = variant_name(f"optimal-{objective}", [*tokens, *fmu_tokens(fmi, fmu)])
-    path = check_output(out if out is not None else default_log_path(name), "out",
-                        suffix=".mcap")
-    record = optimal_to_log(poses[0], poses[1], path,
-                            Path(fmu) if fmu is not None else default_fmu(fmi), name=name,
-                            objective=objective, torque_limit_nm=torque_limit_nm,
-                            torque_only=torque_only, final_time_s=final_time_s,
-                            period_s=period_s)
-    return RunResult(record, read_log(path) if record.get("mcap") else None)
+    Both check their inputs, name the case and its log in
+    :func:`wmr.apps.optimal.optimal_command`: the same one-line errors, naming the keyword
+    here (``final_time_s``) where the command names the option (``--final-time``).
+    """
+    _not_in_a_worker_import("optimal")
+    from wmr.apps.optimal import optimal_command
+
+    record = optimal_command(start, goal, objective=objective, torque_limit_nm=torque_limit_nm,
+                             torque_only=torque_only, final_time_s=final_time_s,
+                             period_s=period_s, out=out, fmi=fmi, fmu=fmu)
+    return RunResult(record, read_log(record["mcap"]) if record.get("mcap") else None)
 
 
 @dataclass(frozen=True)
@@ -361,31 +350,49 @@ def batch(spec: str | Path, out: str | Path | None = None, *,
     summary as a DataFrame (``docs/batch.md``).
 
     The keywords are the options of ``wmr batch``: ``max_runs`` (``--max-runs``: refuse a
-    larger spec), ``fmu_map`` (``--map``), ``log`` and ``log_every`` (``--log``,
-    ``--log-every``, over the spec's ``[log]``), ``progress`` (a bar on stderr; default off
-    in the API).
+    larger spec), ``run_timeout_s`` (``--run-timeout``; None: 600 s, 0: no limit),
+    ``fmu_map`` (``--map``), ``log`` and ``log_every`` (``--log``, ``--log-every``, over the
+    spec's ``[log]``), ``progress`` (a bar on stderr; default off in the API).  Both check
+    their inputs in :func:`wmr.apps.batch.command.batch_command`: the same one-line errors,
+    naming the keyword here.
     """
     _not_in_a_worker_import("batch")
     import pyarrow.parquet as pq
 
-    from wmr.adapters.fmi.varmap import load_map
-    from wmr.apps.batch import DEFAULT_RUN_TIMEOUT_S, load_batch, run_batch
-    from wmr.apps.batch.spec import MAX_RUNS
-    from wmr.apps.run import log_policy
-    from wmr.infra.outputs import check_output
+    from wmr.apps.batch.command import batch_command
 
-    if max_runs is not None and max_runs < 1:
-        raise ConfigError("max_runs", f"must be >= 1, got {max_runs}", "give e.g. 2000000")
-    loaded = load_batch(spec, max_runs=MAX_RUNS if max_runs is None else max_runs)
-    policy = log_policy(log, log_every, loaded.log, command_line=False)
-    folder = check_output(out if out is not None else Path("batches") / Path(spec).stem, "out",
-                          "dir")
-    run_batch(loaded, folder, workers=workers, scheduler=scheduler,
-              run_timeout_s=DEFAULT_RUN_TIMEOUT_S if run_timeout_s is None else run_timeout_s,
-              fmu_path=fmu, fmi_version=fmi, progress=progress,
-              var_map=load_map(fmu_map) if fmu_map is not None else None, log=policy)
+    folder, _ = batch_command(spec, out, workers=workers, scheduler=scheduler,
+                              run_timeout_s=run_timeout_s, max_runs=max_runs, fmi=fmi, fmu=fmu,
+                              fmu_map=fmu_map, log=log, log_every=log_every, progress=progress)
     return BatchResult(folder, pq.read_table(folder / "summary.parquet").to_pandas())
 
 
+def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | None = None,
+           blueprint: str | Path | None = None, blueprint_for: bool = False,
+           viewer: bool | None = None) -> ReplayResult | Path | list[Path]:
+    """Replay run logs in Rerun, as ``wmr replay`` does: ``logs`` (a file or folder, or a list
+    of them) in one recording, shown in a viewer or written to ``rrd``.
+
+    The keywords are the options of ``wmr replay``: ``rrd`` (``--rrd``), ``blueprint``
+    (``--blueprint``: write a blueprint for Rerun's own MCAP loader, looking down on
+    ``logs`` if given, and replay nothing; returns its path), ``blueprint_for``
+    (``--blueprint-for``: ``X.rbl`` beside each log ``X.mcap``, for ``rerun X.mcap X.rbl``;
+    returns their paths), ``viewer`` (``--no-viewer`` is
+    ``viewer=False``; None: a viewer when there is a screen and no ``rrd``).  Both check their
+    inputs in :func:`wmr.apps.replay.replay_logs`: the same one-line errors.
+
+    Returns
+    -------
+    ReplayResult, Path or list of Path
+        ``.runs``, ``.steps``, ``.rrd`` (None when only a viewer got it), ``.spawned``,
+        ``.warnings``; or the blueprint(s) written.
+    """
+    from wmr.apps.replay import replay_logs
+
+    inputs = [logs] if isinstance(logs, str | Path) else list(logs)
+    return replay_logs(inputs, rrd=rrd, blueprint=blueprint, blueprint_for=blueprint_for,
+                       viewer=viewer)
+
+
 __all__ = ["BatchResult", "Log", "RunResult", "batch", "load_scenario", "optimal",
-           "read_log", "run"]
+           "read_log", "replay", "run"]

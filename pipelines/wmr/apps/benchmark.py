@@ -47,7 +47,7 @@ import numpy.typing as npt
 from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, RunLogWriter
-from wmr.apps.run import result_record, run_metadata, scenario_attachment_name
+from wmr.apps.run import run_metadata, scenario_attachment_name
 from wmr.apps.tune import TUNED_GAINS, with_gains
 from wmr.config.scenario import load_scenario
 from wmr.config.scenario_file import run_spec_toml
@@ -56,6 +56,7 @@ from wmr.core.control import Limits
 from wmr.core.control.from_spec import SpecController
 from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.core.record import result_record
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 
@@ -214,7 +215,7 @@ def optimal_scenario(name: str, scenario: str, start: Pose, goal: Pose, params: 
 
 def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
                       run: Mapping[str, object], record: Mapping[str, object],
-                      scenario: RunSpec | None = None) -> None:
+                      scenario: RunSpec | None = None, scene: bool = False) -> None:
     """Log an optimal manoeuvre's open-loop FMU replay as a run log.
 
     ``/robot/pose`` and every plant column are the FMU's outputs (driven open-loop by the
@@ -237,6 +238,9 @@ def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
         The ``run`` and ``result`` metadata records.
     scenario
         The case as a run (:func:`optimal_scenario`), attached as a scenario file.
+    scene
+        Also write the drawable topics (:mod:`wmr.adapters.mcap.scene`; ``wmr optimal``
+        does).
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     n = len(replay.t_s)
@@ -258,9 +262,9 @@ def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
             "application/toml", run_spec_toml(scenario).encode("utf-8"))
     with RunLogWriter(path, run={**run, "control_period_s": h_s}, attachments=attachments,
                       goal=(goal.x_m, goal.y_m, goal.heading_rad),
-                      topics=OPEN_LOOP_TOPICS) as log:
+                      topics=OPEN_LOOP_TOPICS, scene=scene) as log:
         log.write_block(t_ns, block)
-        log.close({k: v for k, v in record.items() if v is not None})
+        log.close(record)
 
 
 def optimal_metadata(name: str, scenario: str, start: Pose, goal: Pose, params: RobotParams,
@@ -310,7 +314,7 @@ def run_optimal(spec: RunSpec, plant: FmuPlant, mcap: Path | None) -> OptimalRun
         write_optimal_log(mcap, res, replay, plant,
                           optimal_metadata(spec.name, spec.scenario, spec.start, spec.goal,
                                            spec.params, limits, "time", plant, spec.period_s),
-                          record, scenario=spec)
+                          {k: v for k, v in record.items() if v is not None}, scenario=spec)
         figs["mcap"] = str(mcap)
     return OptimalRun(res.status, res.message, res.final_time_s, figs)
 

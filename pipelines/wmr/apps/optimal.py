@@ -4,12 +4,13 @@ under the PI's limits, replay its torques open-loop on the FMU, log the replay t
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 from wmr.core.control import Limits
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.record import RECORD_KEYS, record
 from wmr.infra.errors import ConfigError
 
 #: The advice of a failed solve, for users of this function and of the command line (who
@@ -32,6 +33,117 @@ def optimal_limits(torque_limit_nm: float | None = None, torque_only: bool = Fal
                          v_max_mps=pi.v_max_mps, omega_max_radps=pi.omega_max_radps)
 
 
+#: ``wmr optimal``'s default start and goal, ``(x_m, y_m, heading_deg)``.
+DEFAULT_START: Final = (0.0, 0.0, 0.0)
+DEFAULT_GOAL: Final = (20.0, 10.0, 0.0)
+
+#: The API's keywords (and :func:`wmr.adapters.ocp.solve_optimal`'s arguments) -> the options of
+#: ``wmr optimal`` that give them.
+_FLAGS: Final = {"final_time_s": "--final-time", "torque_limit_nm": "--torque-limit",
+                 "goal": "--goal", "start": "--start", "control_period_s": "--period",
+                 "period_s": "--period", "out": "--out"}
+
+
+def _as_flag(exc: ConfigError) -> ConfigError:
+    """The same error naming the command-line option instead of the function's argument."""
+    flag = _FLAGS.get(exc.field) or _FLAGS.get(exc.field.split(".")[0])
+    if flag is None:
+        return exc
+    fix = exc.fix.replace("raise n_intervals", "raise n_intervals in the Python API "
+                          "(wmr.adapters.ocp.solve_optimal)")
+    return ConfigError(flag, exc.problem, fix)
+
+
+def _pose(value: Sequence[float] | None, default: tuple[float, float, float],
+          field: str) -> tuple[float, float, float]:
+    """``(x_m, y_m, heading_deg)``, finite; ``default`` for None."""
+    if value is None:
+        return default
+    if len(value) != 3:
+        raise ConfigError(field, f"must be (x_m, y_m, heading_deg), got {value!r}")
+    for label, v in zip(("x", "y", "theta_deg"), value, strict=True):
+        if not math.isfinite(v):
+            raise ConfigError(f"{field} {label}", f"must be finite, got {v!r}")
+    return (float(value[0]), float(value[1]), float(value[2]))
+
+
+def optimal_name(start: tuple[float, float, float], goal: tuple[float, float, float], *,
+                 objective: str = "time", torque_limit_nm: float | None = None,
+                 torque_only: bool = False, final_time_s: float | None = None,
+                 period_s: float = 0.01, fmi: int = 3,
+                 fmu: str | Path | None = None) -> str:
+    """``optimal-OBJECTIVE`` and a token per input that changes the manoeuvre
+    (:mod:`wmr.config.naming`); poses ``(x_m, y_m, heading_deg)``."""
+    from wmr.config.naming import fmu_tokens, pose_token, variant_name
+
+    tokens = []
+    for label, given, default in (("from", start, DEFAULT_START), ("to", goal, DEFAULT_GOAL)):
+        if given != default:
+            tokens.append(pose_token(label, Pose(given[0], given[1], math.radians(given[2]))))
+    if torque_limit_nm is not None:
+        tokens.append(f"torque_max_nm={torque_limit_nm:.10g}")
+    if torque_only:
+        tokens.append("torque_only")
+    if final_time_s is not None:
+        tokens.append(f"T={final_time_s:.10g}")
+    if period_s != 0.01:
+        tokens.append(f"period={period_s:.10g}")
+    return variant_name(f"optimal-{objective}",
+                        [*tokens, *fmu_tokens(fmi, None if fmu is None else str(fmu))])
+
+
+def optimal_command(start: Sequence[float] | None = None, goal: Sequence[float] | None = None,
+                    *, objective: str = "time", torque_limit_nm: float | None = None,
+                    torque_only: bool = False, final_time_s: float | None = None,
+                    period_s: float = 0.01, out: str | Path | None = None,
+                    fmi: int = 3, fmu: str | Path | None = None,
+                    progress: Callable[[str], None] | None = None,
+                    command_line: bool = False) -> dict[str, Any]:
+    """What ``wmr optimal`` and :func:`wmr.optimal` both do: check the inputs, name the case,
+    solve, replay and log (:func:`optimal_to_log`); return the record.
+
+    Poses are ``(x_m, y_m, heading_deg)`` (default :data:`DEFAULT_START`,
+    :data:`DEFAULT_GOAL`); the log goes to ``out`` (default ``runs/<name>.mcap``).  An error
+    names the option on the command line (``--final-time``), the keyword in the API
+    (``final_time_s``).
+
+    Raises
+    ------
+    ConfigError
+        A bad input, one line.
+    """
+    from wmr.apps.run import default_fmu
+    from wmr.config.naming import default_log_path
+    from wmr.infra.outputs import check_output
+
+    def option(keyword: str) -> str:
+        return _FLAGS[keyword] if command_line else keyword
+
+    start_deg = _pose(start, DEFAULT_START, option("start"))
+    goal_deg = _pose(goal, DEFAULT_GOAL, option("goal"))
+    if not math.isfinite(period_s) or period_s <= 0.0:
+        raise ConfigError(option("period_s"), f"must be > 0, got {period_s!r}")
+    name = optimal_name(start_deg, goal_deg, objective=objective,
+                        torque_limit_nm=torque_limit_nm, torque_only=torque_only,
+                        final_time_s=final_time_s, period_s=period_s, fmi=fmi, fmu=fmu)
+    path = check_output(out if out else default_log_path(name), option("out"), suffix=".mcap")
+    if objective == "time" and final_time_s is not None:
+        raise ConfigError(option("final_time_s"), "the time objective leaves the final time "
+                          "free", "drop --final-time or use --objective energy" if command_line
+                          else "drop final_time_s or use objective='energy'")
+    start_pose, goal_pose = (Pose(x, y, math.radians(h)) for x, y, h in (start_deg, goal_deg))
+    try:
+        return optimal_to_log(start_pose, goal_pose, path,
+                              Path(fmu) if fmu is not None else default_fmu(fmi), name=name,
+                              objective=objective, torque_limit_nm=torque_limit_nm,
+                              torque_only=torque_only, final_time_s=final_time_s,
+                              period_s=period_s, progress=progress)
+    except ConfigError as exc:  # solve_optimal's arguments, named as the caller named them
+        if command_line:
+            raise _as_flag(exc) from None
+        raise
+
+
 def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: str,
                    objective: str = "time", torque_limit_nm: float | None = None,
                    torque_only: bool = False, final_time_s: float | None = None,
@@ -41,11 +153,14 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
     """Solve, replay on the FMU at ``fmu_path`` and log to ``out``; return the result record.
 
     ``objective="energy"`` without ``final_time_s`` takes 1.5 times the minimum time.  The
-    record holds the fields of ``wmr optimal --json`` (``status``, ``final_time_s``,
-    ``path_length_m``, the energy keys of ``docs/results.md`` with the replay's
-    ``torque_sq_integral_n2m2s``, the absolute ``final_heading_error_rad``, ``mcap``, ...); the
-    log is written only when the solve succeeded.  ``progress`` receives a line at least every
-    few seconds while IPOPT iterates (:func:`wmr.adapters.ocp.solve_optimal`).
+    record is the record of a run (:data:`wmr.core.record.RECORD_KEYS`, ``docs/results.md``)
+    of the open-loop FMU replay (``status`` the solver's, ``time_to_goal_s`` the optimum's
+    final time), then the optimal's own fields (``objective``, ``final_time_s``, the
+    optimiser's ``ocp_*`` estimates, ``solve_time_s``, ``iterations``, ``limits``,
+    ``time_to_radius_s``, ``final_speed_mps``); the log, with the scene topics
+    (:mod:`wmr.adapters.mcap.scene`), is written only when the solve succeeded.
+    ``progress`` receives a line at least every few seconds while IPOPT iterates
+    (:func:`wmr.adapters.ocp.solve_optimal`).
     """
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.adapters.ocp import FAILED_ADVICE, replay_open_loop, solve_optimal
@@ -70,32 +185,46 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
     res = solve_optimal(start, goal, params, objective=objective,  # type: ignore[arg-type]
                         limits=limits, final_time_s=final_time_s, progress=progress)
     res.message = res.message.replace(FAILED_ADVICE, _CASE_ADVICE)
-    record: dict[str, Any] = {
-        "name": name,
-        "status": res.status, "message": res.message + (f"; {note}" if note else ""),
+    message = res.message + (f"; {note}" if note else "")
+    own: dict[str, Any] = {
         "objective": res.objective,
         "final_time_s": res.final_time_s if res.status == "solved" else None,
-        "path_length_m": None, "mcap": None,
         "ocp_path_length_m": res.path_length_m,
         "ocp_energy_positive_j": res.energy_positive_j,
         "solve_time_s": res.solve_time_s,
         "iterations": res.iterations, "limits": res.summary()["limits"],
     }
     if res.status != "solved":
-        return record
+        return {**dict.fromkeys(RECORD_KEYS), "name": name, "status": res.status,
+                "message": message, "steps": 0, **own}
     with FmuPlant(fmu_path) as plant:
         replay = replay_open_loop(res, plant, params=params, start=start,
                                   control_period_s=period_s)
-        record.update(replay_figures(replay, goal, 0.05))
-        record["mcap"] = str(out)
-        record["final_speed_mps"] = replay.final_speed_mps
+        figures = replay_figures(replay, goal, 0.05)
+        # an open-loop replay has no stabiliser: what it "believed" is the truth
+        done = {**record(name=name, status=res.status, message=message,
+                         final_position_error_m=figures["final_position_error_m"],
+                         final_heading_error_rad=figures["final_heading_error_rad"],
+                         time_to_goal_s=res.final_time_s,
+                         path_length_m=figures["path_length_m"],
+                         energy_net_j=figures["energy_net_j"],
+                         energy_positive_j=figures["energy_positive_j"],
+                         energy_abs_j=figures["energy_abs_j"],
+                         torque_sq_integral_n2m2s=figures["torque_sq_integral_n2m2s"],
+                         peak_torque_nm=figures["peak_torque_nm"], steps=len(replay.t_s),
+                         estimated_final_position_error_m=figures["final_position_error_m"],
+                         estimated_final_heading_error_rad=figures["final_heading_error_rad"],
+                         mcap=str(out)),
+                **own, "time_to_radius_s": figures["time_to_radius_s"],
+                "final_speed_mps": replay.final_speed_mps}
         write_optimal_log(out, res, replay, plant,
                           optimal_metadata(name, "", start, goal, params, limits, objective,
                                            plant, period_s),
-                          {k: v for k, v in record.items() if not isinstance(v, dict)},
+                          {k: v for k, v in done.items() if not isinstance(v, dict)},
                           scenario=optimal_scenario(name, "", start, goal, params, limits,
-                                                    period_s))
-    return record
+                                                    period_s), scene=True)
+    return done
 
 
-__all__ = ["optimal_limits", "optimal_to_log"]
+__all__ = ["DEFAULT_GOAL", "DEFAULT_START", "optimal_command", "optimal_limits", "optimal_name",
+           "optimal_to_log"]

@@ -9,7 +9,6 @@ master loop (:func:`~wmr.core.closedloop.run_closed_loop`) and the log
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 import zipfile
@@ -28,7 +27,8 @@ from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import RunLogWriter
 from wmr.config.scenario_file import run_spec_toml
-from wmr.core.closedloop import BlockSink, Controller, Progress, RunResult, run_closed_loop
+from wmr.core.closedloop import BlockSink, Controller, Progress, run_closed_loop
+from wmr.core.record import result_record
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import safe_filename
@@ -58,10 +58,6 @@ def default_controller_fmu(fmi_version: int = 3) -> Path:
     from wmr.build.fmus import build_fmus
 
     return build_fmus(on_build=_notice, platforms="host").controllers[fmi_version]
-
-
-def _jsonable(value: float | None) -> float | None:
-    return None if value is None or not math.isfinite(value) else float(value)
 
 
 def run_metadata(spec: RunSpec, plant: FmuPlant,
@@ -348,30 +344,6 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
             write_sensing(writer, result.sensing)
         writer.close(record)
     return record
-
-
-def result_record(name: str, result: RunResult) -> dict[str, Any]:
-    """The result record of a run (the fields of ``wmr run --json``, ``docs/results.md``, but
-    ``mcap``): every command that logs a closed-loop run stores it as the log's ``result``."""
-    return {
-        "name": name,
-        "status": result.status,
-        "message": result.message,
-        "final_position_error_m": _jsonable(result.final_position_error_m),
-        "final_heading_error_rad": _jsonable(result.final_heading_error_rad),
-        "time_to_goal_s": _jsonable(result.time_to_goal_s),
-        "path_length_m": _jsonable(result.path_length_m),
-        "energy_net_j": _jsonable(result.energy_net_j),
-        "energy_positive_j": _jsonable(result.energy_positive_j),
-        "energy_abs_j": _jsonable(result.energy_abs_j),
-        "torque_sq_integral_n2m2s": _jsonable(result.torque_sq_integral),
-        "peak_torque_nm": _jsonable(result.peak_torque_nm),
-        "steps": result.steps,
-        "estimated_final_position_error_m": _jsonable(result.estimated_final_position_error_m),
-        "estimated_final_heading_error_rad":
-            _jsonable(result.estimated_final_heading_error_rad),
-        "mcap": None,
-    }
 
 
 def result_json(record: dict[str, Any]) -> str:

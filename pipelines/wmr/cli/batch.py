@@ -4,91 +4,32 @@ report)."""
 from __future__ import annotations
 
 import argparse
-import math
-import os
-import socket
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from wmr.cli.run import add_fmu_choice, add_log_choice, log_policy
+from wmr.cli.run import add_fmu_choice, add_log_choice
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
     from wmr.apps.batch import BatchSpec
 
 
-def _default_out(spec: str) -> Path:
-    return Path("batches") / Path(spec).stem
-
-
-#: Dask's address schemes.
-_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
-
-
-def check_scheduler(address: str, timeout_s: float = 3.0) -> str:
-    """``address`` if it is a Dask scheduler address that answers, else a ConfigError.
-
-    A TCP-like address (``tcp://HOST:PORT``, or ``HOST:PORT``) is tried with one connection
-    of at most ``timeout_s`` s, so that a wrong address fails now and not after Dask's own
-    connect timeout.
-    """
-    scheme, sep, rest = address.partition("://")
-    if not sep:
-        scheme, rest = "tcp", address
-    fix = "give e.g. tcp://127.0.0.1:8786 (the address 'dask scheduler' prints)"
-    if scheme not in _SCHEMES:
-        raise ConfigError("--scheduler", f"{address!r}: unknown scheme {scheme!r}", fix)
-    if scheme in ("ucx", "inproc"):
-        return address
-    host, colon, port = rest.rpartition(":")
-    if not colon or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ConfigError("--scheduler", f"{address!r} is not HOST:PORT", fix)
-    try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
-    except OSError as exc:
-        raise ConfigError("--scheduler", f"no scheduler answers at {address} "
-                          f"({exc.strerror or exc})",
-                          "start one with 'dask scheduler', or check the address") from None
-    return address
-
-
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from wmr.adapters.fmi.varmap import load_map
-    from wmr.apps.batch import load_batch, run_batch
-    from wmr.apps.batch.spec import MAX_RUNS
+    from wmr.apps.batch.command import batch_command, load_checked
     from wmr.config.naming import plural
-    from wmr.infra.outputs import check_output
 
-    max_runs = MAX_RUNS if args.max_runs is None else args.max_runs
-    if max_runs < 1:
-        raise ConfigError("--max-runs", f"must be >= 1, got {max_runs}",
-                          "give e.g. --max-runs 2000000")
-    if args.scheduler is not None and args.workers is not None:
-        raise ConfigError("--workers", "has no effect with --scheduler",
-                          "size the Dask cluster instead")
-    if not math.isfinite(args.run_timeout) or args.run_timeout < 0:
-        raise ConfigError("--run-timeout", f"must be >= 0 s, got {args.run_timeout!r}",
-                          "give a wall-clock limit in s, or 0 for none")
-    if args.workers is not None:
-        if args.workers < 1:
-            raise ConfigError("--workers", f"must be >= 1, got {args.workers}",
-                              "give e.g. --workers 2")
-        cores = os.cpu_count() or 1
-        if args.workers > cores:
-            print(f"wmr: warning: --workers {args.workers} on {plural(cores, 'core')}: the runs "
-                  "share the cores (no faster, more memory)", file=sys.stderr)
-    scheduler = None if args.scheduler is None else check_scheduler(args.scheduler)
-    batch = load_batch(args.spec, max_runs=max_runs)
     if args.check:
+        batch, _, _ = load_checked(args.spec, workers=args.workers, scheduler=args.scheduler,
+                                   run_timeout_s=args.run_timeout, max_runs=args.max_runs,
+                                   command_line=True)
         return _check_runs(batch, args.progress)
-    out = check_output(args.out if args.out else _default_out(args.spec), "--out", "dir")
-    progress = None if args.progress is None else args.progress
-    result = run_batch(batch, out, workers=args.workers, scheduler=scheduler,
-                       run_timeout_s=args.run_timeout if args.run_timeout > 0 else None,
-                       fmu_path=args.fmu, fmi_version=args.fmi, progress=progress,
-                       var_map=load_map(args.map) if args.map else None,
-                       log=log_policy(args, batch.log))
+    out, result = batch_command(args.spec, args.out, workers=args.workers,
+                                scheduler=args.scheduler, run_timeout_s=args.run_timeout,
+                                max_runs=args.max_runs, fmi=args.fmi, fmu=args.fmu,
+                                fmu_map=args.map or None, log=args.log,
+                                log_every=args.log_every, progress=args.progress,
+                                command_line=True)
     c = result.counts
     rate = len(result.executed) / result.wall_s * 60.0 if result.wall_s > 0 else 0.0
     state = "interrupted" if result.interrupted else "done"

@@ -48,74 +48,15 @@ def _json_line(obj: Any) -> str:
 
 # ---------------------------------------------------------------------------------- optimal
 
-#: Arguments of wmr.adapters.ocp.solve_optimal -> the options of wmr optimal that give them.
-_FLAGS = {"final_time_s": "--final-time", "torque_limit_nm": "--torque-limit",
-          "goal": "--goal", "start": "--start", "control_period_s": "--period"}
-
-
-def _as_flag(exc: ConfigError) -> ConfigError:
-    """The same error naming the command-line option instead of the function's argument."""
-    flag = _FLAGS.get(exc.field) or _FLAGS.get(exc.field.split(".")[0])
-    if flag is None:
-        return exc
-    fix = exc.fix.replace("raise n_intervals", "raise n_intervals in the Python API "
-                          "(wmr.adapters.ocp.solve_optimal)")
-    return ConfigError(flag, exc.problem, fix)
-
-
-def _optimal_name(args: argparse.Namespace, default_start: tuple[float, float, float],
-                  default_goal: tuple[float, float, float]) -> str:
-    """``optimal-time`` and a token per option that changes the manoeuvre (wmr.config.naming)."""
-    from wmr.config.naming import fmu_tokens, pose_token, variant_name
-    from wmr.core.plant import Pose
-
-    tokens = []
-    for label, given, default in (("from", args.start, default_start),
-                                  ("to", args.goal, default_goal)):
-        if given is not None and tuple(given) != default:
-            tokens.append(pose_token(label, Pose(given[0], given[1], math.radians(given[2]))))
-    if args.torque_limit is not None:
-        tokens.append(f"torque_max_nm={args.torque_limit:.10g}")
-    if args.torque_only:
-        tokens.append("torque_only")
-    if args.final_time is not None:
-        tokens.append(f"T={args.final_time:.10g}")
-    if args.period != 0.01:
-        tokens.append(f"period={args.period:.10g}")
-    return variant_name(f"optimal-{args.objective}", [*tokens, *fmu_tokens(args.fmi, args.fmu)])
-
-
 def _cmd_optimal(args: argparse.Namespace) -> int:
-    from wmr.apps.optimal import optimal_to_log
-    from wmr.config.naming import default_log_path
-    from wmr.core.plant import Pose
-    from wmr.infra.outputs import check_output
+    from wmr.apps.optimal import optimal_command
 
-    def pose(v: list[float] | None, default: tuple[float, float, float], name: str) -> Pose:
-        x, y, h = default if v is None else v
-        for label, val in (("x", x), ("y", y), ("theta_deg", h)):
-            if not math.isfinite(val):
-                raise ConfigError(f"--{name} {label}", f"must be finite, got {val!r}")
-        return Pose(float(x), float(y), math.radians(h))
-
-    default_start, default_goal = (0.0, 0.0, 0.0), (20.0, 10.0, 0.0)
-    start = pose(args.start, default_start, "start")
-    goal = pose(args.goal, default_goal, "goal")
-    if not math.isfinite(args.period) or args.period <= 0.0:
-        raise ConfigError("--period", f"must be > 0, got {args.period!r}")
-    name = _optimal_name(args, default_start, default_goal)
-    out = check_output(args.out if args.out else default_log_path(name), "--out",
-                       suffix=".mcap")
-    if args.objective == "time" and args.final_time is not None:
-        raise ConfigError("--final-time", "the time objective leaves the final time free",
-                          "drop --final-time or use --objective energy")
-    try:
-        record = optimal_to_log(start, goal, out, _fmu_path(args), name=name,
-                                objective=args.objective, torque_limit_nm=args.torque_limit,
-                                torque_only=args.torque_only, final_time_s=args.final_time,
-                                period_s=args.period, progress=_progress)
-    except ConfigError as exc:
-        raise _as_flag(exc) from None
+    record = optimal_command(args.start, args.goal, objective=args.objective,
+                             torque_limit_nm=args.torque_limit, torque_only=args.torque_only,
+                             final_time_s=args.final_time, period_s=args.period,
+                             out=args.out, fmi=args.fmi, fmu=args.fmu, progress=_progress,
+                             command_line=True)
+    out = record["mcap"]
     if args.json:
         print(_json_line(record))
     else:

@@ -11,58 +11,27 @@ def _warn(line: str) -> None:
     print(f"wmr: warning: {line}", file=sys.stderr, flush=True)
 
 
-def _blueprints_for(inputs: list[str]) -> int:
-    """``--blueprint-for``: ``X.rbl`` beside each log ``X.mcap``, for ``rerun X.mcap X.rbl``."""
-    from wmr.adapters.rerun.blueprint import log_blueprint_path, write_log_blueprint
-    from wmr.adapters.rerun.replay import find_logs, framing
-    from wmr.infra.errors import ConfigError
-    from wmr.infra.outputs import check_output
-
-    if not inputs:
-        raise ConfigError("--blueprint-for", "no log given",
-                          "give run logs or folders of them: wmr replay --blueprint-for X.mcap")
-    logs = find_logs(inputs)
-    for log in logs:
-        check_output(log_blueprint_path(log.path), "--blueprint-for", suffix=".rbl")
-    for log in logs:
-        frame, sensing = framing([log.path])  # each blueprint looks down on its own run
-        print(write_log_blueprint(log.path, frame, sensing=sensing))
-    first = logs[0].path
-    print(f"wrote {len(logs)} blueprint{'s' if len(logs) != 1 else ''}; open a log with "
-          f"Rerun's own loader and its blueprint: rerun {first} "
-          f"{log_blueprint_path(first)}", file=sys.stderr)
-    return 0
-
-
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from wmr.adapters.rerun.replay import replay
-    from wmr.infra.errors import ConfigError
-    from wmr.infra.outputs import check_output
+    from wmr.apps.replay import replay_logs
 
-    if args.blueprint_for:
-        return _blueprints_for(args.logs)
-    if args.blueprint is not None:
-        from wmr.adapters.rerun.blueprint import APPLICATION_ID, write_blueprint
+    result = replay_logs(args.logs, rrd=args.rrd, blueprint=args.blueprint,
+                         blueprint_for=args.blueprint_for,
+                         viewer=False if args.no_viewer else None, command_line=True)
+    if isinstance(result, list):  # --blueprint-for: X.rbl beside each X.mcap
+        for path in result:
+            print(path)
+        print(f"wrote {len(result)} blueprint{'s' if len(result) != 1 else ''}; open a log "
+              f"with Rerun's own loader and its blueprint: rerun "
+              f"{result[0].with_suffix('.mcap')} {result[0]}", file=sys.stderr)
+        return 0
+    if isinstance(result, Path):  # --blueprint
+        from wmr.adapters.rerun.blueprint import APPLICATION_ID
 
-        frame, sensing = None, False
-        if args.logs:  # look straight down on these runs (and plot their covariance)
-            from wmr.adapters.rerun.replay import framing
-
-            frame, sensing = framing(args.logs)
-        out = check_output(args.blueprint, "--blueprint", suffix=".rbl")
-        out.parent.mkdir(parents=True, exist_ok=True)  # as --rrd does
-        path = write_blueprint(out, frame=frame, sensing=sensing)
-        print(path)
+        print(result)
         print(f"wrote the blueprint; open a log with Rerun's own loader: rerun mcap convert "
               f"RUN.mcap --timeline-type duration --application-id {APPLICATION_ID} -o RUN.rrd"
-              f" && rerun RUN.rrd {path}", file=sys.stderr)
+              f" && rerun RUN.rrd {result}", file=sys.stderr)
         return 0
-    if not args.logs:
-        raise ConfigError("FILE.mcap|DIR", "no log given", "give run logs or folders of them")
-    if args.rrd is not None:
-        check_output(args.rrd, "--rrd", suffix=".rrd")
-    spawn = False if args.no_viewer else None
-    result = replay(args.logs, rrd=args.rrd, spawn=spawn)
     for line in result.warnings:
         _warn(line)
     steps = sum(result.steps.values())

@@ -1,9 +1,12 @@
 """The FMU as a :class:`wmr.core.plant.Plant`: one instance, reset per run, fast per step.
 
-Every FMI call goes through fmpy's wrappers, which raise ``fmpy.fmi1.FMICallException`` on an
-error status; :class:`FmuPlant` turns those into :class:`wmr.infra.errors.FmuError` naming the
-function.  The per-step path holds prebuilt ctypes arrays for the value references, the inputs
-and the outputs, so a step allocates nothing and looks nothing up.
+The instance is a :class:`wmr.adapters.fmi.slave.FmuSlave` (extraction, FMI 2 or 3, statuses,
+the Fatal rule), as the controller FMU's is: fmpy's wrappers raise
+``fmpy.fmi1.FMICallException`` on an error status, which becomes an
+:class:`wmr.infra.errors.FmuError` naming the function.  The per-step path holds prebuilt ctypes
+arrays for the value references, the inputs and the outputs, so a step allocates nothing and
+looks nothing up; with the C stepper (:func:`load_stepper`) the three calls of a step are one C
+call.
 
 A robot FMU made by another tool is driven through a variable map
 (:mod:`wmr.adapters.fmi.varmap`): the value references are the FMU's, and the inputs, outputs and
@@ -13,14 +16,8 @@ one whose outputs all keep their unit) the outputs are the ctypes array itself.
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
-import fcntl
 import os
-import shutil
-import sys
-import tempfile
-from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -28,7 +25,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from wmr.adapters.fmi.archive import file_sha256, safe_extract
+from wmr.adapters.fmi.archive import file_sha256
+from wmr.adapters.fmi.slave import WARNING, FmuSlave
 from wmr.adapters.fmi.varmap import VariableMap, resolve
 from wmr.core.closedloop import LoopState
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
@@ -99,114 +97,6 @@ def fmu_call(fmi_version: str, dll: Any, component: Any, names: tuple[str, str, 
     return call
 
 
-#: Prefix of the folders an FMU is extracted to (in the temp folder).
-TMP_PREFIX = "wmr-fmu-"
-#: File in such a folder, locked while its :class:`FmuPlant` lives.
-_LOCK_NAME = ".wmr-owner.lock"
-
-
-def _hold(folder: Path) -> int | None:
-    """Lock ``folder``'s owner file; the lock dies with the process, however it ends."""
-    # locked under another name, then renamed: a cleaner never sees it unlocked
-    tmp = folder / (_LOCK_NAME + ".new")
-    try:
-        fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
-    except OSError:
-        return None
-    fcntl.flock(fd, fcntl.LOCK_EX)
-    os.replace(tmp, folder / _LOCK_NAME)
-    return fd
-
-
-_LABELS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
-#: fmi2Fatal and fmi3Fatal.
-_FATAL = 4
-
-
-def _log(status: int, message: bytes | None) -> None:
-    """An FMU's log message, on stderr: stdout is for results (``--json``), never for FMUs."""
-    label = _LABELS[status] if 0 <= status < len(_LABELS) else str(status)
-    text = (message or b"").decode("utf-8", "replace")
-    print(f"[{label}] {text}", file=sys.stderr)
-
-
-def _fmi3_log(env: object, status: int, category: bytes, message: bytes) -> None:
-    _log(status, message)
-
-
-def _fmi2_log(component: object, instance: bytes, status: int, category: bytes,
-              message: bytes) -> None:
-    _log(status, message)
-
-
-_FMI2_CALLBACKS: list[Any] = []
-
-
-def fmi2_callbacks(log: Callable[..., None], *, format_messages: bool = False) -> Any:
-    """fmpy's default FMI 2 callbacks (its ``calloc`` and ``free``) with ``log`` as the logger.
-
-    ``log`` gets ``(component, instance, status, category, message)``.  The caller keeps the
-    result alive while any instance made with it lives.  ``format_messages`` formats the
-    variadic message in C through fmpy's logger proxy, which is one for the whole process:
-    only the process-wide callbacks of :func:`_fmi2_callbacks` use it.
-    """
-    from fmpy import calloc, free
-    from fmpy.fmi2 import (
-        fmi2CallbackAllocateMemoryTYPE,
-        fmi2CallbackFreeMemoryTYPE,
-        fmi2CallbackFunctions,
-        fmi2CallbackLoggerTYPE,
-    )
-
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(log)
-    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-    if format_messages:
-        try:
-            from ctypes import byref
-
-            from fmpy.logging import addLoggerProxy
-
-            addLoggerProxy(byref(cb))
-        except Exception:  # no proxy: messages arrive unformatted, still logged
-            pass
-    return cb
-
-
-def _fmi2_callbacks() -> Any:
-    """The FMI 2 callbacks of every :class:`FmuPlant`: the logger on stderr, messages
-    formatted (one set per process)."""
-    if not _FMI2_CALLBACKS:
-        _FMI2_CALLBACKS.append(fmi2_callbacks(_fmi2_log, format_messages=True))
-    return _FMI2_CALLBACKS[0]
-
-
-def remove_stale_folders(tmp_dir: str | Path | None = None) -> list[Path]:
-    """Remove the extraction folders of FMU plants whose process is gone (killed runs).
-
-    A folder counts as stale when its owner file exists and nobody holds its lock: folders
-    without one (being created, or not ours) are left alone.  Returns the folders removed.
-    """
-    removed: list[Path] = []
-    base = Path(tmp_dir) if tmp_dir is not None else Path(tempfile.gettempdir())
-    with contextlib.suppress(OSError):
-        for folder in base.glob(TMP_PREFIX + "*"):
-            try:
-                fd = os.open(folder / _LOCK_NAME, os.O_RDWR | os.O_CLOEXEC)
-            except OSError:
-                continue
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:  # its owner is alive
-                os.close(fd)
-                continue
-            shutil.rmtree(folder, ignore_errors=True)
-            os.close(fd)
-            removed.append(folder)
-    return removed
-
-
 class FmuPlant:
     """Drive a co-simulation FMU of the robot (FMI 2.0 or 3.0) through fmpy.
 
@@ -223,45 +113,23 @@ class FmuPlant:
 
     def __init__(self, fmu_path: str | Path, instance_name: str = "robot",
                  var_map: VariableMap | None = None) -> None:
-        from fmpy import read_model_description
-
         self.fmu_path = Path(fmu_path)
-        remove_stale_folders()
-        self._tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX))
-        self._tmp_lock = _hold(self._tmp)
-        try:
-            safe_extract(self.fmu_path, self._tmp)
-            md = read_model_description(str(self._tmp))
-        except FmuError:
-            self._drop_tmp()
-            raise
-        except KeyError as exc:  # fmpy looks references up in a dict of the variables
-            self._drop_tmp()
-            raise FmuError(f"{self.fmu_path}: invalid model description: value reference "
-                           f"{exc.args[0] if exc.args else '?'} is used (in ModelStructure, a "
-                           "derivative, dimension or clock) but no variable has it") from exc
-        except Exception as exc:
-            self._drop_tmp()
-            raise FmuError(f"{self.fmu_path}: unreadable model description: {exc}") from exc
+        self._slave = slave = FmuSlave(self.fmu_path, instance_name)
+        md = slave.model_description
         if md.coSimulation is None:
-            self._drop_tmp()
+            slave.remove_folder()
             raise FmuError(f"{self.fmu_path}: not a co-simulation FMU")
         self.model_description = md
-        self.fmi_version = md.fmiVersion
+        self.fmi_version = slave.fmi_version
         self.sha256 = file_sha256(self.fmu_path)
         try:
             self._map = resolve(var_map, md, self.fmu_path.name)
         except ConfigError:
-            self._drop_tmp()
+            slave.remove_folder()
             raise
         self.var_map = var_map
-        self._fmu: Any = None
-        #: The FMU returned Fatal: FMI 2.0 (2.1.3) and 3.0 allow no further call to any of its
-        #: instances, not even Terminate or FreeInstance.
-        self._fatal = False
         self._t = self._t0 = self._h = 0.0
         self._n = 0
-        self._instance_name = instance_name
         self._make_arrays()
 
     def _make_arrays(self) -> None:
@@ -293,62 +161,21 @@ class FmuPlant:
 
     def _get_outputs(self) -> None:
         """Read the outputs into :attr:`_outputs`, in our names' order and units."""
-        self._check(2, self._raw_get())
+        self._check(2, self._slave.raw_get())
         if self._convert:
             self._outputs[self._out_idx] = self._raw_out * self._out_scale + self._out_offset
 
-    def _instantiate(self) -> None:
-        md = self.model_description
-        try:
-            if self.fmi_version.startswith("2"):
-                from fmpy.fmi2 import FMU2Slave
-
-                fmu: Any = FMU2Slave(guid=md.guid, unzipDirectory=str(self._tmp),
-                                     modelIdentifier=md.coSimulation.modelIdentifier,
-                                     instanceName=self._instance_name)
-                fmu.instantiate(loggingOn=False, callbacks=_fmi2_callbacks())
-            else:
-                from fmpy.fmi3 import FMU3Slave
-
-                fmu = FMU3Slave(guid=md.guid, unzipDirectory=str(self._tmp),
-                                modelIdentifier=md.coSimulation.modelIdentifier,
-                                instanceName=self._instance_name)
-                fmu.instantiate(loggingOn=False, logMessage=_fmi3_log)
-        except Exception as exc:
-            raise FmuError(f"{self.fmu_path}: cannot instantiate: {exc}") from exc
-        self._fmu = fmu
-        self._bind_hot_path(fmu)
-
-    def _bind_hot_path(self, fmu: Any) -> None:
-        """The three calls of a step, bound once to the instance and the prebuilt arrays.
-
-        fmpy's wrappers cost about as much again as the FMU's own step; the input and output
-        exchange calls the library directly (fmpy set the prototypes) and :meth:`_check`
-        turns a status above fmiWarning into an :class:`FmuError` naming the function.
-        """
-        dll, comp, n_out = fmu.dll, fmu.component, self._n_out
-        if self.fmi_version.startswith("2"):
-            self._names = ("fmi2SetReal", "fmi2DoStep", "fmi2GetReal")
-            self._raw_set = partial(dll.fmi2SetReal, comp, self._in_vr, 2, self._in_val)
-            self._raw_get = partial(dll.fmi2GetReal, comp, self._out_vr, n_out, self._out_val)
-            raw_step = dll.fmi2DoStep
-            self._raw_step = lambda t, h: raw_step(comp, t, h, 1)
-        else:
-            self._names = ("fmi3SetFloat64", "fmi3DoStep", "fmi3GetFloat64")
-            self._raw_set = partial(dll.fmi3SetFloat64, comp, self._in_vr, 2, self._in_val, 2)
-            self._raw_get = partial(dll.fmi3GetFloat64, comp, self._out_vr, n_out,
-                                    self._out_val, n_out)
-            # eventHandlingNeeded, terminateSimulation, earlyReturn, lastSuccessfulTime
-            self._fmi3_out = (ctypes.c_bool(), ctypes.c_bool(), ctypes.c_bool(), ctypes.c_double())
-            flags = [ctypes.byref(f) for f in self._fmi3_out[:3]]
-            last = ctypes.byref(self._fmi3_out[3])
-            raw_step3 = dll.fmi3DoStep
-            self._raw_step = lambda t, h: raw_step3(comp, t, h, 1, *flags, last)
+    def _bind_hot_path(self) -> None:
+        """The three calls of a step, bound once to the instance and the prebuilt arrays
+        (:meth:`FmuSlave.bind`), and this instance as the C stepper sees it, when it is
+        there."""
+        slave = self._slave
+        slave.bind(self._in_vr, self._in_val, self._out_vr, self._out_val)
         self._fast: Any = None
         lib = load_stepper()
         if lib is not None:
-            call = fmu_call(self.fmi_version, dll, comp, self._names, self._in_vr,
-                            self._in_val, self._out_vr, self._out_val)
+            call = fmu_call(self.fmi_version, slave.fmu.dll, slave.fmu.component, slave.names,
+                            self._in_vr, self._in_val, self._out_vr, self._out_val)
             call.in_gain[0], call.in_bias[0] = self._in_gain_r, self._in_bias_r
             call.in_gain[1], call.in_bias[1] = self._in_gain_l, self._in_bias_l
             self.fmu_call = call
@@ -357,73 +184,29 @@ class FmuPlant:
 
     def _check(self, which: int, status: int) -> None:
         """Raise for a status above fmiWarning of call ``which`` (0 set, 1 step, 2 get)."""
-        if status <= 1:
+        if status <= WARNING:
             return
-        if status == _FATAL:
-            self._mark_fatal()
-        name = ("OK", "Warning", "Discard", "Error", "Fatal")[status] if status < 5 else status
-        raise FmuError(f"{self._names[which]} returned {name} at t = {self._t:g} s "
-                       f"({self._in_names[0]} = {self._in_val[0]!r}, "
-                       f"{self._in_names[1]} = {self._in_val[1]!r}); "
-                       "the FMU's log says why")
-
-    def _call(self, what: str, fun: Any, *args: Any) -> Any:
-        self._usable()
-        try:
-            return fun(*args)
-        except Exception as exc:
-            if getattr(exc, "status", None) == _FATAL:  # fmpy's FMICallException
-                self._mark_fatal()
-            raise FmuError(f"{what} failed at t = {self._t:g} s: {exc}") from exc
-
-    def _mark_fatal(self) -> None:
-        """The FMU returned Fatal: the step's bound calls now refuse instead of calling it
-        (the check costs the hot path nothing)."""
-        self._fatal = True
-
-        def refuse(*args: Any) -> int:
-            self._usable()
-            return _FATAL
-
-        self._raw_set = self._raw_get = partial(refuse)
-        self._raw_step = refuse
-
-    def _usable(self) -> None:
-        """Refuse any call into an FMU that returned Fatal (the standard allows none)."""
-        if self._fatal:
-            raise FmuError(f"{self.fmu_path.name} returned Fatal earlier: FMI allows no "
-                           "further call to it; open the FMU again")
+        raise self._slave.status_error(
+            which, status, self._t, f"{self._in_names[0]} = {self._in_val[0]!r}, "
+            f"{self._in_names[1]} = {self._in_val[1]!r}")
 
     def reset(self, params: RobotParams, start: Pose, v0_mps: float = 0.0,
               omega0_radps: float = 0.0) -> npt.NDArray[np.float64]:
         """Start a run at t = 0 from ``start`` with ``params``; return the outputs at t = 0."""
-        self._usable()
-        if self._fmu is None:
-            self._instantiate()
-        else:
-            self._call("reset", self._fmu.reset)
-        fmu = self._fmu
+        slave = self._slave
+        if slave.instantiate_or_reset(at_s=self._t):
+            self._bind_hot_path()
         values = params.as_dict()
         values.update(x0=start.x_m, y0=start.y_m, theta0=start.heading_rad, v0=v0_mps,
                       omega0=omega0_radps)
         vrs, theirs = self._parameter_values(values)
         self._t, self._t0, self._h, self._n = 0.0, 0.0, 0.0, 0
-        if self.fmi_version.startswith("2"):
-            self._call("setupExperiment", fmu.setupExperiment, None, 0.0)
-        self._call("enterInitializationMode", fmu.enterInitializationMode)
-        try:
-            if self.fmi_version.startswith("2"):
-                fmu.setReal(vrs, theirs)
-            else:
-                fmu.setFloat64(vrs, theirs)
-        except Exception as exc:
-            if getattr(exc, "status", None) == _FATAL:  # fmpy's FMICallException
-                self._mark_fatal()
-            raise FmuError(f"setting the parameters {values} failed: {exc}") from exc
+        slave.enter_initialization(at_s=self._t)
+        slave.set_float64(f"setting the parameters {values}", vrs, theirs)
         self._in_val[0] = self._in_bias_r
         self._in_val[1] = self._in_bias_l
-        self._check(0, self._raw_set())
-        self._call("exitInitializationMode", fmu.exitInitializationMode)
+        self._check(0, slave.raw_set())
+        slave.exit_initialization(at_s=self._t)
         self._get_outputs()
         return self._outputs
 
@@ -450,8 +233,9 @@ class FmuPlant:
             self._in_val[0] = tau_r_nm * self._in_gain_r + self._in_bias_r
             self._in_val[1] = tau_l_nm * self._in_gain_l + self._in_bias_l
             # a failed call raises; the outputs keep their last good values
-            self._check(0, self._raw_set())
-            self._check(1, self._raw_step(self._t, h_s))
+            slave = self._slave
+            self._check(0, slave.raw_set())
+            self._check(1, slave.raw_step(self._t, h_s))
             self._get_outputs()
         # Time is t0 + n*h while h stays the same (never t += h): no drift over long runs.
         if h_s != self._h:
@@ -494,65 +278,31 @@ class FmuPlant:
                               "such parameter (or the map leaves it unmapped)",
                               "set one of: " + ", ".join(self._map.parameters))
         vrs, theirs = self._parameter_values(dict(values))
-        setter = self._fmu.setReal if self.fmi_version.startswith("2") else self._fmu.setFloat64
-        self._call(f"setting {values}", setter, vrs, theirs)
+        self._slave.set_float64(f"setting {values}", vrs, theirs, at_s=self._t)
 
     def get_state(self) -> tuple[Any, float, float, float, int]:
         """Snapshot of the FMU state and of the master's clock (FMI get FMU state)."""
-        fmu = self._fmu
-        getter = fmu.getFMUstate if self.fmi_version.startswith("2") else fmu.getFMUState
-        return (self._call("getFMUState", getter), self._t, self._t0, self._h, self._n)
+        return (self._slave.get_fmu_state(at_s=self._t), self._t, self._t0, self._h, self._n)
 
     def set_state(self, snapshot: tuple[Any, float, float, float, int]) -> None:
         """Go back to a snapshot of :meth:`get_state`."""
-        fmu = self._fmu
-        setter = fmu.setFMUstate if self.fmi_version.startswith("2") else fmu.setFMUState
-        self._call("setFMUState", setter, snapshot[0])
+        self._slave.set_fmu_state(snapshot[0], at_s=self._t)
         self._t, self._t0, self._h, self._n = snapshot[1:]
         self._get_outputs()
 
     def serialize_state(self, snapshot: tuple[Any, float, float, float, int]) -> bytes:
         """Bytes of a snapshot's FMU state (FMI serialize FMU state)."""
-        fmu = self._fmu
-        ser = fmu.serializeFMUstate if self.fmi_version.startswith("2") else fmu.serializeFMUState
-        return bytes(self._call("serializeFMUState", ser, snapshot[0]))
+        return self._slave.serialize_fmu_state(snapshot[0], at_s=self._t)
 
     def deserialize_state(self, blob: bytes, clock: tuple[float, float, float, int]
                           ) -> tuple[Any, float, float, float, int]:
         """A snapshot from bytes of :meth:`serialize_state` and the clock it was taken at."""
-        fmu = self._fmu
-        de = (fmu.deSerializeFMUstate if self.fmi_version.startswith("2")
-              else fmu.deserializeFMUState)
-        return (self._call("deserializeFMUState", de, blob), *clock)
+        return (self._slave.deserialize_fmu_state(blob, at_s=self._t), *clock)
 
     def close(self) -> None:
-        """Terminate and free the instance and remove the extraction folder.
-
-        After a Fatal status nothing is called (FMI 2.0, 2.1.3: "it is not possible to call
-        any other function for any of the FMU instances"; FMI 3.0 likewise): the instance
-        and its library are left as they are, a small leak where a call could crash the
-        process (a foreign FMU's fmi2Terminate after fmi2Fatal did, SIGSEGV).
-        """
-        if self._fatal:
-            self._fmu = None  # fmpy frees nothing by itself: the library stays loaded
-        if self._fmu is not None:
-            try:
-                self._fmu.terminate()
-            except Exception:  # a failed run may leave the FMU in its error state
-                pass
-            try:
-                self._fmu.freeInstance()
-            except Exception:  # same: nothing left to do but free it
-                pass
-            self._fmu = None
-        self._drop_tmp()
-
-    def _drop_tmp(self) -> None:
-        """Remove the extraction folder (idempotent)."""
-        shutil.rmtree(self._tmp, ignore_errors=True)
-        if self._tmp_lock is not None:
-            os.close(self._tmp_lock)
-            self._tmp_lock = None
+        """Terminate and free the instance and remove the extraction folder
+        (:meth:`FmuSlave.close`: nothing is called after a Fatal status)."""
+        self._slave.close()
 
     def __enter__(self) -> FmuPlant:
         return self

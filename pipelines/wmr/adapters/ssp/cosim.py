@@ -41,6 +41,7 @@ from wmr.adapters.ssp.package import CONTROLLER, ROBOT, SspPackage, unpacked_pac
 from wmr.build.controller_interface import SIGNAL_OUTPUTS
 from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES
+from wmr.core.record import record
 from wmr.core.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
 from wmr.infra.errors import ConfigError, FmuError
 
@@ -323,23 +324,34 @@ def run_record(run: SspRunData) -> dict[str, object]:
 
 
 def result_record(run: SspRunData, mcap: Path) -> dict[str, object]:
-    """The ``result`` record: the fields of ``wmr run --json`` the rows determine."""
+    """The ``result`` record: the record of ``wmr run`` (:func:`wmr.core.record.record`,
+    ``docs/results.md``) from the rows and the torques the robot held, then the ``master``.
+
+    The torque figures are those of the held torques over each step between the rows, as
+    the energies are; no sensors: the estimated errors are the true ones.
+    """
     b = run.block
     x, y, theta = b[:, COLUMN["x_m"]], b[:, COLUMN["y_m"]], b[:, COLUMN["theta_rad"]]
     gx, gy, gth = _goal(run.package)
-    head = math.remainder(float(theta[-1]) - gth, 2 * math.pi)
+    position_error_m = math.hypot(gx - float(x[-1]), gy - float(y[-1]))
+    heading_error_rad = abs(math.remainder(float(theta[-1]) - gth, 2 * math.pi))
+    held = run.held_torque_nm[:b.shape[0] - 1]
+    work = energies(run)
     return {
-        "name": run.package.name,
-        "status": run.status,
-        "message": run.message,
-        "final_position_error_m": math.hypot(gx - float(x[-1]), gy - float(y[-1])),
-        "final_heading_error_rad": abs(head),
-        "time_to_goal_s": run.time_to_goal_s,
-        "path_length_m": float(np.hypot(np.diff(x), np.diff(y)).sum()),
-        **energies(run),
-        "steps": int(b.shape[0]),
+        **record(name=run.package.name, status=run.status, message=run.message,
+                 final_position_error_m=position_error_m,
+                 final_heading_error_rad=heading_error_rad,
+                 time_to_goal_s=run.time_to_goal_s,
+                 path_length_m=float(np.hypot(np.diff(x), np.diff(y)).sum()),
+                 energy_net_j=work["energy_net_j"],
+                 energy_positive_j=work["energy_positive_j"],
+                 energy_abs_j=work["energy_abs_j"],
+                 torque_sq_integral_n2m2s=float(run.step_size_s * np.sum(held**2)),
+                 peak_torque_nm=float(np.max(np.abs(held))) if held.size else 0.0,
+                 steps=int(b.shape[0]),
+                 estimated_final_position_error_m=position_error_m,
+                 estimated_final_heading_error_rad=heading_error_rad, mcap=str(mcap)),
         "master": run.master,
-        "mcap": str(mcap),
     }
 
 
@@ -363,7 +375,7 @@ def log_ssp_run(run: SspRunData, mcap_path: str | os.PathLike[str]) -> dict[str,
     path.parent.mkdir(parents=True, exist_ok=True)
     record = result_record(run, path)
     with RunLogWriter(path, run=run_record(run), goal=_goal(run.package),
-                      attachments=run.package.attachments) as log:
+                      attachments=run.package.attachments, scene=True) as log:
         log.write_block(run.t_ns, run.block)
         log.close(record)
     return record

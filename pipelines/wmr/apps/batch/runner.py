@@ -26,6 +26,8 @@ import sys
 import time
 from array import array
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -88,7 +90,7 @@ class BatchOutcome:
     counts
         Runs per status over the whole summary (done earlier or now).
     interrupted
-        Stopped early (Ctrl-C or ``stop_after``); the summary holds the finished runs.
+        Stopped early (Ctrl-C); the summary holds the finished runs.
     wall_s
         Wall time of this invocation, s.
     log
@@ -130,6 +132,51 @@ class _Lock:
         os.close(self._fd)
 
 
+@dataclass(frozen=True)
+class _TestHooks:
+    """What the executors' tests make a batch do; never set outside them (:func:`_test_hooks`).
+
+    Attributes
+    ----------
+    stop_after
+        Behave as if Ctrl-C came after this many runs of the invocation.
+    faults
+        Run id -> a fault of :data:`wmr.apps.batch.worker.FAULTS` (``"hang"``, ``"crash"``, ...).
+    """
+
+    stop_after: int | None = None
+    faults: Mapping[str, str] = field(default_factory=dict)
+
+
+#: The hooks of the batches run in this context (a context variable: a test's hooks reach
+#: neither another thread's batch nor the next test's); none outside :func:`_test_hooks`.
+_HOOKS: ContextVar[_TestHooks | None] = ContextVar("wmr_batch_test_hooks", default=None)
+
+
+@contextmanager
+def _test_hooks(*, stop_after: int | None = None,
+                faults: Mapping[str, str] | None = None) -> Iterator[None]:
+    """Run the :func:`run_batch` calls inside the ``with`` block with test hooks.
+
+    For the tests of the executors only (a crash, a hang, a Ctrl-C after N runs): they are
+    not part of :func:`run_batch`'s signature, which is the API's.
+
+    Raises
+    ------
+    ConfigError
+        A fault that :data:`wmr.apps.batch.worker.FAULTS` does not know.
+    """
+    for run_id, fault in (faults or {}).items():
+        if fault not in FAULTS:
+            raise ConfigError("faults", f"{run_id}: unknown fault {fault!r}",
+                              f"use one of {FAULTS}")
+    token = _HOOKS.set(_TestHooks(stop_after, dict(faults or {})))
+    try:
+        yield
+    finally:
+        _HOOKS.reset(token)
+
+
 def _write_atomic(path: Path, data: bytes) -> None:
     """Write ``path`` whole or not at all (fsynced; a full disk is a DiskFullError)."""
     out = AtomicFile(path, "file")
@@ -144,8 +191,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
               workers: int | None = None, scheduler: str | None = None, client: Any = None,
               run_timeout_s: float | None = DEFAULT_RUN_TIMEOUT_S,
               fmu_path: str | os.PathLike[str] | None = None, fmi_version: int = 3,
-              progress: bool | None = None, stop_after: int | None = None,
-              faults: Mapping[str, str] | None = None, dask_ship_logs: bool = False,
+              progress: bool | None = None, dask_ship_logs: bool = False,
               var_map: VariableMap | None = None,
               on_outcome: Callable[[Outcome], None] | None = None,
               log: LogPolicy | None = None) -> BatchOutcome:
@@ -171,10 +217,6 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
         The FMU's variable map (:mod:`wmr.adapters.fmi.varmap`); by default the spec's ``fmu_map``.
     progress
         tqdm bar on stderr: ``None`` shows it on a terminal only.
-    stop_after
-        Test hook: behave as if Ctrl-C came after this many runs of this invocation.
-    faults
-        Test hook: run id -> ``"hang"`` or ``"crash"``.
     dask_ship_logs
         On Dask, have every worker send its logs back, as workers on other hosts do.
     on_outcome
@@ -186,7 +228,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     Returns
     -------
     BatchOutcome
-        Counts and run ids; ``interrupted`` when Ctrl-C (or ``stop_after``) stopped it.
+        Counts and run ids; ``interrupted`` when Ctrl-C stopped it.
 
     Raises
     ------
@@ -200,15 +242,12 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     from wmr.apps.run import default_fmu
 
     t0 = time.perf_counter()
+    hooks = _HOOKS.get() or _TestHooks()
     if workers is not None and workers < 1:
         raise ConfigError("--workers", f"must be >= 1, got {workers}", "give e.g. --workers 2")
     if run_timeout_s is not None and not run_timeout_s > 0:
         raise ConfigError("--run-timeout", f"must be > 0, got {run_timeout_s}",
                           "give seconds, e.g. --run-timeout 600")
-    for run_id, fault in (faults or {}).items():
-        if fault not in FAULTS:
-            raise ConfigError("faults", f"{run_id}: unknown fault {fault!r}",
-                              f"use one of {FAULTS}")
     out = Path(out_dir)
     runs_dir = out / "runs"
     try:
@@ -238,7 +277,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             attachment = out / f"spec-{batch.path.name}"
             if not attachment.exists() or attachment.read_bytes() != batch.source:
                 _write_atomic(attachment, batch.source)
-        tasks = _Tasks(batch, ledger, run_timeout_s, faults or {}, policy)
+        tasks = _Tasks(batch, ledger, run_timeout_s, hooks.faults, policy)
         if not tasks:
             stream: Iterator[Outcome] = iter(())
         elif scheduler is not None or client is not None:
@@ -306,7 +345,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                 bar.update(1)
                 if on_outcome is not None:
                     on_outcome(outcome)
-                if stop_after is not None and len(result.executed) >= stop_after \
+                if hooks.stop_after is not None and len(result.executed) >= hooks.stop_after \
                         and ledger.n_done < len(batch.runs):
                     raise KeyboardInterrupt
         except KeyboardInterrupt:

@@ -1,0 +1,135 @@
+"""What ``wmr batch`` and :func:`wmr.batch` both do: check the options, load the spec, run it.
+
+The command line parses and calls :func:`batch_command` (or, for ``--check``,
+:func:`load_checked`); the API calls the same functions, so that both give the same one-line
+errors, naming ``--max-runs`` on the command line and ``max_runs`` in the API.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import sys
+from pathlib import Path
+from typing import Final
+
+from wmr.apps.batch.runner import DEFAULT_RUN_TIMEOUT_S, BatchOutcome, run_batch
+from wmr.apps.batch.spec import MAX_RUNS, BatchSpec, load_batch
+from wmr.infra.errors import ConfigError
+
+#: Dask's address schemes.
+_SCHEMES: Final = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
+
+
+def _name(keyword: str, flag: str, command_line: bool) -> str:
+    """How an error names an input: ``flag`` on the command line, ``keyword`` in the API."""
+    return flag if command_line else keyword
+
+
+def check_scheduler(address: str, timeout_s: float = 3.0, field: str = "--scheduler") -> str:
+    """``address`` if it is a Dask scheduler address that answers, else a ConfigError.
+
+    A TCP-like address (``tcp://HOST:PORT``, or ``HOST:PORT``) is tried with one connection
+    of at most ``timeout_s`` s, so that a wrong address fails now and not after Dask's own
+    connect timeout.  ``field`` names the input in the error.
+    """
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        scheme, rest = "tcp", address
+    fix = "give e.g. tcp://127.0.0.1:8786 (the address 'dask scheduler' prints)"
+    if scheme not in _SCHEMES:
+        raise ConfigError(field, f"{address!r}: unknown scheme {scheme!r}", fix)
+    if scheme in ("ucx", "inproc"):
+        return address
+    host, colon, port = rest.rpartition(":")
+    if not colon or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(field, f"{address!r} is not HOST:PORT", fix)
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ConfigError(field, f"no scheduler answers at {address} "
+                          f"({exc.strerror or exc})",
+                          "start one with 'dask scheduler', or check the address") from None
+    return address
+
+
+def load_checked(spec: str | Path, *, workers: int | None = None,
+                 scheduler: str | None = None, run_timeout_s: float | None = None,
+                 max_runs: int | None = None,
+                 command_line: bool = False) -> tuple[BatchSpec, str | None, float | None]:
+    """Check the options of a batch and load its spec (every run checked as
+    :func:`~wmr.apps.batch.spec.load_batch` does).
+
+    Returns
+    -------
+    (BatchSpec, str or None, float or None)
+        The spec, the scheduler's address (it answered), and the per-run wall-clock limit
+        (``run_timeout_s`` None: the default, 0: none).
+
+    Raises
+    ------
+    ConfigError
+        A bad option (named as the command line or the API names it), or a bad spec.
+    """
+    from wmr.config.naming import plural
+
+    if max_runs is not None and max_runs < 1:
+        option = _name("max_runs", "--max-runs", command_line)
+        raise ConfigError(option, f"must be >= 1, got {max_runs}",
+                          f"give e.g. {option}{' ' if command_line else '='}2000000")
+    if scheduler is not None and workers is not None:
+        raise ConfigError(_name("workers", "--workers", command_line),
+                          f"has no effect with {_name('scheduler', '--scheduler', command_line)}",
+                          "size the Dask cluster instead")
+    limit_s = DEFAULT_RUN_TIMEOUT_S if run_timeout_s is None else run_timeout_s
+    if not math.isfinite(limit_s) or limit_s < 0:
+        raise ConfigError(_name("run_timeout_s", "--run-timeout", command_line),
+                          f"must be >= 0 s, got {run_timeout_s!r}",
+                          "give a wall-clock limit in s, or 0 for none")
+    if workers is not None:
+        if workers < 1:
+            option = _name("workers", "--workers", command_line)
+            raise ConfigError(option, f"must be >= 1, got {workers}",
+                              f"give e.g. {option}{' ' if command_line else '='}2")
+        cores = os.cpu_count() or 1
+        if workers > cores:
+            print(f"wmr: warning: {_name('workers=', '--workers ', command_line)}{workers} on "
+                  f"{plural(cores, 'core')}: the runs share the cores (no faster, more memory)",
+                  file=sys.stderr)
+    address = None if scheduler is None else check_scheduler(
+        scheduler, field=_name("scheduler", "--scheduler", command_line))
+    batch = load_batch(spec, max_runs=MAX_RUNS if max_runs is None else max_runs)
+    return batch, address, (limit_s if limit_s > 0 else None)
+
+
+def batch_command(spec: str | Path, out: str | Path | None = None, *,
+                  workers: int | None = None, scheduler: str | None = None,
+                  run_timeout_s: float | None = None, max_runs: int | None = None,
+                  fmi: int = 3, fmu: str | Path | None = None,
+                  fmu_map: str | Path | None = None, log: str | None = None,
+                  log_every: int | None = None, progress: bool | None = None,
+                  command_line: bool = False) -> tuple[Path, BatchOutcome]:
+    """Check the options, load the spec and run the batch into ``out`` (default
+    ``batches/<spec name>``), as ``wmr batch`` and :func:`wmr.batch` do.
+
+    ``run_timeout_s``: None the default (:data:`DEFAULT_RUN_TIMEOUT_S`), 0 none.  Returns
+    the batch folder and what :func:`~wmr.apps.batch.runner.run_batch` did.
+    """
+    from wmr.adapters.fmi.varmap import load_map
+    from wmr.apps.run import log_policy
+    from wmr.infra.outputs import check_output
+
+    batch, address, limit_s = load_checked(spec, workers=workers, scheduler=scheduler,
+                                           run_timeout_s=run_timeout_s, max_runs=max_runs,
+                                           command_line=command_line)
+    folder = check_output(out if out else Path("batches") / Path(spec).stem,
+                          _name("out", "--out", command_line), "dir")
+    policy = log_policy(log, log_every, batch.log, command_line=command_line)
+    result = run_batch(batch, folder, workers=workers, scheduler=address,
+                       run_timeout_s=limit_s, fmu_path=fmu, fmi_version=fmi, progress=progress,
+                       var_map=load_map(fmu_map) if fmu_map is not None else None, log=policy)
+    return folder, result
+
+
+__all__ = ["batch_command", "check_scheduler", "load_checked"]
