@@ -459,3 +459,37 @@ def test_dask_retries_a_dead_worker_s_run_like_the_local_pool(tmp_path: Path,
         run_batch(batch, tmp_path / "dask", client=client, fmu_path=fmu3, progress=False)
     local, dask = ((tmp_path / d / "summary.csv").read_bytes() for d in ("local", "dask"))
     assert dask == local, "the same summary whichever executor ran it"
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_dask_redoes_a_run_whose_result_was_lost(tmp_path: Path, fmu3: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """A finished task whose result cannot be fetched (its worker died with it, and Dask's
+    recomputation never came: seen hanging the batch) is redone under a new key, and the batch
+    ends with the local pool's summary."""
+    from distributed import Client, Future, LocalCluster
+
+    from wmr.apps.batch import dask_exec
+
+    batch = load_batch(_spec(tmp_path, SPEC.replace("max_time_s = 60.0", "max_time_s = 2.0")))
+    run_batch(batch, tmp_path / "local", workers=1, fmu_path=fmu3, progress=False)
+    lost_key = f"wmr-runs-{batch.runs[2].run_id}-"
+    asked: list[str] = []
+    real = Future.result
+
+    def result(self: Future, timeout: float | None = None) -> object:
+        asked.append(str(self.key))
+        if str(self.key).startswith(lost_key) and not str(self.key).endswith("-retry"):
+            assert timeout is not None, "a fetch without a bound can wait for ever"
+            raise TimeoutError(f"no result for {self.key} within {timeout} s")
+        return real(self, timeout=timeout)
+
+    monkeypatch.setattr(Future, "result", result)
+    monkeypatch.setattr(dask_exec, "RESULT_WAIT_S", 5.0)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        run_batch(batch, tmp_path / "dask", client=client, fmu_path=fmu3, progress=False)
+    assert any(k.startswith(lost_key) and k.endswith("-retry") for k in asked), asked
+    local, dask = ((tmp_path / d / "summary.csv").read_bytes() for d in ("local", "dask"))
+    assert dask == local

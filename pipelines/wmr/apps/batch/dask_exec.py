@@ -58,6 +58,11 @@ class FmuPlugin(WorkerPlugin):
 #: thread busy while results travel back, few enough that a million-run batch is not all
 #: submitted (and made) at once.
 WINDOW: Final = 4
+#: Seconds to fetch a finished task's result.  A worker that dies after finishing a task takes
+#: the result with it; Dask then computes the task again, but a fetch that started before the
+#: death was seen to wait for ever while the other workers kept dying.  Past this wait the
+#: task's runs are treated as those of a dead worker: one more try each, under a new key.
+RESULT_WAIT_S: Final = 30.0
 
 
 class DaskExecutor:
@@ -152,11 +157,14 @@ class DaskExecutor:
                 if more is not None:
                     done.add(more)
                 try:
-                    result = fut.result()
-                except Exception as exc:  # KilledWorker, CancelledError or the task's own
+                    result = fut.result(timeout=RESULT_WAIT_S)
+                except Exception as exc:  # KilledWorker, CancelledError, TimeoutError, its own
                     result = exc
                 if isinstance(result, BaseException):
-                    died = type(result).__name__ == "KilledWorker"
+                    lost = isinstance(result, TimeoutError)  # the result died with its worker
+                    if lost:
+                        fut.cancel()
+                    died = lost or type(result).__name__ == "KilledWorker"
                     # the rule of the local pool: a run whose worker died gets one more
                     # try, alone (the others of its chunk too: they died with it)
                     again = [t for t in chunk if died and t.run_id not in retried]
