@@ -206,3 +206,20 @@ def test_reference_plant_protocol() -> None:
     with pytest.raises(ValueError):
         plant.step(math.nan, 0.0, 0.01)
     plant.close()
+
+
+def test_the_reference_plant_at_its_default_tolerances_is_a_reference() -> None:
+    """One long step (2 s) of a free nonlinear motion, where the tolerances decide the
+    accuracy (the 10 ms steps of a run are exact at any tolerance): with its defaults the
+    plant conserves the kinetic energy and meets a tighter solution of the same ODE."""
+    plant = ReferencePlant()
+    plant.reset(P, Pose(0.0, 0.0, 0.3), v0_mps=0.8, omega0_radps=2.0)
+    out = plant.step(0.0, 0.0, 2.0)
+    state = plant.state
+    e0 = kinetic_energy(0.8, 2.0, P)
+    assert kinetic_energy(state[3], state[4], P) == pytest.approx(e0, rel=1e-9)
+    tight = _integrate(lambda _t, s: derivatives(s, 0.0, 0.0, P),
+                       [0.0, 0.0, 0.3, 0.8, 2.0, 0.0, 0.0], 2.0, n_eval=2)
+    np.testing.assert_allclose(state, tight.y[:, -1], rtol=0.0, atol=1e-8)
+    assert plant.t == 2.0
+    np.testing.assert_array_equal(out, outputs(state, P))
