@@ -115,6 +115,14 @@ _AT_THE_LIMIT = ("u exactly on the limit (a set of measure zero): u_s is the lim
                  "comparison and the two agree bit for bit")
 
 EQUIVALENT: dict[str, str] = {
+    # core/physics.py
+    "wmr.core.physics.x_outputs__mutmut_11": "dtype=None: numpy makes float64 of these floats",
+    "wmr.core.physics.x_outputs__mutmut_13": "dtype dropped: numpy makes float64 of these floats",
+    "wmr.core.physics.xǁReferencePlantǁstep__mutmut_28": (
+        "DOP853 dropped: RK45 at the same tolerances is as accurate (only slower)"),
+    "wmr.core.physics.xǁReferencePlantǁstep__mutmut_35": (
+        "the message of a solve_ivp failure, which this smooth ODE never reaches with finite "
+        "torques (tried: Coulomb friction of 1e6 N m over 1e-6 rad/s)"),
     # core/control/stabiliser.py
     f"{_STAB}__init____mutmut_14": "self.r is stored but never read (update uses inv_r)",
     f"{_STAB}update__mutmut_40": "beta exactly +beta_max: the clamp returns beta_max = beta",
