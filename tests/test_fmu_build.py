@@ -11,7 +11,13 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from wmr.adapters.fmi.archive import check_archive
+from wmr.adapters.fmi.archive import (
+    MAX_XML_BYTES,
+    Budget,
+    MiB,
+    check_archive,
+    open_archive,
+)
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.build.fmus import BuildResult, build_fmus
 from wmr.cli import main
@@ -147,6 +153,39 @@ def test_hostile_archives_are_refused(tmp_path: Path) -> None:
         check_archive(tmp_path / "text.fmu")
     with pytest.raises(FmuError, match="no such FMU"):
         FmuPlant(tmp_path / "missing.fmu")
+
+
+def test_hostile_archive_budget_is_exact_and_refusals_name_the_member(tmp_path: Path) -> None:
+    """The total budget admits exactly its bytes and not one more; a member read past its
+    limit is refused by name; a missing member is a KeyError naming it."""
+    fmu = _zip(tmp_path / "exact.fmu", {"modelDescription.xml": b"<x/>", "data.bin": b"d" * 96})
+    assert sorted(check_archive(fmu, Budget(total_bytes=100))) == ["data.bin",
+                                                                   "modelDescription.xml"]
+    with pytest.raises(FmuError, match="unpacks to more than 99 bytes in all"):
+        check_archive(fmu, Budget(total_bytes=99))
+    with open_archive(fmu) as archive:
+        with pytest.raises(FmuError, match=r"member 'data\.bin' unpacks to more than 10 bytes"):
+            list(archive.chunks("data.bin", limit=10))
+        with pytest.raises(KeyError, match="nope"):
+            next(archive.chunks("nope"))
+
+
+def test_hostile_archive_members_inflate_in_bounded_chunks(tmp_path: Path) -> None:
+    """A member is counted as it inflates, chunk by chunk (a bomb is refused before it is in
+    memory), never read whole."""
+    fmu = _zip(tmp_path / "long.fmu", {"modelDescription.xml": b"<x/>",
+                                       "zeros.bin": bytes(5 * MiB // 2)})
+    with open_archive(fmu) as archive:
+        sizes = [len(c) for c in archive.chunks("zeros.bin")]
+    assert sum(sizes) == 5 * MiB // 2 and len(sizes) == 3 and max(sizes) <= MiB
+
+
+def test_a_model_description_above_the_xml_bound_but_within_its_own_is_not_refused(
+        tmp_path: Path) -> None:
+    """The model description has its own, larger bound (64 MiB) than the SSP documents."""
+    md = b"<fmiModelDescription>" + b" " * (MAX_XML_BYTES + 1) + b"</fmiModelDescription>"
+    fmu = _zip(tmp_path / "large-md.fmu", {"modelDescription.xml": md})
+    assert check_archive(fmu) == ["modelDescription.xml"]
 
 
 # ------------------------------------------------------------- platforms and progress (issue 21)
