@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import stat
 import subprocess
 import xml.etree.ElementTree as ET
 import zipfile
@@ -168,6 +169,27 @@ def test_hostile_archive_budget_is_exact_and_refusals_name_the_member(tmp_path: 
             list(archive.chunks("data.bin", limit=10))
         with pytest.raises(KeyError, match="nope"):
             next(archive.chunks("nope"))
+
+
+def test_hostile_archive_members_are_refused_by_name(tmp_path: Path) -> None:
+    """A link and a damaged member: the one line names the member (and what is wrong)."""
+    link = tmp_path / "link.fmu"
+    with zipfile.ZipFile(link, "w") as zf:
+        zf.writestr("modelDescription.xml", b"<x/>")
+        info = zipfile.ZipInfo("binaries/linux64/robot.so")
+        info.create_system = 3
+        info.external_attr = (stat.S_IFLNK | 0o777) << 16
+        zf.writestr(info, b"/etc/passwd")
+    with pytest.raises(FmuError, match=r"member 'binaries/linux64/robot\.so' is a symbolic link"):
+        check_archive(link)
+    damaged = _zip(tmp_path / "damaged.fmu", {"modelDescription.xml": b"<x/>",
+                                              "data.bin": b"0123456789" * 10})
+    raw = bytearray(damaged.read_bytes())
+    at = raw.index(b"0123456789")
+    raw[at] ^= 0x01  # a stored member: one bit of its data flipped, its CRC no longer matches
+    damaged.write_bytes(bytes(raw))
+    with pytest.raises(FmuError, match=r"member 'data\.bin' is damaged"):
+        check_archive(damaged)
 
 
 def test_hostile_archive_members_inflate_in_bounded_chunks(tmp_path: Path) -> None:
