@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import stat
 import subprocess
 import xml.etree.ElementTree as ET
@@ -190,6 +191,38 @@ def test_hostile_archive_members_are_refused_by_name(tmp_path: Path) -> None:
     damaged.write_bytes(bytes(raw))
     with pytest.raises(FmuError, match=r"member 'data\.bin' is damaged"):
         check_archive(damaged)
+
+
+def test_hostile_archive_member_count_is_counted_not_read_from_the_end_record(
+        tmp_path: Path) -> None:
+    """As many members as the budget is fine; one more is refused, also when the end record
+    claims fewer entries than the directory holds."""
+    fmu = _zip(tmp_path / "three.fmu", {"modelDescription.xml": b"<x/>", "a": b"a", "b": b"b"})
+    assert len(check_archive(fmu, Budget(members=3))) == 3
+    raw = bytearray(fmu.read_bytes())
+    eocd = raw.rindex(b"PK\x05\x06")
+    raw[eocd + 8:eocd + 12] = (1).to_bytes(2, "little") * 2  # "1 entry" on the disk, in all
+    fmu.write_bytes(bytes(raw))
+    with pytest.raises(FmuError, match=rf"^{re.escape(str(fmu))}: .*3 members, more than 2"):
+        check_archive(fmu, Budget(members=2))
+
+
+def test_hostile_archive_encryption_and_other_compressions_are_refused_by_name(
+        tmp_path: Path) -> None:
+    enc = tmp_path / "encrypted.fmu"
+    _zip(enc, {"modelDescription.xml": b"<x/>", "secret.bin": b"x"})
+    raw = bytearray(enc.read_bytes())
+    entry = raw.rindex(b"PK\x01\x02")  # the last directory entry: secret.bin's
+    raw[entry + 8] |= 0x1  # general purpose flag bit 0: encrypted (zipfile cannot write it)
+    enc.write_bytes(bytes(raw))
+    with pytest.raises(FmuError, match=r"member 'secret\.bin' is encrypted"):
+        check_archive(enc)
+    bz = tmp_path / "bzip2.fmu"
+    with zipfile.ZipFile(bz, "w", compression=zipfile.ZIP_BZIP2) as zf:
+        zf.writestr("modelDescription.xml", b"<x/>")
+    with pytest.raises(FmuError, match=r"member 'modelDescription\.xml' uses compression method "
+                                       r"12 \(FMI and SSP archives are stored or deflated\)"):
+        check_archive(bz)
 
 
 def test_hostile_archive_members_inflate_in_bounded_chunks(tmp_path: Path) -> None:

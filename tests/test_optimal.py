@@ -442,3 +442,44 @@ def test_the_rollout_takes_ten_steps_per_interval() -> None:
     t, states, outputs = _dense(START, RobotParams(), torques, 0.1, 4)
     assert len(t) == len(states) == len(outputs) == 3 * 10 + 1
     assert t[-1] == pytest.approx(0.3, rel=1e-12)
+
+
+def test_the_rollout_integrals_of_a_straight_run_by_hand() -> None:
+    """Equal torques from rest, 2 then 1 N m a wheel over two intervals: a straight run with
+    piecewise constant acceleration (tau_r + tau_l) / (r M11), so the path is x(T), all the
+    work went into kinetic energy, the wheel speed peaks at v(T) / r."""
+    from wmr.adapters.ocp.result import _integrals
+    from wmr.core.physics import mass_matrix_diag
+
+    p = RobotParams()
+    m11 = mass_matrix_diag(p)[0]
+    h = 0.5
+    a1, a2 = 4.0 / (p.r * m11), 2.0 / (p.r * m11)
+    v1 = a1 * h
+    v2 = v1 + a2 * h
+    x_end = a1 * h * h / 2 + v1 * h + a2 * h * h / 2
+    goal = Pose(x_end + 0.3, 0.4, 0.0)
+    length, work, w_max, miss = _integrals(START, goal, p, np.array([[2.0, 2.0], [1.0, 1.0]]),
+                                           h, 4)
+    assert length == pytest.approx(x_end, rel=1e-9)
+    assert work == pytest.approx(0.5 * m11 * v2**2, rel=1e-9)
+    assert w_max == pytest.approx(v2 / p.r, rel=1e-9)
+    assert miss == pytest.approx(0.5, rel=1e-9)
+
+
+def test_the_rollout_work_of_a_turning_run_is_its_kinetic_energy() -> None:
+    """Unequal torques, every wheel power positive and no friction: the positive work is the
+    kinetic energy at T, from an independent integration of the hand-written physics."""
+    from scipy.integrate import solve_ivp
+
+    from wmr.adapters.ocp.result import _integrals
+    from wmr.core.physics import derivatives, kinetic_energy
+
+    p = RobotParams()
+    h, torques = 0.5, [(2.0, 1.0), (1.5, 0.5)]
+    s = [0.0] * 7
+    for tau in torques:
+        s = solve_ivp(lambda _t, y, tau=tau: derivatives(y, *tau, p), (0.0, h), s,
+                      method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
+    _, work, _, _ = _integrals(START, FIG11_GOAL, p, np.array(torques), h, 4)
+    assert work == pytest.approx(kinetic_energy(s[3], s[4], p), rel=1e-3)

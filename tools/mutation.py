@@ -146,7 +146,15 @@ EQUIVALENT: dict[str, str] = {
     **{f"wmr.adapters.ocp.result.x__dense__mutmut_{n}": (
         "the input paired with the first node: no output depends on the torques (no direct "
         "feedthrough, tests/test_fmu_model_structure.py), and a solved NLP always has "
-        "torques") for n in (23, 24)},
+        "torques") for n in (23, 24, 25, 26, 27)},
+    **{f"wmr.adapters.ocp.result.x__dense__mutmut_{n}": (
+        "dtype=float dropped: an integer arange times a float, and CasADi's DM, are float64 "
+        "anyway") for n in (64, 66, 70, 72)},
+    "wmr.adapters.ocp.result.x__integrals__mutmut_26": (
+        "/ for //: (len(t) - 1) is a multiple of the interval count, the quotient 10.0 "
+        "repeats as 10"),
+    "wmr.adapters.ocp.result.x__integrals__mutmut_33": (
+        "max(n, 2) for max(n, 1): the OCP has at least 2 intervals (n_intervals >= 2)"),
     # core/control/actuator.py
     f"{_SERVO}update__mutmut_20": "v exactly +t_max: the saturation returns t_max = v",
     f"{_SERVO}update__mutmut_24": "v exactly -t_max: the saturation returns -t_max = v",
