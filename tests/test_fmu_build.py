@@ -225,6 +225,29 @@ def test_hostile_archive_encryption_and_other_compressions_are_refused_by_name(
         check_archive(bz)
 
 
+def test_hostile_archive_budget_of_members_is_shared_and_duplicates_are_named(
+        tmp_path: Path) -> None:
+    """The member budget counts down across the archives that share it (a package and the
+    FMUs inside); two names for one file are refused with both names; an empty folder is
+    extracted as a folder."""
+    fmu = _zip(tmp_path / "three.fmu", {"modelDescription.xml": b"<x/>", "a": b"a", "b": b"b"})
+    shared = Budget(members=5)
+    check_archive(fmu, shared)
+    with pytest.raises(FmuError, match="3 members, more than 2"):
+        check_archive(fmu, shared)
+    dup = _zip(tmp_path / "dup.fmu", {"modelDescription.xml": b"<x/>",
+                                      "binaries/Robot.so": b"1", "binaries/robot.so": b"2"})
+    with pytest.raises(FmuError, match=r"members 'binaries/Robot\.so' and 'binaries/robot\.so' "
+                                       r"are the same file \(a duplicate\)"):
+        check_archive(dup)
+    folder = _zip(tmp_path / "folder.fmu", {"modelDescription.xml": b"<x/>", "resources/": b""})
+    dest = tmp_path / "out"
+    dest.mkdir()
+    with open_archive(folder) as archive:
+        archive.extract(dest)
+    assert (dest / "resources").is_dir() and not any((dest / "resources").iterdir())
+
+
 def test_hostile_archive_members_inflate_in_bounded_chunks(tmp_path: Path) -> None:
     """A member is counted as it inflates, chunk by chunk (a bomb is refused before it is in
     memory), never read whole."""
