@@ -165,6 +165,14 @@ def test_hostile_archive_budget_is_exact_and_refusals_name_the_member(tmp_path: 
                                                                    "modelDescription.xml"]
     with pytest.raises(FmuError, match="unpacks to more than 99 bytes in all"):
         check_archive(fmu, Budget(total_bytes=99))
+    assert len(check_archive(fmu, Budget(member_bytes=96))) == 2  # data.bin: 96 bytes exactly
+    with pytest.raises(FmuError, match=rf"^{re.escape(str(fmu))}: member 'data\.bin' unpacks "
+                                       "to more than 95 bytes"):
+        check_archive(fmu, Budget(member_bytes=95))
+    nested = _zip(tmp_path / "nested.fmu", {"modelDescription.xml": b"<x/>", "a": b"1",
+                                            "a/b": b"2"})
+    with pytest.raises(FmuError, match=r"member 'a/b' is under 'a', which is a file"):
+        check_archive(nested)
     with open_archive(fmu) as archive:
         with pytest.raises(FmuError, match=r"member 'data\.bin' unpacks to more than 10 bytes"):
             list(archive.chunks("data.bin", limit=10))

@@ -481,5 +481,8 @@ def test_the_rollout_work_of_a_turning_run_is_its_kinetic_energy() -> None:
     for tau in torques:
         s = solve_ivp(lambda _t, y, tau=tau: derivatives(y, *tau, p), (0.0, h), s,
                       method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
-    _, work, _, _ = _integrals(START, FIG11_GOAL, p, np.array(torques), h, 4)
+    _, work, _, miss = _integrals(START, FIG11_GOAL, p, np.array(torques), h, 4)
     assert work == pytest.approx(kinetic_energy(s[3], s[4], p), rel=1e-3)
+    # and the miss is the distance of the end of that run from the goal
+    assert miss == pytest.approx(math.hypot(s[0] - FIG11_GOAL.x_m, s[1] - FIG11_GOAL.y_m),
+                                 rel=1e-6)
