@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+import stat
 import subprocess
 import xml.etree.ElementTree as ET
 import zipfile
@@ -11,7 +13,13 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from wmr.adapters.fmi.archive import check_archive
+from wmr.adapters.fmi.archive import (
+    MAX_XML_BYTES,
+    Budget,
+    MiB,
+    check_archive,
+    open_archive,
+)
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.build.fmus import BuildResult, build_fmus
 from wmr.cli import main
@@ -147,6 +155,123 @@ def test_hostile_archives_are_refused(tmp_path: Path) -> None:
         check_archive(tmp_path / "text.fmu")
     with pytest.raises(FmuError, match="no such FMU"):
         FmuPlant(tmp_path / "missing.fmu")
+
+
+def test_hostile_archive_budget_is_exact_and_refusals_name_the_member(tmp_path: Path) -> None:
+    """The total budget admits exactly its bytes and not one more; a member read past its
+    limit is refused by name; a missing member is a KeyError naming it."""
+    fmu = _zip(tmp_path / "exact.fmu", {"modelDescription.xml": b"<x/>", "data.bin": b"d" * 96})
+    assert sorted(check_archive(fmu, Budget(total_bytes=100))) == ["data.bin",
+                                                                   "modelDescription.xml"]
+    with pytest.raises(FmuError, match="unpacks to more than 99 bytes in all"):
+        check_archive(fmu, Budget(total_bytes=99))
+    assert len(check_archive(fmu, Budget(member_bytes=96))) == 2  # data.bin: 96 bytes exactly
+    with pytest.raises(FmuError, match=rf"^{re.escape(str(fmu))}: member 'data\.bin' unpacks "
+                                       "to more than 95 bytes"):
+        check_archive(fmu, Budget(member_bytes=95))
+    nested = _zip(tmp_path / "nested.fmu", {"modelDescription.xml": b"<x/>", "a": b"1",
+                                            "a/b": b"2"})
+    with pytest.raises(FmuError, match=r"member 'a/b' is under 'a', which is a file"):
+        check_archive(nested)
+    with open_archive(fmu) as archive:
+        with pytest.raises(FmuError, match=r"member 'data\.bin' unpacks to more than 10 bytes"):
+            list(archive.chunks("data.bin", limit=10))
+        with pytest.raises(KeyError, match="nope"):
+            next(archive.chunks("nope"))
+
+
+def test_hostile_archive_members_are_refused_by_name(tmp_path: Path) -> None:
+    """A link and a damaged member: the one line names the member (and what is wrong)."""
+    link = tmp_path / "link.fmu"
+    with zipfile.ZipFile(link, "w") as zf:
+        zf.writestr("modelDescription.xml", b"<x/>")
+        info = zipfile.ZipInfo("binaries/linux64/robot.so")
+        info.create_system = 3
+        info.external_attr = (stat.S_IFLNK | 0o777) << 16
+        zf.writestr(info, b"/etc/passwd")
+    with pytest.raises(FmuError, match=r"member 'binaries/linux64/robot\.so' is a symbolic link"):
+        check_archive(link)
+    damaged = _zip(tmp_path / "damaged.fmu", {"modelDescription.xml": b"<x/>",
+                                              "data.bin": b"0123456789" * 10})
+    raw = bytearray(damaged.read_bytes())
+    at = raw.index(b"0123456789")
+    raw[at] ^= 0x01  # a stored member: one bit of its data flipped, its CRC no longer matches
+    damaged.write_bytes(bytes(raw))
+    with pytest.raises(FmuError, match=r"member 'data\.bin' is damaged"):
+        check_archive(damaged)
+
+
+def test_hostile_archive_member_count_is_counted_not_read_from_the_end_record(
+        tmp_path: Path) -> None:
+    """As many members as the budget is fine; one more is refused, also when the end record
+    claims fewer entries than the directory holds."""
+    fmu = _zip(tmp_path / "three.fmu", {"modelDescription.xml": b"<x/>", "a": b"a", "b": b"b"})
+    assert len(check_archive(fmu, Budget(members=3))) == 3
+    raw = bytearray(fmu.read_bytes())
+    eocd = raw.rindex(b"PK\x05\x06")
+    raw[eocd + 8:eocd + 12] = (1).to_bytes(2, "little") * 2  # "1 entry" on the disk, in all
+    fmu.write_bytes(bytes(raw))
+    with pytest.raises(FmuError, match=rf"^{re.escape(str(fmu))}: .*3 members, more than 2"):
+        check_archive(fmu, Budget(members=2))
+
+
+def test_hostile_archive_encryption_and_other_compressions_are_refused_by_name(
+        tmp_path: Path) -> None:
+    enc = tmp_path / "encrypted.fmu"
+    _zip(enc, {"modelDescription.xml": b"<x/>", "secret.bin": b"x"})
+    raw = bytearray(enc.read_bytes())
+    entry = raw.rindex(b"PK\x01\x02")  # the last directory entry: secret.bin's
+    raw[entry + 8] |= 0x1  # general purpose flag bit 0: encrypted (zipfile cannot write it)
+    enc.write_bytes(bytes(raw))
+    with pytest.raises(FmuError, match=r"member 'secret\.bin' is encrypted"):
+        check_archive(enc)
+    bz = tmp_path / "bzip2.fmu"
+    with zipfile.ZipFile(bz, "w", compression=zipfile.ZIP_BZIP2) as zf:
+        zf.writestr("modelDescription.xml", b"<x/>")
+    with pytest.raises(FmuError, match=r"member 'modelDescription\.xml' uses compression method "
+                                       r"12 \(FMI and SSP archives are stored or deflated\)"):
+        check_archive(bz)
+
+
+def test_hostile_archive_budget_of_members_is_shared_and_duplicates_are_named(
+        tmp_path: Path) -> None:
+    """The member budget counts down across the archives that share it (a package and the
+    FMUs inside); two names for one file are refused with both names; an empty folder is
+    extracted as a folder."""
+    fmu = _zip(tmp_path / "three.fmu", {"modelDescription.xml": b"<x/>", "a": b"a", "b": b"b"})
+    shared = Budget(members=5)
+    check_archive(fmu, shared)
+    with pytest.raises(FmuError, match="3 members, more than 2"):
+        check_archive(fmu, shared)
+    dup = _zip(tmp_path / "dup.fmu", {"modelDescription.xml": b"<x/>",
+                                      "binaries/Robot.so": b"1", "binaries/robot.so": b"2"})
+    with pytest.raises(FmuError, match=r"members 'binaries/Robot\.so' and 'binaries/robot\.so' "
+                                       r"are the same file \(a duplicate\)"):
+        check_archive(dup)
+    folder = _zip(tmp_path / "folder.fmu", {"modelDescription.xml": b"<x/>", "resources/": b""})
+    dest = tmp_path / "out"
+    dest.mkdir()
+    with open_archive(folder) as archive:
+        archive.extract(dest)
+    assert (dest / "resources").is_dir() and not any((dest / "resources").iterdir())
+
+
+def test_hostile_archive_members_inflate_in_bounded_chunks(tmp_path: Path) -> None:
+    """A member is counted as it inflates, chunk by chunk (a bomb is refused before it is in
+    memory), never read whole."""
+    fmu = _zip(tmp_path / "long.fmu", {"modelDescription.xml": b"<x/>",
+                                       "zeros.bin": bytes(5 * MiB // 2)})
+    with open_archive(fmu) as archive:
+        sizes = [len(c) for c in archive.chunks("zeros.bin")]
+    assert sum(sizes) == 5 * MiB // 2 and len(sizes) == 3 and max(sizes) <= MiB
+
+
+def test_a_model_description_above_the_xml_bound_but_within_its_own_is_not_refused(
+        tmp_path: Path) -> None:
+    """The model description has its own, larger bound (64 MiB) than the SSP documents."""
+    md = b"<fmiModelDescription>" + b" " * (MAX_XML_BYTES + 1) + b"</fmiModelDescription>"
+    fmu = _zip(tmp_path / "large-md.fmu", {"modelDescription.xml": md})
+    assert check_archive(fmu) == ["modelDescription.xml"]
 
 
 # ------------------------------------------------------------- platforms and progress (issue 21)

@@ -20,7 +20,7 @@ from mcap.records import DataEnd
 from mcap.stream_reader import StreamReader
 
 from wmr.adapters.mcap import RunData, RunLogWriter, read_run
-from wmr.adapters.mcap.reader import scan_file
+from wmr.adapters.mcap.reader import LogScan, ReadLimits, scan_file
 from wmr.adapters.mcap.recover import recover_log
 from wmr.cli import main
 from wmr.core.signals import SIGNALS
@@ -433,3 +433,17 @@ def test_replay_says_what_it_could_not_show(tmp_path: Path,
     assert main(["replay", str(path), "--no-viewer", "--rrd", str(tmp_path / "r.rrd")]) == 0
     err = capsys.readouterr().err
     assert "wmr: warning:" in err and "data section CRC mismatch" in err
+
+
+def test_the_read_budget_admits_exactly_its_bytes_and_warns_once_naming_the_limit() -> None:
+    """ReadLimits.total_bytes: everything up to the limit is kept, the first byte past it
+    stops the read with one warning that names the limit, where it stopped and the fix."""
+    mib = 1 << 20
+    scan = LogScan(ReadLimits(total_bytes=2 * mib), keep_chunks=False)
+    assert scan.charge(mib, "record 1") and scan.charge(mib, "record 2")  # exactly the budget
+    assert scan.kept_bytes == 2 * mib and not scan.damaged
+    assert not scan.charge(1, "record 3")
+    assert not scan.charge(1, "record 4")
+    assert scan.kept_bytes == 2 * mib and scan.damaged and scan.over_budget
+    assert scan.warnings == ["the log holds more than 2 MiB (ReadLimits.total_bytes): read stops "
+                             "at record 3; give a higher limit to read it all"]

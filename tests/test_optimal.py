@@ -8,7 +8,9 @@ marked slow.
 
 from __future__ import annotations
 
+import json
 import math
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -377,3 +379,110 @@ def test_the_optimal_record_has_one_effort_and_an_absolute_heading_error(
     assert record["status"] == "solved"
     assert record["final_heading_error_rad"] == pytest.approx(0.01)
     assert "effort_N2m2s" not in record and record["torque_sq_integral_n2m2s"] > 0.0
+
+
+# --- the results that need no NLP, and the JSON summary (survivors of the mutation run) ----
+
+#: The JSON fields of ``OptimalResult.summary`` (``wmr optimal`` prints and logs them).
+_SUMMARY_FIELDS = {"status", "message", "objective", "final_time_s", "path_length_m",
+                   "energy_positive_j", "effort_N2m2s", "solve_time_s", "iterations",
+                   "n_intervals", "limits"}
+_METRICS = ("path_length_m", "energy_positive_j", "effort_N2m2s", "max_wheel_speed_radps",
+            "rollout_error_m")
+
+
+def test_a_trivial_result_is_the_start_at_rest_at_no_cost() -> None:
+    """Start equal to goal: one node, the start's own state at rest, every cost 0, and the
+    inputs carried through (a robot and a torque limit of its own)."""
+    params = replace(RobotParams(), m=30.0)
+    start = Pose(1.0, 2.0, 0.5)
+    r = solve_optimal(start, Pose(1.0, 2.0, 0.5 + 2 * math.pi), params, torque_limit_nm=7.0)
+    assert (r.status, r.objective, r.start, r.params) == ("solved", "time", start, params)
+    assert r.goal == Pose(1.0, 2.0, 0.5 + 2 * math.pi)
+    assert r.limits.torque_max_nm == 7.0
+    assert r.t_s.tolist() == [0.0] and r.interval_s == 0.0
+    at_rest = {"x": 1.0, "y": 2.0, "theta": 0.5, "v": 0.0, "omega": 0.0}
+    assert {n: r.states[n].tolist() for n in at_rest} == {n: [v] for n, v in at_rest.items()}
+    assert all(a.shape == (1,) for a in r.states.values())
+    assert all(getattr(r, m) == 0.0 for m in _METRICS)
+    assert (r.solve_time_s, r.iterations) == (0.0, 0)
+    s = r.summary()
+    assert set(s) == _SUMMARY_FIELDS
+    assert (s["status"], s["objective"], s["message"]) == ("solved", "time", r.message)
+    assert (s["path_length_m"], s["energy_positive_j"], s["effort_N2m2s"]) == (0.0, 0.0, 0.0)
+    assert (s["final_time_s"], s["solve_time_s"], s["iterations"], s["n_intervals"]) == (
+        0.0, 0.0, 0, 0)
+    assert s["limits"]["torque_max_nm"] == 7.0
+    json.dumps(s, allow_nan=False)
+
+
+def test_an_infeasible_result_has_no_trajectory_and_no_numbers() -> None:
+    """Zero torque: no node, no state, every cost NaN (None in JSON), nothing solved."""
+    r = solve_optimal(START, FIG11_GOAL, objective="energy", torque_limit_nm=0.0,
+                      final_time_s=5.0)
+    assert (r.status, r.objective, r.start, r.goal) == ("infeasible", "energy", START,
+                                                        FIG11_GOAL)
+    assert r.params == RobotParams() and r.limits.torque_max_nm == 0.0
+    assert r.t_s.shape == (0,) and r.torques.shape == (0, 2)
+    assert all(a.shape == (0,) for a in r.states.values())
+    assert all(math.isnan(getattr(r, m)) for m in _METRICS)
+    assert (r.solve_time_s, r.iterations) == (0.0, 0)
+    s = r.summary()
+    assert set(s) == _SUMMARY_FIELDS
+    assert s["status"] == "infeasible" and s["objective"] == "energy"
+    assert [s[k] for k in ("path_length_m", "energy_positive_j", "effort_N2m2s")] == [None] * 3
+    json.dumps(s, allow_nan=False)
+
+
+def test_the_rollout_takes_ten_steps_per_interval() -> None:
+    """docs/optimal.md: ``rollout_error_m`` integrates the torques with 10 times finer steps."""
+    from wmr.adapters.ocp.result import _dense
+
+    torques = np.array([[1.0, 0.5], [0.2, -0.3], [0.0, 0.0]])
+    t, states, outputs = _dense(START, RobotParams(), torques, 0.1, 4)
+    assert len(t) == len(states) == len(outputs) == 3 * 10 + 1
+    assert t[-1] == pytest.approx(0.3, rel=1e-12)
+
+
+def test_the_rollout_integrals_of_a_straight_run_by_hand() -> None:
+    """Equal torques from rest, 2 then 1 N m a wheel over two intervals: a straight run with
+    piecewise constant acceleration (tau_r + tau_l) / (r M11), so the path is x(T), all the
+    work went into kinetic energy, the wheel speed peaks at v(T) / r."""
+    from wmr.adapters.ocp.result import _integrals
+    from wmr.core.physics import mass_matrix_diag
+
+    p = RobotParams()
+    m11 = mass_matrix_diag(p)[0]
+    h = 0.5
+    a1, a2 = 4.0 / (p.r * m11), 2.0 / (p.r * m11)
+    v1 = a1 * h
+    v2 = v1 + a2 * h
+    x_end = a1 * h * h / 2 + v1 * h + a2 * h * h / 2
+    goal = Pose(x_end + 0.3, 0.4, 0.0)
+    length, work, w_max, miss = _integrals(START, goal, p, np.array([[2.0, 2.0], [1.0, 1.0]]),
+                                           h, 4)
+    assert length == pytest.approx(x_end, rel=1e-9)
+    assert work == pytest.approx(0.5 * m11 * v2**2, rel=1e-9)
+    assert w_max == pytest.approx(v2 / p.r, rel=1e-9)
+    assert miss == pytest.approx(0.5, rel=1e-9)
+
+
+def test_the_rollout_work_of_a_turning_run_is_its_kinetic_energy() -> None:
+    """Unequal torques, every wheel power positive and no friction: the positive work is the
+    kinetic energy at T, from an independent integration of the hand-written physics."""
+    from scipy.integrate import solve_ivp
+
+    from wmr.adapters.ocp.result import _integrals
+    from wmr.core.physics import derivatives, kinetic_energy
+
+    p = RobotParams()
+    h, torques = 0.5, [(2.0, 1.0), (1.5, 0.5)]
+    s = [0.0] * 7
+    for tau in torques:
+        s = solve_ivp(lambda _t, y, tau=tau: derivatives(y, *tau, p), (0.0, h), s,
+                      method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
+    _, work, _, miss = _integrals(START, FIG11_GOAL, p, np.array(torques), h, 4)
+    assert work == pytest.approx(kinetic_energy(s[3], s[4], p), rel=1e-3)
+    # and the miss is the distance of the end of that run from the goal
+    assert miss == pytest.approx(math.hypot(s[0] - FIG11_GOAL.x_m, s[1] - FIG11_GOAL.y_m),
+                                 rel=1e-6)

@@ -203,6 +203,44 @@ def test_reference_plant_protocol() -> None:
     out = plant.step(1.0, 1.0, 0.01)
     assert out.shape == (len(OUTPUT_NAMES),)
     assert out[3] > 0.2
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"non-finite torque input \(nan, 0\.0\)"):
         plant.step(math.nan, 0.0, 0.01)
     plant.close()
+
+
+def test_the_reference_plant_at_its_default_tolerances_is_a_reference() -> None:
+    """One long step (2 s) of a free nonlinear motion, where the tolerances decide the
+    accuracy (the 10 ms steps of a run are exact at any tolerance): with its defaults the
+    plant conserves the kinetic energy and meets a tighter solution of the same ODE."""
+    plant = ReferencePlant()
+    plant.reset(P, Pose(0.0, 0.0, 0.3), v0_mps=0.8, omega0_radps=2.0)
+    out = plant.step(0.0, 0.0, 2.0)
+    state = plant.state
+    e0 = kinetic_energy(0.8, 2.0, P)
+    assert kinetic_energy(state[3], state[4], P) == pytest.approx(e0, rel=1e-9)
+    tight = _integrate(lambda _t, s: derivatives(s, 0.0, 0.0, P),
+                       [0.0, 0.0, 0.3, 0.8, 2.0, 0.0, 0.0], 2.0, n_eval=2)
+    np.testing.assert_allclose(state, tight.y[:, -1], rtol=0.0, atol=1e-8)
+    assert plant.t == 2.0
+    np.testing.assert_array_equal(out, outputs(state, P))
+    plant.step(0.0, 0.0, 0.5)
+    assert plant.t == 2.5  # the clock accumulates the steps
+
+
+def test_a_fresh_reference_plant_is_one_reset_to_the_defaults() -> None:
+    """Before its first reset the plant is the default robot at rest at the origin, at t = 0."""
+    fresh, reset = ReferencePlant(), ReferencePlant()
+    reset.reset(RobotParams(), Pose(0.0, 0.0, 0.0))
+    assert fresh.params == reset.params == RobotParams()
+    assert fresh.t == reset.t == 0.0
+    np.testing.assert_array_equal(fresh.state, reset.state)
+    assert fresh.state.shape == (7,)
+
+
+@pytest.mark.parametrize("tau", [2.5, -0.4])
+def test_pure_spin_with_l_zero_is_linear_in_the_torque(tau: float) -> None:
+    """omega(t) = c t / M22 with c = 2 L tau / r, for torques other than 1 N m."""
+    p0 = replace(P, l=0.0)
+    sol = _integrate(lambda _t, s: derivatives(s, tau, -tau, p0), [0.0] * 7, 1.0, n_eval=3)
+    for k, t in enumerate(sol.t):
+        assert spin_solution(t, tau, p0)[1] == pytest.approx(sol.y[4, k], rel=1e-9, abs=1e-12)

@@ -9,6 +9,7 @@ leaves the session's FMUs as they are.
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -56,3 +57,31 @@ def test_a_changed_model_source_is_rebuilt_and_the_unchanged_copy_reused(
     assert fmus_module.build_digest() != built.digest
     mo.write_text(text)  # changed back: the FMUs there are the ones again
     assert build_fmus(fmu_dir).reused
+
+
+def test_another_compiler_or_other_platforms_is_a_rebuild() -> None:
+    """Another compiler version, or another set of platforms, is another build input."""
+    from wmr.build.platforms import PLATFORMS, Compiler
+
+    zig_a = Compiler(("zig", "cc"), "zig 0.13.0", True)
+    zig_b = Compiler(("zig", "cc"), "zig 0.14.0", True)
+    assert fmus_module.build_digest(zig_a, PLATFORMS) != fmus_module.build_digest(zig_b, PLATFORMS)
+    assert fmus_module.build_digest(zig_a, PLATFORMS[:1]) != fmus_module.build_digest(
+        zig_a, PLATFORMS[1:2])
+    assert fmus_module.build_digest(zig_a, PLATFORMS) == fmus_module.build_digest(
+        zig_a, PLATFORMS)
+
+
+def test_a_stamp_without_the_products_hashes_is_rebuilt_not_a_crash(
+        built: BuildResult, fmu_dir: Path, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    out = tmp_path / "fmus"
+    shutil.copytree(fmu_dir, out, ignore=shutil.ignore_patterns(".wmr-build.lock"))
+    assert build_fmus(out).reused  # the copy, stamp and all, is the same build
+    stamp = out / fmus_module._STAMP
+    recorded = json.loads(stamp.read_text())
+    del recorded["sha256"]  # a stamp of an older build, or cut by hand
+    stamp.write_text(json.dumps(recorded))
+    monkeypatch.setattr(fmus_module, "_build", _stop_before_compiling)
+    with pytest.raises(_WouldBuild):
+        build_fmus(out)

@@ -169,6 +169,23 @@ def test_distance_channel_integrates_only_when_not_pushing_into_its_limit(
     assert after == pytest.approx(expected, rel=1e-12, abs=0.0)
 
 
+@pytest.mark.parametrize(("integral", "limit", "integrates"), [
+    (50.0, _V, True),  # at v_max (a large integral), e_s < 0 pulls back: integrates
+    (0.0, 0.0, False),  # at the lower limit 0 (forward only), e_s < 0 pushes further: frozen
+], ids=["high-pull", "low-push"])
+def test_distance_channel_with_the_goal_behind_the_heading_line(
+        integral: float, limit: float, integrates: bool) -> None:
+    """The two cases of the distance channel the twin above cannot reach (e_s < 0)."""
+    s = _stabiliser()
+    s.i_s = integral
+    out = s.update(0.0, 0.0, 2.5)  # alpha = beta = 0, gamma = -2.5: e_s = 100 cos(2.5) < 0
+    e_s = 100.0 * math.cos(2.5)
+    assert out[1] == pytest.approx(e_s, rel=1e-12)
+    assert out[6] == limit
+    expected = integral + Gains().K_is * e_s * _H if integrates else integral
+    assert s.i_s == pytest.approx(expected, rel=1e-12, abs=0.0)
+
+
 def test_angle_integral_stays_bounded_while_saturated_for_long() -> None:
     """A long saturation of the angle channel: the integral does not grow at all."""
     s = _stabiliser()

@@ -17,6 +17,12 @@ from wmr.core.control import (
     unwrap_near,
     wrap_angle,
 )
+from wmr.core.control.stabiliser import (
+    HYSTERESIS_BAND_RAD,
+    OMEGA_REST_RADPS,
+    V_REST_MPS,
+    _wrapped_near,
+)
 from wmr.infra.errors import ConfigError
 
 finite = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False, allow_infinity=False)
@@ -149,3 +155,190 @@ def test_bad_gains_and_limits_name_the_field() -> None:
         Limits(torque_max_nm=0.0)
     with pytest.raises(ConfigError, match=r"gains\.K_is"):
         Gains(K_is=-1.0)
+
+
+# -- the rules below were each broken by a surviving mutant (docs/testing.md) ------------------
+
+_BAND = HYSTERESIS_BAND_RAD
+_IN_HI, _IN_LO = math.pi - 0.1, -math.pi + 0.1  # inside the band near +pi and near -pi
+
+
+def test_unwrap_near_shifts_only_inside_the_band_and_only_against_the_previous_sign() -> None:
+    """The rule of its docstring, case by case: a previous of the same sign or zero (the first
+    step of a run has no sign) leaves the angle alone; the other sign, however small, shifts
+    it by 2 pi towards it; far from +-pi nothing moves; and the band's edges lie outside the
+    band, so that the result stays in the open interval (-pi - b, pi + b)."""
+    for previous in (0.0, 0.5, 3.0):
+        assert unwrap_near(_IN_HI, previous) == _IN_HI
+    for previous in (0.0, -0.5, -3.0):
+        assert unwrap_near(_IN_LO, previous) == _IN_LO
+    for previous in (-0.5, -3.0):
+        assert unwrap_near(_IN_HI, previous) == _IN_HI - 2 * math.pi
+    for previous in (0.5, 3.0):
+        assert unwrap_near(_IN_LO, previous) == _IN_LO + 2 * math.pi
+    for previous in (-3.0, -0.5, 0.0, 0.5, 3.0):
+        for far in (1.0, -1.0, 0.0, math.pi - _BAND - 0.01, _BAND - math.pi + 0.01):
+            assert unwrap_near(far, previous) == far
+    for edge, previous in ((math.pi - _BAND, -1.0), (_BAND - math.pi, 1.0)):
+        out = unwrap_near(edge, previous)
+        assert out == edge
+        assert -math.pi - _BAND < out < math.pi + _BAND
+
+
+def test_the_hot_path_wraps_and_unwraps_as_the_two_functions_do() -> None:
+    """``_wrapped_near(a, p)`` is ``unwrap_near(wrap_angle(a), p)``, bit for bit, on the
+    multiples of pi/4 (-pi itself included), the band's edges and points either side."""
+    angles = [k * math.pi / 4 + d for k in range(-12, 13) for d in (0.0, 1e-9, -1e-9, 0.05)]
+    angles += [math.pi - _BAND, _BAND - math.pi, _IN_HI, _IN_LO, -math.pi, math.pi]
+    for a in angles:
+        for previous in (-3.0, -0.5, 0.0, 0.5, 3.0):
+            assert _wrapped_near(a, previous) == unwrap_near(wrap_angle(a), previous), (a, previous)
+
+
+def _state(s: PointStabiliser) -> dict[str, object]:
+    return {name: getattr(s, name) for name in PointStabiliser.__slots__}
+
+
+def test_reset_is_a_fresh_stabiliser() -> None:
+    fresh = _stab(goal=(0.0, 0.0, 0.0))
+    used = _stab(goal=(0.0, 0.0, 0.0))
+    used.update(-1.0, 0.0, -0.5)  # approach: integrals and hysteresis memories set
+    used.update(-1.0, 0.02, -0.5)
+    assert used.i_s != 0.0 and used.i_theta != 0.0
+    assert used.prev_gamma != 0.0 and used.prev_beta != 0.0
+    used.update(0.0, 0.0, 0.3)  # on the goal: alignment
+    assert used.phase == ALIGN
+    used.reset()
+    assert _state(used) == _state(fresh)
+    assert _state(fresh) | {"phase": APPROACH, "i_s": 0.0, "i_theta": 0.0, "prev_gamma": 0.0,
+                            "prev_beta": 0.0} == _state(fresh)
+
+
+def _foot_of_perpendicular_is(out: tuple[float, ...], point: tuple[float, float],
+                              pose: tuple[float, float, float]) -> None:
+    """D = B + e_s (cos theta, sin theta) is the foot of the perpendicular from ``point`` on
+    the heading line: D - B along the heading, ``point`` - D across it (Fig. 4)."""
+    x, y, theta = pose
+    hx, hy = math.cos(theta), math.sin(theta)
+    d_x, d_y = out[14], out[15]
+    assert (d_x - x) * hy - (d_y - y) * hx == pytest.approx(0.0, abs=1e-12)
+    assert (point[0] - d_x) * hx + (point[1] - d_y) * hy == pytest.approx(0.0, abs=1e-12)
+
+
+def test_phases_change_at_the_documented_radii_and_start_afresh() -> None:
+    """docs/control.md: alignment when dr <= eps/2, back to the approach only when pushed out
+    of 2 eps; each phase starts with zero integrals and no hysteresis memory; the alignment is
+    P only and holds B at the goal along the heading line."""
+    eps = 0.05
+    s = _stab(goal=(0.0, 0.0, 0.0))
+    for _ in range(3):
+        out = s.update(-1.0, 0.0, -0.5)  # approach, gamma = +0.5
+    assert s.phase == APPROACH and out[5] == pytest.approx(0.5)
+    assert out[9] != 0.0 and out[11] != 0.0  # the integrals ran
+    # exactly eps/2 away, heading error theta_d - theta just inside the band near -pi: the
+    # alignment starts with no memory of the approach's positive gamma
+    out = s.update(-0.5 * eps, 0.0, _IN_HI)
+    assert s.phase == ALIGN
+    assert out[5] == pytest.approx(_IN_LO) and out[2] == out[5]
+    assert (out[9], out[11]) == (0.0, 0.0)
+    # the alignment error keeps its sign near +-pi as gamma does (docs/control.md)
+    out = s.update(-0.5 * eps, 0.0, _IN_LO)  # theta_d - theta = pi - 0.1, wrapped
+    assert out[5] == pytest.approx(_IN_LO - 0.2)
+    pose = (-0.012, 0.016, 0.5 * math.pi - 0.3)
+    for _ in range(3):
+        out = s.update(*pose)
+        assert (out[9], out[11], s.i_s, s.i_theta) == (0.0, 0.0, 0.0, 0.0)  # P only
+    assert out[5] == pytest.approx(0.3 - 0.5 * math.pi)
+    _foot_of_perpendicular_is(out, (0.0, 0.0), pose)
+    assert out[1] == pytest.approx(0.012 * math.cos(pose[2]) - 0.016 * math.sin(pose[2]))
+    out = s.update(-2.0 * eps, 0.0, -0.5)  # on the exit radius: still aligning (gamma 0.5)
+    assert s.phase == ALIGN and out[5] == pytest.approx(0.5)
+    # pushed out to 2.5 eps, gamma just inside the band near -pi: a fresh approach
+    out = s.update(-2.5 * eps, 0.0, _IN_HI)
+    assert s.phase == APPROACH
+    assert out[5] == pytest.approx(_IN_LO)
+    assert (out[9], out[11]) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize(("goal_heading", "bearing"), [
+    (0.4, -0.4),  # |beta| < beta_max: R is the goal rotated by -beta about B
+    (2.0, -math.pi / 3),  # beta clamped to +beta_max
+    (-2.0, math.pi / 3),  # beta clamped to -beta_max
+])
+def test_the_reference_point_is_the_goal_rotated_by_the_clamped_beta(
+        goal_heading: float, bearing: float) -> None:
+    """Fig. 6: R lies at the goal's distance from B, at the bearing alpha - beta_c; D is the
+    foot of the perpendicular from R on the heading line."""
+    b = (2.0, 1.0, 0.7)
+    s = _stab(goal=(3.0, 1.0, goal_heading))  # alpha = 0, dr = 1
+    out = s.update(*b)
+    assert (out[16], out[17]) == pytest.approx((2.0 + math.cos(bearing), 1.0 + math.sin(bearing)),
+                                               abs=1e-12)
+    _foot_of_perpendicular_is(out, (out[16], out[17]), b)
+
+
+def test_beta_keeps_its_sign_near_pi() -> None:
+    """The goal straight behind, B jittering across the line: beta = theta_d - alpha crosses
+    +-pi each step, and the hysteresis keeps its sign (the same rule as gamma's)."""
+    s = _stab(goal=(-10.0, 0.0, 0.0))
+    betas = [s.update(0.0, 0.01 * (-1) ** k, math.pi)[4] for k in range(6)]
+    # the first from a previous of zero: the wrapped value; then pi -+ 0.001, never -pi + ...
+    assert betas == pytest.approx([math.pi - 0.001 * (-1) ** k for k in range(6)], abs=1e-6)
+
+
+def test_wheel_limit_scales_a_right_turn_too() -> None:
+    """The mirror of the test above: the left wheel is the faster one."""
+    s = PointStabiliser(20.0, -10.0, 0.0, Gains(), Limits(wheel_speed_max_radps=2.0),
+                        0.15, 0.3, 0.01, 0.05)
+    out = s.update(0.0, 0.0, -0.3)
+    w_r, w_l = out[12], out[13]
+    assert abs(w_l) > abs(w_r)
+    assert abs(w_l) == pytest.approx(2.0)
+
+
+def test_heading_error_is_theta_minus_theta_d_wrapped() -> None:
+    s = _stab(goal=(0.0, 0.0, 0.2))
+    assert s.heading_error(0.5) == pytest.approx(0.3)
+    assert s.heading_error(0.2 + math.pi + 0.1) == pytest.approx(-math.pi + 0.1)
+
+
+def test_converged_is_each_documented_bound_inclusive_and_both_coordinates() -> None:
+    """docs/control.md: dr <= eps, |theta - theta_d| <= tolerance, |v| <= 0.01 m/s,
+    |omega| <= 0.02 rad/s, in the alignment phase; dr counts both coordinates."""
+    eps, tol = 0.05, 0.01
+    s = _stab(goal=(0.0, 0.0, 0.0))
+    s.update(0.0, 0.0, 0.0)
+    assert s.phase == ALIGN
+    assert s.converged(-eps, 0.0, tol, V_REST_MPS, -OMEGA_REST_RADPS, tol)
+    assert s.converged(0.0, eps, -tol, -V_REST_MPS, OMEGA_REST_RADPS, tol)
+    assert not s.converged(1.2 * eps, 0.0, 0.0, 0.0, 0.0, tol)
+    assert not s.converged(0.0, 1.2 * eps, 0.0, 0.0, 0.0, tol)
+
+
+def test_a_bad_gain_or_limit_is_one_line_with_the_problem_and_the_fix() -> None:
+    cases: list[tuple[dict[str, object], type[Gains] | type[Limits], str]] = [
+        ({"K_ps": math.nan}, Gains, "gains.K_ps: must be a finite number, got nan"),
+        ({"K_ps": True}, Gains, "gains.K_ps: must be a finite number, got True"),
+        ({"K_ps": "1"}, Gains, "gains.K_ps: must be a finite number, got '1'"),
+        ({"K_is": -1.0}, Gains, "gains.K_is: must be >= 0, got -1.0"),
+        ({"torque_max_nm": 0.0}, Limits, "limits.torque_max_nm: must be > 0, got 0.0"),
+    ]
+    for kwargs, section, problem in cases:
+        with pytest.raises(ConfigError) as err:
+            section(**kwargs)  # type: ignore[arg-type]
+        line = str(err.value)
+        assert "\n" not in line
+        fix = ("give a real number" if "finite" in problem
+               else "use a non-negative gain or a positive limit")
+        assert line == f"{problem} ({fix})", line
+    # zero gains are allowed (a P-only or I-only loop); only the limits must be positive
+    assert Gains(K_is=0.0, K_itheta=0.0).K_is == 0.0
+
+
+def test_gains_and_limits_round_trip_through_their_dicts_as_floats() -> None:
+    g = Gains(K_ps=1, K_is=0.5, K_ptheta=3, K_itheta=0.25, K_pw=9, K_iw=30)
+    lim = Limits(v_max_mps=2, omega_max_radps=1.0, wheel_speed_max_radps=12, torque_max_nm=5)
+    for obj in (g, lim):
+        d = obj.as_dict()
+        assert all(type(v) is float for v in d.values())
+        assert type(obj)(**d) == obj
