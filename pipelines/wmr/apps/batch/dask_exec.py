@@ -63,6 +63,12 @@ WINDOW: Final = 4
 #: death was seen to wait for ever while the other workers kept dying.  Past this wait the
 #: task's runs are treated as those of a dead worker: one more try each, under a new key.
 RESULT_WAIT_S: Final = 30.0
+#: Most runs in one Dask task.  A task costs the scheduler, the client and the worker the same
+#: whatever it holds, and a run of ``mc_fig10`` takes a worker 3 ms (19 with its full log):
+#: with 8 runs a task Dask was 16 % slower than the local pool on 10,000 runs, with 32 it is
+#: 13 % faster (failed-only) and 11 % slower (full logs) (docs/batch.md); a dead worker loses
+#: at most 32 runs' work.
+MAX_CHUNK: Final = 32
 
 
 class DaskExecutor:
@@ -83,8 +89,8 @@ class DaskExecutor:
     ship_logs
         Send every log back to the client, even from workers that see ``out_dir``.
     chunk
-        Runs per Dask task; default: up to 8, so that each worker thread gets at least 8
-        tasks (fewer, longer tasks cost the scheduler, which shares the cores, less).
+        Runs per Dask task; default: up to :data:`MAX_CHUNK`, so that each worker thread gets
+        at least 8 tasks (fewer, longer tasks cost the scheduler, which shares the cores, less).
     """
 
     def __init__(self, fmu_path: Path, out_dir: Path, *, scheduler: str | None = None,
@@ -127,7 +133,7 @@ class DaskExecutor:
                 (self.out_dir / TOKEN_FILE).write_text(token)
             out = str(self.out_dir.resolve())
             threads = sum(client.nthreads().values()) or 1
-            size = self.chunk or max(1, min(8, len(tasks) // (8 * threads)))
+            size = self.chunk or max(1, min(MAX_CHUNK, len(tasks) // (8 * threads)))
             def submit(chunk: list[Task], tag: str) -> Any:
                 fut = client.submit(dask_run_many, chunk, plugin.sha256, att, out, token,
                                     self.var_map, pure=False, retries=0,
