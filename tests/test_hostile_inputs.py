@@ -318,7 +318,12 @@ def test_records_made_again_from_logs_are_the_journalled_ones(fmu3: Path, tmp_pa
     """Runs stopped by their wall-clock limit (logged failed, journalled timeout) and finished
     ones: every line unsealed, each is made again from its log, equal to what was written."""
     spec = tmp_path / "t4.toml"
-    spec.write_text(SPEC4)
+    # two short runs and two of 10,000 steps, which 20 ms of wall clock cannot hold (the PI
+    # compiled into the stepper finishes a short run in a few ms)
+    spec.write_text(SPEC4.replace("max_time_s = 15.0", "max_time_s = 150.0")
+                    .replace("K_is = [0.1, 0.2]", "K_is = [0.1, 0.2]\n[grid.start]\n"
+                             "x_m = [1.0, 100.0]").replace("[grid.gains]\nK_ps = [0.25, 0.5]",
+                                                           "[grid.gains]\nK_ps = [0.5]"))
     out = tmp_path / "out"
     first = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False,
                       run_timeout_s=0.02)

@@ -166,3 +166,38 @@ def test_cloud_messages_are_protobuf_s_own_bytes() -> None:
         whole.pose.orientation.w = math.cos(0.5 * th)
         assert cloud_message(t, pts, (x, y, th)) == whole.SerializeToString(
             deterministic=True), (x, y, th, t)
+
+
+def test_a_long_run_has_at_most_max_outlines_robot_clouds(tmp_path: Path) -> None:
+    """Closing the log of a long run stays quick: at most MAX_OUTLINES outlines, evenly spaced
+    at a whole multiple of the period; a run of 200 s or less keeps one per period."""
+    from wmr.adapters.mcap.scene import MAX_OUTLINES, ROBOT_PERIOD_NS, robot_period_ns
+
+    assert robot_period_ns(0) == ROBOT_PERIOD_NS
+    assert robot_period_ns(MAX_OUTLINES * ROBOT_PERIOD_NS - 1) == ROBOT_PERIOD_NS
+    assert robot_period_ns(MAX_OUTLINES * ROBOT_PERIOD_NS) == 2 * ROBOT_PERIOD_NS
+    for last_s in (1.0, 199.99, 200.0, 1234.5, 3000.0):
+        last = round(last_s * 1e9)
+        period = robot_period_ns(last)
+        assert period % ROBOT_PERIOD_NS == 0
+        assert last // period + 1 <= MAX_OUTLINES, last_s
+    n = 300_001  # 3000 s at 100 Hz
+    t = np.arange(n, dtype=np.int64) * 10_000_000
+    rows = np.zeros((n, 4))
+    rows[:, 0] = np.linspace(0.0, 1.0, n)
+    rows[:, 3] = 5.0
+    rec = scene_mod.SceneRecorder({"stop_radius_m": "0.05"}, (0.0, 0.0, 0.0), controlled=True)
+    rec._t, rec._rows = [t], [rows]
+
+    class Log:
+        def __init__(self) -> None:
+            self.topics: dict[str, int] = {}
+
+        def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                           t_ns: Any, messages: list[bytes]) -> None:
+            self.topics[topic] = len(messages)
+
+    log = Log()
+    rec._write(log)
+    # every 0.8 s (16 periods: 15 would give 4001), 0 to 3000 s
+    assert log.topics[scene_mod.ROBOT_TOPIC] == 3751 <= MAX_OUTLINES

@@ -12,8 +12,9 @@ topic.  So every drawable topic here is a point cloud in frame ``world`` (z = 0)
 topic                       content
 ==========================  =============================================================
 ``/scene/robot``            the robot's outline (chassis, wheels, a 1 m heading arrow),
-                            every :data:`ROBOT_PERIOD_NS` of simulation time; coloured by
-                            the control phase (:data:`PHASE_COLORS`)
+                            every :data:`ROBOT_PERIOD_NS` of simulation time (at most
+                            :data:`MAX_OUTLINES` a log: :func:`robot_period_ns`); coloured
+                            by the control phase (:data:`PHASE_COLORS`)
 ``/scene/path``             the whole path, a point every :data:`PATH_SPACING_M`, coloured
                             by phase, once at t = 0
 ``/scene/goal``             the goal: a 1 m arrow along theta_d and a ring of the stop
@@ -79,6 +80,21 @@ ESTIMATE_COLOR: Final[Rgb] = (204, 0, 153)
 
 #: One robot outline per this much simulation time (20 Hz: smooth playback, small log).
 ROBOT_PERIOD_NS: Final = 50_000_000
+#: Most robot outlines in one log: a run longer than ``MAX_OUTLINES`` periods (200 s) gets
+#: them at a longer period (:func:`robot_period_ns`), so that closing the log of a long run
+#: stays quick (a 3000 s run had 60,000 outlines, 240 MB to compress, seconds at its close:
+#: past a run's wall-clock limit the batch kills a worker that takes that long).
+MAX_OUTLINES: Final = 4000
+
+
+def robot_period_ns(last_t_ns: int) -> int:
+    """The period of the robot's outlines in a log whose last row is at ``last_t_ns``:
+    :data:`ROBOT_PERIOD_NS`, or a whole multiple of it that keeps at most
+    :data:`MAX_OUTLINES` outlines."""
+    k = max(1, -(-(max(last_t_ns, 0) + 1) // (ROBOT_PERIOD_NS * MAX_OUTLINES)))
+    return ROBOT_PERIOD_NS * k
+
+
 #: Spacing of the path's points, m.
 PATH_SPACING_M: Final = 0.05
 #: Spacing of the points along the outlines, m.
@@ -440,8 +456,8 @@ class SceneRecorder:
         colors = np.asarray(PHASE_COLORS, np.uint8)[phase]
         keep = resample_path(xy)
         _write_clouds(log, PATH_TOPIC, [0], [cloud_points(xy[keep], colors[keep])])
-        # one outline per ROBOT_PERIOD_NS: the first row of each period
-        slot = t // ROBOT_PERIOD_NS
+        # one outline per robot_period_ns(t[-1]): the first row of each period
+        slot = t // robot_period_ns(int(t[-1]))
         first = np.flatnonzero(np.concatenate([[True], slot[1:] != slot[:-1]]))
         first = first[np.isfinite(rows[first, :3]).all(axis=1)]
         shapes, tails = _robot_clouds(self._half_track, self._wheel_radius)
