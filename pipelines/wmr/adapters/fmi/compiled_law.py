@@ -47,7 +47,9 @@ class LawCall(ctypes.Structure):
 #: The controller FMU's parameter names, in the order of its parameter vector.
 _PARAMETERS: Final = tuple(v.name for v in controller_model().parameters)
 _N_SIG: Final = len(SIGNAL_OUTPUTS)
-_CHECKED: dict[str, Any] = {}
+#: Per stepper library (by its path): the library and its law's number of discrete states,
+#: once bound and checked; None when it has no law or disagrees.
+_CHECKED: dict[str, tuple[Any, int] | None] = {}
 
 
 def _bind(lib: Any) -> tuple[int, int, int, int] | None:
@@ -69,9 +71,9 @@ def _bind(lib: Any) -> tuple[int, int, int, int] | None:
     return n[0].value, n[1].value, n[2].value, n[3].value
 
 
-def law_library() -> Any:
-    """The C stepper with the compiled law, checked against the Python law; None when there
-    is none or it disagrees (then the runs take the Python law)."""
+def _checked() -> tuple[Any, int] | None:
+    """The stepper with the compiled law and its number of discrete states, bound and checked
+    against the Python law once per library; None when there is none or it disagrees."""
     lib = load_stepper()
     if lib is None:
         return None
@@ -80,8 +82,15 @@ def law_library() -> Any:
         sizes = _bind(lib)
         ok = (sizes is not None and sizes[0] == len(_PARAMETERS) and sizes[2] >= _N_SIG + 2
               and compiled_law_agrees(lib))
-        _CHECKED[key] = lib if ok else None
+        _CHECKED[key] = (lib, sizes[3]) if ok and sizes is not None else None
     return _CHECKED[key]
+
+
+def law_library() -> Any:
+    """The C stepper with the compiled law, checked against the Python law; None when there
+    is none or it disagrees (then the runs take the Python law)."""
+    found = _checked()
+    return None if found is None else found[0]
 
 
 def parameter_vector(spec: RunSpec) -> npt.NDArray[np.float64]:
@@ -118,9 +127,9 @@ class CompiledLawController(SpecController):
         self._law = None
         self.stepper_kind = "servo"
         if spec.controller == "pi" and not spec.controller_gains and spec.sensors is None:
-            lib = law_library()
-            if lib is not None:
-                self._law = _Law(spec, _law_states(lib))
+            found = _checked()
+            if found is not None:
+                self._law = _Law(spec, found[1])
                 self.stepper_kind = "blocks"
 
     def block_loop(self, lib: Any, plant_call: FmuCall, state: LoopState) -> Callable[[], int]:
@@ -136,12 +145,6 @@ class CompiledLawController(SpecController):
     def raise_step_error(self, code: int) -> None:
         """The compiled law makes no FMI call; a code here is the stepper's own error."""
         raise FmuError(f"the C stepper's compiled law stopped with code {code}")
-
-
-def _law_states(lib: Any) -> int:
-    sizes = _bind(lib)
-    assert sizes is not None  # law_library checked it
-    return sizes[3]
 
 
 def compiled_law_agrees(lib: Any, n_states: int = 200, seed: int = 20261124) -> bool:
