@@ -179,6 +179,27 @@ WMR_API int wmr_servo_step(const wmr_fmu *f, wmr_loop *s, double w_r_ref, double
     return plant_step(f, s, tau_r, tau_l);
 }
 
+/* The end of a step of a block loop: its row (the plant outputs, then the n_sig signals of
+ * sig), then the run's end or the plant step with the row's torques.  Returns WMR_DONE | 1
+ * (converged: the row's torques logged as zero), WMR_DONE | 2 (the last step), a failed
+ * exchange's code, WMR_FULL (the block is full), or 0 to go on. */
+static int block_row(const wmr_fmu *f, wmr_loop *s, const double *sig, int converged) {
+    double *row = s->block + (size_t)s->row * (size_t)s->n_cols;
+    int full, code;
+    memcpy(row, f->out_val, (size_t)s->n_plant * sizeof(double));
+    memcpy(row + s->n_plant, sig, (size_t)s->n_sig * sizeof(double));
+    s->row += 1;
+    if (converged) {
+        row[s->col_tau_r] = 0.0;
+        row[s->col_tau_l] = 0.0;
+        return WMR_DONE | 1;
+    }
+    if (s->n >= s->n_max) return WMR_DONE | 2;
+    full = s->row == s->rows_max;
+    if ((code = plant_step(f, s, row[s->col_tau_r], row[s->col_tau_l]))) return code;
+    return full ? WMR_FULL : 0;
+}
+
 /* The closed loop of two FMUs, rows until the block is full or the run ends: per step
  * exactly FmuController's calls (converged: set, get; step: set, get, doStep at its own
  * clock t = n h) and the robot's exchange.  Returns WMR_DONE | 1 (converged) or | 2
@@ -189,8 +210,7 @@ WMR_API int wmr_fmu_loop(const wmr_fmu *f, const wmr_fmu *c, wmr_loop *s) {
     const double *co = c->out_val;
     int code;
     for (;;) {
-        double *row;
-        int converged, done;
+        int converged;
         if (!(isfinite(o[0]) && isfinite(o[1]) && isfinite(o[2]))) return WMR_NONFINITE;
         ci[0] = o[0];
         ci[1] = o[1];
@@ -204,21 +224,10 @@ WMR_API int wmr_fmu_loop(const wmr_fmu *f, const wmr_fmu *c, wmr_loop *s) {
         ci[6] = o[6];
         if ((code = fmu_set(c)) > 1) return WMR_CTRL + 16 + code;
         if ((code = fmu_get(c)) > 1) return WMR_CTRL + 48 + code;
-        row = s->block + (size_t)s->row * (size_t)s->n_cols;
-        memcpy(row, o, (size_t)s->n_plant * sizeof(double));
-        memcpy(row + s->n_plant, co, (size_t)s->n_sig * sizeof(double));
-        /* a failed sample is not logged: FmuController.step raises before the row */
+        /* a failed sample is not logged: FmuController.step raises before the row (doStep
+         * leaves the outputs read by the get above as they are) */
         if ((code = fmu_do_step(c, (double)s->n * s->h, s->h)) > 1) return WMR_CTRL + 32 + code;
-        s->row += 1;
-        if (converged) {
-            row[s->col_tau_r] = 0.0;
-            row[s->col_tau_l] = 0.0;
-            return WMR_DONE | 1;
-        }
-        if (s->n >= s->n_max) return WMR_DONE | 2;
-        done = s->row == s->rows_max;
-        if ((code = plant_step(f, s, row[s->col_tau_r], row[s->col_tau_l]))) return code;
-        if (done) return WMR_FULL;
+        if ((code = block_row(f, s, co, converged))) return code;
     }
 }
 
@@ -253,9 +262,8 @@ WMR_API double wmr_law_hypot(double a, double b) { return py_hypot(a, b); }
 WMR_API int wmr_law_loop(const wmr_fmu *f, wmr_law *c, wmr_loop *s) {
     const double *o = f->out_val;
     double u[MODEL_NU], y[MODEL_NY], z_next[MODEL_NX];
+    int code;
     for (;;) {
-        double *row;
-        int done;
         if (!(isfinite(o[0]) && isfinite(o[1]) && isfinite(o[2]))) return WMR_NONFINITE;
         u[U_x] = o[0];
         u[U_y] = o[1];
@@ -266,22 +274,7 @@ WMR_API int wmr_law_loop(const wmr_fmu *f, wmr_law *c, wmr_loop *s) {
         u[U_omega_l] = o[6];
         sample(c->z, u, c->p, c->theta_d, c->tol, y, z_next);
         memcpy(c->z, z_next, sizeof z_next);
-        row = s->block + (size_t)s->row * (size_t)s->n_cols;
-        memcpy(row, o, (size_t)s->n_plant * sizeof(double));
-        memcpy(row + s->n_plant, y, (size_t)s->n_sig * sizeof(double));
-        s->row += 1;
-        if (y[Y_converged] != 0.0) {
-            row[s->col_tau_r] = 0.0;
-            row[s->col_tau_l] = 0.0;
-            return WMR_DONE | 1;
-        }
-        if (s->n >= s->n_max) return WMR_DONE | 2;
-        done = s->row == s->rows_max;
-        {
-            int code = plant_step(f, s, row[s->col_tau_r], row[s->col_tau_l]);
-            if (code) return code;
-        }
-        if (done) return WMR_FULL;
+        if ((code = block_row(f, s, y, y[Y_converged] != 0.0))) return code;
     }
 }
 
