@@ -358,19 +358,10 @@ class MessageLog(Protocol):
         ...
 
 
-def _write_clouds(log: MessageLog, topic: str, t_ns: Sequence[int],
-                  clouds: Sequence[npt.NDArray[np.void]],
-                  poses: npt.NDArray[np.float64] | None = None) -> None:
-    placed = [(0.0, 0.0, 0.0)] * len(t_ns) if poses is None else [
-        (float(x), float(y), float(th)) for x, y, th in poses]
-    tails: dict[int, bytes] = {}  # the robot's outline is one array sent at every step
-    messages = []
-    for t, c, p in zip(t_ns, clouds, placed, strict=True):
-        tail = tails.get(id(c))
-        if tail is None:
-            tail = tails[id(c)] = cloud_tail(c)
-        messages.append(cloud_message(t, c, p, tail))
-    log.write_messages(topic, CLOUD_SCHEMA, _CLOUD_SCHEMA_DATA, list(t_ns), messages)
+def _write_cloud(log: MessageLog, topic: str, points: npt.NDArray[np.void]) -> None:
+    """One unplaced cloud of ``points`` on ``topic`` at t = 0 (the goal, the path, the fixes,
+    the estimate; the robot's outlines, one per period, are :meth:`SceneRecorder._write`'s)."""
+    log.write_messages(topic, CLOUD_SCHEMA, _CLOUD_SCHEMA_DATA, [0], [cloud_message(0, points)])
 
 
 def write_sensing_scene(log: MessageLog, gps_xy_m: npt.ArrayLike,
@@ -379,10 +370,10 @@ def write_sensing_scene(log: MessageLog, gps_xy_m: npt.ArrayLike,
     gps = np.asarray(gps_xy_m, dtype=np.float64).reshape(-1, 2)
     est = np.asarray(est_xy_m, dtype=np.float64).reshape(-1, 2)
     if len(gps):
-        _write_clouds(log, GPS_SCENE_TOPIC, [0], [cloud_points(gps, GPS_COLOR)])
+        _write_cloud(log, GPS_SCENE_TOPIC, cloud_points(gps, GPS_COLOR))
     if len(est):
         keep = resample_path(est)
-        _write_clouds(log, ESTIMATE_SCENE_TOPIC, [0], [cloud_points(est[keep], ESTIMATE_COLOR)])
+        _write_cloud(log, ESTIMATE_SCENE_TOPIC, cloud_points(est[keep], ESTIMATE_COLOR))
 
 
 @functools.lru_cache(maxsize=64)
@@ -443,8 +434,8 @@ class SceneRecorder:
 
     def _write(self, log: MessageLog) -> None:
         gx, gy, gth = self._goal
-        _write_clouds(log, GOAL_TOPIC, [0],
-                      [cloud_points(goal_outline(gx, gy, gth, self._stop_radius), GOAL_COLOR)])
+        _write_cloud(log, GOAL_TOPIC,
+                     cloud_points(goal_outline(gx, gy, gth, self._stop_radius), GOAL_COLOR))
         if not self._t:
             return
         t = np.concatenate(self._t)
@@ -455,7 +446,7 @@ class SceneRecorder:
                  else np.zeros(len(t), np.int8))
         colors = np.asarray(PHASE_COLORS, np.uint8)[phase]
         keep = resample_path(xy)
-        _write_clouds(log, PATH_TOPIC, [0], [cloud_points(xy[keep], colors[keep])])
+        _write_cloud(log, PATH_TOPIC, cloud_points(xy[keep], colors[keep]))
         # one outline per robot_period_ns(t[-1]): the first row of each period
         slot = t // robot_period_ns(int(t[-1]))
         first = np.flatnonzero(np.concatenate([[True], slot[1:] != slot[:-1]]))
