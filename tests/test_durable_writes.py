@@ -167,3 +167,24 @@ def test_a_link_at_the_build_lock_is_refused_not_truncated(tmp_path: Path,
     with pytest.raises(LogError, match=r"wmr-build\.lock"), _locked(out):
         pass
     assert precious.read_bytes() == PRECIOUS
+
+
+@pytest.mark.parametrize("durable", [True, False])
+def test_writeback_starts_once_per_writeback_bytes_of_a_durable_file(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, durable: bool) -> None:
+    """A durable file hands its pages to the disk once every WRITEBACK_BYTES flushed, not at
+    every flush (a log flushes every second of simulation time); a file that is not durable
+    never; nothing is lost either way."""
+    from wmr.infra import durable as durable_mod
+
+    starts: list[int] = []
+    monkeypatch.setattr(durable_mod, "_start_writeback", starts.append)
+    f = durable_mod.AtomicFile(tmp_path / "out.bin", durable=durable)
+    piece = bytes(range(256)) * 4096  # 1 MiB
+    for _ in range(20):
+        f.write(piece)
+        f.flush()
+    f.commit()
+    assert (tmp_path / "out.bin").read_bytes() == piece * 20
+    per = durable_mod.WRITEBACK_BYTES // len(piece)
+    assert len(starts) == (20 // per if durable else 0)

@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -507,5 +508,86 @@ def test_c_row_encoder_writes_the_bytes_of_the_numpy_one(layouts: tuple[Any, ...
         block[:, 5:11] = [math.nan, math.inf, -math.inf, -0.0, 5e-324, 1e308]  # not theta
         records, offsets = c_enc.encode(t, block)
         expected, expected_offsets = numpy_enc.encode(t, block)
-        assert records == expected
+        assert bytes(records) == expected
         assert np.array_equal(offsets, expected_offsets)
+
+
+class _Capture(io.BytesIO):
+    """A sink that keeps its bytes when closed."""
+
+    def close(self) -> None:
+        self.kept = self.getvalue()
+        super().close()
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", ""])
+def test_chunk_and_index_records_are_mcap_s_own_bytes(compression: Any) -> None:
+    """McapFile packs a Chunk and its Message Indexes itself: read back by the ``mcap``
+    library's stream reader and written again by its own record classes, the bytes are the
+    same; the data decompress to the records with their CRC; ``add_row_chunk`` (one numpy
+    assignment for every channel's entries) writes what ``add_chunk`` writes; the summary's
+    Chunk Index points at the records."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Chunk, ChunkIndex, MessageIndex
+    from mcap.stream_reader import get_chunk_data_stream
+
+    from wmr.adapters.mcap.writer import McapFile
+
+    rng = np.random.default_rng(5)
+    n, channels = 37, (3, 1, 7)
+    t = np.cumsum(rng.integers(0, 5_000_000, n)).astype(np.int64) + 1_000_000_007
+    offsets = np.sort(rng.choice(40_000, (n, len(channels)), replace=False).ravel()
+                      ).reshape(n, len(channels)).astype(np.int64)
+    records = rng.integers(0, 4, 40_000, dtype=np.uint8)  # compressible, like real records
+    files = []
+    for rows in (False, True):
+        sink = _Capture()
+        f = McapFile(sink, compression)
+        schema = f.add_schema("s", b"")
+        assert [f.add_channel(f"/c{k}", schema) for k in range(1, 8)] == list(range(1, 8))
+        start = sink.tell()
+        if rows:
+            f.add_row_chunk(records, t, offsets, channels)
+        else:
+            f.add_chunk(records.tobytes(),
+                        {cid: (t, offsets[:, k]) for k, cid in enumerate(channels)})
+        end = sink.tell()
+        f.finish()
+        files.append(sink.kept)
+    assert files[0] == files[1]
+    out = files[0]
+    parsed = list(StreamReader(io.BytesIO(out), emit_chunks=True).records)
+    chunk = next(r for r in parsed if isinstance(r, Chunk))
+    indexes = [r for r in parsed if isinstance(r, MessageIndex)]
+    again = RecordBuilder()
+    for r in (chunk, *indexes):
+        r.write(again)
+    assert out[start:end] == again.end()
+    stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+    assert stream.read(size) == records.tobytes()
+    assert chunk.uncompressed_crc == zlib.crc32(records.tobytes())
+    assert (chunk.message_start_time, chunk.message_end_time) == (int(t[0]), int(t[-1]))
+    assert [i.channel_id for i in indexes] == list(channels)
+    for k, i in enumerate(indexes):
+        assert i.records == list(zip(t.tolist(), offsets[:, k].tolist(), strict=True))
+    (ci,) = [r for r in parsed if isinstance(r, ChunkIndex)]
+    assert ci.chunk_start_offset == start and ci.chunk_length == len(out[start:end]) - sum(
+        len(b) for b in _written(indexes))
+    assert ci.message_index_offsets == {
+        cid: start + ci.chunk_length + sum(len(b) for b in _written(indexes[:k]))
+        for k, cid in enumerate(channels)}
+    summary = make_reader(io.BytesIO(out)).get_summary()  # found through the Footer
+    assert summary is not None and summary.chunk_indexes == [ci]
+    assert summary.statistics is not None and summary.statistics.message_count == n * 3
+
+
+def _written(records: list[Any]) -> list[bytes]:
+    """Each record as the ``mcap`` library writes it."""
+    from mcap.data_stream import RecordBuilder
+
+    out = []
+    for r in records:
+        b = RecordBuilder()
+        r.write(b)
+        out.append(b.end())
+    return out

@@ -139,33 +139,75 @@ def test_a_failing_scene_keeps_the_log(tmp_path: Path, monkeypatch: pytest.Monke
     np.testing.assert_array_equal(back.block(), block)
 
 
-def test_cloud_messages_are_protobuf_s_own_bytes() -> None:
-    """The concatenated parts (cached timestamps, directly packed poses) against one
-    PointCloud serialised whole by protobuf: random poses and times, and every zero, -0.0
-    and sign case of x, y and the heading."""
+def _cloud_cases() -> list[tuple[float, float, float, int]]:
+    """Poses ``(x, y, theta)`` and times: random ones, and every zero, -0.0 and sign case of x,
+    y and the heading."""
     import random
 
-    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-
-    from wmr.adapters.mcap.scene import _FIELDS, cloud_message, cloud_points
-
     rng = random.Random(11)
-    pts = cloud_points([[0.0, 0.0], [1.0, -2.5], [3.25, 0.5]], (10, 20, 30))
     specials = [0.0, -0.0, 1e-300, -7.5, 12.0]
     cases = [(x, y, th, t) for x in specials for y in specials
              for th in (0.0, -0.0, math.pi, -math.pi, 2 * math.pi, 1.0)
              for t in (0, 1, 999_999_999, 1_000_000_000, 12_345_678_901)]
     cases += [(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(-10, 10),
                rng.randrange(0, 10**12)) for _ in range(3000)]
-    for x, y, th, t in cases:
-        whole = PointCloud(frame_id="world", point_stride=16, fields=_FIELDS,
-                           data=pts.tobytes())
-        whole.timestamp.FromNanoseconds(t)
-        whole.pose.position.x, whole.pose.position.y = x, y
-        whole.pose.orientation.z = math.sin(0.5 * th)
-        whole.pose.orientation.w = math.cos(0.5 * th)
-        assert cloud_message(t, pts, (x, y, th)) == whole.SerializeToString(
-            deterministic=True), (x, y, th, t)
+    return cases
+
+
+def _whole_cloud(pts: Any, x: float, y: float, th: float, t: int) -> bytes:
+    """A placed cloud serialised whole by protobuf."""
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
+    from wmr.adapters.mcap.scene import _FIELDS
+
+    whole = PointCloud(frame_id="world", point_stride=16, fields=_FIELDS, data=pts.tobytes())
+    whole.timestamp.FromNanoseconds(t)
+    whole.pose.position.x, whole.pose.position.y = x, y
+    whole.pose.orientation.z = math.sin(0.5 * th)
+    whole.pose.orientation.w = math.cos(0.5 * th)
+    return bytes(whole.SerializeToString(deterministic=True))
+
+
+def test_cloud_messages_are_protobuf_s_own_bytes() -> None:
+    """The concatenated parts (cached timestamps, directly packed poses) against one
+    PointCloud serialised whole by protobuf."""
+    from wmr.adapters.mcap.scene import cloud_message, cloud_points
+
+    pts = cloud_points([[0.0, 0.0], [1.0, -2.5], [3.25, 0.5]], (10, 20, 30))
+    for x, y, th, t in _cloud_cases():
+        assert cloud_message(t, pts, (x, y, th)) == _whole_cloud(pts, x, y, th, t), (x, y, th, t)
+
+
+def test_placed_clouds_records_are_mcap_s_of_protobuf_s_bytes() -> None:
+    """The C stepper's records of the robot's outlines (``PlacedClouds.records``, one call for
+    all) against the ``mcap`` library's Message records of each cloud serialised whole by
+    protobuf, in two variants (the phases' colours), in order, sequence numbers 0, 1, ...;
+    and the sequence's own items are the same messages."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Message
+
+    from wmr.adapters.mcap.scene import PlacedClouds, cloud_points, cloud_tail
+
+    shapes = tuple(cloud_points([[0.0, 0.0], [1.0, -2.5], [3.25, 0.5], [k, 1.0]], (10, 20, k))
+                   for k in (1, 2))
+    cases = _cloud_cases()
+    t = np.array([c[3] for c in cases], np.int64)
+    poses = np.array([c[:3] for c in cases], np.float64)
+    variants = (np.arange(len(cases)) % 3 == 0).astype(np.int8)
+    clouds = PlacedClouds(t, poses, variants, (shapes, tuple(cloud_tail(s) for s in shapes)))
+    built = clouds.records(channel=513)
+    assert built is not None, "the C stepper is not there"
+    records, offsets = built
+    expected = RecordBuilder()
+    starts = []
+    for i, ((x, y, th, ti), v) in enumerate(zip(cases, variants.tolist(), strict=True)):
+        starts.append(expected.count)
+        data = _whole_cloud(shapes[v], x, y, th, ti)
+        assert clouds[i] == data, (x, y, th, ti)
+        Message(channel_id=513, sequence=i, log_time=ti, publish_time=ti, data=data
+                ).write(expected)
+    assert bytes(records) == expected.end()
+    assert offsets.tolist() == starts
 
 
 def test_a_long_run_has_at_most_max_outlines_robot_clouds(tmp_path: Path) -> None:

@@ -304,6 +304,18 @@ static int put_varint_field(unsigned char *p, unsigned char tag, unsigned long l
     return len;
 }
 
+/* A Message record's head: opcode, record length, channel id, sequence, log and publish time */
+static void put_message_head(unsigned char *r, int channel, unsigned int sequence,
+                             unsigned long long t, size_t data_len) {
+    r[0] = 0x05; /* Message */
+    put_u64(r + 1, 2 + 4 + 8 + 8 + data_len);
+    r[9] = (unsigned char)(channel & 0xFF);
+    r[10] = (unsigned char)(channel >> 8);
+    for (int j = 0; j < 4; j++) r[11 + j] = (unsigned char)(sequence >> (8 * j));
+    put_u64(r + 15, t);
+    put_u64(r + 23, t);
+}
+
 WMR_API long long wmr_encode_rows(int n, const long long *t_ns, const double *src, int n_src,
                                   int n_topics, const int *channel, const int *body_len,
                                   const unsigned char *bodies, const int *n_slots,
@@ -322,13 +334,7 @@ WMR_API long long wmr_encode_rows(int n, const long long *t_ns, const double *sr
             unsigned char *r = out + pos;
             size_t data_len = 2 + (size_t)ts_len + (size_t)body_len[k];
             offsets[(size_t)i * (size_t)n_topics + (size_t)k] = (long long)pos;
-            r[0] = 0x05; /* Message */
-            put_u64(r + 1, 2 + 4 + 8 + 8 + data_len);
-            r[9] = (unsigned char)(channel[k] & 0xFF);
-            r[10] = (unsigned char)(channel[k] >> 8);
-            memset(r + 11, 0, 4); /* sequence */
-            put_u64(r + 15, t);
-            put_u64(r + 23, t);
+            put_message_head(r, channel[k], 0, t, data_len);
             r[31] = 0x0A; /* Timestamp, length-delimited */
             r[32] = (unsigned char)ts_len;
             memcpy(r + 33, ts, (size_t)ts_len);
@@ -340,6 +346,74 @@ WMR_API long long wmr_encode_rows(int n, const long long *t_ns, const double *sr
             off += n_slots[k];
             from += n_slots[k];
         }
+    }
+    return (long long)pos;
+}
+
+/* ---------------------------------------------------------------------------------------------
+ * The MCAP Message records of a placed point cloud per row (the robot's outlines of
+ * wmr.adapters.mcap.scene): the bytes of its cloud_message, in a record with sequence i.
+ * A foxglove.PointCloud is written field after field in field-number order: the Timestamp
+ * (field 1: seconds and nanoseconds, each left out when 0), the frame (fixed bytes), the Pose
+ * (field 3: position with x and y, orientation with z and w, each double left out when it
+ * is +0.0, as protobuf leaves out a zero of a field without presence, -0.0 kept), then the fixed tail
+ * (stride, fields, points) of the row's variant.  pose is (n, 4): x, y, qz, qw.  Returns the
+ * bytes written (out has room for every record of the longest tail).
+ */
+static int put_double_field(unsigned char *p, unsigned char tag, double v) {
+    unsigned long long bits;
+    memcpy(&bits, &v, 8);
+    if (bits == 0) return 0; /* +0.0 only: protobuf writes -0.0 */
+    p[0] = tag;
+    memcpy(p + 1, &v, 8);
+    return 9;
+}
+
+WMR_API long long wmr_cloud_records(int n, const long long *t_ns, const double *pose,
+                                    const unsigned char *variant, int channel,
+                                    const unsigned char *frame, int frame_len,
+                                    const unsigned char *const *tails, const int *tail_len,
+                                    unsigned char *out, long long *offsets) {
+    size_t pos = 0;
+    for (int i = 0; i < n; i++) {
+        unsigned long long t = (unsigned long long)t_ns[i];
+        const double *q = pose + 4 * (size_t)i;
+        unsigned char msg[2 + 12 + 2 + 2 + 18 + 2 + 18];
+        int m = 0, len;
+        msg[m++] = 0x0A; /* timestamp */
+        len = put_varint_field(msg + m + 1, 0x08, t / 1000000000ULL);
+        len += put_varint_field(msg + m + 1 + len, 0x10, t % 1000000000ULL);
+        msg[m] = (unsigned char)len;
+        m += 1 + len;
+        unsigned char body[2 + 18 + 2 + 18];
+        int b = 0;
+        body[b++] = 0x0A; /* position */
+        len = put_double_field(body + b + 1, 0x09, q[0]);
+        len += put_double_field(body + b + 1 + len, 0x11, q[1]);
+        body[b] = (unsigned char)len;
+        b += 1 + len;
+        body[b++] = 0x12; /* orientation */
+        len = put_double_field(body + b + 1, 0x19, q[2]);
+        len += put_double_field(body + b + 1 + len, 0x21, q[3]);
+        body[b] = (unsigned char)len;
+        b += 1 + len;
+        const unsigned char *tail = tails[variant[i]];
+        size_t tlen = (size_t)tail_len[variant[i]];
+        size_t data_len = (size_t)m + (size_t)frame_len + 2 + (size_t)b + tlen;
+        unsigned char *r = out + pos;
+        offsets[i] = (long long)pos;
+        put_message_head(r, channel, (unsigned int)i, t, data_len);
+        r += 31;
+        memcpy(r, msg, (size_t)m);
+        r += m;
+        memcpy(r, frame, (size_t)frame_len);
+        r += frame_len;
+        *r++ = 0x1A; /* pose */
+        *r++ = (unsigned char)b;
+        memcpy(r, body, (size_t)b);
+        r += b;
+        memcpy(r, tail, tlen);
+        pos += 31 + data_len;
     }
     return (long long)pos;
 }

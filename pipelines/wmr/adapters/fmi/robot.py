@@ -51,7 +51,8 @@ _STEPPER: list[Any] = []
 def load_stepper() -> Any:
     """The C stepper library (ctypes), built on first use; None when it cannot be had.
 
-    It also holds the MCAP row encoder of :class:`wmr.adapters.mcap.RunLogWriter`.
+    It also holds the MCAP row encoder of :class:`wmr.adapters.mcap.RunLogWriter` and the
+    record writer of the robot's outlines (:class:`wmr.adapters.mcap.scene.PlacedClouds`).
 
     ``WMR_STEPPER=0`` in the environment turns it off (the pure-Python path, same results).
     """
@@ -76,6 +77,10 @@ def load_stepper() -> Any:
                 lib.wmr_encode_rows.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 2,
                                                 *[ctypes.c_int] * 2, *[ctypes.c_void_p] * 8]
                 lib.wmr_encode_rows.restype = ctypes.c_longlong
+                lib.wmr_cloud_records.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 3,
+                                                  ctypes.c_int, ctypes.c_void_p, ctypes.c_int,
+                                                  *[ctypes.c_void_p] * 4]
+                lib.wmr_cloud_records.restype = ctypes.c_longlong
         except (OSError, AttributeError):  # no library, or an old one: the Python path
             lib = None
         _STEPPER.append(lib)

@@ -25,6 +25,7 @@ import itertools
 import json
 import os
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
@@ -190,7 +191,7 @@ class _SceneSink:
         self._schemas: dict[tuple[str, bytes], int] = {}  # the clouds share one schema
 
     def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
-                       t_ns: npt.ArrayLike, messages: list[bytes]) -> None:
+                       t_ns: npt.ArrayLike, messages: Sequence[bytes]) -> None:
         if topic not in self._missing or not messages:
             return
         key = (schema_name, schema_data)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Final, Protocol
 
@@ -66,7 +67,7 @@ class MessageLog(Protocol):
     (:class:`wmr.adapters.mcap.RunLogWriter`)."""
 
     def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
-                       t_ns: npt.ArrayLike, messages: list[bytes]) -> None:
+                       t_ns: npt.ArrayLike, messages: Sequence[bytes]) -> None:
         """Log serialised messages on a topic of their own."""
         ...
 

@@ -23,7 +23,7 @@ import os
 import struct
 import sys
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from types import TracebackType
 from typing import Any, Final, Literal, Protocol
@@ -35,7 +35,6 @@ from mcap.records import (
     Attachment,
     AttachmentIndex,
     Channel,
-    Chunk,
     ChunkIndex,
     DataEnd,
     Footer,
@@ -70,6 +69,12 @@ from wmr.infra.durable import AtomicFile
 from wmr.infra.errors import LogError
 
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
+#: A Chunk record up to its compression string: opcode, record length, message start and end
+#: times, uncompressed size and CRC, the string's length; and a Message Index record's head:
+#: opcode, record length, channel id, length of the entries.
+_CHUNK_HEAD: Final = struct.Struct("<BQQQQII")
+_CHUNK_FIXED: Final = 8 + 8 + 8 + 4 + 4 + 8  # the Chunk record's length minus its strings
+_INDEX_HEAD: Final = struct.Struct("<BQHI")
 Compression = Literal["zstd", "lz4", ""]
 
 try:
@@ -124,6 +129,7 @@ class McapFile:
         self._stream = stream
         self._compression = compression
         self._compress = _compressor(compression)
+        self._compression_bytes = compression.encode()
         self._rb = RecordBuilder()
         self._pos = 0
         self._schemas: list[Schema] = []
@@ -203,7 +209,7 @@ class McapFile:
 
     def add_chunk(
         self,
-        records: bytes,
+        records: bytes | memoryview,
         index: Mapping[int, tuple[NDArray[np.int64], NDArray[np.int64]]],
     ) -> None:
         """Write a chunk of already serialised Message records, then its Message Indexes.
@@ -211,43 +217,58 @@ class McapFile:
         Parameters
         ----------
         records
-            Concatenated Message records, in log-time order.
+            Concatenated Message records, in log-time order (bytes, or a view of uint8).
         index
             Channel id -> (log times in ns, byte offsets of the records in ``records``).
         """
-        n = sum(len(t) for t, _ in index.values())
-        if n == 0:
+        entries = [(cid, t, o) for cid, (t, o) in index.items() if len(t)]
+        if not entries:
             return
-        t_first = min(int(t[0]) for t, _ in index.values() if len(t))
-        t_last = max(int(t[-1]) for t, _ in index.values() if len(t))
+        t_first = min(int(t[0]) for _, t, _ in entries)
+        t_last = max(int(t[-1]) for _, t, _ in entries)
+        bodies = []
+        for _, t, o in entries:
+            pairs = np.empty((len(t), 2), "<u8")
+            pairs[:, 0], pairs[:, 1] = t, o
+            bodies.append(pairs.tobytes())
+        self._write_chunk(records, t_first, t_last, [cid for cid, _, _ in entries], bodies)
+
+    def add_row_chunk(self, records: bytes | memoryview, t_ns: NDArray[np.int64],
+                      offsets: NDArray[np.int64], channel_ids: tuple[int, ...]) -> None:
+        """:meth:`add_chunk` of rows: one message per channel and row, all channels at the
+        row's time; ``offsets`` shape ``(rows, channels)``.  The index entries of every channel
+        are made by one numpy assignment."""
+        pairs = np.empty((len(channel_ids), len(t_ns), 2), "<u8")
+        pairs[:, :, 0] = t_ns
+        pairs[:, :, 1] = offsets.T
+        self._write_chunk(records, int(t_ns[0]), int(t_ns[-1]), list(channel_ids),
+                          [p.tobytes() for p in pairs])
+
+    def _write_chunk(self, records: bytes | memoryview, t_first: int, t_last: int,
+                     channel_ids: list[int], entries: list[bytes]) -> None:
+        """The Chunk record and its Message Index records, packed here as
+        :meth:`mcap.records.Chunk.write` and ``MessageIndex.write`` pack them (checked
+        against them by ``tests/test_mcaplog.py``) without their copies through a
+        ``BytesIO``: a chunk's header, its data and its indexes are one write."""
+        size = len(records)  # bytes, or a view of uint8
         data = records if self._compress is None else self._compress(records)
+        data_len = len(data)
         chunk_start = self._pos
-        Chunk(
-            compression=self._compression,
-            data=data,
-            message_start_time=t_first,
-            message_end_time=t_last,
-            uncompressed_crc=zlib.crc32(records),
-            uncompressed_size=len(records),
-        ).write(self._rb)
-        chunk_length = self._flush_records()
+        head = _CHUNK_HEAD.pack(Opcode.CHUNK, _CHUNK_FIXED + len(self._compression_bytes)
+                                + data_len, t_first, t_last, size, zlib.crc32(records),
+                                len(self._compression_bytes))
+        parts = [head, self._compression_bytes, struct.pack("<Q", data_len), data]
+        chunk_length = len(head) + len(self._compression_bytes) + 8 + data_len
         offsets: dict[int, int] = {}
-        parts: list[bytes] = []
-        index_start = self._pos
-        pos = index_start
-        for cid, (times, rec_offsets) in index.items():
-            m = len(times)
-            if m == 0:
-                continue
-            entries = np.empty((m, 2), "<u8")
-            entries[:, 0] = times
-            entries[:, 1] = rec_offsets
-            body = entries.tobytes()
-            head = struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 6 + len(body), cid, len(body))
+        pos = chunk_start + chunk_length
+        n_messages = 0
+        for cid, body in zip(channel_ids, entries, strict=True):
             offsets[cid] = pos
-            parts += [head, body]
-            pos += len(head) + len(body)
-            self._counts[cid] += m
+            parts += [_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + len(body), cid, len(body)),
+                      body]
+            pos += _INDEX_HEAD.size + len(body)
+            self._counts[cid] += len(body) // 16  # (log time, offset) pairs
+            n_messages += len(body) // 16
         self._write(b"".join(parts))
         self._chunk_indexes.append(
             ChunkIndex(
@@ -256,17 +277,17 @@ class McapFile:
                 chunk_start_offset=chunk_start,
                 chunk_length=chunk_length,
                 message_index_offsets=offsets,
-                message_index_length=pos - index_start,
+                message_index_length=pos - chunk_start - chunk_length,
                 compression=self._compression,
-                compressed_size=len(data),
-                uncompressed_size=len(records),
+                compressed_size=data_len,
+                uncompressed_size=size,
             )
         )
         if self._n_messages == 0:
             self._t_first = t_first
         self._t_first = min(self._t_first, t_first)
         self._t_last = max(self._t_last, t_last)
-        self._n_messages += n
+        self._n_messages += n_messages
         self._stream.flush()
 
     def abort(self) -> None:
@@ -360,8 +381,9 @@ class _CRowEncoder:
                                               self._n_slots, self._slot_off, self._slot_src)]
 
     def encode(self, t_ns: NDArray[np.int64],
-               block: NDArray[np.float64]) -> tuple[bytes, NDArray[np.int64]]:
-        """As :meth:`RowEncoder.encode`."""
+               block: NDArray[np.float64]) -> tuple[memoryview, NDArray[np.int64]]:
+        """As :meth:`RowEncoder.encode`, the records in a view of the encoder's buffer
+        rather than copied to bytes."""
         n = t_ns.shape[0]
         src = np.empty((n, N_SOURCES), np.float64)
         src[:, : len(SIGNALS)] = block
@@ -373,7 +395,7 @@ class _CRowEncoder:
         offsets = np.empty((n, self._n_topics), np.int64)
         size = self._fun(n, t.ctypes.data, src.ctypes.data, N_SOURCES, self._n_topics,
                          *self._args, out.ctypes.data, offsets.ctypes.data)
-        return out[:size].tobytes(), offsets
+        return out[:size].data, offsets
 
 
 def _row_encoder(channel_ids: tuple[int, ...],
@@ -607,7 +629,7 @@ class RunLogWriter:
             self._flush_chunks(final=False)
 
     def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
-                       t_ns: ArrayLike, messages: list[bytes]) -> None:
+                       t_ns: ArrayLike, messages: Sequence[bytes]) -> None:
         """Log serialised protobuf ``messages`` on a topic of their own, as one chunk.
 
         For topics that are not one message per control step (sensor fixes, estimates: see
@@ -631,6 +653,11 @@ class RunLogWriter:
             raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
         schema_id = self._file.add_schema(schema_name, schema_data)
         cid = self._file.add_channel(topic, schema_id)
+        records_of = getattr(messages, "records", None)  # scene.PlacedClouds: all at once
+        built = records_of(cid) if records_of is not None else None
+        if built is not None:
+            self._file.add_chunk(built[0], {cid: (t, built[1])})
+            return
         head = struct.Struct("<BQHIQQ")
         parts: list[bytes] = []
         offsets = np.zeros(len(messages), np.int64)
@@ -661,9 +688,7 @@ class RunLogWriter:
 
     def _write_chunk(self, t: NDArray[np.int64], x: NDArray[np.float64]) -> None:
         records, offsets = self._encoder.encode(t, x)
-        self._file.add_chunk(
-            records, {cid: (t, offsets[:, k]) for k, cid in enumerate(self._channel_ids)}
-        )
+        self._file.add_row_chunk(records, t, offsets, self._channel_ids)
         self._rows += len(t)
 
     def close(self, result: Mapping[str, object]) -> None:
