@@ -122,11 +122,16 @@ def robot_geometry(run: Mapping[str, str]) -> tuple[float, float]:
     run
         The ``run`` metadata record; its ``params`` is a JSON object with ``L`` and ``r``.
     """
+    return _geometry(run.get("params", "{}"))
+
+
+@functools.lru_cache(maxsize=256)  # every log of a batch of one robot has the same params
+def _geometry(params_json: str) -> tuple[float, float]:
     # here, not at the top: the reader imports the writer, which imports this module
     from wmr.adapters.mcap.reader import metadata_json
 
     try:  # bounded: a stranger's log may hold a value nested too deep for json.loads
-        params = metadata_json(run.get("params", "{}"))
+        params = metadata_json(params_json)
         half_track = float(params.get("L", DEFAULT_HALF_TRACK_M))
         radius = float(params.get("r", DEFAULT_WHEEL_RADIUS_M))
     except (ValueError, TypeError, AttributeError, LogError):
@@ -178,14 +183,22 @@ def _robot_outline(half_track_m: float, wheel_radius_m: float) -> npt.NDArray[np
 def goal_outline(x_m: float, y_m: float, theta_rad: float,
                  stop_radius_m: float | None) -> npt.NDArray[np.float64]:
     """The goal as points in the world: the heading arrow and the stop-radius ring."""
-    pts = _arrow(ARROW_M)
-    if stop_radius_m and stop_radius_m > 0:
-        k = max(12, int(2 * math.pi * stop_radius_m / 0.01))
-        a = np.linspace(0.0, 2 * math.pi, k, endpoint=False)
-        pts = np.concatenate([pts, stop_radius_m * np.column_stack([np.cos(a), np.sin(a)])])
+    pts = _goal_shape(stop_radius_m if stop_radius_m and stop_radius_m > 0 else None)
     c, s = math.cos(theta_rad), math.sin(theta_rad)
     return np.column_stack([x_m + c * pts[:, 0] - s * pts[:, 1],
                             y_m + s * pts[:, 0] + c * pts[:, 1]])
+
+
+@functools.lru_cache(maxsize=64)
+def _goal_shape(stop_radius_m: float | None) -> npt.NDArray[np.float64]:
+    """The goal's points in its own frame (read-only: shared by every call)."""
+    pts = _arrow(ARROW_M)
+    if stop_radius_m is not None:
+        k = max(12, int(2 * math.pi * stop_radius_m / 0.01))
+        a = np.linspace(0.0, 2 * math.pi, k, endpoint=False)
+        pts = np.concatenate([pts, stop_radius_m * np.column_stack([np.cos(a), np.sin(a)])])
+    pts.flags.writeable = False
+    return pts
 
 
 def resample_path(xy: npt.NDArray[np.float64], spacing_m: float = PATH_SPACING_M

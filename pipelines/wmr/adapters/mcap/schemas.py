@@ -21,6 +21,7 @@ protobuf object per message.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import struct
 from dataclasses import dataclass
@@ -105,6 +106,7 @@ def message_class(schema_name: str) -> Any:
     return message_factory.GetMessageClass(_POOL.FindMessageTypeByName(schema_name))
 
 
+@functools.lru_cache(maxsize=64)
 def file_descriptor_set(schema_name: str) -> bytes:
     """Serialised ``FileDescriptorSet`` of a schema and its dependencies (the MCAP schema data).
 

@@ -17,6 +17,7 @@ bytes.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -35,7 +36,6 @@ from mcap.records import (
     Attachment,
     AttachmentIndex,
     Channel,
-    ChunkIndex,
     DataEnd,
     Footer,
     Header,
@@ -75,6 +75,15 @@ _OP_MESSAGE: Final = int(Opcode.MESSAGE)
 _CHUNK_HEAD: Final = struct.Struct("<BQQQQII")
 _CHUNK_FIXED: Final = 8 + 8 + 8 + 4 + 4 + 8  # the Chunk record's length minus its strings
 _INDEX_HEAD: Final = struct.Struct("<BQHI")
+#: A Chunk Index record, as :meth:`mcap.records.ChunkIndex.write` packs it: opcode, record
+#: length, message start and end times, chunk start and length, the byte length of the map
+#: of Message Index offsets; the map (channel id, offset); the Message Indexes' length and the
+#: compression string's; the string; the compressed and uncompressed sizes.
+_CHUNK_INDEX_HEAD: Final = struct.Struct("<BQQQQQI")
+_INDEX_OFFSET: Final = struct.Struct("<HQ")
+_CHUNK_INDEX_TAIL: Final = struct.Struct("<QI")
+_CHUNK_INDEX_SIZES: Final = struct.Struct("<QQ")
+_CHUNK_INDEX_FIXED: Final = 8 * 4 + 4 + 8 + 4 + 8 * 2  # the length minus the map and string
 Compression = Literal["zstd", "lz4", ""]
 
 try:
@@ -132,9 +141,9 @@ class McapFile:
         self._compression_bytes = compression.encode()
         self._rb = RecordBuilder()
         self._pos = 0
-        self._schemas: list[Schema] = []
-        self._channels: list[Channel] = []
-        self._chunk_indexes: list[ChunkIndex] = []
+        self._schemas: list[bytes] = []  # the records, written again in the summary
+        self._channels: list[bytes] = []
+        self._chunk_indexes: list[bytes] = []  # the Chunk Index records
         self._attachment_indexes: list[AttachmentIndex] = []
         self._metadata_indexes: list[MetadataIndex] = []
         self._counts: dict[int, int] = {}
@@ -159,27 +168,20 @@ class McapFile:
 
     def add_schema(self, name: str, data: bytes, encoding: str = "protobuf") -> int:
         """Write a Schema record (protobuf by default); return its id (1, 2, ...)."""
-        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
-        self._schemas.append(schema)
-        schema.write(self._rb)
-        self._flush_records()
-        return schema.id
+        schema_id = len(self._schemas) + 1
+        self._schemas.append(_schema_record(schema_id, name, encoding, data))
+        self._write(self._schemas[-1])
+        return schema_id
 
     def add_channel(self, topic: str, schema_id: int, message_encoding: str = "protobuf",
                     metadata: Mapping[str, str] | None = None) -> int:
         """Write a Channel record (protobuf by default); return its id (1, 2, ...)."""
-        channel = Channel(
-            id=len(self._channels) + 1,
-            topic=topic,
-            message_encoding=message_encoding,
-            schema_id=schema_id,
-            metadata=dict(metadata or {}),
-        )
-        self._channels.append(channel)
-        self._counts[channel.id] = 0
-        channel.write(self._rb)
-        self._flush_records()
-        return channel.id
+        channel_id = len(self._channels) + 1
+        self._channels.append(_channel_record(channel_id, topic, message_encoding, schema_id,
+                                              tuple((metadata or {}).items())))
+        self._counts[channel_id] = 0
+        self._write(self._channels[-1])
+        return channel_id
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write a Metadata record (and remember its index)."""
@@ -270,19 +272,16 @@ class McapFile:
             self._counts[cid] += len(body) // 16  # (log time, offset) pairs
             n_messages += len(body) // 16
         self._write(b"".join(parts))
-        self._chunk_indexes.append(
-            ChunkIndex(
-                message_start_time=t_first,
-                message_end_time=t_last,
-                chunk_start_offset=chunk_start,
-                chunk_length=chunk_length,
-                message_index_offsets=offsets,
-                message_index_length=pos - chunk_start - chunk_length,
-                compression=self._compression,
-                compressed_size=data_len,
-                uncompressed_size=size,
-            )
-        )
+        index_entries = b"".join(_INDEX_OFFSET.pack(cid, off) for cid, off in offsets.items())
+        self._chunk_indexes.append(b"".join((
+            _CHUNK_INDEX_HEAD.pack(Opcode.CHUNK_INDEX, _CHUNK_INDEX_FIXED + len(index_entries)
+                                   + len(self._compression_bytes), t_first, t_last,
+                                   chunk_start, chunk_length, len(index_entries)),
+            index_entries,
+            _CHUNK_INDEX_TAIL.pack(pos - chunk_start - chunk_length,
+                                   len(self._compression_bytes)),
+            self._compression_bytes,
+            _CHUNK_INDEX_SIZES.pack(data_len, size))))
         if self._n_messages == 0:
             self._t_first = t_first
         self._t_first = min(self._t_first, t_first)
@@ -311,7 +310,10 @@ class McapFile:
                 return
             start = rb.count
             for r in records:
-                r.write(rb)
+                if isinstance(r, bytes):
+                    rb.write(r)
+                else:
+                    r.write(rb)
             offsets.append(SummaryOffset(opcode, summary_start + start, rb.count - start))
 
         group(Opcode.SCHEMA, self._schemas)
@@ -356,6 +358,25 @@ class McapFile:
             self._stream.close()
 
 
+@functools.lru_cache(maxsize=64)
+def _schema_record(schema_id: int, name: str, encoding: str, data: bytes) -> bytes:
+    """A Schema record's bytes, serialised once per process (every log of a batch has the
+    same)."""
+    rb = RecordBuilder()
+    Schema(id=schema_id, name=name, encoding=encoding, data=data).write(rb)
+    return rb.end()
+
+
+@functools.lru_cache(maxsize=256)
+def _channel_record(channel_id: int, topic: str, message_encoding: str, schema_id: int,
+                    metadata: tuple[tuple[str, str], ...]) -> bytes:
+    """A Channel record's bytes, serialised once per process."""
+    rb = RecordBuilder()
+    Channel(id=channel_id, topic=topic, message_encoding=message_encoding,
+            schema_id=schema_id, metadata=dict(metadata)).write(rb)
+    return rb.end()
+
+
 class _CRowEncoder:
     """:class:`RowEncoder`'s bytes, written by the C stepper (``wmr_encode_rows``) one row
     after another instead of by numpy gathers of whole columns.
@@ -398,6 +419,7 @@ class _CRowEncoder:
         return out[:size].data, offsets
 
 
+@functools.lru_cache(maxsize=16)  # an encoder holds no state of a log: one per layout
 def _row_encoder(channel_ids: tuple[int, ...],
                  layouts: tuple[TopicLayout, ...]) -> RowEncoder | _CRowEncoder:
     """The C row encoder when the stepper is there (and doubles are little-endian, as
