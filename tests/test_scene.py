@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from wmr.adapters.mcap import RunLogWriter, read_run
@@ -66,6 +68,22 @@ def test_phase_topic_is_a_step_at_each_change() -> None:
     pt, pv = phase_changes(t, phase)
     np.testing.assert_array_equal(pt, [0, 20, 30, 40, 50, 70, 80, 90])
     np.testing.assert_array_equal(pv, [0, 0, 1, 1, 0, 0, 1, 1])
+
+
+@given(st.lists(st.integers(0, 1), min_size=1, max_size=60))
+def test_phase_changes_are_the_first_last_and_both_sides_of_each_change(
+        phases: list[int]) -> None:
+    """Against the definition, with Python sets: every row once, in time order, also when
+    changes are adjacent (rows shared by two changes) or the run is one row long."""
+    phase = np.array(phases, np.int8)
+    t = np.arange(len(phases), dtype=np.int64) * 7 + 3
+    want = {0, len(phases) - 1}
+    for i in range(1, len(phases)):
+        if phases[i] != phases[i - 1]:
+            want |= {i - 1, i}
+    pt, pv = phase_changes(t, phase)
+    assert pt.tolist() == [int(t[i]) for i in sorted(want)]
+    assert pv.tolist() == [phases[i] for i in sorted(want)]
 
 
 def _log(path: Path, n: int = 300) -> tuple[np.ndarray, np.ndarray]:

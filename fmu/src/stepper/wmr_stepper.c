@@ -357,8 +357,10 @@ WMR_API long long wmr_encode_rows(int n, const long long *t_ns, const double *sr
  * (field 1: seconds and nanoseconds, each left out when 0), the frame (fixed bytes), the Pose
  * (field 3: position with x and y, orientation with z and w, each double left out when it
  * is +0.0, as protobuf leaves out a zero of a field without presence, -0.0 kept), then the fixed tail
- * (stride, fields, points) of the row's variant.  pose is (n, 4): x, y, qz, qw.  Returns the
- * bytes written (out has room for every record of the longest tail).
+ * (stride, fields, points) of the row's variant.  pose is (n, 3): x, y, theta; the quaternion
+ * is qz = sin(theta / 2), qw = cos(theta / 2) by libm, as Python's math.sin and math.cos (the
+ * same library).  Returns the bytes written (out has room for every record of the longest
+ * tail).
  */
 static int put_double_field(unsigned char *p, unsigned char tag, double v) {
     unsigned long long bits;
@@ -377,7 +379,9 @@ WMR_API long long wmr_cloud_records(int n, const long long *t_ns, const double *
     size_t pos = 0;
     for (int i = 0; i < n; i++) {
         unsigned long long t = (unsigned long long)t_ns[i];
-        const double *q = pose + 4 * (size_t)i;
+        const double *q = pose + 3 * (size_t)i;
+        double half = 0.5 * q[2];
+        double qz = sin(half), qw = cos(half);
         unsigned char msg[2 + 12 + 2 + 2 + 18 + 2 + 18];
         int m = 0, len;
         msg[m++] = 0x0A; /* timestamp */
@@ -393,8 +397,8 @@ WMR_API long long wmr_cloud_records(int n, const long long *t_ns, const double *
         body[b] = (unsigned char)len;
         b += 1 + len;
         body[b++] = 0x12; /* orientation */
-        len = put_double_field(body + b + 1, 0x19, q[2]);
-        len += put_double_field(body + b + 1 + len, 0x21, q[3]);
+        len = put_double_field(body + b + 1, 0x19, qz);
+        len += put_double_field(body + b + 1 + len, 0x21, qw);
         body[b] = (unsigned char)len;
         b += 1 + len;
         const unsigned char *tail = tails[variant[i]];
