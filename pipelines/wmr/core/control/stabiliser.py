@@ -47,7 +47,7 @@ Our extensions to the paper's law (each documented in ``docs/control.md``)
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from typing import Final
 
 from wmr.infra.errors import ConfigError
@@ -153,7 +153,7 @@ class Gains:
         _check_fields(self, "gains", ())
 
     def as_dict(self) -> dict[str, float]:
-        return {k: float(v) for k, v in asdict(self).items()}
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)}  # no deep copies
 
 
 @dataclass(frozen=True)
@@ -175,7 +175,7 @@ class Limits:
         _check_fields(self, "limits", tuple(f.name for f in fields(self)))
 
     def as_dict(self) -> dict[str, float]:
-        return {k: float(v) for k, v in asdict(self).items()}
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)}  # no deep copies
 
 
 class PointStabiliser:
