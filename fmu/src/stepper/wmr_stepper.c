@@ -288,7 +288,11 @@ WMR_API int wmr_law_loop(const wmr_fmu *f, wmr_law *c, wmr_loop *s) {
  * written to out (room for n rows of the longest records) and the offset of each record.
  */
 static void put_u64(unsigned char *p, unsigned long long v) {
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    memcpy(p, &v, 8); /* one store, where the byte loop below was eight */
+#else
     for (int j = 0; j < 8; j++) p[j] = (unsigned char)(v >> (8 * j));
+#endif
 }
 
 /* a protobuf varint field (tag, then 7 bits a byte), omitted when the value is 0 */
@@ -311,7 +315,10 @@ static void put_message_head(unsigned char *r, int channel, unsigned int sequenc
     put_u64(r + 1, 2 + 4 + 8 + 8 + data_len);
     r[9] = (unsigned char)(channel & 0xFF);
     r[10] = (unsigned char)(channel >> 8);
-    for (int j = 0; j < 4; j++) r[11 + j] = (unsigned char)(sequence >> (8 * j));
+    r[11] = (unsigned char)sequence;
+    r[12] = (unsigned char)(sequence >> 8);
+    r[13] = (unsigned char)(sequence >> 16);
+    r[14] = (unsigned char)(sequence >> 24);
     put_u64(r + 15, t);
     put_u64(r + 23, t);
 }

@@ -228,27 +228,39 @@ class McapFile:
             return
         t_first = min(int(t[0]) for _, t, _ in entries)
         t_last = max(int(t[-1]) for _, t, _ in entries)
-        bodies = []
-        for _, t, o in entries:
+        parts: list[bytes] = []
+        index_of: list[tuple[int, int, int]] = []
+        at = 0
+        for cid, t, o in entries:
             pairs = np.empty((len(t), 2), "<u8")
             pairs[:, 0], pairs[:, 1] = t, o
-            bodies.append(pairs.tobytes())
-        self._write_chunk(records, t_first, t_last, [cid for cid, _, _ in entries], bodies)
+            index_of.append((cid, at, len(t)))
+            parts += [_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + pairs.nbytes, cid, pairs.nbytes),
+                      pairs.tobytes()]
+            at += _INDEX_HEAD.size + pairs.nbytes
+        self._write_chunk(records, t_first, t_last, b"".join(parts), index_of)
 
     def add_row_chunk(self, records: bytes | memoryview, t_ns: NDArray[np.int64],
                       offsets: NDArray[np.int64], channel_ids: tuple[int, ...]) -> None:
         """:meth:`add_chunk` of rows: one message per channel and row, all channels at the
-        row's time; ``offsets`` shape ``(rows, channels)``.  The index entries of every channel
-        are made by one numpy assignment."""
-        pairs = np.empty((len(channel_ids), len(t_ns), 2), "<u8")
-        pairs[:, :, 0] = t_ns
-        pairs[:, :, 1] = offsets.T
-        self._write_chunk(records, int(t_ns[0]), int(t_ns[-1]), list(channel_ids),
-                          [p.tobytes() for p in pairs])
+        row's time; ``offsets`` shape ``(rows, channels)``.  The Message Index records of
+        every channel are one numpy array of packed records (:func:`_index_records`)."""
+        n = len(t_ns)
+        index = np.empty(len(channel_ids), _index_records(n))
+        index["opcode"] = Opcode.MESSAGE_INDEX
+        index["length"] = 6 + 16 * n
+        index["channel"] = channel_ids
+        index["entries_length"] = 16 * n
+        index["entries"][:, :, 0] = t_ns
+        index["entries"][:, :, 1] = offsets.T
+        size = index.dtype.itemsize
+        self._write_chunk(records, int(t_ns[0]), int(t_ns[-1]), index.tobytes(),
+                          [(cid, k * size, n) for k, cid in enumerate(channel_ids)])
 
     def _write_chunk(self, records: bytes | memoryview, t_first: int, t_last: int,
-                     channel_ids: list[int], entries: list[bytes]) -> None:
-        """The Chunk record and its Message Index records, packed here as
+                     indexes: bytes, index_of: list[tuple[int, int, int]]) -> None:
+        """The Chunk record and its Message Index records (``indexes``: channel id, offset in
+        ``indexes`` and message count of each in ``index_of``), packed here as
         :meth:`mcap.records.Chunk.write` and ``MessageIndex.write`` pack them (checked
         against them by ``tests/test_mcaplog.py``) without their copies through a
         ``BytesIO``: a chunk's header, its data and its indexes are one write."""
@@ -259,29 +271,23 @@ class McapFile:
         head = _CHUNK_HEAD.pack(Opcode.CHUNK, _CHUNK_FIXED + len(self._compression_bytes)
                                 + data_len, t_first, t_last, size, zlib.crc32(records),
                                 len(self._compression_bytes))
-        parts = [head, self._compression_bytes, struct.pack("<Q", data_len), data]
+        self._write(b"".join((head, self._compression_bytes, struct.pack("<Q", data_len), data,
+                              indexes)))
         chunk_length = len(head) + len(self._compression_bytes) + 8 + data_len
-        offsets: dict[int, int] = {}
-        pos = chunk_start + chunk_length
-        n_messages = 0
-        for cid, body in zip(channel_ids, entries, strict=True):
-            offsets[cid] = pos
-            parts += [_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + len(body), cid, len(body)),
-                      body]
-            pos += _INDEX_HEAD.size + len(body)
-            self._counts[cid] += len(body) // 16  # (log time, offset) pairs
-            n_messages += len(body) // 16
-        self._write(b"".join(parts))
-        index_entries = b"".join(_INDEX_OFFSET.pack(cid, off) for cid, off in offsets.items())
+        index_start = chunk_start + chunk_length
+        for cid, _, count in index_of:
+            self._counts[cid] += count
+        index_entries = b"".join(_INDEX_OFFSET.pack(cid, index_start + at)
+                                 for cid, at, _ in index_of)
         self._chunk_indexes.append(b"".join((
             _CHUNK_INDEX_HEAD.pack(Opcode.CHUNK_INDEX, _CHUNK_INDEX_FIXED + len(index_entries)
                                    + len(self._compression_bytes), t_first, t_last,
                                    chunk_start, chunk_length, len(index_entries)),
             index_entries,
-            _CHUNK_INDEX_TAIL.pack(pos - chunk_start - chunk_length,
-                                   len(self._compression_bytes)),
+            _CHUNK_INDEX_TAIL.pack(len(indexes), len(self._compression_bytes)),
             self._compression_bytes,
             _CHUNK_INDEX_SIZES.pack(data_len, size))))
+        n_messages = sum(count for _, _, count in index_of)
         if self._n_messages == 0:
             self._t_first = t_first
         self._t_first = min(self._t_first, t_first)
@@ -356,6 +362,14 @@ class McapFile:
             commit()
         else:
             self._stream.close()
+
+
+@functools.lru_cache(maxsize=64)
+def _index_records(n: int) -> np.dtype[np.void]:
+    """A Message Index record of ``n`` entries as a packed numpy record: opcode, record
+    length, channel id, byte length of the entries, then (log time, offset) pairs."""
+    return np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"),
+                     ("entries_length", "<u4"), ("entries", "<u8", (n, 2))])
 
 
 @functools.lru_cache(maxsize=64)
