@@ -4,6 +4,7 @@ the point clouds decode as Foxglove's schema says, and a failing scene never cos
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,7 @@ from wmr.core.control.peers import CONTROLLER_NAMES, make_controller
 from wmr.core.control.stabiliser import Gains, Limits
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.signals import COLUMN, SIGNALS
+from wmr.infra.errors import DiskFullError
 
 EPS_M = 0.05
 
@@ -261,3 +263,24 @@ def test_a_long_run_has_at_most_max_outlines_robot_clouds(tmp_path: Path) -> Non
     rec._write(log)
     # every 0.8 s (16 periods: 15 would give 4001), 0 to 3000 s
     assert log.topics[scene_mod.ROBOT_TOPIC] == 3751 <= MAX_OUTLINES
+
+
+@pytest.mark.parametrize("error", [DiskFullError("no space left on /x while writing y"),
+                                   OSError(5, "Input/output error"), ValueError("a drawing")])
+def test_a_full_disk_is_the_log_s_failure_a_drawing_s_only_warns(error: Exception) -> None:
+    """The scene's failures warn and leave the signal topics as they are, but a file that
+    cannot be written (a full disk, an I/O error) is raised as itself, not a warning."""
+    rec = scene_mod.SceneRecorder({"stop_radius_m": "0.05"}, (0.0, 0.0, 0.0), controlled=True)
+
+    class Log:
+        def write_messages(self, *args: Any) -> None:
+            raise error
+
+    if isinstance(error, OSError | DiskFullError):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(type(error)):
+                rec.write(Log())
+    else:
+        with pytest.warns(RuntimeWarning, match="scene topics were not written: ValueError"):
+            rec.write(Log())

@@ -52,7 +52,7 @@ from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 
 from wmr.adapters.mcap.schemas import WORLD_FRAME, descriptor_set, timestamped_doubles
 from wmr.core.signals import COLUMN
-from wmr.infra.errors import LogError
+from wmr.infra.errors import DiskFullError, LogError
 
 ROBOT_TOPIC: Final = "/scene/robot"
 PATH_TOPIC: Final = "/scene/path"
@@ -508,9 +508,12 @@ class SceneRecorder:
         self._rows.append(block[:, [_X, _Y, _TH, _DR]].copy())
 
     def write(self, log: MessageLog) -> None:
-        """Write the scene topics to ``log``; a failure here warns and leaves the log as is."""
+        """Write the scene topics to ``log``; a failure here warns and leaves the log as is,
+        except a failure to write the file (a full disk, an I/O error), which is the log's."""
         try:
             self._write(log)
+        except (DiskFullError, OSError):
+            raise  # not a drawing's failure: the log's close would meet it next anyway
         except Exception as exc:  # the signal topics matter more than their drawing
             warnings.warn(f"the scene topics were not written: {type(exc).__name__}: {exc}",
                           RuntimeWarning, stacklevel=2)

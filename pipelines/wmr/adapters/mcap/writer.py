@@ -2,9 +2,13 @@
 
 The MCAP container is written here rather than through :class:`mcap.writer.Writer`, whose
 ``add_message`` costs about 7 us per message in pure Python (45 us per control step for six
-topics).  Records other than messages are serialised with :mod:`mcap.records`, so they follow
-the library's encoding; the Message records of a chunk, and their Message Index records, are
-built vectorised by :class:`wmr.adapters.mcap.schemas.RowEncoder` and numpy.
+topics).  The Message records of a chunk are built by the C stepper (``wmr_encode_rows``, the
+bytes of :class:`wmr.adapters.mcap.schemas.RowEncoder`, numpy's encoder, when the stepper is
+not there); the Chunk, Message Index and Chunk Index records are packed with :mod:`struct` and
+numpy exactly as :mod:`mcap.records` packs them (``tests/test_mcaplog.py`` reads them back
+with the ``mcap`` library and writes them again with its record classes: the same bytes); the
+other records are serialised by :mod:`mcap.records`, the Schema and Channel records once per
+process (every log of a batch has the same).
 
 Layout of a file: magic, Header, Schema and Channel records, the ``run`` Metadata record, the
 Attachments, a chunk holding the ``/goal`` message, then one chunk per second of simulation
