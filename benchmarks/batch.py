@@ -12,9 +12,9 @@ Three measurements, each printed as a table:
 
 ``python benchmarks/batch.py phases [N_RUNS]`` (default 50)
     Where the time of one run goes, in one process, per run (medians over the first
-    ``N_RUNS`` runs): opening the FMU (once per worker), resetting it, the control loop
-    without a log, the loop holding its rows (the failed-only policy's cost for a run that
-    converges), the loop writing its full log, and appending its journal line.
+    ``N_RUNS`` runs, wall and CPU time): opening the FMU (once per worker), resetting it, the
+    control loop without a log, the loop holding its rows (the failed-only policy's cost for
+    a run that converges), the loop writing its full log, and appending its journal line.
 
 ``python benchmarks/batch.py policies N_RUNS [--dask] [--policy P ...]``
     One batch of ``N_RUNS`` runs of ``mc_fig10`` (its ``n`` raised to ``N_RUNS``) per log
@@ -118,50 +118,56 @@ def phases(n_runs: int) -> None:
     batch = _mc_fig10(n_runs)
     fmu = default_fmu()
     folder = Path(tempfile.mkdtemp(prefix="wmr-bench-phases-"))
-    times: dict[str, list[float]] = {k: [] for k in (
+    times: dict[str, list[tuple[float, float]]] = {k: [] for k in (
         "FMU reset", "loop, no log", "loop, rows held (failed-only, converged)",
         "loop, full log", "journal line")}
     steps: list[int] = []
+
+    def timed(name: str, fun: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        """``fun(*args, **kwargs)``, its wall and CPU time (this process's) kept under
+        ``name``."""
+        wall, cpu = time.perf_counter(), time.process_time()
+        out = fun(*args, **kwargs)
+        times[name].append((time.perf_counter() - wall, time.process_time() - cpu))
+        return out
+
     try:
         t0 = time.perf_counter()
         plant = FmuPlant(fmu)
         opened_s = time.perf_counter() - t0
         journal = Journal(folder / "journal.jsonl")
         with plant:
-            for run in batch.runs:
-                t0 = time.perf_counter()
-                plant.reset(run.spec.params, run.spec.start)
-                times["FMU reset"].append(time.perf_counter() - t0)
-                t0 = time.perf_counter()
-                result = run_closed_loop(run.spec, plant, controller=CompiledLawController())
-                times["loop, no log"].append(time.perf_counter() - t0)
+            for i, run in enumerate(batch.runs):
+                timed("FMU reset", plant.reset, run.spec.params, run.spec.start)
+                result = timed("loop, no log", run_closed_loop, run.spec, plant,
+                               controller=CompiledLawController())
                 steps.append(result.steps)
                 # the three variants take turns on each run: a load that comes and goes
                 # falls on all of them alike
-                t0 = time.perf_counter()
-                run_to_log(run.spec, folder / "held.mcap", plant, durable=False,
-                           log=LogPolicy("failed"))
-                times["loop, rows held (failed-only, converged)"].append(
-                    time.perf_counter() - t0)
-                t0 = time.perf_counter()
-                record = run_to_log(run.spec, folder / "full.mcap", plant, durable=False)
-                times["loop, full log"].append(time.perf_counter() - t0)
-                t0 = time.perf_counter()
-                journal.append({"run_id": run.run_id, "digest": run.digest, "fmu_sha256": "x",
-                                "killed": False, "wall_s": 0.1, "worker": "1", "row": {},
-                                "path": "runs/x.mcap", "log": {"size": 1, "mtime_ns": 1},
-                                "record": record})
-                times["journal line"].append(time.perf_counter() - t0)
+                timed("loop, rows held (failed-only, converged)", run_to_log, run.spec,
+                      folder / "held.mcap", plant, durable=False, log=LogPolicy("failed"))
+                # a new file per run, as in a batch (a rename over an existing file makes
+                # ext4 write the new one out first)
+                log = folder / f"full-{i}.mcap"
+                record = timed("loop, full log", run_to_log, run.spec, log, plant,
+                               durable=False)
+                log.unlink()
+                timed("journal line", journal.append, {
+                    "run_id": run.run_id, "digest": run.digest, "fmu_sha256": "x",
+                    "killed": False, "wall_s": 0.1, "worker": "1", "row": {},
+                    "path": "runs/x.mcap", "log": {"size": 1, "mtime_ns": 1},
+                    "record": record})
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-    med = {k: statistics.median(v) for k, v in times.items()}
-    loop = med["loop, no log"]
+    wall = {k: statistics.median(w for w, _ in v) for k, v in times.items()}
+    cpu = {k: statistics.median(c for _, c in v) for k, v in times.items()}
     print(f"where a run's time goes: {n_runs} runs of mc_fig10, median per run "
-          f"({statistics.median(steps):.0f} control steps)")
-    print(f"{'phase':<42} {'ms':>8} {'vs loop':>8}")
+          f"({statistics.median(steps):.0f} control steps), wall and CPU time of this process")
+    print(f"{'phase':<42} {'ms wall':>8} {'ms CPU':>8} {'CPU vs loop':>12}")
     print(f"{'open the FMU (once per worker)':<42} {1e3 * opened_s:>8.1f}")
-    for name, value in med.items():
-        print(f"{name:<42} {1e3 * value:>8.2f} {value / loop:>8.2f}")
+    for name in times:
+        print(f"{name:<42} {1e3 * wall[name]:>8.2f} {1e3 * cpu[name]:>8.2f} "
+              f"{cpu[name] / cpu['loop, no log']:>12.2f}")
 
 
 @contextmanager
