@@ -11,7 +11,10 @@ import struct
 import subprocess
 import sys
 import textwrap
+import zlib
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -20,7 +23,7 @@ from mcap.records import DataEnd
 from mcap.stream_reader import StreamReader
 
 from wmr.adapters.mcap import RunData, RunLogWriter, read_run
-from wmr.adapters.mcap.reader import LogScan, ReadLimits, scan_file
+from wmr.adapters.mcap.reader import DEFAULT_LIMITS, LogScan, ReadLimits, scan_file
 from wmr.adapters.mcap.recover import recover_log
 from wmr.cli import main
 from wmr.core.signals import SIGNALS
@@ -447,3 +450,334 @@ def test_the_read_budget_admits_exactly_its_bytes_and_warns_once_naming_the_limi
     assert scan.kept_bytes == 2 * mib and scan.damaged and scan.over_budget
     assert scan.warnings == ["the log holds more than 2 MiB (ReadLimits.total_bytes): read stops "
                              "at record 3; give a higher limit to read it all"]
+
+
+# -- chunks built byte by byte, and another writer's log ---------------------------------------
+# The logs below are written by hand from the MCAP specification (or by the ``mcap`` library's
+# own writer), not by RunLogWriter: each fact checked is one of the file's bytes, and the
+# ``mcap`` library's reader confirms that the hand-built framing is valid MCAP.
+
+MIB = 1 << 20
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+SECOND_NS = 1_000_000_000
+
+
+def _rec(opcode: int, body: bytes) -> bytes:
+    return struct.pack("<BQ", opcode, len(body)) + body
+
+
+def _str(text: str) -> bytes:
+    raw = text.encode()
+    return struct.pack("<I", len(raw)) + raw
+
+
+def _message(channel_id: int, log_time_ns: int, data: bytes) -> bytes:
+    """A Message record: channel id, sequence, log time, publish time, data (22 + data bytes)."""
+    return _rec(0x05, struct.pack("<HIQQ", channel_id, 0, log_time_ns, log_time_ns) + data)
+
+
+def _second(s: int, n: int = 3) -> list[tuple[int, bytes]]:
+    """``n`` messages of second ``s``: log times ``s`` s + k * 10 ms, data naming them."""
+    return [(s * SECOND_NS + k * STEP_NS, f"s{s}m{k}".encode()) for k in range(n)]
+
+
+def _records(messages: list[tuple[int, bytes]]) -> bytes:
+    return b"".join(_message(1, t, data) for t, data in messages)
+
+
+def _chunk(records: bytes, t0_ns: int = 0, t1_ns: int = 0, *, declared: int | None = None,
+           crc: int | None = None, data_len: int | None = None, length: int | None = None,
+           compression: str = "", data: bytes | None = None) -> bytes:
+    """A Chunk record holding ``records``; ``declared`` (uncompressed size), ``crc``,
+    ``data_len`` (the records' length field) replace the true values, ``data`` the stored
+    bytes (compressed), ``length`` pads the record with zeros to that length (its length field)."""
+    stored = records if data is None else data
+    body = (struct.pack("<QQQI", t0_ns, t1_ns, len(records) if declared is None else declared,
+                        zlib.crc32(records) if crc is None else crc)
+            + _str(compression) + struct.pack("<Q", len(stored) if data_len is None else data_len)
+            + stored)
+    if length is not None:
+        assert length >= len(body)
+        body += bytes(length - len(body))
+    return _rec(0x06, body)
+
+
+def _second_chunk(s: int, **kw: Any) -> bytes:
+    msgs = _second(s)
+    return _chunk(_records(msgs), msgs[0][0], msgs[-1][0], **kw)
+
+
+_SCHEMA_AND_CHANNEL = (_rec(0x03, struct.pack("<H", 1) + _str("raw") + _str("")
+                            + struct.pack("<I", 0))
+                       + _rec(0x04, struct.pack("<HH", 1, 1) + _str("/data") + _str("raw")
+                              + struct.pack("<I", 0)))
+
+
+def _hand_log(*data: bytes, data_crc: bool = True, summary: bytes = b"",
+              crc_xor: tuple[int, int] = (0, 0)) -> tuple[bytes, list[int]]:
+    """A whole MCAP file: magic, header, a schema and a channel, the ``data`` records, Data End
+    (with the CRC of everything before it, or 0), ``summary`` records, footer (with the CRC
+    of the summary and of its own first fields) and magic; ``crc_xor`` is XORed into the data
+    section's and the summary's CRC.  Returns the file and where each of ``data`` starts."""
+    out = MCAP_MAGIC + _rec(0x01, _str("") + _str("by hand")) + _SCHEMA_AND_CHANNEL
+    starts = []
+    for record in data:
+        starts.append(len(out))
+        out += record
+    out += _rec(0x0F, struct.pack("<I", (zlib.crc32(out) if data_crc else 0) ^ crc_xor[0]))
+    summary_start = len(out) if summary else 0
+    out += summary
+    footer_head = struct.pack("<BQ", 0x02, 20) + struct.pack("<QQ", summary_start, 0)
+    summary_crc = (zlib.crc32(summary + footer_head) if summary else 0) ^ crc_xor[1]
+    return out + footer_head + struct.pack("<I", summary_crc) + MCAP_MAGIC, starts
+
+
+def _scan(tmp_path: Path, data: bytes, limits: ReadLimits = DEFAULT_LIMITS) -> LogScan:
+    path = tmp_path / "hand.mcap"
+    path.write_bytes(data)
+    return scan_file(str(path), limits)
+
+
+def _mcap_library_messages(data: bytes) -> list[tuple[int, bytes]]:
+    """The messages the ``mcap`` library reads from ``data``, checking every CRC it holds."""
+    return [(m.log_time, m.data) for _, _, m in
+            NonSeekingReader(io.BytesIO(data), validate_crcs=True).iter_messages()]
+
+
+def test_a_hand_built_log_is_read_as_the_mcap_library_reads_it(tmp_path: Path) -> None:
+    """The builder of the tests below makes valid MCAP: both readers agree, and ours warns of
+    nothing.  A zero CRC means "not computed" (the data section's is the library's default),
+    never a mismatch: the middle chunk has none."""
+    for data_crc in (True, False):
+        data, _ = _hand_log(_second_chunk(0), _second_chunk(1, crc=0), _second_chunk(2),
+                            data_crc=data_crc)
+        scan = _scan(tmp_path, data)
+        assert scan.warnings == [] and not scan.damaged and scan.complete
+        assert scan.messages == {1: _second(0) + _second(1) + _second(2)}
+        assert _mcap_library_messages(data) == scan.messages[1]
+
+
+def test_a_chunk_record_is_read_up_to_the_chunk_limit_plus_1_mib_and_left_out_past_it(
+        tmp_path: Path) -> None:
+    """ReadLimits.chunk_bytes: compressed data never exceeds the uncompressed size by more than
+    its frame overhead, so a Chunk record of ``chunk_bytes`` + 1 MiB is read and one byte more
+    is skipped unread, each such chunk named and counted; the records after it are read."""
+    limit = MIB + MIB
+    data, at = _hand_log(_second_chunk(0, length=limit),
+                         _second_chunk(1, length=limit + 1),
+                         _second_chunk(2),
+                         _second_chunk(3, length=limit + 1),
+                         _second_chunk(4, length=limit))
+    # valid MCAP (zeros after a chunk's records are allowed): the library reads every chunk
+    assert len(_mcap_library_messages(data)) == 5 * 3
+    assert _scan(tmp_path, data, ReadLimits(chunk_bytes=2 * MIB)).warnings == []
+    scan = _scan(tmp_path, data, ReadLimits(chunk_bytes=MIB))
+    assert scan.messages == {1: _second(0) + _second(2) + _second(4)}
+    assert scan.bad_chunks == 2 and scan.damaged and scan.complete
+    assert scan.warnings == [
+        *(f"the chunk at byte {at[i]} is {limit + 1} bytes, above the 1 MiB chunk limit "
+          "(ReadLimits.chunk_bytes): left out" for i in (1, 3)),
+        "the data section CRC was not checked: damaged bytes were skipped"]
+
+
+def _n_bytes(s: int) -> int:
+    """The records of :func:`_second_chunk` ``s``, bytes (its uncompressed size)."""
+    return len(_records(_second(s)))
+
+
+_SPAN = "its messages from t = {s} s to {s}.02 s are left out"
+#: A damaged chunk of second ``s``, and the reason the reader must give for it.
+_BAD_CHUNKS: dict[str, tuple[Callable[[int], bytes], Callable[[int], str]]] = {
+    "header cut": (lambda s: _rec(0x06, bytes(31)), lambda s: "its header is cut"),
+    "CRC": (lambda s: _second_chunk(s, crc=zlib.crc32(_records(_second(s))) ^ 1),
+            lambda s: "chunk crc validation failed"),
+    "data past its record": (lambda s: _second_chunk(s, data_len=_n_bytes(s) + 1),
+                             lambda s: "its data runs past the end of the record"),
+    "fewer bytes than declared": (
+        lambda s: _second_chunk(s, declared=_n_bytes(s) + 1),
+        lambda s: f"it inflates to {_n_bytes(s)} bytes, not the {_n_bytes(s) + 1} it declares"),
+    "unknown compression": (lambda s: _second_chunk(s, compression="brotli"),
+                            lambda s: "unknown compression 'brotli'"),
+    "metadata inside": (lambda s: _chunk(_records(_second(s)) + _rec(0x0C, _str("m") + bytes(4)),
+                                         s * SECOND_NS, s * SECOND_NS + 2 * STEP_NS),
+                        lambda s: "a record of opcode 0x0c inside the chunk"),
+    "21-byte message": (lambda s: _chunk(_records(_second(s)) + _rec(0x05, bytes(21)),
+                                         s * SECOND_NS, s * SECOND_NS + 2 * STEP_NS),
+                        lambda s: "message record too short"),
+    "record past the chunk": (lambda s: _chunk(_records(_second(s)) + struct.pack("<BQ", 5, 30)
+                                               + bytes(22), s * SECOND_NS,
+                                               s * SECOND_NS + 2 * STEP_NS),
+                              lambda s: "record runs past the end of its chunk"),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(_BAD_CHUNKS))
+def test_each_damaged_chunk_is_left_out_named_and_counted(tmp_path: Path, kind: str) -> None:
+    """Two chunks damaged alike among three good ones: each is left out whole with a warning
+    saying where it starts, why, and the times of the messages lost (a cut header has none);
+    both are counted; the good chunks around them are read."""
+    bad, why = _BAD_CHUNKS[kind]
+    data, at = _hand_log(_second_chunk(0), bad(1), _second_chunk(2), bad(3), _second_chunk(4))
+    scan = _scan(tmp_path, data)
+    assert scan.messages == {1: _second(0) + _second(2) + _second(4)}
+    assert scan.bad_chunks == 2 and scan.damaged and scan.complete
+    lost = ("left out" if kind == "header cut" else _SPAN)
+    assert scan.warnings == [f"the chunk at byte {at[s]} is damaged ({why(s)}): "
+                             + lost.format(s=s) for s in (1, 3)]
+
+
+def test_a_chunk_inflating_past_its_declared_size_is_left_out(tmp_path: Path) -> None:
+    """A compressed chunk that holds more than it declares is inflated to one byte past the
+    declared size and no further (a decompression bomb stops there)."""
+    import lz4.frame
+
+    records = _records(_second(1))
+    packed = lz4.frame.compress(records)
+    data, at = _hand_log(_second_chunk(0),
+                         _chunk(records, SECOND_NS, SECOND_NS + 2 * STEP_NS, compression="lz4",
+                                data=packed, declared=len(records) - 5),
+                         _chunk(records, SECOND_NS, SECOND_NS + 2 * STEP_NS, compression="lz4",
+                                data=packed))
+    scan = _scan(tmp_path, data)
+    assert scan.messages == {1: _second(0) + _second(1)}  # the same chunk, told its size
+    assert scan.bad_chunks == 1
+    (warning,) = scan.warnings
+    assert warning.startswith(f"the chunk at byte {at[1]} is damaged (it inflates to more than ")
+    assert warning.endswith(f"bytes, not the {len(records) - 5} it declares): "
+                            + _SPAN.format(s=1))
+
+
+def test_a_chunk_may_declare_exactly_the_chunk_limit_and_not_one_byte_more(
+        tmp_path: Path) -> None:
+    """ReadLimits.chunk_bytes bounds the declared uncompressed size, inclusive; a chunk over it
+    is refused before it is inflated (a decompression bomb?), and counted."""
+    big = [(SECOND_NS, bytes(MIB - 9 - 22))]  # one message record of exactly 1 MiB
+    exact = _chunk(_records(big), SECOND_NS, SECOND_NS)
+    over = [_second_chunk(s, declared=MIB + 1) for s in (2, 3)]
+    data, at = _hand_log(exact, *over, _second_chunk(4))
+    scan = _scan(tmp_path, data, ReadLimits(chunk_bytes=MIB))
+    assert scan.messages == {1: big + _second(4)}
+    assert scan.bad_chunks == 2
+    assert scan.warnings == [
+        f"the chunk at byte {at[i]} declares {MIB + 1} bytes uncompressed, above the 1 MiB "
+        "chunk limit (ReadLimits.chunk_bytes; a decompression bomb?): "
+        + _SPAN.format(s=i + 1) for i in (1, 2)]
+
+
+@pytest.mark.parametrize("short", [0, 1])
+def test_the_read_budget_stops_at_the_first_chunk_past_it_and_counts_the_rest(
+        tmp_path: Path, short: int) -> None:
+    """ReadLimits.total_bytes counts a chunk's declared size, then 100 bytes per message it
+    holds: with a budget of exactly the first chunks' bytes they are read, with one byte less
+    the last of them is not; after the first chunk past the budget (one warning) every chunk
+    is left out without another warning, and counted (after a damaged one)."""
+    chunks = [_second_chunk(0, crc=0xBAD), *(_second_chunk(s) for s in range(1, 5))]
+    kept = [_n_bytes(0)] + [_n_bytes(s) + 3 * 100 for s in (1, 2)]  # second 0 is damaged
+    data, at = _hand_log(*chunks)
+    scan = _scan(tmp_path, data, ReadLimits(total_bytes=sum(kept) - short))
+    stop = 3 - short  # the first second not read
+    assert scan.messages == {1: [m for s in range(1, stop) for m in _second(s)]}
+    assert scan.bad_chunks == 1 + (5 - stop)
+    assert scan.warnings == [
+        f"the chunk at byte {at[0]} is damaged (chunk crc validation failed): "
+        + _SPAN.format(s=0),
+        "the log holds more than 0 MiB (ReadLimits.total_bytes): read stops at the chunk at "
+        f"t = {stop} s; give a higher limit to read it all",
+        "the data section CRC was not checked: damaged bytes were skipped"]
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4", "zstd"])
+@pytest.mark.parametrize("cut", ["whole", "no summary", "no data end"])
+def test_another_writers_log_with_its_schemas_and_channels_inside_the_chunks(
+        tmp_path: Path, compression: str, cut: str) -> None:
+    """The ``mcap`` library's writer puts each Schema and Channel record inside the chunk
+    where it is first used (our writer puts them outside); with the summary left without them
+    (``repeat_*=False``) or cut off, those records are the only ones: every schema, channel
+    and message is read as the library's own reader reads the whole file, an empty message
+    (a record of exactly 22 bytes) included."""
+    from mcap.writer import CompressionType, Writer
+
+    path = tmp_path / "other.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f, chunk_size=200, compression=CompressionType[compression.upper()],
+                        repeat_schemas=False, repeat_channels=False, enable_data_crcs=True)
+        writer.start(profile="", library="another writer")
+        ids = []
+        for k in range(3):
+            schema = writer.register_schema(f"schema{k}", "jsonschema", b'{"k": %d}' % k)
+            ids.append(writer.register_channel(f"/topic{k}", "json", schema,
+                                               metadata={"k": str(k)} if k else {}))
+            for i in range(8):  # chunks of 200 bytes: each channel's first chunk differs
+                writer.add_message(ids[k], log_time=k * SECOND_NS + i * STEP_NS, data=(
+                    b"" if i == 3 else b'{"i": %d}' % i), publish_time=0, sequence=i)
+        writer.finish()
+    data = path.read_bytes()
+    outside = {op for op, _, _ in _record_spans(data)}
+    assert 0x06 in outside and not outside & {0x03, 0x04}  # chunks, no schema or channel
+    reader = NonSeekingReader(io.BytesIO(data), validate_crcs=True)
+    want: dict[int, list[tuple[int, bytes]]] = {}
+    schemas, channels = {}, {}
+    for schema, channel, message in reader.iter_messages():
+        assert schema is not None
+        want.setdefault(channel.id, []).append((message.log_time, message.data))
+        schemas[schema.id], channels[channel.id] = schema, channel
+    records = list(StreamReader(io.BytesIO(data)).records)
+    end = next(r for r in records if isinstance(r, DataEnd))
+    assert end.data_section_crc != 0
+    if cut != "whole":  # the file up to Data End (kept or not): no summary, no footer
+        data_end = data.index(b"\x0f\x04\x00\x00\x00\x00\x00\x00\x00"
+                              + struct.pack("<I", end.data_section_crc))
+        data = data[:data_end + (13 if cut == "no summary" else 0)]
+    scan = _scan(tmp_path, data)
+    assert scan.schemas == schemas and len(schemas) == 3
+    assert scan.channels == channels and channels[ids[2]].metadata == {"k": "2"}
+    assert scan.messages == want and sum(map(len, want.values())) == 24
+    assert (scan.warnings == []) == (cut == "whole")
+    assert not scan.damaged and scan.bad_chunks == 0
+
+
+_STATISTICS = _rec(0x0B, bytes(200))  # a summary record read only for its CRC
+
+
+def test_crc_mismatches_say_what_is_damaged_and_what_follows(tmp_path: Path) -> None:
+    """The data section's CRC names the records outside the chunks as suspect when every chunk
+    passed its own CRC, and nothing more when a damaged chunk explains it; the summary's says
+    the data section's records are read instead."""
+    chunks = [_second_chunk(s) for s in range(3)]
+    outside = "a record outside the chunks (metadata, attachment, schema, channel or index) "
+    data, _ = _hand_log(*chunks, summary=_STATISTICS, crc_xor=(1, 0))
+    scan = _scan(tmp_path, data)
+    assert scan.warnings == [f"the data section is damaged (data section CRC mismatch): "
+                             f"{outside}may be wrong"] and scan.damaged
+    data, at = _hand_log(chunks[0], _second_chunk(1, crc=1), chunks[2], crc_xor=(1, 0))
+    scan = _scan(tmp_path, data)
+    assert scan.warnings == [f"the chunk at byte {at[1]} is damaged (chunk crc validation "
+                             "failed): " + _SPAN.format(s=1),
+                             "the data section is damaged (data section CRC mismatch)"]
+    data, _ = _hand_log(*chunks, summary=_STATISTICS, crc_xor=(0, 1))
+    scan = _scan(tmp_path, data)
+    assert scan.warnings == ["the summary is damaged (summary CRC mismatch): read from the data "
+                             "section's records instead"] and scan.damaged
+    assert scan.messages == {1: _second(0) + _second(1) + _second(2)}
+    data, _ = _hand_log(*chunks, summary=_STATISTICS)  # both right
+    assert _scan(tmp_path, data).warnings == []
+
+
+def test_a_crc_over_bytes_skipped_unread_is_not_checked_and_says_so(tmp_path: Path) -> None:
+    """A record over ReadLimits.record_bytes that is read only for its CRC (a message index in
+    the data section, statistics in the summary) is skipped unread: no damage, but neither
+    CRC can be checked, and each says so (with either CRC right or wrong)."""
+    index = _rec(0x07, bytes(200))
+    limits = ReadLimits(record_bytes=199)
+    for crc_xor in ((0, 0), (1, 1)):
+        data, _ = _hand_log(_second_chunk(0), index, _second_chunk(1), summary=_STATISTICS,
+                            crc_xor=crc_xor)
+        scan = _scan(tmp_path, data, limits)
+        assert scan.warnings == ["the data section CRC was not checked: damaged bytes were "
+                                 "skipped", "the summary CRC was not checked: damaged bytes "
+                                 "were skipped"]
+        assert not scan.damaged and scan.complete
+        assert scan.messages == {1: _second(0) + _second(1)}
+    # a limit of exactly the record's length skips nothing: both CRCs are checked again
+    data, _ = _hand_log(_second_chunk(0), index, _second_chunk(1), summary=_STATISTICS)
+    assert _scan(tmp_path, data, ReadLimits(record_bytes=200)).warnings == []
