@@ -23,8 +23,9 @@ import pytest
 from mcap.reader import make_reader
 
 from wmr.adapters.mcap import read_run
-from wmr.apps.batch import load_batch, run_batch
+from wmr.apps.batch import BatchSpec, load_batch, run_batch
 from wmr.apps.batch.journal import log_complete
+from wmr.apps.batch.runner import BatchOutcome
 
 TWO_RUNS = """
 name = "two"
@@ -130,29 +131,33 @@ class _KillMidLog(threading.Thread):
             self.sizes.append(size)
 
 
-@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs Linux /proc")
-def test_a_worker_killed_mid_log_leaves_its_run_recovered(fmu3: Path, tmp_path: Path) -> None:
-    spec = tmp_path / "slow.toml"
-    spec.write_text(SLOW_RUN)
-    batch = load_batch(spec)
-    (run,) = batch.runs
-    out = tmp_path / "out"
-    log = out / "runs" / f"{run.run_id}.mcap"
+def _batch_killed_mid_log(batch: BatchSpec, out: Path, fmu: Path) -> tuple[BatchOutcome, Path]:
+    """``batch`` (one run) with its worker SIGKILLed mid-log on both attempts; its log."""
+    log = out / "runs" / f"{batch.runs[0].run_id}.mcap"
     killer = _KillMidLog(log.with_name(log.name + ".partial"), 200_000, times=2)
     killer.start()
     try:
-        result = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False,
+        result = run_batch(batch, out, workers=1, fmu_path=fmu, progress=False,
                            run_timeout_s=600.0)
     finally:
         killer.done.set()
         killer.join()
     assert len(killer.sizes) == 2, "the worker was not caught writing its log"
+    return result, log
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs Linux /proc")
+def test_a_worker_killed_mid_log_leaves_its_run_recovered(fmu3: Path, tmp_path: Path) -> None:
+    spec = tmp_path / "slow.toml"
+    spec.write_text(SLOW_RUN)
+    batch = load_batch(spec)
+    out = tmp_path / "out"
+    result, log = _batch_killed_mid_log(batch, out, fmu3)
     assert result.counts["failed"] == 1
     (line,) = _journal(out)
     assert line["killed"] is True
     # the partial log of the second attempt, recovered into a finished log
-    assert log.exists(), ({p.name: p.stat().st_size for p in log.parent.iterdir()},
-                          killer.sizes, line)
+    assert log.exists(), ({p.name: p.stat().st_size for p in log.parent.iterdir()}, line)
     with open(log, "rb") as f:  # any MCAP reader opens it, every CRC checks
         reader = make_reader(f, validate_crcs=True)
         assert reader.get_summary() is not None
@@ -167,3 +172,25 @@ def test_a_worker_killed_mid_log_leaves_its_run_recovered(fmu3: Path, tmp_path: 
     assert not list(log.parent.glob("*.partial")) and not list(log.parent.glob("*.killed"))
     # killed runs are final: the same command redoes nothing
     assert run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False).executed == []
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs Linux /proc")
+def test_a_killed_run_done_again_is_recovered_over_its_earlier_log(fmu3: Path,
+                                                                   tmp_path: Path) -> None:
+    """docs/batch.md: a killed run's partial log "is recovered into its log's place", also
+    when an earlier batch left a log there (the run redone for another FMU, killed again):
+    the earlier log is replaced, and nothing is left beside it."""
+    spec = tmp_path / "slow.toml"
+    spec.write_text(SLOW_RUN)
+    batch = load_batch(spec)
+    out = tmp_path / "out"
+    _, log = _batch_killed_mid_log(batch, out, fmu3)
+    earlier = log.stat().st_ino
+    other = _other_fmu(fmu3, tmp_path)
+    result, _ = _batch_killed_mid_log(batch, out, other)
+    assert result.executed == [batch.runs[0].run_id] and result.counts["failed"] == 1
+    assert _journal(out)[-1]["fmu_sha256"] == file_sha256(other)
+    assert sorted(p.name for p in log.parent.iterdir()) == [log.name], "left beside the log"
+    assert log.stat().st_ino != earlier, "the earlier run's log was kept"
+    data = read_run(log)
+    assert not data.truncated and data.n_steps > 100
