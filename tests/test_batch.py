@@ -520,6 +520,43 @@ def test_a_resumed_batch_keeps_9_bytes_a_finished_run(tmp_path: Path) -> None:
     assert kept < 1_000_000
 
 
+def test_resume_checks_a_journal_of_10_mb_or_more_under_its_own_bar(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The resume's check of a journal of 10,000,000 bytes or more (about 10,000 runs, 2 s)
+    gets its own bar in bytes, named, shown as ``--progress`` says and removed when the check
+    ends; a smaller journal gets none.  Lines of 100,000 bytes for runs of no spec."""
+    import tqdm
+
+    bars: list[tuple[float | None, float]] = []
+
+    class Recorded(tqdm.tqdm):
+        def close(self) -> None:
+            if not self.disable:  # closed once (again by __del__, then disabled)
+                bars.append((self.total, self.n))
+            super().close()
+
+    monkeypatch.setattr(tqdm, "tqdm", Recorded)
+    batch = _parse(_gains_grid(2))
+    journal = Journal(tmp_path / "journal.jsonl")
+
+    def line(n_bytes: int) -> bytes:
+        return b'{"run_id": "x", "record": {}, "pad": "' + b"a" * (n_bytes - 41) + b'"}\n'
+
+    for short, progress, shown in ((0, True, True), (1, True, False), (0, False, False),
+                                   (0, None, False)):  # None: on a terminal only (not here)
+        journal.path.write_bytes(line(100_000) * 99 + line(100_000 - short))
+        bars.clear()
+        runner_module._resume(batch, journal, "f", tmp_path, progress=progress)
+        err = capsys.readouterr().err
+        assert bool(err) == shown, (short, progress, err)
+        if shown:
+            assert err.startswith("\rchecking the journal:   0%|") and "0.00/10.0M" in err
+            assert err.endswith("\r") and not err.rsplit("\r", 2)[-2].strip(), "bar left"
+            ((total, n),) = bars
+            assert total == 10_000_000 and 9_900_000 <= n <= 10_000_000  # the last line read
+
+
 FAILING = """
 name = "bad"
 start = [1.0, 0.0, 0.0]
