@@ -593,6 +593,12 @@ _BAD_CHUNKS: dict[str, tuple[Callable[[int], bytes], Callable[[int], str]]] = {
             lambda s: "chunk crc validation failed"),
     "data past its record": (lambda s: _second_chunk(s, data_len=_n_bytes(s) + 1),
                              lambda s: "its data runs past the end of the record"),
+    "records' length of 2^64 - 1": (lambda s: _second_chunk(s, data_len=(1 << 64) - 1),
+                                    lambda s: "its data runs past the end of the record"),
+    "empty schema record (EndOfFile, no message)": (
+        lambda s: _chunk(_records(_second(s)) + _rec(0x03, b""), s * SECOND_NS,
+                         s * SECOND_NS + 2 * STEP_NS),
+        lambda s: "EndOfFile"),
     "fewer bytes than declared": (
         lambda s: _second_chunk(s, declared=_n_bytes(s) + 1),
         lambda s: f"it inflates to {_n_bytes(s)} bytes, not the {_n_bytes(s) + 1} it declares"),
@@ -624,6 +630,17 @@ def test_each_damaged_chunk_is_left_out_named_and_counted(tmp_path: Path, kind: 
     lost = ("left out" if kind == "header cut" else _SPAN)
     assert scan.warnings == [f"the chunk at byte {at[s]} is damaged ({why(s)}): "
                              + lost.format(s=s) for s in (1, 3)]
+
+
+def test_a_record_damaged_without_a_message_is_named_by_its_error(tmp_path: Path) -> None:
+    """An error without a message (the ``mcap`` library's EndOfFile on an empty Schema
+    record) is named by its type, inside a chunk and outside (an exception object is always
+    true: its text must be tested, not the object)."""
+    data, at = _hand_log(_second_chunk(0), _rec(0x03, b""), _second_chunk(1))
+    scan = _scan(tmp_path, data)
+    assert scan.warnings == [f"the record at byte {at[1]} (opcode 0x03) is damaged "
+                             "(EndOfFile): left out"]
+    assert scan.messages == {1: _second(0) + _second(1)}
 
 
 def test_a_chunk_inflating_past_its_declared_size_is_left_out(tmp_path: Path) -> None:

@@ -433,7 +433,7 @@ def _read_chunk(log: _LogFile, start: int, length: int, scan: LogScan) -> None:
             raise McapError("chunk crc validation failed")
         messages = _chunk_messages(buf, scan)
     except _DAMAGE as exc:
-        scan.damage(f"{where} is damaged ({exc or type(exc).__name__}): {span}")
+        scan.damage(f"{where} is damaged ({str(exc) or type(exc).__name__}): {span}")
         scan.bad_chunks += 1
         return
     if not scan.charge(_MESSAGE_OVERHEAD * len(messages), f"the chunk at t = {t0 * 1e-9:g} s"):
@@ -556,7 +556,7 @@ def _walk(log: _LogFile, scan: LogScan) -> None:
             _parse_record(log, opcode, start, body, scan, crc_before, crc_head)
         except _DAMAGE as exc:
             scan.damage(f"the record at byte {start} (opcode 0x{opcode:02x}) is damaged "
-                        f"({exc or type(exc).__name__}): left out")
+                        f"({str(exc) or type(exc).__name__}): left out")
     magic = log._f.read(len(MAGIC))
     if magic != MAGIC:
         scan.complete = False
