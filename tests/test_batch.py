@@ -520,6 +520,33 @@ def test_a_resumed_batch_keeps_9_bytes_a_finished_run(tmp_path: Path) -> None:
     assert kept < 1_000_000
 
 
+def test_resume_takes_the_last_line_of_a_run_and_ignores_runs_past_the_spec(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The last journal line of a run wins: an earlier line that would be made again (its row
+    differs from the spec's) is dropped when a later line of the run holds as it is, or says
+    the run must be done again (another FMU); a line of a run past the spec's last one (a
+    spec cut to fewer runs) is ignored.  Nothing is appended, nothing reported."""
+    batch = _parse(_gains_grid(2))
+    runs = batch.runs
+    journal = Journal(tmp_path / "journal.jsonl")
+
+    def killed(index: int, **fields: Any) -> dict[str, Any]:
+        run = runs[index]
+        return {"run_id": run.run_id, "digest": run.digest, "fmu_sha256": "f", "killed": True,
+                "record": {"status": "failed"}, "row": runner_module._row_json(run), **fields}
+
+    journal.append(killed(0, row="stale"))
+    journal.append(killed(0, fmu_sha256="another FMU"))  # the last line: redo run 0
+    journal.append(killed(1, row="stale"))
+    last = journal.append(killed(1))  # the last line: run 1 done, as it is
+    journal.append({**killed(3), "run_id": f"{len(runs):04d}-00000000"})  # past the spec
+    size = journal.path.stat().st_size
+    ledger = runner_module._resume(batch, journal, "f", tmp_path, progress=False)
+    assert list(ledger.finished()) == [(1, last)] and ledger.n_done == 1
+    assert journal.path.stat().st_size == size
+    assert capsys.readouterr().err == ""
+
+
 def test_resume_checks_a_journal_of_10_mb_or_more_under_its_own_bar(
         tmp_path: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
