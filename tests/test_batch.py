@@ -544,7 +544,19 @@ def test_resume_takes_the_last_line_of_a_run_and_ignores_runs_past_the_spec(
     ledger = runner_module._resume(batch, journal, "f", tmp_path, progress=False)
     assert list(ledger.finished()) == [(1, last)] and ledger.n_done == 1
     assert journal.path.stat().st_size == size
-    assert capsys.readouterr().err == ""
+    assert capsys.readouterr() == ("", "")
+    # last lines made again (docs/reliability.md): said once on stderr, naming the first run
+    # in the journal and the field that differed
+    for stale, lines in (([2], "1 line"), ([3, 2], "2 lines")):
+        for index in stale:
+            journal.append(killed(index, row="stale"))
+        size = journal.path.stat().st_size
+        ledger = runner_module._resume(batch, journal, "f", tmp_path, progress=False)
+        assert sorted(i for i, _ in ledger.finished()) == sorted({1, 2, *stale})
+        assert min(ledger.offsets[i] for i in stale) >= size  # their lines made again
+        assert capsys.readouterr() == ("", f"wmr: {journal.path}: {lines} did not match the spec "
+                                           f"or the run's log (first: run {runs[stale[0]].run_id}, "
+                                           "row): made again from them, not trusted\n")
 
 
 def test_resume_checks_a_journal_of_10_mb_or_more_under_its_own_bar(
