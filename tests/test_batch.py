@@ -520,6 +520,33 @@ def test_a_resumed_batch_keeps_9_bytes_a_finished_run(tmp_path: Path) -> None:
     assert kept < 1_000_000
 
 
+def _killed_line(batch: BatchSpec, index: int, **fields: Any) -> dict[str, Any]:
+    """The journal line of run ``index`` of ``batch`` killed by its executor (FMU ``"f"``)."""
+    run = batch.runs[index]
+    return {"run_id": run.run_id, "digest": run.digest, "fmu_sha256": "f", "killed": True,
+            "record": {"status": "failed"}, "row": runner_module._row_json(run), **fields}
+
+
+def test_resume_redoes_a_run_whose_line_without_a_log_was_edited(tmp_path: Path) -> None:
+    """docs/reliability.md: a killed run's line, or a line without a log (its policy kept none),
+    counts only while its seal holds: edited by hand (the record's status), the run is done
+    again, even though the status it now says is a valid one."""
+    batch = _parse(_gains_grid(2))
+    journal = Journal(tmp_path / "journal.jsonl")
+    journal.append(_killed_line(batch, 0))
+    journal.append(_killed_line(batch, 1, killed=False, path=None))
+    journal.append(_killed_line(batch, 2))
+    journal.append(_killed_line(batch, 3, killed=False, path=None))
+    ledger = runner_module._resume(batch, journal, "f", tmp_path, progress=False)
+    assert ledger.n_done == 4  # as written: every seal holds
+    lines = journal.path.read_text().splitlines()
+    for i in (2, 3):  # a hand's edit: the status, not the seal
+        lines[i] = lines[i].replace('"status":"failed"', '"status":"timeout"')
+    journal.path.write_text("\n".join(lines) + "\n")
+    ledger = runner_module._resume(batch, journal, "f", tmp_path, progress=False)
+    assert [i for i, _ in ledger.finished()] == [0, 1]
+
+
 def test_resume_takes_the_last_line_of_a_run_and_ignores_runs_past_the_spec(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The last journal line of a run wins: an earlier line that would be made again (its row
@@ -531,9 +558,7 @@ def test_resume_takes_the_last_line_of_a_run_and_ignores_runs_past_the_spec(
     journal = Journal(tmp_path / "journal.jsonl")
 
     def killed(index: int, **fields: Any) -> dict[str, Any]:
-        run = runs[index]
-        return {"run_id": run.run_id, "digest": run.digest, "fmu_sha256": "f", "killed": True,
-                "record": {"status": "failed"}, "row": runner_module._row_json(run), **fields}
+        return _killed_line(batch, index, **fields)
 
     journal.append(killed(0, row="stale"))
     journal.append(killed(0, fmu_sha256="another FMU"))  # the last line: redo run 0
