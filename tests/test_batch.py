@@ -25,7 +25,7 @@ from hypothesis import strategies as st
 import wmr.apps.batch.runner as runner_module
 from wmr.adapters.mcap import read_run
 from wmr.apps.batch import BatchSpec, load_batch, parse_batch, run_batch
-from wmr.apps.batch.journal import Journal, log_complete
+from wmr.apps.batch.journal import Journal, line_check, log_complete
 from wmr.apps.batch.report import write_report
 from wmr.apps.batch.runner import _test_hooks
 from wmr.apps.batch.spec import RunList, run_index
@@ -570,15 +570,20 @@ def test_resume_takes_the_last_line_of_a_run_and_ignores_runs_past_the_spec(
     assert list(ledger.finished()) == [(1, last)] and ledger.n_done == 1
     assert journal.path.stat().st_size == size
     assert capsys.readouterr() == ("", "")
-    # last lines made again (docs/reliability.md): said once on stderr, naming the first run
-    # in the journal and the field that differed
+    # last lines made again (docs/reliability.md), a killed run's and one without a log: said
+    # once on stderr, naming the first run in the journal and the field that differed
     for stale, lines in (([2], "1 line"), ([3, 2], "2 lines")):
         for index in stale:
-            journal.append(killed(index, row="stale"))
+            journal.append(killed(index, row="stale") if index == 2 else
+                           killed(index, row="stale", killed=False, path=None))
         size = journal.path.stat().st_size
         ledger = runner_module._resume(batch, journal, "f", tmp_path, progress=False)
         assert sorted(i for i, _ in ledger.finished()) == sorted({1, 2, *stale})
-        assert min(ledger.offsets[i] for i in stale) >= size  # their lines made again
+        assert min(ledger.offsets[i] for i in stale) >= size  # their lines made again ...
+        for index, line in zip(stale, journal.read_at(ledger.offsets[i] for i in stale),
+                               strict=True):  # ... with the spec's row, sealed
+            assert line["row"] == runner_module._row_json(runs[index]) != "stale"
+            assert line["check"] == line_check(line)
         assert capsys.readouterr() == ("", f"wmr: {journal.path}: {lines} did not match the spec "
                                            f"or the run's log (first: run {runs[stale[0]].run_id}, "
                                            "row): made again from them, not trusted\n")
