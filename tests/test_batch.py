@@ -447,18 +447,27 @@ def test_the_summary_is_read_back_from_the_journal_in_blocks(
 
 
 def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
-        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path) -> None:
+        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
     """A one-value grid axis equal to the base's value changes no run (same ids, nothing
-    redone) but adds a column: the rows read back from the journal must fill it."""
+    redone) but adds a column: the rows read back from the journal must fill it, and the
+    lines are made again with the spec's rows (said once, naming why: docs/reliability.md)."""
     out = tmp_path / "copy"
     shutil.copytree(reference, out, copy_function=shutil.copy2)
     edited = _write(tmp_path, SPEC20 + "[grid]\nmax_time_s = [15.0]\n", "t20.toml")
     batch = load_batch(edited)
     assert [r.run_id for r in batch.runs] == [r.run_id for r in load_batch(spec20).runs]
+    capsys.readouterr()
     again = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
     assert again.skipped == 20 and again.executed == []
     table = pq.read_table(out / "summary.parquet")
     assert table.column("max_time_s").to_pylist() == [15.0] * 20
+    assert capsys.readouterr().err == (
+        f"wmr: {out / 'journal.jsonl'}: 20 lines did not match the spec or the run's log "
+        f"(first: run {batch.runs[0].run_id}, row (the spec's input columns changed)): made "
+        "again from them, not trusted\n")
+    lines = Journal(out / "journal.jsonl").load()
+    assert all(lines[run.run_id]["row"] == runner_module._row_json(run) for run in batch.runs)
 
 
 def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
