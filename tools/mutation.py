@@ -191,6 +191,19 @@ EQUIVALENT: dict[str, str] = {
         "'more than' when len(buf) >= usize instead of >: the message is made only when "
         "len(buf) != usize, where the two agree"),
     # apps/batch/runner.py
+    **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
+        "the reason returned with a line taken as it is ('XXXX' for ''), or with None (the run "
+        "redone): _resume reads the reason only of a line made again") for n in (
+            15, 35, 38, 60, 63, 91, 99)},
+    **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
+        "line.get('path', default) with another default: that branch is reached only when "
+        "_line_log found a 'path' key (without one it names runs/<id>.mcap)")
+       for n in (53, 55, 58)},
+    "wmr.apps.batch.runner.x__verified__mutmut_76": (
+        "the stamp read from an unsealed line too: it is used only when the line is sealed"),
+    "wmr.apps.batch.runner.x__verified__mutmut_86": (
+        "a stamp that is not a dict passed to log_complete: it never equals log_stamp's dict, "
+        "so the log is read, as with None"),
     **{f"wmr.apps.batch.runner.x__recover_partial__mutmut_{n}": (
         "another name for the scratch file the partial log is moved to (.KILLED, "
         "XX.killedXX): any name but the recovered log's own .partial works alike, and none "
