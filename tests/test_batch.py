@@ -422,9 +422,9 @@ def test_a_cut_journal_line_is_ignored_and_redone(spec20: Path, fmu3: Path,
 def test_the_summary_is_read_back_from_the_journal_in_blocks(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """Blocks of 3 rows (7 blocks), journal lines written before lines held their rows and
-    lines whose row is damaged (those rows made again from the spec) give the reference's
-    summary byte for byte."""
+    """Blocks of 3 rows (7 blocks), journal lines written before lines held their rows or
+    were sealed, and lines whose row or record is damaged (made again from the spec and the
+    log) give the reference's summary byte for byte."""
     out = tmp_path / "copy"
     shutil.copytree(reference, out)
     journal = out / "journal.jsonl"
@@ -435,6 +435,8 @@ def test_the_summary_is_read_back_from_the_journal_in_blocks(
     lines[1]["row"] = "garbled"  # rows a hand or a disk damaged are made again, not trusted
     lines[3]["row"]["inputs"] = 5
     lines[5]["row"]["inputs"]["params.m"] = [1.0]
+    del lines[7]["check"]  # written before lines were sealed
+    lines[9]["record"]["status"] = "failed"  # the log says converged
     journal.write_text("".join(json.dumps(line) + "\n" for line in lines))
     for name in ("summary.csv", "summary.parquet"):
         (out / name).unlink()
@@ -475,7 +477,9 @@ def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A log with the size and time journalled for it, still ending with the MCAP magic, is
     not parsed again; one zeroed in place (what a crash before the data reached the disk can
-    leave), its time put back, is read, found unfinished, and its run done again."""
+    leave), its time put back, is read, found unfinished, and its run done again.  A line
+    whose seal broke, of a log touched since, is made again from the log with the log's new
+    stamp: the next resume trusts it without parsing it."""
     import mcap.reader
 
     out = tmp_path / "copy"
@@ -492,6 +496,24 @@ def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
     third = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
     assert third.executed == [batch.runs[4].run_id] and third.skipped == 19
     assert _summary_bytes(out) == _summary_bytes(reference)
+    touched = out / "runs" / f"{batch.runs[6].run_id}.mcap"
+    os.utime(touched, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    journal = out / "journal.jsonl"
+    lines = journal.read_text().splitlines()
+    at = next(i for i, line in enumerate(lines) if batch.runs[6].run_id in line)
+    lines[at] = lines[at].replace('"check":"', '"check":"0')  # the seal broken
+    journal.write_text("\n".join(lines) + "\n")
+    assert run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False).skipped == 20
+    real = mcap.reader.make_reader
+
+    def not_the_touched_log(stream: Any, *args: Any, **kwargs: Any) -> Any:
+        # (run 4's first line, superseded, is still checked against its new log: parsed)
+        assert stream.name != str(touched), "the log made again was parsed again"
+        return real(stream, *args, **kwargs)
+
+    with monkeypatch.context() as m:
+        m.setattr(mcap.reader, "make_reader", not_the_touched_log)
+        assert run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False).skipped == 20
 
 
 def test_a_batch_stopped_before_its_first_run_writes_an_empty_summary(
