@@ -199,6 +199,9 @@ EQUIVALENT: dict[str, str] = {
         "line.get('path', default) with another default: that branch is reached only when "
         "_line_log found a 'path' key (without one it names runs/<id>.mcap)")
        for n in (53, 55, 58)},
+    **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
+        "the old seal left in the line made again: Journal.append seals it anew (line_check "
+        "leaves 'check' out, and the new seal replaces it)") for n in (108, 111, 112)},
     "wmr.apps.batch.runner.x__verified__mutmut_76": (
         "the stamp read from an unsealed line too: it is used only when the line is sealed"),
     "wmr.apps.batch.runner.x__verified__mutmut_86": (
