@@ -651,7 +651,8 @@ def test_resume_checks_a_journal_of_10_mb_or_more_under_its_own_bar(
         err = capsys.readouterr().err
         assert bool(err) == shown, (short, progress, err)
         if shown:
-            assert err.startswith("\rchecking the journal:   0%|") and "0.00/10.0M" in err
+            assert err.startswith("\rchecking the journal:   0%|          | 0.00/10.0M "
+                                  "[00:00<?, ?B/s]")
             assert err.endswith("\r") and not err.rsplit("\r", 2)[-2].strip(), "bar left"
             ((total, n),) = bars
             assert total == 10_000_000 and 9_900_000 <= n <= 10_000_000  # the last line read

@@ -191,6 +191,9 @@ EQUIVALENT: dict[str, str] = {
         "'more than' when len(buf) >= usize instead of >: the message is made only when "
         "len(buf) != usize, where the two agree"),
     # apps/batch/runner.py
+    **{f"wmr.apps.batch.runner.x__resume__mutmut_{n}": (
+        "the journal check's bar given file=None or no file: tqdm then writes to sys.stderr, "
+        "as asked") for n in (10, 17)},
     **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
         "the reason returned with a line taken as it is ('XXXX' for ''), or with None (the run "
         "redone): _resume reads the reason only of a line made again") for n in (
