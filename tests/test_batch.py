@@ -561,7 +561,8 @@ def _killed_line(batch: BatchSpec, index: int, **fields: Any) -> dict[str, Any]:
 def test_resume_redoes_a_run_whose_line_without_a_log_was_edited(tmp_path: Path) -> None:
     """docs/reliability.md: a killed run's line, or a line without a log (its policy kept none),
     counts only while its seal holds: edited by hand (the record's status), the run is done
-    again, even though the status it now says is a valid one."""
+    again, even though the status it now says is a valid one; so is a sealed line naming a log
+    that is not followed."""
     batch = _parse(_gains_grid(2))
     journal = Journal(tmp_path / "journal.jsonl")
     journal.append(_killed_line(batch, 0))
@@ -576,6 +577,11 @@ def test_resume_redoes_a_run_whose_line_without_a_log_was_edited(tmp_path: Path)
     journal.path.write_text("\n".join(lines) + "\n")
     ledger = runner_module._resume(batch, journal, "f", tmp_path, progress=False)
     assert [i for i, _ in ledger.finished()] == [0, 1]
+    # sealed, but naming a log that is not followed (outside runs/, not a path): done again
+    journal.path.unlink()
+    for index, path in enumerate(("runs/../../x.mcap", "/etc/x.mcap", 5, ["runs/x.mcap"])):
+        journal.append(_killed_line(batch, index, killed=False, path=path))
+    assert runner_module._resume(batch, journal, "f", tmp_path, progress=False).n_done == 0
 
 
 def test_resume_takes_the_last_line_of_a_run_and_ignores_runs_past_the_spec(
