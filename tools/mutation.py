@@ -77,7 +77,8 @@ TARGETS: dict[str, Target] = {
                               "x__check_crc", "x__read_chunk", "x__chunk_messages",
                               "xǁLogScanǁdamage", "xǁLogScanǁcharge"))),
     "batch_journal": Target("apps/batch/journal.py", ("tests/test_batch.py",),
-                            pytest_args=("-m", "not slow", "-k", "resume or journal or cut")),
+                            pytest_args=("-m", "not slow", "-k", "resume or journal or cut"),
+                            timeout_multiplier=60.0),  # its tests start batches too
     "batch_resume": Target("apps/batch/runner.py",
                            ("tests/test_promises_batch.py", "tests/test_batch.py"),
                            # (the 9-byte ledger's 22 s memory test left out: every surviving
