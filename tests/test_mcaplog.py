@@ -494,7 +494,11 @@ def test_unwritable_path_raises_log_error(tmp_path: Path) -> None:
 def test_c_row_encoder_writes_the_bytes_of_the_numpy_one(layouts: tuple[Any, ...]) -> None:
     """The C stepper's encoder (used whenever the stepper is built) against RowEncoder: times
     with and without seconds or nanos (omitted varint fields), every varint length, the
-    largest time, and doubles of every kind (NaN, infinities, -0.0, subnormals)."""
+    largest time, and doubles of every kind (NaN, infinities, -0.0, subnormals); its chunk
+    call's Message Index records against the mcap library's."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import MessageIndex
+
     lib = load_stepper()
     if lib is None:
         pytest.skip("no C compiler: the stepper is not built")
@@ -510,6 +514,15 @@ def test_c_row_encoder_writes_the_bytes_of_the_numpy_one(layouts: tuple[Any, ...
         expected, expected_offsets = numpy_enc.encode(t, block)
         assert bytes(records) == expected
         assert np.array_equal(offsets, expected_offsets)
+        # a chunk in one call: the same records, and the Message Indexes the mcap library
+        # writes for numpy's offsets
+        chunk_records, indexes = c_enc.encode_chunk(t, block)
+        assert bytes(chunk_records) == expected
+        rb = RecordBuilder()
+        for k, cid in enumerate(ids):
+            MessageIndex(channel_id=cid, records=list(zip(
+                t.tolist(), expected_offsets[:, k].tolist(), strict=True))).write(rb)
+        assert indexes == rb.end()
 
 
 class _Capture(io.BytesIO):

@@ -40,6 +40,7 @@
 #endif
 
 #define WMR_CTRL 64
+#define WMR_MAX_TOPICS 32 /* per-step topics a chunk encoder takes */
 #define WMR_NONFINITE 256
 #define WMR_DONE 512
 #define WMR_FULL 1024
@@ -323,35 +324,91 @@ static void put_message_head(unsigned char *r, int channel, unsigned int sequenc
     put_u64(r + 23, t);
 }
 
+/* The per-step topics' layout (wmr.adapters.mcap.schemas.TopicLayout), set once per
+ * encoder: each topic's channel id and fixed body, and its slots (offset in the body, source
+ * column).  Source columns below n_sig are the row's signals; the others its extra columns
+ * (the heading quaternion). */
+typedef struct {
+    int n_sig, n_extra, n_topics;
+    const int *channel, *body_len;
+    const unsigned char *bodies;
+    const int *n_slots, *slot_off, *slot_src;
+} wmr_layout;
+
+/* Row i's records, at out; each record's offset (from base) in offsets[k] */
+static size_t encode_row(const wmr_layout *L, unsigned long long t, const double *row,
+                         const double *extra, unsigned char *out, size_t base,
+                         long long *offsets) {
+    unsigned char ts[12];
+    int ts_len = put_varint_field(ts, 0x08, t / 1000000000ULL);
+    ts_len += put_varint_field(ts + ts_len, 0x10, t % 1000000000ULL);
+    const unsigned char *body = L->bodies;
+    const int *off = L->slot_off, *from = L->slot_src;
+    size_t pos = 0;
+    for (int k = 0; k < L->n_topics; k++) {
+        unsigned char *r = out + pos;
+        size_t data_len = 2 + (size_t)ts_len + (size_t)L->body_len[k];
+        offsets[k] = (long long)(base + pos);
+        put_message_head(r, L->channel[k], 0, t, data_len);
+        r[31] = 0x0A; /* Timestamp, length-delimited */
+        r[32] = (unsigned char)ts_len;
+        memcpy(r + 33, ts, (size_t)ts_len);
+        unsigned char *b = r + 33 + ts_len;
+        memcpy(b, body, (size_t)L->body_len[k]);
+        for (int s = 0; s < L->n_slots[k]; s++) {
+            const double *v = from[s] < L->n_sig ? row + from[s] : extra + (from[s] - L->n_sig);
+            memcpy(b + off[s], v, 8);
+        }
+        pos += 31 + data_len;
+        body += L->body_len[k];
+        off += L->n_slots[k];
+        from += L->n_slots[k];
+    }
+    return pos;
+}
+
 WMR_API long long wmr_encode_rows(int n, const long long *t_ns, const double *src, int n_src,
                                   int n_topics, const int *channel, const int *body_len,
                                   const unsigned char *bodies, const int *n_slots,
                                   const int *slot_off, const int *slot_src, unsigned char *out,
                                   long long *offsets) {
+    wmr_layout L = {n_src, 0, n_topics, channel, body_len, bodies, n_slots, slot_off, slot_src};
     size_t pos = 0;
+    for (int i = 0; i < n; i++)
+        pos += encode_row(&L, (unsigned long long)t_ns[i], src + (size_t)i * (size_t)n_src,
+                          NULL, out + pos, pos, offsets + (size_t)i * (size_t)n_topics);
+    return (long long)pos;
+}
+
+/* A chunk's rows: the records of wmr_encode_rows (the signals in block, n x n_sig, the extra
+ * columns in extra, n x n_extra), and the chunk's Message Index records at index, one per
+ * topic in topic order, as mcap packs them: opcode 0x07, record length, channel id, length of
+ * the entries, then (log time, record offset) per row.  Returns the records' bytes. */
+WMR_API long long wmr_encode_chunk(const wmr_layout *L, int n, const long long *t_ns,
+                                   const double *block, const double *extra,
+                                   unsigned char *out, unsigned char *index) {
+    size_t pos = 0, entries = 16 * (size_t)n, rec = 15 + entries;
+    long long offsets[WMR_MAX_TOPICS];
+    if (L->n_topics > WMR_MAX_TOPICS) return -1;
+    for (int k = 0; k < L->n_topics; k++) {
+        unsigned char *m = index + (size_t)k * rec;
+        m[0] = 0x07; /* Message Index */
+        put_u64(m + 1, 6 + entries);
+        m[9] = (unsigned char)(L->channel[k] & 0xFF);
+        m[10] = (unsigned char)(L->channel[k] >> 8);
+        m[11] = (unsigned char)entries;
+        m[12] = (unsigned char)(entries >> 8);
+        m[13] = (unsigned char)(entries >> 16);
+        m[14] = (unsigned char)(entries >> 24);
+    }
     for (int i = 0; i < n; i++) {
         unsigned long long t = (unsigned long long)t_ns[i];
-        unsigned char ts[12];
-        int ts_len = put_varint_field(ts, 0x08, t / 1000000000ULL);
-        ts_len += put_varint_field(ts + ts_len, 0x10, t % 1000000000ULL);
-        const double *row = src + (size_t)i * (size_t)n_src;
-        const unsigned char *body = bodies;
-        const int *off = slot_off, *from = slot_src;
-        for (int k = 0; k < n_topics; k++) {
-            unsigned char *r = out + pos;
-            size_t data_len = 2 + (size_t)ts_len + (size_t)body_len[k];
-            offsets[(size_t)i * (size_t)n_topics + (size_t)k] = (long long)pos;
-            put_message_head(r, channel[k], 0, t, data_len);
-            r[31] = 0x0A; /* Timestamp, length-delimited */
-            r[32] = (unsigned char)ts_len;
-            memcpy(r + 33, ts, (size_t)ts_len);
-            unsigned char *b = r + 33 + ts_len;
-            memcpy(b, body, (size_t)body_len[k]);
-            for (int s = 0; s < n_slots[k]; s++) memcpy(b + off[s], row + from[s], 8);
-            pos += 31 + data_len;
-            body += body_len[k];
-            off += n_slots[k];
-            from += n_slots[k];
+        pos += encode_row(L, t, block + (size_t)i * (size_t)L->n_sig,
+                          extra + (size_t)i * (size_t)L->n_extra, out + pos, pos, offsets);
+        for (int k = 0; k < L->n_topics; k++) {
+            unsigned char *e = index + (size_t)k * rec + 15 + 16 * (size_t)i;
+            put_u64(e, t);
+            put_u64(e + 8, (unsigned long long)offsets[k]);
         }
     }
     return (long long)pos;

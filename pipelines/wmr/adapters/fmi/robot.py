@@ -81,6 +81,9 @@ def load_stepper() -> Any:
                                                   ctypes.c_int, ctypes.c_void_p, ctypes.c_int,
                                                   *[ctypes.c_void_p] * 4]
                 lib.wmr_cloud_records.restype = ctypes.c_longlong
+                lib.wmr_encode_chunk.argtypes = [ctypes.c_void_p, ctypes.c_int,
+                                                 *[ctypes.c_void_p] * 5]
+                lib.wmr_encode_chunk.restype = ctypes.c_longlong
         except (OSError, AttributeError):  # no library, or an old one: the Python path
             lib = None
         _STEPPER.append(lib)

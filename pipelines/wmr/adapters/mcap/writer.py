@@ -21,6 +21,7 @@ bytes.
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import json
 import math
@@ -242,7 +243,7 @@ class McapFile:
             parts += [_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + pairs.nbytes, cid, pairs.nbytes),
                       pairs.tobytes()]
             at += _INDEX_HEAD.size + pairs.nbytes
-        self._write_chunk(records, t_first, t_last, b"".join(parts), index_of)
+        self.add_indexed_chunk(records, t_first, t_last, b"".join(parts), index_of)
 
     def add_row_chunk(self, records: bytes | memoryview, t_ns: NDArray[np.int64],
                       offsets: NDArray[np.int64], channel_ids: tuple[int, ...]) -> None:
@@ -258,11 +259,11 @@ class McapFile:
         index["entries"][:, :, 0] = t_ns
         index["entries"][:, :, 1] = offsets.T
         size = index.dtype.itemsize
-        self._write_chunk(records, int(t_ns[0]), int(t_ns[-1]), index.tobytes(),
-                          [(cid, k * size, n) for k, cid in enumerate(channel_ids)])
+        self.add_indexed_chunk(records, int(t_ns[0]), int(t_ns[-1]), index.tobytes(),
+                               [(cid, k * size, n) for k, cid in enumerate(channel_ids)])
 
-    def _write_chunk(self, records: bytes | memoryview, t_first: int, t_last: int,
-                     indexes: bytes, index_of: list[tuple[int, int, int]]) -> None:
+    def add_indexed_chunk(self, records: bytes | memoryview, t_first: int, t_last: int,
+                          indexes: bytes, index_of: list[tuple[int, int, int]]) -> None:
         """The Chunk record and its Message Index records (``indexes``: channel id, offset in
         ``indexes`` and message count of each in ``index_of``), packed here as
         :meth:`mcap.records.Chunk.write` and ``MessageIndex.write`` pack them (checked
@@ -395,6 +396,14 @@ def _channel_record(channel_id: int, topic: str, message_encoding: str, schema_i
     return rb.end()
 
 
+class _Layout(ctypes.Structure):
+    """The stepper's ``wmr_layout``: the per-step topics' channels, bodies and slots."""
+
+    _fields_ = [("n_sig", ctypes.c_int), ("n_extra", ctypes.c_int), ("n_topics", ctypes.c_int),
+                *((name, ctypes.c_void_p) for name in (
+                    "channel", "body_len", "bodies", "n_slots", "slot_off", "slot_src"))]
+
+
 class _CRowEncoder:
     """:class:`RowEncoder`'s bytes, written by the C stepper (``wmr_encode_rows``) one row
     after another instead of by numpy gathers of whole columns.
@@ -418,6 +427,27 @@ class _CRowEncoder:
         self._row_max = int(self._body_len.sum()) + (33 + 12) * self._n_topics
         self._args = [a.ctypes.data for a in (self._channel, self._body_len, self._bodies,
                                               self._n_slots, self._slot_off, self._slot_src)]
+        self._chunk_fun = lib.wmr_encode_chunk
+        self._layout = _Layout(len(SIGNALS), 2, self._n_topics, *self._args)
+
+    def encode_chunk(self, t_ns: NDArray[np.int64],
+                     block: NDArray[np.float64]) -> tuple[memoryview, bytes]:
+        """A chunk's records (as :meth:`encode`) and its Message Index records, one per
+        topic in topic order, as :mod:`mcap.records` packs them, in one C call."""
+        n = t_ns.shape[0]
+        extra = np.empty((n, 2), np.float64)  # the heading quaternion, as RowEncoder has it
+        half = 0.5 * block[:, COLUMN["theta_rad"]]
+        extra[:, 0] = np.sin(half)
+        extra[:, 1] = np.cos(half)
+        x = np.ascontiguousarray(block, np.float64)
+        t = np.ascontiguousarray(t_ns, np.int64)
+        out = np.empty(n * self._row_max, np.uint8)
+        index = np.empty(self._n_topics * (15 + 16 * n), np.uint8)
+        size = self._chunk_fun(ctypes.byref(self._layout), n, t.ctypes.data, x.ctypes.data,
+                               extra.ctypes.data, out.ctypes.data, index.ctypes.data)
+        if size < 0:  # more topics than the C encoder holds: never for STEP_TOPICS
+            raise LogError(f"{self._n_topics} per-step topics: the C encoder takes at most 32")
+        return out[:size].data, index.tobytes()
 
     def encode(self, t_ns: NDArray[np.int64],
                block: NDArray[np.float64]) -> tuple[memoryview, NDArray[np.int64]]:
@@ -727,8 +757,15 @@ class RunLogWriter:
         self._pending_rows = len(t)
 
     def _write_chunk(self, t: NDArray[np.int64], x: NDArray[np.float64]) -> None:
-        records, offsets = self._encoder.encode(t, x)
-        self._file.add_row_chunk(records, t, offsets, self._channel_ids)
+        if isinstance(self._encoder, _CRowEncoder):
+            records, indexes = self._encoder.encode_chunk(t, x)
+            size = len(indexes) // len(self._channel_ids)
+            self._file.add_indexed_chunk(
+                records, int(t[0]), int(t[-1]), indexes,
+                [(cid, k * size, len(t)) for k, cid in enumerate(self._channel_ids)])
+        else:
+            records_, offsets = self._encoder.encode(t, x)
+            self._file.add_row_chunk(records_, t, offsets, self._channel_ids)
         self._rows += len(t)
 
     def close(self, result: Mapping[str, object]) -> None:
