@@ -604,3 +604,26 @@ def _written(records: list[Any]) -> list[bytes]:
         r.write(b)
         out.append(b.end())
     return out
+
+
+def test_c_chunk_encoder_keeps_a_buffer_per_thread_and_takes_read_only_blocks() -> None:
+    """The encoder is shared by every log of a process and reuses its output buffer: a chunk
+    encoded in one thread stays whole while another thread encodes (a Dask worker may run
+    logs in threads); a read-only block (no buffer to lend) gives the same bytes."""
+    import threading
+
+    lib = load_stepper()
+    if lib is None:
+        pytest.skip("no C compiler: the stepper is not built")
+    ids = tuple(range(3, 3 + len(STEP_TOPICS)))
+    numpy_enc, c_enc = RowEncoder(ids, STEP_TOPICS), _CRowEncoder(lib, ids, STEP_TOPICS)
+    t = np.arange(100, dtype=np.int64) * STEP_NS
+    a, b = make_run(100, seed=1)[1], make_run(100, seed=2)[1]
+    mine, _ = c_enc.encode_chunk(t, a)
+    other = threading.Thread(target=c_enc.encode_chunk, args=(t, b))
+    other.start()
+    other.join()
+    assert bytes(mine) == numpy_enc.encode(t, a)[0]
+    ro = a.copy()
+    ro.flags.writeable = False
+    assert bytes(c_enc.encode_chunk(t, ro)[0]) == numpy_enc.encode(t, a)[0]

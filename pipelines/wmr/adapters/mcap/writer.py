@@ -28,6 +28,7 @@ import math
 import os
 import struct
 import sys
+import threading
 import zlib
 from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
@@ -396,6 +397,15 @@ def _channel_record(channel_id: int, topic: str, message_encoding: str, schema_i
     return rb.end()
 
 
+def _address(a: NDArray[Any]) -> int:
+    """The address of a C-contiguous array's data, for a ctypes call: a quarter of the cost of
+    ``a.ctypes.data`` (which makes a helper object), where the array lends its buffer."""
+    try:
+        return ctypes.addressof(ctypes.c_char.from_buffer(a.data))
+    except (TypeError, ValueError, BufferError):  # read-only, empty, or not contiguous
+        return int(a.ctypes.data)
+
+
 class _Layout(ctypes.Structure):
     """The stepper's ``wmr_layout``: the per-step topics' channels, bodies and slots."""
 
@@ -429,11 +439,18 @@ class _CRowEncoder:
                                               self._n_slots, self._slot_off, self._slot_src)]
         self._chunk_fun = lib.wmr_encode_chunk
         self._layout = _Layout(len(SIGNALS), 2, self._n_topics, *self._args)
+        self._layout_ref = ctypes.byref(self._layout)
+        # a chunk's output buffer, kept per thread (the encoder is shared by every log of a
+        # process, and a Dask worker may run logs in several threads): a new 70 kB buffer per
+        # chunk costs its page faults each time
+        self._buffers = threading.local()
 
     def encode_chunk(self, t_ns: NDArray[np.int64],
                      block: NDArray[np.float64]) -> tuple[memoryview, bytes]:
         """A chunk's records (as :meth:`encode`) and its Message Index records, one per
-        topic in topic order, as :mod:`mcap.records` packs them, in one C call."""
+        topic in topic order, as :mod:`mcap.records` packs them, in one C call.
+
+        The records are a view of this thread's buffer: valid until its next call."""
         n = t_ns.shape[0]
         extra = np.empty((n, 2), np.float64)  # the heading quaternion, as RowEncoder has it
         half = 0.5 * block[:, COLUMN["theta_rad"]]
@@ -441,13 +458,21 @@ class _CRowEncoder:
         extra[:, 1] = np.cos(half)
         x = np.ascontiguousarray(block, np.float64)
         t = np.ascontiguousarray(t_ns, np.int64)
-        out = np.empty(n * self._row_max, np.uint8)
+        out = self._buffer("records", n * self._row_max)
         index = np.empty(self._n_topics * (15 + 16 * n), np.uint8)
-        size = self._chunk_fun(ctypes.byref(self._layout), n, t.ctypes.data, x.ctypes.data,
-                               extra.ctypes.data, out.ctypes.data, index.ctypes.data)
+        size = self._chunk_fun(self._layout_ref, n,
+                               *[_address(a) for a in (t, x, extra, out, index)])
         if size < 0:  # more topics than the C encoder holds: never for STEP_TOPICS
             raise LogError(f"{self._n_topics} per-step topics: the C encoder takes at most 32")
         return out[:size].data, index.tobytes()
+
+    def _buffer(self, name: str, size: int) -> NDArray[np.uint8]:
+        """This thread's buffer ``name`` of at least ``size`` bytes."""
+        buf: NDArray[np.uint8] | None = getattr(self._buffers, name, None)
+        if buf is None or buf.size < size:
+            buf = np.empty(size, np.uint8)
+            setattr(self._buffers, name, buf)
+        return buf
 
     def encode(self, t_ns: NDArray[np.int64],
                block: NDArray[np.float64]) -> tuple[memoryview, NDArray[np.int64]]:
