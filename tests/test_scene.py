@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import warnings
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -202,7 +203,7 @@ def test_placed_clouds_records_are_mcap_s_of_protobuf_s_bytes() -> None:
     """The C stepper's records of the robot's outlines (``PlacedClouds.records``, one call for
     all) against the ``mcap`` library's Message records of each cloud serialised whole by
     protobuf, in two variants (the phases' colours), in order, sequence numbers 0, 1, ...;
-    and the sequence's own items are the same messages."""
+    the sequence's own items are the same messages; their CRC is zlib's."""
     from mcap.data_stream import RecordBuilder
     from mcap.records import Message
 
@@ -217,7 +218,7 @@ def test_placed_clouds_records_are_mcap_s_of_protobuf_s_bytes() -> None:
     clouds = PlacedClouds(t, poses, variants, (shapes, tuple(cloud_tail(s) for s in shapes)))
     built = clouds.records(channel=513)
     assert built is not None, "the C stepper is not there"
-    records, offsets = built
+    records, offsets, crc = built
     expected = RecordBuilder()
     starts = []
     for i, ((x, y, th, ti), v) in enumerate(zip(cases, variants.tolist(), strict=True)):
@@ -228,6 +229,7 @@ def test_placed_clouds_records_are_mcap_s_of_protobuf_s_bytes() -> None:
                 ).write(expected)
     assert bytes(records) == expected.end()
     assert offsets.tolist() == starts
+    assert crc == zlib.crc32(records)  # made from the tails' own CRCs
 
 
 def test_a_long_run_has_at_most_max_outlines_robot_clouds(tmp_path: Path) -> None:

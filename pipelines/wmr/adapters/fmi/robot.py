@@ -79,7 +79,8 @@ def load_stepper() -> Any:
                 lib.wmr_encode_rows.restype = ctypes.c_longlong
                 lib.wmr_cloud_records.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 3,
                                                   ctypes.c_int, ctypes.c_void_p, ctypes.c_int,
-                                                  *[ctypes.c_void_p] * 4]
+                                                  *[ctypes.c_void_p] * 2, ctypes.c_int,
+                                                  *[ctypes.c_void_p] * 3]
                 lib.wmr_cloud_records.restype = ctypes.c_longlong
                 lib.wmr_encode_chunk.argtypes = [ctypes.c_void_p, ctypes.c_int,
                                                  *[ctypes.c_void_p] * 5]

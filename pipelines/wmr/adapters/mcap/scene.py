@@ -445,9 +445,10 @@ class PlacedClouds(Sequence[bytes]):
         x, y, theta = self._pose[i].tolist()
         return cloud_message(int(self._t_ns[i]), self._shapes[v], (x, y, theta), self._tails[v])
 
-    def records(self, channel: int) -> tuple[memoryview, npt.NDArray[np.int64]] | None:
-        """The Message records of every cloud on ``channel`` (sequence numbers 0, 1, ...) and
-        their offsets, or None without the C stepper."""
+    def records(self, channel: int) -> tuple[memoryview, npt.NDArray[np.int64], int] | None:
+        """The Message records of every cloud on ``channel`` (sequence numbers 0, 1, ...),
+        their offsets and their CRC-32 (``zlib.crc32`` of the records, made from the tails'
+        own CRCs), or None without the C stepper."""
         from wmr.adapters.fmi.robot import load_stepper
 
         lib = load_stepper()
@@ -461,11 +462,15 @@ class PlacedClouds(Sequence[bytes]):
         # a record: head 31, timestamp 14, pose 42, the frame and the tail
         out = np.empty(n * (31 + 14 + 42 + len(_FRAME) + int(tail_len.max())), np.uint8)
         offsets = np.empty(n, np.int64)
+        crc = ctypes.c_uint(0)
         size = lib.wmr_cloud_records(n, self._t_ns.ctypes.data, self._pose.ctypes.data,
                                      self._variant.ctypes.data,
                                      channel, frame.ctypes.data, len(_FRAME), tail_ptrs,
-                                     tail_len.ctypes.data, out.ctypes.data, offsets.ctypes.data)
-        return out[:size].data, offsets
+                                     tail_len.ctypes.data, len(tails), out.ctypes.data,
+                                     offsets.ctypes.data, ctypes.byref(crc))
+        if size < 0:  # a variant without a tail, or too many tails: left to the Python path
+            return None
+        return out[:size].data, offsets, crc.value
 
 
 # --------------------------------------------------------------------------- the recorder

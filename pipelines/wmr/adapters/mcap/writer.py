@@ -219,6 +219,7 @@ class McapFile:
         self,
         records: bytes | memoryview,
         index: Mapping[int, tuple[NDArray[np.int64], NDArray[np.int64]]],
+        uncompressed_crc: int | None = None,
     ) -> None:
         """Write a chunk of already serialised Message records, then its Message Indexes.
 
@@ -228,6 +229,8 @@ class McapFile:
             Concatenated Message records, in log-time order (bytes, or a view of uint8).
         index
             Channel id -> (log times in ns, byte offsets of the records in ``records``).
+        uncompressed_crc
+            ``zlib.crc32(records)``, if the caller has it (computed here otherwise).
         """
         entries = [(cid, t, o) for cid, (t, o) in index.items() if len(t)]
         if not entries:
@@ -244,7 +247,8 @@ class McapFile:
             parts += [_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + pairs.nbytes, cid, pairs.nbytes),
                       pairs.tobytes()]
             at += _INDEX_HEAD.size + pairs.nbytes
-        self.add_indexed_chunk(records, t_first, t_last, b"".join(parts), index_of)
+        self.add_indexed_chunk(records, t_first, t_last, b"".join(parts), index_of,
+                               uncompressed_crc)
 
     def add_row_chunk(self, records: bytes | memoryview, t_ns: NDArray[np.int64],
                       offsets: NDArray[np.int64], channel_ids: tuple[int, ...]) -> None:
@@ -264,7 +268,8 @@ class McapFile:
                                [(cid, k * size, n) for k, cid in enumerate(channel_ids)])
 
     def add_indexed_chunk(self, records: bytes | memoryview, t_first: int, t_last: int,
-                          indexes: bytes, index_of: list[tuple[int, int, int]]) -> None:
+                          indexes: bytes, index_of: list[tuple[int, int, int]],
+                          uncompressed_crc: int | None = None) -> None:
         """The Chunk record and its Message Index records (``indexes``: channel id, offset in
         ``indexes`` and message count of each in ``index_of``), packed here as
         :meth:`mcap.records.Chunk.write` and ``MessageIndex.write`` pack them (checked
@@ -275,7 +280,9 @@ class McapFile:
         data_len = len(data)
         chunk_start = self._pos
         head = _CHUNK_HEAD.pack(Opcode.CHUNK, _CHUNK_FIXED + len(self._compression_bytes)
-                                + data_len, t_first, t_last, size, zlib.crc32(records),
+                                + data_len, t_first, t_last, size,
+                                zlib.crc32(records) if uncompressed_crc is None
+                                else uncompressed_crc,
                                 len(self._compression_bytes))
         self._write(b"".join((head, self._compression_bytes, struct.pack("<Q", data_len), data,
                               indexes)))
@@ -751,7 +758,7 @@ class RunLogWriter:
         records_of = getattr(messages, "records", None)  # scene.PlacedClouds: all at once
         built = records_of(cid) if records_of is not None else None
         if built is not None:
-            self._file.add_chunk(built[0], {cid: (t, built[1])})
+            self._file.add_chunk(built[0], {cid: (t, built[1])}, uncompressed_crc=built[2])
             return
         head = struct.Struct("<BQHIQQ")
         parts: list[bytes] = []
