@@ -23,6 +23,7 @@ test or explained in :data:`EQUIVALENT` (and in docs/testing.md).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shutil
@@ -76,7 +77,8 @@ TARGETS: dict[str, Target] = {
                           functions=tuple(f"wmr.adapters.mcap.reader.{f}__mutmut_*" for f in (
                               "x__check_crc", "x__read_chunk", "x__chunk_messages",
                               "xǁLogScanǁdamage", "xǁLogScanǁcharge"))),
-    "batch_journal": Target("apps/batch/journal.py", ("tests/test_batch.py",),
+    "batch_journal": Target("apps/batch/journal.py",
+                            ("tests/test_journal.py", "tests/test_batch.py"),
                             pytest_args=("-m", "not slow", "-k", "resume or journal or cut"),
                             timeout_multiplier=60.0),  # its tests start batches too
     "batch_resume": Target("apps/batch/runner.py",
@@ -352,6 +354,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mutants", nargs="+", default=(), metavar="PATTERN",
                         help="only the mutants whose names match these fnmatch patterns "
                              "(e.g. the survivors of a previous run, to see them killed)")
+    parser.add_argument("--timeout-multiplier", type=float, default=None, metavar="X",
+                        help="mutmut's timeout multiplier for this run (default: the "
+                             "target's); higher, to confirm that the timeouts of a run loop")
     parser.add_argument("--list", action="store_true", help="list the modules and exit")
     args = parser.parse_args(argv)
     if args.list:
@@ -367,7 +372,10 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[Score] = []
     left: list[str] = []
     for name in names:
-        score, survivors = run_target(name, TARGETS[name], args.work, args.sample,
+        target = TARGETS[name]
+        if args.timeout_multiplier is not None:
+            target = dataclasses.replace(target, timeout_multiplier=args.timeout_multiplier)
+        score, survivors = run_target(name, target, args.work, args.sample,
                                       args.max_children, tuple(args.mutants))
         rows.append(score)
         left += survivors
