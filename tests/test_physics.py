@@ -11,6 +11,7 @@ from scipy.integrate import solve_ivp
 
 from wmr.core.physics import (
     ReferencePlant,
+    accelerations,
     derivatives,
     equal_torque_solution,
     kinetic_energy,
@@ -244,3 +245,18 @@ def test_pure_spin_with_l_zero_is_linear_in_the_torque(tau: float) -> None:
     sol = _integrate(lambda _t, s: derivatives(s, tau, -tau, p0), [0.0] * 7, 1.0, n_eval=3)
     for k, t in enumerate(sol.t):
         assert spin_solution(t, tau, p0)[1] == pytest.approx(sol.y[4, k], rel=1e-9, abs=1e-12)
+
+
+def test_eq24_and_the_kinematics_at_one_state_by_hand() -> None:
+    """Eq. 23 with the corrected eq. 24 and eq. 7, 3 at one state, each term worked out by
+    hand with round numbers (no friction): M11 = 2 + 2(0.125)/0.25 = 3,
+    M22 = 1 + 2(0.25) + 2(1)(0.125)/0.25 = 2.5; at v = 1 m/s, omega = 2 rad/s, tau = (3, 1):
+    v' = ((3 + 1)/0.5 + 2(0.5)(4))/3 = 4, omega' = ((1)(3 - 1)/0.5 - 2(0.5)(1)(2))/2.5 = 0.8,
+    the wheels (1 + 2)/0.5 = 6 and (1 - 2)/0.5 = -2 rad/s.  A direct check, so that a wrong
+    term fails here at once rather than by a trajectory that no longer converges."""
+    params = RobotParams(m=2.0, r=0.5, L=1.0, l=0.5, Ig=1.0, Iwm=0.125, b_f=0.0, tau_c=0.0)
+    assert accelerations(1.0, 2.0, 3.0, 1.0, params) == pytest.approx((4.0, 0.8), abs=1e-12)
+    theta = math.pi / 6
+    state = np.array([0.3, -0.2, theta, 1.0, 2.0, 7.0, -5.0])  # phi_r, phi_l: any angles
+    assert derivatives(state, 3.0, 1.0, params) == pytest.approx(
+        [math.sqrt(3) / 2, 0.5, 2.0, 4.0, 0.8, 6.0, -2.0], abs=1e-12)
