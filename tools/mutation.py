@@ -168,6 +168,9 @@ EQUIVALENT: dict[str, str] = {
     f"{_STAB}update__mutmut_128": _ZERO_ERROR,
     f"{_STAB}update__mutmut_138": _ZERO_ERROR,
     f"{_STAB}update__mutmut_164": "|w_l| == |w_r|: either is the peak",
+    f"{_STAB}update__mutmut_165": (
+        "peak exactly wheel_max scaled too: k = wheel_max / peak = 1.0 exactly, the speeds "
+        "unchanged (wheel_max > 0 and finite: Limits is checked)"),
     # adapters/ocp/result.py: the rollout's RK4 made finer still, and the first node's input
     **{f"wmr.adapters.ocp.result.x__dense__mutmut_{n}": (
         "more RK4 sub-steps in each fine step: a result closer to the exact one by less than "
