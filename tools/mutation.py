@@ -196,6 +196,14 @@ EQUIVALENT: dict[str, str] = {
     "wmr.adapters.mcap.reader.x__read_chunk__mutmut_89": (
         "'more than' when len(buf) >= usize instead of >: the message is made only when "
         "len(buf) != usize, where the two agree"),
+    # build/fmus.py: the digest's separators and the label of a host build (its value changes,
+    # not what goes into it)
+    **{f"wmr.build.fmus.x_build_digest__mutmut_{n}": (
+        "another separator between the versions or the platforms ('XX XX' for ' '): every "
+        "input still enters the digest, which is compared only with itself") for n in (29, 32)},
+    **{f"wmr.build.fmus.x_build_digest__mutmut_{n}": (
+        "another label for a host compiler's platforms ('XXhostXX', 'HOST' for 'host'): a "
+        "constant, so the digest still changes exactly when an input does") for n in (35, 36)},
     # apps/batch/runner.py
     **{f"wmr.apps.batch.runner.x__resume__mutmut_{n}": (
         "the journal check's bar given file=None or no file: tqdm then writes to sys.stderr, "
