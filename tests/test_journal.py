@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import tracemalloc
 from pathlib import Path
 from typing import Any
 
@@ -191,6 +192,29 @@ def test_a_line_of_exactly_the_bound_is_read_one_byte_more_is_skipped(tmp_path: 
     for offset in (len(at), len(at) + len(over)):
         with pytest.raises(ValueError, match=f"byte {offset}$"):
             next(journal.read_at([offset]))
+
+
+def test_an_overlong_line_is_skipped_unread(tmp_path: Path) -> None:
+    """journal.py: a line over the bound is skipped unread, whatever a hand or a disk put
+    there: a 32 MiB line (a disk's zeros, say) costs scan and read_at at most about the
+    bound in memory, not the line (traced here: Python's bytes objects)."""
+    huge = 32 * MAX_LINE_BYTES
+    path = tmp_path / "journal.jsonl"
+    with open(path, "wb") as f:
+        f.write(b'{"run_id": "0000-a", "record": {}, "pad": "')
+        f.truncate(huge)  # zeros, as a disk leaves them
+        f.seek(huge)
+        f.write(b'"}\n' + _line("0001-b"))
+    journal = Journal(path)
+    tracemalloc.start()
+    try:
+        assert [(off, row["run_id"]) for off, row in journal.scan()] == [(huge + 3, "0001-b")]
+        with pytest.raises(ValueError):
+            next(journal.read_at([0]))
+        _, peak_bytes = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak_bytes < 4 * MAX_LINE_BYTES
 
 
 def test_the_line_bound_counts_bytes_not_characters(tmp_path: Path) -> None:

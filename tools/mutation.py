@@ -204,6 +204,12 @@ EQUIVALENT: dict[str, str] = {
     **{f"wmr.build.fmus.x_build_digest__mutmut_{n}": (
         "another label for a host compiler's platforms ('XXhostXX', 'HOST' for 'host'): a "
         "constant, so the digest still changes exactly when an input does") for n in (35, 36)},
+    # apps/batch/journal.py
+    "wmr.apps.batch.journal.xǁJournalǁ__init____mutmut_2": (
+        "_checked = None for False: only ever tested as 'not self._checked', both falsy"),
+    "wmr.apps.batch.journal.xǁJournalǁread_at__mutmut_23": (
+        "readline(MAX_LINE_BYTES + 2) for + 1: a line of at most MAX_LINE_BYTES is read whole "
+        "either way, a longer one is read one byte further and refused by _parse's own bound"),
     # apps/batch/runner.py
     **{f"wmr.apps.batch.runner.x__resume__mutmut_{n}": (
         "the journal check's bar given file=None or no file: tqdm then writes to sys.stderr, "
