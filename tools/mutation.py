@@ -207,6 +207,8 @@ EQUIVALENT: dict[str, str] = {
     # apps/batch/journal.py
     "wmr.apps.batch.journal.xǁJournalǁ__init____mutmut_2": (
         "_checked = None for False: only ever tested as 'not self._checked', both falsy"),
+    "wmr.apps.batch.journal.x_line_check__mutmut_8": (
+        "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
     "wmr.apps.batch.journal.xǁJournalǁread_at__mutmut_23": (
         "readline(MAX_LINE_BYTES + 2) for + 1: a line of at most MAX_LINE_BYTES is read whole "
         "either way, a longer one is read one byte further and refused by _parse's own bound"),
