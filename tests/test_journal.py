@@ -370,3 +370,25 @@ def test_no_record_is_made_from_a_log_that_is_not_finished_or_not_json(tmp_path:
                  _log(tmp_path / "killed.mcap", RESULT, finish=False),
                  _log(tmp_path / "bad.mcap", {**RESULT, "steps": "{not json"})):
         assert logged_record(path) is None, path.name
+
+
+def test_a_record_is_made_again_exactly_from_the_logs_the_resume_counts_finished(
+        tmp_path: Path) -> None:
+    """A record is made from a log only if :func:`log_complete` takes it as finished (its
+    summary indexes a ``result`` record), so that a resume never trusts a record from a log
+    it would redo: among them another writer's log that holds the ``result`` record but no
+    summary section (written without indexes)."""
+    from mcap.writer import IndexType
+
+    no_summary = tmp_path / "no_summary.mcap"
+    with open(no_summary, "wb") as stream:
+        writer = Writer(stream, index_types=IndexType.NONE, repeat_channels=False,
+                        repeat_schemas=False, use_statistics=False, use_summary_offsets=False)
+        writer.start(profile="", library="another writer")
+        writer.add_metadata("result", RESULT)
+        writer.finish()
+    done = _log(tmp_path / "done.mcap", RESULT)
+    logs = [done, no_summary, _log(tmp_path / "none.mcap", None),
+            _log(tmp_path / "killed.mcap", RESULT, finish=False), tmp_path / "missing.mcap"]
+    assert [logged_record(p) is not None for p in logs] == [log_complete(p) for p in logs]
+    assert [log_complete(p) for p in logs] == [True, False, False, False, False]

@@ -207,6 +207,18 @@ EQUIVALENT: dict[str, str] = {
     # apps/batch/journal.py
     "wmr.apps.batch.journal.xǁJournalǁ__init____mutmut_2": (
         "_checked = None for False: only ever tested as 'not self._checked', both falsy"),
+    "wmr.apps.batch.journal.x_logged_record__mutmut_10": (
+        "'summary is None and not any(...)': without a summary it reads summary's indexes and "
+        "raises AttributeError (caught: None, as before); with one, iter_metadata reads that "
+        "same index, so a result it does not list is not found either (None)"),
+    "wmr.apps.batch.journal.x_logged_record__mutmut_20": (
+        "next() without its default None: the StopIteration is an Exception, caught: None"),
+    **{f"wmr.apps.batch.journal.x_logged_record__mutmut_{n}": (
+        "another default for a missing message (None, 'XXXX'): it is only tested for starting "
+        "with 'WallClockLimit', which none of them does") for n in (35, 37, 40)},
+    "wmr.apps.batch.journal.x_logged_record__mutmut_58": (
+        "rpartition for partition of 'WallClockLimit: <text>': the text is "
+        "worker.wall_limit_message's, which holds no ': '"),
     "wmr.apps.batch.journal.x_line_check__mutmut_8": (
         "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
     "wmr.apps.batch.journal.xǁJournalǁread_at__mutmut_23": (
