@@ -219,6 +219,9 @@ EQUIVALENT: dict[str, str] = {
     "wmr.apps.batch.journal.x_logged_record__mutmut_58": (
         "rpartition for partition of 'WallClockLimit: <text>': the text is "
         "worker.wall_limit_message's, which holds no ': '"),
+    **{f"wmr.apps.batch.journal.xǁJournalǁ_ends_with_newline__mutmut_{n}": (
+        "read(None) or read(2) for read(1) after seeking to the last byte: one byte is left "
+        "either way") for n in (13, 14)},
     "wmr.apps.batch.journal.x_line_check__mutmut_8": (
         "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
     "wmr.apps.batch.journal.xǁJournalǁread_at__mutmut_23": (
