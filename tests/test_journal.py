@@ -392,3 +392,17 @@ def test_a_record_is_made_again_exactly_from_the_logs_the_resume_counts_finished
             _log(tmp_path / "killed.mcap", RESULT, finish=False), tmp_path / "missing.mcap"]
     assert [logged_record(p) is not None for p in logs] == [log_complete(p) for p in logs]
     assert [log_complete(p) for p in logs] == [True, False, False, False, False]
+
+
+def test_a_stamped_path_that_cannot_hold_a_log_is_not_complete(tmp_path: Path) -> None:
+    """The stamp's fast path reads the last 8 bytes: a file shorter than the MCAP magic, or a
+    folder put where the log was (each with its own, matching, stamp), is not a finished
+    log, and the run is done again."""
+    short = tmp_path / "short.mcap"
+    short.write_bytes(MCAP_MAGIC[-3:])
+    folder = tmp_path / "folder.mcap"
+    folder.mkdir()
+    for path in (short, folder):
+        stamp = log_stamp(path)
+        assert stamp is not None
+        assert not log_complete(path, stamp), path.name

@@ -222,6 +222,10 @@ EQUIVALENT: dict[str, str] = {
     **{f"wmr.apps.batch.journal.xǁJournalǁ_ends_with_newline__mutmut_{n}": (
         "read(None) or read(2) for read(1) after seeking to the last byte: one byte is left "
         "either way") for n in (13, 14)},
+    **{f"wmr.apps.batch.journal.xǁJournalǁappend__mutmut_{n}": (
+        "append's allow_nan=False dropped, None or True: line_check(row) just before already "
+        "raises ValueError on a NaN (allow_nan=False), the only value it would refuse")
+       for n in (8, 11, 13)},
     "wmr.apps.batch.journal.x_line_check__mutmut_8": (
         "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
     "wmr.apps.batch.journal.xǁJournalǁread_at__mutmut_23": (
