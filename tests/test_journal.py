@@ -406,3 +406,27 @@ def test_a_stamped_path_that_cannot_hold_a_log_is_not_complete(tmp_path: Path) -
         stamp = log_stamp(path)
         assert stamp is not None
         assert not log_complete(path, stamp), path.name
+
+
+def test_a_link_at_the_journal_is_refused_naming_the_file_and_nothing_written(
+        tmp_path: Path) -> None:
+    """docs/reliability.md: a symbolic or hard link at a batch folder's ``journal.jsonl`` is
+    refused in one line naming the file (and what it is), nothing written to its target."""
+    from wmr.infra.errors import LogError
+
+    target = tmp_path / "elsewhere.txt"
+    target.write_bytes(b"someone else's file\n")
+    for kind in ("symbolic", "hard"):
+        folder = tmp_path / kind
+        folder.mkdir()
+        path = folder / "journal.jsonl"
+        if kind == "symbolic":
+            path.symlink_to(target)
+        else:
+            os.link(target, path)
+        with pytest.raises(LogError) as info:
+            Journal(path).append({"run_id": "0000-a", "record": {}})
+        message = str(info.value)
+        assert message.startswith(f"{path}: ") and "\n" not in message
+        assert "the batch journal" in message, message
+        assert target.read_bytes() == b"someone else's file\n"

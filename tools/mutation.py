@@ -228,6 +228,10 @@ EQUIVALENT: dict[str, str] = {
        for n in (8, 11, 13)},
     "wmr.apps.batch.journal.x_line_check__mutmut_8": (
         "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
+    "wmr.apps.batch.journal.xǁJournalǁscan__mutmut_12": (
+        "readline(MAX_LINE_BYTES + 2) for + 1 in scan: a line of at most MAX_LINE_BYTES is "
+        "read whole either way, a longer one is skipped to its newline either way (the offsets "
+        "count the bytes read)"),
     "wmr.apps.batch.journal.xǁJournalǁread_at__mutmut_23": (
         "readline(MAX_LINE_BYTES + 2) for + 1: a line of at most MAX_LINE_BYTES is read whole "
         "either way, a longer one is read one byte further and refused by _parse's own bound"),
