@@ -430,3 +430,28 @@ def test_a_link_at_the_journal_is_refused_naming_the_file_and_nothing_written(
         assert message.startswith(f"{path}: ") and "\n" not in message
         assert "the batch journal" in message, message
         assert target.read_bytes() == b"someone else's file\n"
+
+
+def test_a_full_disk_while_appending_is_one_line_naming_the_journal(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/reliability.md: ENOSPC anywhere (the journal among them) becomes one line naming
+    the file; a write cut short by the system is continued (here 7 bytes at a time)."""
+    import errno
+
+    from wmr.infra.errors import DiskFullError
+
+    path = tmp_path / "journal.jsonl"
+    real_write = os.write
+    monkeypatch.setattr(os, "write", lambda fd, data: real_write(fd, bytes(data[:7])))
+    row = {"run_id": "0000-a", "record": {"status": "converged"}}
+    assert Journal(path).append(row) == 0
+    assert json.loads(path.read_bytes()) == {**row, "check": line_check(row)}
+
+    def full(fd: int, data: bytes) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "write", full)
+    with pytest.raises(DiskFullError) as info:
+        Journal(path).append({"run_id": "0001-b", "record": {}})
+    message = str(info.value)
+    assert str(path) in message and "no space left" in message and "\n" not in message

@@ -226,6 +226,11 @@ EQUIVALENT: dict[str, str] = {
         "append's allow_nan=False dropped, None or True: line_check(row) just before already "
         "raises ValueError on a NaN (allow_nan=False), the only value it would refuse")
        for n in (8, 11, 13)},
+    **{f"wmr.apps.batch.journal.xǁJournalǁappend__mutmut_{n}": (
+        "_checked left falsy (None, False) after the first append: every append then reads "
+        "the journal's last byte, which is the newline this journal wrote (the batch folder's "
+        "lock makes it the only writer): the same bytes, one 1-byte read more a line")
+       for n in (31, 32)},
     "wmr.apps.batch.journal.x_line_check__mutmut_8": (
         "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
     "wmr.apps.batch.journal.xǁJournalǁscan__mutmut_12": (
