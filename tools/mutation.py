@@ -12,6 +12,7 @@ Usage::
     python tools/mutation.py physics energy  # some of them
     python tools/mutation.py --sample        # the small fixed sample that CI runs
     python tools/mutation.py physics --mutants 'wmr.core.physics.x_outputs__mutmut_*'
+    python tools/mutation.py physics --timeout-multiplier 60 --mutants NAME  # confirm a timeout
     python tools/mutation.py --list          # the modules, their tests and functions
 
 Prints a table (module, mutants, killed, survived, equivalent, no tests, timeout) and the
