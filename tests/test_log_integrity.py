@@ -681,6 +681,18 @@ def test_a_chunk_may_declare_exactly_the_chunk_limit_and_not_one_byte_more(
         + _SPAN.format(s=i + 1) for i in (1, 2)]
 
 
+@pytest.mark.parametrize(("limit", "said"), [(1000, "1000 B"), (3 << 19, f"{3 << 19} B"),
+                                             (2 << 20, "2 MiB")])
+def test_a_chunk_limit_is_said_in_mib_when_whole_else_in_bytes(
+        tmp_path: Path, limit: int, said: str) -> None:
+    """The warning names the limit the user set: 1000 bytes is not "0 MiB"."""
+    data, at = _hand_log(_second_chunk(1, declared=limit + 1))
+    scan = _scan(tmp_path, data, ReadLimits(chunk_bytes=limit))
+    assert scan.warnings == [
+        f"the chunk at byte {at[0]} declares {limit + 1} bytes uncompressed, above the {said} "
+        "chunk limit (ReadLimits.chunk_bytes; a decompression bomb?): " + _SPAN.format(s=1)]
+
+
 @pytest.mark.parametrize("short", [0, 1])
 def test_the_read_budget_stops_at_the_first_chunk_past_it_and_counts_the_rest(
         tmp_path: Path, short: int) -> None:
@@ -698,8 +710,8 @@ def test_the_read_budget_stops_at_the_first_chunk_past_it_and_counts_the_rest(
     assert scan.warnings == [
         f"the chunk at byte {at[0]} is damaged (chunk crc validation failed): "
         + _SPAN.format(s=0),
-        "the log holds more than 0 MiB (ReadLimits.total_bytes): read stops at the chunk at "
-        f"t = {stop} s; give a higher limit to read it all",
+        f"the log holds more than {sum(kept) - short} B (ReadLimits.total_bytes): read stops "
+        f"at the chunk at t = {stop} s; give a higher limit to read it all",
         "the data section CRC was not checked: damaged bytes were skipped"]
 
 

@@ -168,7 +168,9 @@ _CHUNK_HEAD: Final = struct.Struct("<QQQII")
 
 
 def _mib(n: int) -> str:
-    return f"{n / (1 << 20):.0f} MiB"
+    """A limit for a message: in MiB when it is a whole number of them, else in bytes (a
+    limit under 1 MiB printed as "0 MiB" said nothing)."""
+    return f"{n >> 20} MiB" if n >= 1 << 20 and not n % (1 << 20) else f"{n} B"
 
 
 class _Stop(Exception):
