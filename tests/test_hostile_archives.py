@@ -12,6 +12,7 @@ to 2 GiB, ...) into a folder, for measuring peak memory with ``/usr/bin/time -v`
 
 from __future__ import annotations
 
+import re
 import stat
 import struct
 import sys
@@ -357,6 +358,124 @@ def test_the_door_counts_inflated_bytes_not_the_header(tmp_path: Path) -> None:
     with open_archive(honest, "test") as archive, \
             pytest.raises(FmuError, match="more than 1048576 bytes"):
         archive.read("a", limit=MiB)
+
+
+
+# ------------------------------------------------------------------ names that become paths
+
+#: A library that says it was loaded: its constructor runs at dlopen, before any FMI call.
+EVIL_C = """#include <stdio.h>
+__attribute__((constructor)) static void owned(void) {
+    FILE *f = fopen("%s", "w");
+    if (f) { fputs("owned", f); fclose(f); }
+}
+"""
+
+
+@pytest.fixture
+def evil_library(tmp_path: Path) -> tuple[Path, Path]:
+    """``(library path without .so, marker file its constructor writes)``, outside any FMU."""
+    import shutil
+    import subprocess
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler")
+    folder = tmp_path / "evil"
+    folder.mkdir()
+    marker = tmp_path / "marker.txt"
+    (folder / "evil.c").write_text(EVIL_C % marker)
+    subprocess.run([cc, "-shared", "-fPIC", "-o", str(folder / "libevil.so"),
+                    str(folder / "evil.c")], check=True)
+    return folder / "libevil", marker
+
+
+def _with_identifier(fmu: Path, out: Path, identifier: str, interface: str) -> Path:
+    """``fmu`` whose model description names ``identifier`` for ``interface`` (its
+    ``CoSimulation`` or ``ModelExchange`` element): no binary is added."""
+    members = members_of(fmu)
+    md = members["modelDescription.xml"].decode()
+    md = re.sub(f'(<{interface} [^>]*modelIdentifier=")wmr_robot"', f'\\g<1>{identifier}"',
+                md)
+    assert identifier in md
+    members["modelDescription.xml"] = md.encode()
+    return write_zip(out, [Member(n, d) for n, d in members.items()])
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+@pytest.mark.parametrize("case", ["absolute", "traversing", "model-exchange"])
+def test_a_model_identifier_that_is_a_path_never_loads_a_library(
+        case: str, fmi: int, built: object, evil_library: tuple[Path, Path], tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """fmpy joins ``modelIdentifier`` onto ``binaries/<platform>/``: ``/abs/libevil`` or
+    ``../../../../evil/libevil`` loaded a library from outside the extracted FMU, whose
+    constructor ran before any error.  Refused at the archive door, naming the FMU and the
+    field, by ``wmr run --fmu``, the plant of a batch worker and ``wmr ssp export``."""
+    import tempfile
+
+    from wmr.adapters.fmi.robot import FmuPlant
+    from wmr.cli import main
+    from wmr.core.plant import Pose, RobotParams
+    from wmr.infra.errors import FmuError
+
+    library, marker = evil_library
+    extraction = tmp_path / "tmp"  # the FMU's folder: tmp/wmr-fmu-*/binaries/<platform>/
+    extraction.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(extraction))
+    identifier = {"absolute": str(library), "traversing": "../../../../evil/libevil",
+                  "model-exchange": "../../../../evil/libevil"}[case]
+    interface = "ModelExchange" if case == "model-exchange" else "CoSimulation"
+    good = built.fmus[fmi]  # type: ignore[attr-defined]
+    bad = _with_identifier(good, tmp_path / "bad.fmu", identifier, interface)
+    with pytest.raises(FmuError, match=f"bad.fmu: modelDescription.xml: its {interface} "
+                                       "modelIdentifier .* is not "
+                                       "a C identifier"):
+        with FmuPlant(bad) as plant:  # what a batch worker opens and runs
+            plant.reset(RobotParams(), Pose(0.0, 0.0, 0.0))
+    for argv in (["run", "fig11", "--fmu", str(bad), "--out", str(tmp_path / "r.mcap")],
+                 ["ssp", "export", "fig11", "--robot-fmu", str(bad), "--out",
+                  str(tmp_path / "p.ssp")]):
+        assert main(argv) == 1, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "bad.fmu" in err[0] and "modelIdentifier" in err[0], err
+    assert not marker.exists(), "the library's constructor ran"
+    assert not (tmp_path / "p.ssp").exists() and not (tmp_path / "r.mcap").exists()
+    assert list(extraction.iterdir()) == []  # the extraction folders removed
+
+
+def test_the_library_fmpy_loads_is_a_regular_file_inside_the_fmu(tmp_path: Path) -> None:
+    """The last check before fmpy dlopens: the library named by the (checked) identifier is
+    a regular file under ``binaries/<platform>/``, through no link."""
+    from types import SimpleNamespace
+
+    import fmpy
+
+    from wmr.adapters.fmi.slave import checked_library
+    from wmr.infra.errors import FmuError
+
+    md = SimpleNamespace(fmiVersion="3.0", coSimulation=SimpleNamespace(modelIdentifier="m"))
+    name = "m" + fmpy.sharedLibraryExtension
+    folder = tmp_path / "fmu"
+    with pytest.raises(FmuError, match="has no binary for this platform"):
+        checked_library(folder, md, "x.fmu")
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "elsewhere" / name).write_bytes(b"")
+    (folder / "binaries").mkdir(parents=True)
+    (folder / "binaries" / fmpy.platform_tuple).symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(FmuError, match=f"x.fmu: binaries/{fmpy.platform_tuple} is a "
+                                       "symbolic link: refused"):
+        checked_library(folder, md, "x.fmu")
+    (folder / "binaries" / fmpy.platform_tuple).unlink()
+    (folder / "binaries" / fmpy.platform_tuple / name).mkdir(parents=True)
+    with pytest.raises(FmuError, match="is not a regular file"):
+        checked_library(folder, md, "x.fmu")
+    (folder / "binaries" / fmpy.platform_tuple / name).rmdir()
+    (folder / "binaries" / fmpy.platform_tuple / name).write_bytes(b"")
+    assert checked_library(folder, md, "x.fmu") == folder / "binaries" / \
+        fmpy.platform_tuple / name
+    md.coSimulation.modelIdentifier = "a" * 201
+    with pytest.raises(FmuError, match="at most 200 characters"):
+        checked_library(folder, md, "x.fmu")
 
 
 if __name__ == "__main__":  # python tests/test_hostile_archives.py GOOD.ssp OUT_DIR

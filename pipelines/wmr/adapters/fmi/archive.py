@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import io
 import os
+import re
 import stat
 import struct
 import xml.etree.ElementTree as ET
@@ -57,6 +58,12 @@ _WINDOWS_REPARSE_POINT: Final = 0x400  # FILE_ATTRIBUTE_REPARSE_POINT: a Windows
 #: Members that masters parse as FMI or SSP XML, checked by :class:`XmlGuard` as they inflate.
 _XML_SUFFIXES: Final = (".ssd", ".ssv", ".ssm")
 _MODEL_DESCRIPTION: Final = "modelDescription.xml"
+#: FMI 2.0 and 3.0: a ``modelIdentifier`` is a C identifier (it names the library under
+#: ``binaries/<platform>/`` and prefixes its functions); bounded, as file names are.
+MAX_IDENTIFIER_CHARS: Final = 200
+_IDENTIFIER: Final = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+#: The interface elements of a model description whose ``modelIdentifier`` names a library.
+_INTERFACES: Final = ("CoSimulation", "ModelExchange", "ScheduledExecution")
 _EOCD: Final = b"PK\x05\x06"
 _ZIP64_LOCATOR: Final = b"PK\x06\x07"
 
@@ -360,6 +367,32 @@ def safe_extract(path: Path, dest: Path, budget: Budget | None = None,
     return dest
 
 
+def check_model_identifier(identifier: str, where: str, interface: str = "CoSimulation"
+                           ) -> str:
+    """``identifier``, a model description's ``modelIdentifier``, if it is a C identifier
+    (FMI 2.0 and 3.0 say it is); else a one-line refusal.  fmpy and the masters join it onto
+    ``binaries/<platform>/`` and load that library: ``/abs/evil`` or ``../../x/evil`` would load
+    one from outside the extracted FMU, which no check of the archive saw.
+
+    Raises
+    ------
+    FmuError
+        Naming ``where`` (the FMU), the element and the value.
+    """
+    if len(identifier) > MAX_IDENTIFIER_CHARS or not _IDENTIFIER.fullmatch(identifier):
+        raise _refuse(where, f"its {interface} modelIdentifier {_show(identifier)} is not a C "
+                             f"identifier ([A-Za-z_][A-Za-z0-9_]*, at most "
+                             f"{MAX_IDENTIFIER_CHARS} characters: it names the library to "
+                             "load)")
+    return identifier
+
+
+def _check_interface(element: str, attrs: dict[str, str], where: str) -> None:
+    """Check the ``modelIdentifier`` of an interface element of a model description."""
+    if element in _INTERFACES and "modelIdentifier" in attrs:
+        check_model_identifier(attrs["modelIdentifier"], where, element)
+
+
 class _Refused(Exception):
     pass
 
@@ -381,6 +414,7 @@ class XmlGuard:
         #: The root element's attributes, once it has streamed by (``fmiVersion``).
         self.root_attributes: dict[str, str] = {}
         self._depth = 0
+        self._root = ""
         self._parser = expat.ParserCreate()
         self._parser.SetParamEntityParsing(expat.XML_PARAM_ENTITY_PARSING_NEVER)
         self._parser.StartElementHandler = self._start
@@ -390,7 +424,10 @@ class XmlGuard:
     def _start(self, _name: str, attrs: dict[str, str]) -> None:
         if self._depth == 0:
             self.root_attributes = dict(attrs)
+            self._root = _name
         self._depth += 1
+        if self._depth == 2 and self._root == "fmiModelDescription":
+            _check_interface(_name, attrs, self.where)
         if self._depth > MAX_XML_DEPTH:
             raise _Refused(f"elements nested more than {MAX_XML_DEPTH} deep")
 
@@ -438,6 +475,7 @@ def file_sha256(path: Path) -> str:
         return hashlib.file_digest(f, "sha256").hexdigest()
 
 
-__all__ = ["MAX_MEMBERS", "MAX_MODEL_DESCRIPTION_BYTES", "MAX_UNCOMPRESSED_BYTES",
-           "MAX_XML_BYTES", "MAX_XML_DEPTH", "Budget", "CheckedArchive", "XmlGuard",
-           "check_archive", "file_sha256", "open_archive", "parse_xml", "safe_extract"]
+__all__ = ["MAX_IDENTIFIER_CHARS", "MAX_MEMBERS", "MAX_MODEL_DESCRIPTION_BYTES",
+           "MAX_UNCOMPRESSED_BYTES", "MAX_XML_BYTES", "MAX_XML_DEPTH", "Budget",
+           "CheckedArchive", "XmlGuard", "check_archive", "check_model_identifier",
+           "file_sha256", "open_archive", "parse_xml", "safe_extract"]

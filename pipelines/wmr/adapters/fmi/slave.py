@@ -19,6 +19,7 @@ import ctypes
 import fcntl
 import os
 import shutil
+import stat
 import sys
 import tempfile
 from collections.abc import Callable
@@ -26,7 +27,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Final
 
-from wmr.adapters.fmi.archive import safe_extract
+from wmr.adapters.fmi.archive import check_model_identifier, safe_extract
 from wmr.infra.errors import FmuError
 
 #: Prefix of the folders an FMU is extracted to (in the temp folder).
@@ -63,26 +64,77 @@ def _hold(folder: Path) -> int | None:
 def remove_stale_folders(tmp_dir: str | Path | None = None) -> list[Path]:
     """Remove the extraction folders of FMU instances whose process is gone (killed runs).
 
-    A folder counts as stale when its owner file exists and nobody holds its lock: folders
-    without one (being created, or not ours) are left alone.  Returns the folders removed.
+    A folder counts as stale when it is ours (a folder, not a link, owned by this user), its
+    owner file is a regular file of ours, and nobody holds its lock: folders without one
+    (being created) or not ours are left alone.  The owner file is opened without following
+    a link and read-only (``flock`` needs no more): another user's planted link cannot make
+    this process open, lock or remove anything of theirs or of root's.  Returns the folders
+    removed.
     """
     removed: list[Path] = []
     base = Path(tmp_dir) if tmp_dir is not None else Path(tempfile.gettempdir())
+    uid = os.geteuid()
+    flags = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
     with contextlib.suppress(OSError):
         for folder in base.glob(TMP_PREFIX + "*"):
             try:
-                fd = os.open(folder / _LOCK_NAME, os.O_RDWR | os.O_CLOEXEC)
-            except OSError:
+                dir_fd = os.open(folder, flags | os.O_DIRECTORY)
+            except OSError:  # a link, or not a folder
                 continue
             try:
+                if os.fstat(dir_fd).st_uid != uid:
+                    continue
+                fd = os.open(_LOCK_NAME, flags, dir_fd=dir_fd)
+            except OSError:  # a link, nothing there, or not ours to open
+                continue
+            finally:
+                os.close(dir_fd)
+            try:
+                st = os.fstat(fd)
+                if not stat.S_ISREG(st.st_mode) or st.st_uid != uid:
+                    continue
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:  # its owner is alive
-                os.close(fd)
                 continue
-            shutil.rmtree(folder, ignore_errors=True)
-            os.close(fd)
-            removed.append(folder)
+            else:
+                shutil.rmtree(folder, ignore_errors=True)
+                removed.append(folder)
+            finally:
+                os.close(fd)
     return removed
+
+
+def checked_library(folder: Path, md: Any, where: str) -> Path:
+    """The co-simulation library of the FMU extracted in ``folder`` (model description
+    ``md``), where fmpy loads it from, once checked: its ``modelIdentifier`` a C identifier
+    (:func:`wmr.adapters.fmi.archive.check_model_identifier`), and ``binaries``, the platform's
+    folder and the library itself real folders and a regular file inside ``folder``, no link.
+
+    Raises
+    ------
+    FmuError
+        One line naming ``where`` (the FMU) and what is wrong; nothing has been loaded.
+    """
+    import fmpy
+
+    identifier = check_model_identifier(md.coSimulation.modelIdentifier, where)
+    # fmpy's own choice of folder: FMI 2 names platforms "linux64", FMI 3 "x86_64-linux"
+    platform = fmpy.platform if md.fmiVersion.startswith("2") else fmpy.platform_tuple
+    relative = Path("binaries", platform, identifier + fmpy.sharedLibraryExtension)
+    at = folder
+    for part in relative.parts:
+        at = at / part
+        try:
+            st = os.lstat(at)
+        except OSError:
+            raise FmuError(f"{where}: has no binary for this platform ({relative.as_posix()} "
+                           "is missing)") from None
+        if stat.S_ISLNK(st.st_mode):
+            raise FmuError(f"{where}: {at.relative_to(folder).as_posix()} is a symbolic link: "
+                           "refused")
+    if not stat.S_ISREG(st.st_mode):
+        raise FmuError(f"{where}: {relative.as_posix()} is not a regular file: refused")
+    return at
 
 
 def _log(status: int, message: bytes | None) -> None:
@@ -214,13 +266,15 @@ class FmuSlave:
 
     def _instantiate(self) -> None:
         md = self.model_description
+        library = checked_library(self._tmp, md, str(self.fmu_path))
         try:
             if self._fmi2:
                 from fmpy.fmi2 import FMU2Slave
 
                 fmu: Any = FMU2Slave(guid=md.guid, unzipDirectory=str(self._tmp),
                                      modelIdentifier=md.coSimulation.modelIdentifier,
-                                     instanceName=self._instance_name)
+                                     instanceName=self._instance_name,
+                                     libraryPath=str(library))
                 fmu.instantiate(loggingOn=False, callbacks=_fmi2_callbacks())
             else:
                 from fmpy.fmi3 import FMU3Slave
@@ -377,5 +431,5 @@ class FmuSlave:
                          else fmu.deserializeFMUState, blob, at_s=at_s)
 
 
-__all__ = ["FATAL", "STATUS_NAMES", "TMP_PREFIX", "WARNING", "FmuSlave", "fmi2_callbacks",
-           "remove_stale_folders", "status_name"]
+__all__ = ["FATAL", "STATUS_NAMES", "TMP_PREFIX", "WARNING", "FmuSlave", "checked_library",
+           "fmi2_callbacks", "remove_stale_folders", "status_name"]
