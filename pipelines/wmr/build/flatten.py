@@ -15,9 +15,12 @@ from __future__ import annotations
 
 import hashlib
 import math
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import casadi as ca
 import numpy as np
@@ -119,6 +122,36 @@ def source_digest(modelica_dir: Path) -> str:
     return h.hexdigest()
 
 
+_PARSER_LOCK = threading.Lock()
+
+
+@contextmanager
+def _uncached_parser() -> Iterator[None]:
+    """pymoca's parser with its cache off meanwhile.
+
+    ``pymoca.parser.parse_text`` keeps parsed files as pickles in
+    ``$XDG_CACHE_HOME/pymoca/model_txt_cache.db`` (one database for every user who shares that
+    folder) and unpickles a hit: a planted row runs code as whoever builds.  pymoca's own
+    callers on the build path (``transfer_model``, lazy classes) take no option for it, so the
+    module's function is wrapped, with ``bypass_cache`` forced, for the duration; our few
+    files parse in about 0.2 s without it.
+    """
+    import pymoca.parser as parser
+
+    with _PARSER_LOCK:
+        original = parser.parse_text
+
+        def parse_text(txt: str, /, *args: Any, **kwargs: Any) -> Any:
+            kwargs["bypass_cache"] = True
+            return original(txt, *args, **kwargs)
+
+        parser.parse_text = parse_text
+        try:
+            yield
+        finally:
+            parser.parse_text = original
+
+
 def _tree_symbols(modelica_dir: Path,
                   model_name: str) -> tuple[dict[str, object], str, dict[str, float]]:
     """Comments, units and the experiment annotation from pymoca's flattened tree."""
@@ -186,11 +219,14 @@ def flatten(modelica_dir: Path, model_name: str = "WMR.Robot") -> FlatModel:
     """
     from pymoca.backends.casadi.api import transfer_model
 
-    symbols, description, _ = _tree_symbols(modelica_dir, model_name)
-    try:
-        model = transfer_model(str(modelica_dir), model_name, {"cache": False})
-    except Exception as exc:
-        raise BuildError(f"pymoca cannot translate {model_name}: {exc}") from exc
+    with _uncached_parser():
+        symbols, description, _ = _tree_symbols(modelica_dir, model_name)
+        try:
+            # "cache": False keeps pymoca's other pickle (MODEL.pymoca_cache beside the
+            # sources) out too
+            model = transfer_model(str(modelica_dir), model_name, {"cache": False})
+        except Exception as exc:
+            raise BuildError(f"pymoca cannot translate {model_name}: {exc}") from exc
 
     # Parameters bound to other parameters (platform.m = m) are substituted away; the free
     # ones (a literal value) are the FMU's parameters.

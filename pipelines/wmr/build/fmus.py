@@ -46,8 +46,9 @@ from wmr.build.platforms import (
     parse_platforms,
 )
 from wmr.infra import paths
-from wmr.infra.durable import open_own
-from wmr.infra.errors import BuildError, ConfigError
+from wmr.infra.durable import open_own, storage_error
+from wmr.infra.errors import BuildError, ConfigError, LogError
+from wmr.infra.trust import make_folder, trust_root, untrusted
 
 FMI_VERSIONS = (2, 3)
 #: Longest silence of a build, s: a compile or a wait on another process's build says it is
@@ -138,18 +139,41 @@ def _quiet(line: str) -> None:
     """The progress receiver of a build nobody watches."""
 
 
+def _where(out_dir: Path) -> tuple[str, str]:
+    """The field and the fix that a refusal of the folder ``out_dir`` names: the cache's
+    ``WMR_CACHE_DIR`` for a folder in it, else ``out_dir``."""
+    if trust_root(out_dir) != Path(os.path.abspath(out_dir)):
+        return "WMR_CACHE_DIR", ("set WMR_CACHE_DIR to a folder only you can write, or build "
+                                 "with 'wmr fmu build --out DIR'")
+    return "out_dir", "give a folder only you can write"
+
+
 @contextmanager
 def _locked(out_dir: Path, progress: Progress = _quiet) -> Iterator[None]:
     """Serialise builds into one folder (batch workers may all ask for the FMUs at once); a
     process that waits on another's build says so, and how long, every
-    :data:`PROGRESS_INTERVAL_S`."""
+    :data:`PROGRESS_INTERVAL_S`.
+
+    The folder is made 0700 in the cache (0755 elsewhere) whatever the umask, and refused when
+    someone else could write it or a folder above it (:func:`wmr.infra.trust.untrusted`):
+    libraries are loaded from it.
+    """
+    root = trust_root(out_dir)
+    field_name, fix = _where(out_dir)
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
+        make_folder(out_dir, root, 0o700 if root != Path(os.path.abspath(out_dir)) else 0o755)
     except OSError as exc:
-        raise ConfigError("out_dir", f"cannot create the FMU folder {out_dir} "
-                          f"({exc.strerror or exc})", "give a folder you can write") from None
+        raise ConfigError(field_name, f"cannot create the FMU folder {out_dir} "
+                          f"({exc.strerror or exc})", fix) from None
+    reason = untrusted(out_dir, root)
+    if reason is not None:
+        raise ConfigError(field_name, f"{reason}: wmr loads libraries from the FMU folder "
+                          f"{out_dir} and uses nothing there that others can change", fix)
     # never open(..., "w"): a link planted at the lock's name must not truncate its target
-    lock = open_own(out_dir / ".wmr-build.lock", os.O_RDWR | os.O_CREAT, "build lock")
+    try:
+        lock = open_own(out_dir / ".wmr-build.lock", os.O_RDWR | os.O_CREAT, "build lock")
+    except LogError as exc:
+        raise ConfigError(field_name, str(exc), fix) from None
     try:
         t0 = time.monotonic()
         said = None
@@ -171,11 +195,21 @@ def _locked(out_dir: Path, progress: Progress = _quiet) -> Iterator[None]:
         os.close(lock)  # closing releases the lock
 
 
-def _reusable(out_dir: Path, digest: str) -> dict[str, Path] | None:
+def _reusable(out_dir: Path, digest: str, progress: Progress = _quiet
+              ) -> dict[str, Path] | None:
+    """The FMUs in ``out_dir`` if its stamp records ``digest`` and their hashes, and each of
+    them and the stamp may be trusted (:func:`wmr.infra.trust.untrusted`: a file others can
+    have written is rebuilt, said in one ``progress`` line); else None."""
     stamp = out_dir / _STAMP
     fmus = _products(out_dir)
     if not stamp.exists() or not all(p.exists() for p in fmus.values()):
         return None
+    root = trust_root(out_dir)
+    for p in (stamp, *fmus.values()):
+        reason = untrusted(p, root)
+        if reason is not None:
+            progress(f"{reason}: not reused, building the FMUs again")
+            return None
     try:
         recorded = json.loads(stamp.read_text())
     except (OSError, ValueError):
@@ -279,7 +313,7 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
     names = tuple(t.name for t in targets)
     with _locked(out, progress):
         if not force:
-            reused = _reusable(out, digest)
+            reused = _reusable(out, digest, progress)
             if reused is not None:
                 return _result(reused, digest, True, names)
         t0 = time.monotonic()
@@ -287,18 +321,22 @@ def build_fmus(out_dir: str | os.PathLike[str] | None = None, *, force: bool = F
                 "machine: minutes)" if compiler.cross else "")
         progress(f"building the robot and controller FMUs for {', '.join(names)} with "
                  f"{compiler.version} into {out}{slow}")
-        fmus = _build(out, digest, compiler, targets, progress=progress)
-        controllers = _build(out, digest, compiler, targets, "controller", progress=progress)
-        if validate:
-            _validate(fmus, progress)
-            _validate(controllers, progress)
-        products = _products(out)
-        stamp = {"digest": digest, "compiler": compiler.version, "platforms": list(names),
-                 "sha256": {key: hashlib.sha256(p.read_bytes()).hexdigest()
-                            for key, p in products.items()}}
-        (out / _STAMP).write_text(json.dumps(stamp, indent=1) + "\n")
+        try:
+            fmus = _build(out, digest, compiler, targets, progress=progress)
+            controllers = _build(out, digest, compiler, targets, "controller",
+                                 progress=progress)
+            if validate:
+                _validate(fmus, progress)
+                _validate(controllers, progress)
+            products = _products(out)
+            stamp = {"digest": digest, "compiler": compiler.version, "platforms": list(names),
+                     "sha256": {key: hashlib.sha256(p.read_bytes()).hexdigest()
+                                for key, p in products.items()}}
+            (out / _STAMP).write_text(json.dumps(stamp, indent=1) + "\n")
+        except OSError as exc:  # a full disk names the file (or the folder) it hit
+            raise storage_error(exc, exc.filename or out) from exc
         progress(f"built the FMUs in {time.monotonic() - t0:.0f} s")
-    build_stepper(out)  # host-only, beside the FMUs (after the lock: it takes it itself)
+    build_stepper(out, progress=progress)  # host-only, beside the FMUs (takes the lock)
     return _result(products, digest, False, names)
 
 
@@ -490,7 +528,7 @@ def stepper_source() -> Path:
 
 
 def build_stepper(out_dir: str | os.PathLike[str] | None = None,
-                  cc: str | None = None) -> Path | None:
+                  cc: str | None = None, progress: Progress = _quiet) -> Path | None:
     """Compile (or reuse) the C stepper for this host beside the FMUs; None without a compiler.
 
     The stepper holds the paper's law too (the controller FMU's core
@@ -503,12 +541,23 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
     when the compile fails, the master loop runs its pure-Python path, which gives the same
     bits.
 
+    A library there is returned only if it may be trusted (:func:`wmr.infra.trust.untrusted`:
+    no one else can have written it or a folder above it); one others could have written is
+    compiled again over it, said in one ``progress`` line.
+
     Parameters
     ----------
     out_dir
         Folder of the FMUs; :func:`wmr.infra.paths.default_fmu_dir` by default.
     cc
         Host C compiler; the ``CC`` environment variable, else ``cc``, else ``gcc``.
+    progress
+        Receives the line saying why an existing library is not used.
+
+    Raises
+    ------
+    ConfigError
+        The folder, or one above it, can be written by someone else (or cannot be made).
     """
     from wmr.build.codegen import sizes_header
     from wmr.build.controller_interface import (
@@ -538,11 +587,14 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
     h.update(" ".join([version, *STEPPER_CFLAGS]).encode())
     out = Path(out_dir) if out_dir is not None else paths.default_fmu_dir()
     lib = out / f"wmr_stepper-{h.hexdigest()[:16]}.so"
-    if lib.exists():
+    if lib.exists() and untrusted(lib, trust_root(out)) is None:
         return lib
     with _locked(out), tempfile.TemporaryDirectory(dir=out, prefix=".stepper-") as gen:
         if lib.exists():
-            return lib
+            reason = untrusted(lib, trust_root(out))
+            if reason is None:  # another process built it meanwhile
+                return lib
+            progress(f"{reason}: not loaded, compiling the C stepper again")
         for name, text in generated.items():
             Path(gen, name).write_text(text)
         fd, tmp = tempfile.mkstemp(dir=out, prefix=".", suffix=".so.part")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import sys
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ from wmr.adapters.fmi.slave import WARNING, FmuSlave
 from wmr.adapters.fmi.varmap import VariableMap, resolve
 from wmr.core.closedloop import LoopState
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
-from wmr.infra.errors import ConfigError, FmuError
+from wmr.infra.errors import ConfigError, FmuError, WmrError
 
 
 class FmuCall(ctypes.Structure):
@@ -48,11 +49,21 @@ class FmuCall(ctypes.Structure):
 _STEPPER: list[Any] = []
 
 
+def _say(line: str) -> None:
+    """One warning line on stderr (stdout is for results, ``--json``)."""
+    print(f"wmr: warning: {line}", file=sys.stderr, flush=True)
+
+
 def load_stepper() -> Any:
     """The C stepper library (ctypes), built on first use; None when it cannot be had.
 
     It also holds the MCAP row encoder of :class:`wmr.adapters.mcap.RunLogWriter` and the
     record writer of the robot's outlines (:class:`wmr.adapters.mcap.scene.PlacedClouds`).
+
+    Only a library :func:`wmr.build.fmus.build_stepper` built or checked is loaded (a cache
+    folder others can write is refused there).  A refused folder, a library that does not
+    load or lacks a function: one warning line on stderr, then the pure-Python path (the same
+    results), never silently.
 
     ``WMR_STEPPER=0`` in the environment turns it off (the pure-Python path, same results).
     """
@@ -60,35 +71,46 @@ def load_stepper() -> Any:
         return None
     if not _STEPPER:
         lib: Any = None
+        path = None
         try:
             from wmr.build.fmus import build_stepper
 
-            path = build_stepper()
+            path = build_stepper(progress=_say)
             if path is not None:
-                lib = ctypes.CDLL(str(path))
-                ptr = ctypes.POINTER
-                lib.wmr_exchange.argtypes = [ptr(FmuCall), ctypes.c_double, ctypes.c_double,
-                                             ctypes.c_double, ctypes.c_double]
-                lib.wmr_servo_step.argtypes = [ptr(FmuCall), ptr(LoopState), ctypes.c_double,
-                                               ctypes.c_double, ctypes.c_int]
-                lib.wmr_fmu_loop.argtypes = [ptr(FmuCall), ptr(FmuCall), ptr(LoopState)]
-                for fun in (lib.wmr_exchange, lib.wmr_servo_step, lib.wmr_fmu_loop):
-                    fun.restype = ctypes.c_int
-                lib.wmr_encode_rows.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 2,
-                                                *[ctypes.c_int] * 2, *[ctypes.c_void_p] * 8]
-                lib.wmr_encode_rows.restype = ctypes.c_longlong
-                lib.wmr_cloud_records.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 3,
-                                                  ctypes.c_int, ctypes.c_void_p, ctypes.c_int,
-                                                  *[ctypes.c_void_p] * 2, ctypes.c_int,
-                                                  *[ctypes.c_void_p] * 3]
-                lib.wmr_cloud_records.restype = ctypes.c_longlong
-                lib.wmr_encode_chunk.argtypes = [ctypes.c_void_p, ctypes.c_int,
-                                                 *[ctypes.c_void_p] * 5]
-                lib.wmr_encode_chunk.restype = ctypes.c_longlong
-        except (OSError, AttributeError):  # no library, or an old one: the Python path
+                lib = _bind_stepper(ctypes.CDLL(str(path)))
+        except WmrError as exc:
+            _say(f"the C stepper is not used (the pure-Python path runs, same results): {exc}")
+            lib = None
+        except (OSError, AttributeError) as exc:  # a library that does not load, or lacks one
+            _say(f"the C stepper {path} is not used (the pure-Python path runs, same "
+                 f"results): {exc}; remove it to have it built again")
             lib = None
         _STEPPER.append(lib)
     return _STEPPER[0]
+
+
+def _bind_stepper(lib: Any) -> Any:
+    """``lib`` with the prototypes of the stepper's functions (AttributeError if one is
+    missing)."""
+    ptr = ctypes.POINTER
+    lib.wmr_exchange.argtypes = [ptr(FmuCall), ctypes.c_double, ctypes.c_double,
+                                 ctypes.c_double, ctypes.c_double]
+    lib.wmr_servo_step.argtypes = [ptr(FmuCall), ptr(LoopState), ctypes.c_double,
+                                   ctypes.c_double, ctypes.c_int]
+    lib.wmr_fmu_loop.argtypes = [ptr(FmuCall), ptr(FmuCall), ptr(LoopState)]
+    for fun in (lib.wmr_exchange, lib.wmr_servo_step, lib.wmr_fmu_loop):
+        fun.restype = ctypes.c_int
+    lib.wmr_encode_rows.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 2,
+                                    *[ctypes.c_int] * 2, *[ctypes.c_void_p] * 8]
+    lib.wmr_encode_rows.restype = ctypes.c_longlong
+    lib.wmr_cloud_records.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 3,
+                                      ctypes.c_int, ctypes.c_void_p, ctypes.c_int,
+                                      *[ctypes.c_void_p] * 2, ctypes.c_int,
+                                      *[ctypes.c_void_p] * 3]
+    lib.wmr_cloud_records.restype = ctypes.c_longlong
+    lib.wmr_encode_chunk.argtypes = [ctypes.c_void_p, ctypes.c_int, *[ctypes.c_void_p] * 5]
+    lib.wmr_encode_chunk.restype = ctypes.c_longlong
+    return lib
 
 
 def fmu_call(fmi_version: str, dll: Any, component: Any, names: tuple[str, str, str],
