@@ -292,3 +292,57 @@ def test_check_output_names_what_the_node_is(kind: str, want: Literal["file", "d
     regular.write_bytes(b"")
     assert check_output(regular, "--out") == regular
     assert check_output(tmp_path, "--out", "dir") == tmp_path
+
+
+def _summary_folder(tmp_path: Path) -> Path:
+    from wmr.apps.batch.summary import SummaryRow, summary_table
+
+    out = tmp_path / "batch"
+    out.mkdir()
+    rows = [SummaryRow(f"000{i}-00000000", f"r{i}", f"r{i}", "", {}) for i in range(2)]
+    records = {r.run_id: {"status": "converged", "message": "", "steps": 3} for r in rows}
+    write_summary(summary_table(rows, [], records), out)
+    return out
+
+
+def test_wmr_report_refuses_a_device_among_its_outputs(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``wmr report`` wrote its plots and ``report.md`` through whatever was there (a FIFO
+    blocked it for ever, a device was written)."""
+    from wmr.cli import main
+
+    out = _summary_folder(tmp_path)
+    (out / "report").mkdir()
+    _special_node("chr", out / "report" / "status.png")
+    assert main(["report", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"wmr: error: {out / 'report' / 'status.png'}: "
+                              f"{_WORDS['chr']}"), err
+    assert _still_special("chr", out / "report" / "status.png")
+
+
+def test_wmr_report_refuses_a_fifo_as_its_summary(tmp_path: Path) -> None:
+    """In a subprocess with a timeout: the old code blocked for ever opening the FIFO."""
+    import subprocess
+    import sys
+
+    out = _summary_folder(tmp_path)
+    (out / SUMMARY_PARQUET).unlink()
+    os.mkfifo(out / SUMMARY_PARQUET)
+    proc = subprocess.run([sys.executable, "-m", "wmr.cli", "report", str(out)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines()[-1].startswith(
+        f"wmr: error: DIR: {out / SUMMARY_PARQUET} is a named pipe (FIFO), not a regular "
+        "file"), proc.stderr
+
+
+def test_figures_refuse_a_device_where_a_figure_goes(tmp_path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    from wmr.apps.figures import _save
+
+    _special_node("chr", tmp_path / "fig9.png")
+    with pytest.raises(ConfigError, match=f"^{tmp_path / 'fig9.png'}: {_WORDS['chr']}"):
+        _save(Figure(), tmp_path / "fig9.png")
+    assert _still_special("chr", tmp_path / "fig9.png")
