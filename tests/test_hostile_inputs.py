@@ -647,3 +647,20 @@ def test_a_bad_map_file_is_the_scenarios_one_line(
     assert main([*command.split(), target, "--map", str(path), "--out", str(out)]) == 1
     err = capsys.readouterr().err
     assert err.startswith(f"wmr: error: --map: {path} {message} (") and err.count("\n") == 1, err
+
+
+def test_tuned_gains_are_read_as_every_input(tmp_path: Path) -> None:
+    """``--tuned``: a FIFO blocked ``read_text`` for ever (subprocess, timeout); a file
+    written by ``wmr tune --save`` still reads."""
+    from wmr.apps.benchmark import load_tuned
+
+    good = tmp_path / "tuned.json"
+    good.write_text(json.dumps({"pi": {"K_ps": 0.75}}))
+    assert load_tuned(good)["pi"]["K_ps"] == 0.75
+    fifo = _special("fifo", tmp_path)
+    script = f"from wmr.apps.benchmark import load_tuned\nload_tuned({fifo!r})\n"
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 1 and proc.stderr.strip().splitlines()[-1].endswith(
+        f"ConfigError: --tuned: {_KIND_WORDS['fifo'].replace('fifo', fifo)} (give a file "
+        "written by 'wmr tune --save')"), proc.stderr
