@@ -235,6 +235,9 @@ class AtomicFile:
     ------
     LogError
         The file cannot be created, or another process is writing it.
+    ConfigError
+        ``path`` is a device, a FIFO, a socket or a folder
+        (:func:`wmr.infra.outputs.refuse_special`), now or at :meth:`commit`.
     """
 
     def __init__(self, path: str | os.PathLike[str], what: str = "file",
