@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+import io
 import itertools
 import json
 import math
@@ -29,7 +31,7 @@ from wmr.apps.batch.journal import Journal, line_check, log_complete
 from wmr.apps.batch.report import write_report
 from wmr.apps.batch.runner import _test_hooks
 from wmr.apps.batch.spec import RunList, run_index
-from wmr.apps.batch.summary import write_summary
+from wmr.apps.batch.summary import SummaryRow, summary_table, write_summary
 from wmr.cli import main
 from wmr.infra.errors import ConfigError
 
@@ -526,6 +528,25 @@ def test_a_batch_stopped_before_its_first_run_writes_an_empty_summary(
     assert pq.read_table(tmp_path / "summary.parquet").num_rows == 0
     header = (tmp_path / "summary.csv").read_text().splitlines()
     assert len(header) == 1 and header[0].startswith("run_id,name,base,variant,start.x_m")
+
+
+def test_a_formula_in_a_summary_cell_is_text_in_the_csv_and_kept_in_parquet(
+        tmp_path: Path) -> None:
+    # issue 28 item 11: a run named '=HYPERLINK(...)' was a live formula in summary.csv
+    names = ["=HYPERLINK(\"http://x\",\"y\")", "+1", "-cmd", "@SUM(A1)", "\tt", "ok", "\rr"]
+    rows = [SummaryRow(f"{i:04d}-00000000", n, n, "", {"gains.K_ps": -0.5})
+            for i, n in enumerate(names)]
+    records = {r.run_id: {"status": "converged", "message": "-x", "steps": 3} for r in rows}
+    write_summary(summary_table(rows, ["gains.K_ps"], records), tmp_path)
+    text = (tmp_path / "summary.csv").read_bytes().decode("utf-8")
+    # Python's csv module quotes no CR (with lineterminator '\n'): that row is checked as text
+    text, cr_row = text.split("\n0006-")
+    assert cr_row.startswith("00000000,'\rr,'\rr,,")
+    table = list(csv.DictReader(io.StringIO(text, newline="")))
+    assert [r["name"] for r in table] == [f"'{n}" for n in names[:4]] + ["'\tt", "ok"]
+    assert {r["base"] for r in table} == {r["name"] for r in table}
+    assert {(r["message"], r["gains.K_ps"], r["steps"]) for r in table} == {("'-x", "-0.5", "3")}
+    assert pq.read_table(tmp_path / "summary.parquet").column("name").to_pylist() == names
 
 
 def test_a_resumed_batch_keeps_9_bytes_a_finished_run(tmp_path: Path) -> None:

@@ -5,15 +5,18 @@ written through; the file it points to stays as it was, and the refusal is one l
 from __future__ import annotations
 
 import os
+import re
 import stat
 from pathlib import Path
+from typing import Literal
 
 import pyarrow as pa
 import pytest
 
 from wmr.apps.batch.summary import SUMMARY_CSV, SUMMARY_PARQUET, write_summary
-from wmr.infra.durable import AtomicFile, partial_path
-from wmr.infra.errors import LogError
+from wmr.infra.durable import AtomicFile, partial_path, replacing
+from wmr.infra.errors import ConfigError, LogError
+from wmr.infra.outputs import check_output
 
 PRECIOUS = b"precious data\n"
 
@@ -188,3 +191,158 @@ def test_writeback_starts_once_per_writeback_bytes_of_a_durable_file(
     assert (tmp_path / "out.bin").read_bytes() == piece * 20
     per = durable_mod.WRITEBACK_BYTES // len(piece)
     assert len(starts) == (20 // per if durable else 0)
+
+
+# -- issue 28 item 8: an output that is a device or a FIFO is never replaced -------------------
+
+def _special_node(kind: str, at: Path) -> None:
+    """A FIFO, or a character device node (a copy of /dev/null's) in the test's folder."""
+    if kind == "fifo":
+        os.mkfifo(at)
+        return
+    try:
+        os.mknod(at, stat.S_IFCHR | 0o666, os.makedev(1, 3))
+    except PermissionError:
+        pytest.skip("making a device node needs CAP_MKNOD")
+
+
+def _still_special(kind: str, at: Path) -> bool:
+    mode = os.lstat(at).st_mode
+    return stat.S_ISFIFO(mode) if kind == "fifo" else stat.S_ISCHR(mode)
+
+
+_WORDS = {"fifo": "is a named pipe (FIFO), not a regular file",
+          "chr": "is a character device, not a regular file"}
+
+
+@pytest.mark.parametrize("kind", ["fifo", "chr"])
+def test_wmr_run_refuses_a_device_or_fifo_as_its_log(kind: str, tmp_path: Path, fmu2: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """``wmr run --out X`` exited 0 and left a regular file where the FIFO or device was."""
+    from wmr.cli import main
+
+    out = tmp_path / "node.mcap"
+    _special_node(kind, out)
+    assert main(["run", "fig11", "--fmu", str(fmu2), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"wmr: error: --out: {out} {_WORDS[kind]}"), err
+    assert "even with --force" in err[0]
+    assert _still_special(kind, out) and not partial_path(out).exists()
+
+
+@pytest.mark.parametrize("kind", ["fifo", "chr"])
+def test_log_recover_with_force_never_replaces_a_device_or_fifo(
+        kind: str, tmp_path: Path, fmu2: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``wmr log recover ok.mcap -o <a device node> --force`` replaced the node."""
+    from wmr.adapters.mcap.recover import recover_log
+    from wmr.cli import main
+
+    ok = tmp_path / "ok.mcap"
+    assert main(["run", "fig11", "--fmu", str(fmu2), "--out", str(ok)]) == 0
+    capsys.readouterr()
+    node = tmp_path / "node"
+    _special_node(kind, node)
+    assert main(["log", "recover", str(ok), "-o", str(node), "--force"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"wmr: error: --out: {node} {_WORDS[kind]}"), err
+    with pytest.raises(ConfigError, match=f"^{node}: {re.escape(_WORDS[kind])}"):  # the API as well
+        recover_log(ok, node, overwrite=True)
+    assert _still_special(kind, node) and not partial_path(node).exists()
+
+
+@pytest.mark.parametrize("kind", ["fifo", "chr"])
+def test_the_writers_themselves_refuse_a_device_or_fifo(kind: str, tmp_path: Path) -> None:
+    """:class:`AtomicFile` (every log) and ``replacing`` (summaries, packages) check the
+    target too, at the start and again just before the rename: a node made meanwhile keeps
+    the written data in ``.partial``."""
+    node = tmp_path / "x"
+    _special_node(kind, node)
+    refused = f"^{node}: {re.escape(_WORDS[kind])}"
+    with pytest.raises(ConfigError, match=refused):
+        AtomicFile(node)
+    with pytest.raises(ConfigError, match=refused), replacing(node) as f:
+        f.write(b"data")
+    assert _still_special(kind, node) and os.listdir(tmp_path) == ["x"]
+    later = tmp_path / "later"
+    out = AtomicFile(later)
+    out.write(b"finished data")
+    _special_node(kind, later)
+    with pytest.raises(ConfigError, match=re.escape(_WORDS[kind])):
+        out.commit()
+    assert _still_special(kind, later) and partial_path(later).read_bytes() == b"finished data"
+
+
+@pytest.mark.parametrize(("kind", "want", "words"), [
+    ("fifo", "file", _WORDS["fifo"]), ("chr", "file", _WORDS["chr"]),
+    ("fifo", "dir", "is a named pipe (FIFO), not a folder"),
+    ("chr", "dir", "is a character device, not a folder"),
+])
+def test_check_output_names_what_the_node_is(kind: str, want: Literal["file", "dir"],
+                                             words: str, tmp_path: Path) -> None:
+    """The one check every option's output goes through (--out, -o, --rrd, --blueprint,
+    wmr report's folder, wmr figures --out, wmr fmu build --out, wmr batch --out)."""
+    node = tmp_path / "n"
+    _special_node(kind, node)
+    link = tmp_path / "link"
+    link.symlink_to(node)  # /dev/stdout is a link: followed
+    for p in (node, link):
+        with pytest.raises(ConfigError, match=f"^--rrd: {p} {re.escape(words)}"):
+            check_output(p, "--rrd", want)
+    regular = tmp_path / "r"
+    regular.write_bytes(b"")
+    assert check_output(regular, "--out") == regular
+    assert check_output(tmp_path, "--out", "dir") == tmp_path
+
+
+def _summary_folder(tmp_path: Path) -> Path:
+    from wmr.apps.batch.summary import SummaryRow, summary_table
+
+    out = tmp_path / "batch"
+    out.mkdir()
+    rows = [SummaryRow(f"000{i}-00000000", f"r{i}", f"r{i}", "", {}) for i in range(2)]
+    records = {r.run_id: {"status": "converged", "message": "", "steps": 3} for r in rows}
+    write_summary(summary_table(rows, [], records), out)
+    return out
+
+
+def test_wmr_report_refuses_a_device_among_its_outputs(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``wmr report`` wrote its plots and ``report.md`` through whatever was there (a FIFO
+    blocked it for ever, a device was written)."""
+    from wmr.cli import main
+
+    out = _summary_folder(tmp_path)
+    (out / "report").mkdir()
+    _special_node("chr", out / "report" / "status.png")
+    assert main(["report", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"wmr: error: {out / 'report' / 'status.png'}: "
+                              f"{_WORDS['chr']}"), err
+    assert _still_special("chr", out / "report" / "status.png")
+
+
+def test_wmr_report_refuses_a_fifo_as_its_summary(tmp_path: Path) -> None:
+    """In a subprocess with a timeout: the old code blocked for ever opening the FIFO."""
+    import subprocess
+    import sys
+
+    out = _summary_folder(tmp_path)
+    (out / SUMMARY_PARQUET).unlink()
+    os.mkfifo(out / SUMMARY_PARQUET)
+    proc = subprocess.run([sys.executable, "-m", "wmr.cli", "report", str(out)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines()[-1].startswith(
+        f"wmr: error: DIR: {out / SUMMARY_PARQUET} is a named pipe (FIFO), not a regular "
+        "file"), proc.stderr
+
+
+def test_figures_refuse_a_device_where_a_figure_goes(tmp_path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    from wmr.apps.figures import _save
+
+    _special_node("chr", tmp_path / "fig9.png")
+    with pytest.raises(ConfigError, match=f"^{tmp_path / 'fig9.png'}: {_WORDS['chr']}"):
+        _save(Figure(), tmp_path / "fig9.png")
+    assert _still_special("chr", tmp_path / "fig9.png")

@@ -527,3 +527,140 @@ def test_a_worker_gone_while_a_helper_keeps_its_pipe_open_is_seen_dead(fmu3: Pat
     assert (tmp_path / "stdout.txt").read_text().split() == ["1", "3"]
     rows = {r["run_id"]: r for r in pq.read_table(out / "summary.parquet").to_pylist()}
     assert "died" in min(rows.values(), key=lambda r: r["run_id"])["message"]
+
+
+# -- issue 28 items 5 and 10: inputs that are not regular files, or too large -----------------
+
+def _special(kind: str, tmp_path: Path) -> str:
+    """A character device (``/dev/zero``) or a FIFO nobody writes to."""
+    if kind == "zero":
+        return "/dev/zero"
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    return str(fifo)
+
+
+_KIND_WORDS = {"zero": "/dev/zero is a character device, not a regular file",
+               "fifo": "fifo is a named pipe (FIFO), not a regular file"}
+
+
+@pytest.mark.parametrize("kind", ["zero", "fifo"])
+@pytest.mark.parametrize("case", ["scenario", "map", "spec", "spec-fmu_map", "spec-fmu"])
+def test_a_device_or_fifo_as_an_input_is_refused_at_once(case: str, kind: str,
+                                                         tmp_path: Path) -> None:
+    """``/dev/zero`` as scenario, map or spec grew to 22.7 GB until the kernel killed it; a
+    FIFO blocked for ever; as a spec's ``fmu`` both were hashed for ever.  Run in a
+    subprocess under ``ulimit -v`` and a timeout, so that the old behaviour fails the test
+    instead of taking the machine."""
+    special = _special(kind, tmp_path)
+    spec = tmp_path / "t4.toml"
+    field = {"scenario": "scenario", "map": "--map", "spec": "spec", "spec-fmu_map": "--map",
+             "spec-fmu": special}[case]
+    if case == "spec-fmu_map":
+        spec.write_text(f'fmu_map = "{special}"\n{SPEC4}')
+    elif case == "spec-fmu":
+        spec.write_text(f'fmu = "{special}"\n{SPEC4}')
+    argv = {"scenario": ["run", special], "map": ["run", "fig11", "--map", special],
+            "spec": ["batch", special]}.get(case, ["batch", str(spec)])
+    proc = subprocess.run([sys.executable, "-m", "wmr.cli", *argv, "--out",
+                           str(tmp_path / ("o.mcap" if argv[0] == "run" else "o"))],
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path,
+                          preexec_fn=_limited("RLIMIT_AS", 3 << 30))
+    assert proc.returncode == 1, proc.stderr
+    line = proc.stderr.strip().splitlines()[-1]
+    words = _KIND_WORDS[kind].replace(" is a", ": is a") if field == special else _KIND_WORDS[kind]
+    assert line.startswith(f"wmr: error: {field}: ") and words in line, line
+    assert not (tmp_path / "o.mcap").exists()
+
+
+def test_a_toml_input_is_read_no_further_than_its_limit(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A scenario, spec or map larger than the limit is refused naming the limit's value."""
+    import wmr.config.scenario as scenario_module
+
+    monkeypatch.setattr(scenario_module, "MAX_TOML_BYTES", 1000)
+    path, small = tmp_path / "big.toml", tmp_path / "small.toml"
+    path.write_text(FIG11 + "#" * 1000 + "\n")
+    small.write_text(FIG11)
+    for argv in (["run", str(path)], ["batch", str(path)], ["run", str(small), "--map", str(path)]):
+        assert main([*argv, "--out", str(tmp_path / "o.mcap")]) == 1
+        line = capsys.readouterr().err.splitlines()[-1]  # after the FMU build's, if any
+        assert line.startswith("wmr: error: ") and (
+            f"{path} is larger than 1000 bytes, the most wmr reads of a TOML file (give ") in line
+
+
+def test_read_input_stops_at_its_limit_when_the_size_lies(tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A file that grows while it is read, or whose size says 0 (``/proc``), is read no
+    further than the limit, and refused."""
+    from wmr.infra import inputs
+
+    path = tmp_path / "f"
+    path.write_bytes(b"x" * 5000)
+    real_fstat = os.fstat
+
+    def small(fd: int) -> os.stat_result:
+        st = real_fstat(fd)
+        return os.stat_result((st.st_mode, *st[1:6], 0, *st[7:]))
+
+    monkeypatch.setattr(inputs.os, "fstat", small)
+    assert inputs.read_input(path, "f", max_bytes=5000) == b"x" * 5000
+    with pytest.raises(ConfigError, match=r"^f: .* is larger than 4999 bytes, the most wmr "
+                                          r"reads of a file \(give a regular file\)$"):
+        inputs.read_input(path, "f", max_bytes=4999)
+    with pytest.raises(ConfigError, match="is larger than 4999 bytes"):
+        inputs.sha256_input(path, "f", max_bytes=4999)
+
+
+def test_an_fmu_is_hashed_only_up_to_its_limit(fmu3: Path, tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    import hashlib
+
+    import wmr.adapters.fmi.archive as archive
+
+    assert archive.file_sha256(fmu3) == hashlib.sha256(fmu3.read_bytes()).hexdigest()
+    monkeypatch.setattr(archive, "MAX_ARCHIVE_BYTES", 1000)
+    spec = tmp_path / "t4.toml"
+    spec.write_text(SPEC4)
+    assert main(["batch", str(spec), "--fmu", str(fmu3), "--out", str(tmp_path / "o"),
+                 "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and (f"{fmu3}: is larger than 1000 bytes, the most wmr reads "
+                                     "of an FMU (give an FMU file)") in err, err
+
+
+@pytest.mark.parametrize(("content", "message"), [
+    (b'[variables]\n# caf\xe9\n', "is not UTF-8 text (byte 0xe9 at offset 17)"),
+    (b"unmapped = " + b"[" * 50_000 + b"]" * 50_000 + b"\n", "nests arrays or tables too deeply"),
+])
+@pytest.mark.parametrize("command", ["run", "batch", "ssp export"])
+def test_a_bad_map_file_is_the_scenarios_one_line(
+        command: str, content: bytes, message: str, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 28 item 10: ``UnicodeDecodeError`` and ``RecursionError`` from ``--map``."""
+    path = tmp_path / "bad_map.toml"
+    path.write_bytes(content)
+    out = tmp_path / {"run": "o.mcap", "batch": "o", "ssp export": "o.ssp"}[command]
+    target = "fig9" if command == "batch" else "fig11"
+    assert main([*command.split(), target, "--map", str(path), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"wmr: error: --map: {path} {message} (") and err.count("\n") == 1, err
+
+
+def test_tuned_gains_are_read_as_every_input(tmp_path: Path) -> None:
+    """``--tuned``: a FIFO blocked ``read_text`` for ever (subprocess, timeout); a file
+    written by ``wmr tune --save`` still reads."""
+    from wmr.apps.benchmark import load_tuned
+
+    good = tmp_path / "tuned.json"
+    good.write_text(json.dumps({"pi": {"K_ps": 0.75}}))
+    assert load_tuned(good)["pi"]["K_ps"] == 0.75
+    fifo = _special("fifo", tmp_path)
+    script = f"from wmr.apps.benchmark import load_tuned\nload_tuned({fifo!r})\n"
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 1 and proc.stderr.strip().splitlines()[-1].endswith(
+        f"ConfigError: --tuned: {_KIND_WORDS['fifo'].replace('fifo', fifo)} (give a file "
+        "written by 'wmr tune --save')"), proc.stderr

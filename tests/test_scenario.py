@@ -149,3 +149,44 @@ def test_shipped_files_are_plain_toml() -> None:
     for name in ("fig9", "fig10", "fig11"):
         with resolve_scenario_path(name).open("rb") as fh:
             assert "name" in tomllib.load(fh)
+
+
+class _CountingName(str):
+    """A run name that counts the comparisons made with it."""
+
+    compared = 0
+
+    def __eq__(self, other: object) -> bool:
+        _CountingName.compared += 1
+        return str.__eq__(self, other)
+
+    __hash__ = str.__hash__
+
+
+def test_the_duplicate_name_check_is_linear_in_the_runs() -> None:
+    # issue 28 item 6: each run's name was compared with every earlier run's (200,000 runs
+    # took over 120 s); a lookup compares a name only with an equal-hashed one
+    n = 3000
+    runs = [{"name": _CountingName(f"r{i}"), "goal": [1.0 + i * 1e-3, 0.0, 0.0]}
+            for i in range(n)]
+    _CountingName.compared = 0
+    scenario = parse_scenario({**BASE, "runs": runs})
+    assert [r.name for r in scenario.runs] == [f"r{i}" for i in range(n)]
+    assert _CountingName.compared < 10 * n  # the scan made n (n - 1) / 2, 4.5 million
+    runs.append({"name": _CountingName("r1234"), "goal": [9.0, 0.0, 0.0]})
+    with pytest.raises(ConfigError, match=r"runs\[3000\]\.name: 'r1234' is already the name "
+                                          r"of runs\[1234\]"):
+        parse_scenario({**BASE, "runs": runs})
+
+
+def test_a_scenario_of_many_runs_loads_and_still_finds_a_duplicate(tmp_path: Path) -> None:
+    n = 20_000
+    path = tmp_path / "many.toml"
+    text = 'name = "many"\nstart = [0.0, 0.0, 0.0]\ngoal = [1.0, 0.0, 0.0]\n'
+    path.write_text(text + "".join(f'[[runs]]\nname = "r{i}"\n' for i in range(n)))
+    assert len(load_scenario(path).runs) == n
+    with path.open("a") as f:
+        f.write('[[runs]]\nname = "r0"\n')
+    with pytest.raises(ConfigError, match=rf"runs\[{n}\]\.name: 'r0' is already the name of "
+                                          r"runs\[0\]"):
+        load_scenario(path)

@@ -328,15 +328,19 @@ def _ratio(a: float | None, b: float | None) -> float | None:
 def load_tuned(path: str | os.PathLike[str] | None) -> dict[str, dict[str, float]]:
     """Tuned gains: a ``wmr tune --save`` JSON file, else the built-in :data:`TUNED_GAINS`."""
     from wmr.infra.errors import ConfigError
+    from wmr.infra.inputs import MAX_JSON_BYTES, read_input
 
     gains = {k: dict(v) for k, v in TUNED_GAINS.items()}
     if path is None:
         return gains
+    fix = "give a file written by 'wmr tune --save'"
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise ConfigError("--tuned", f"cannot read {path}: {exc}",
-                          "give a file written by 'wmr tune --save'") from None
+        data = json.loads(read_input(path, "--tuned", max_bytes=MAX_JSON_BYTES,
+                                     what="a tuned-gains file", fix=fix).decode("utf-8"))
+    except ConfigError:  # a ValueError too: already the one line
+        raise
+    except (OSError, ValueError, RecursionError) as exc:
+        raise ConfigError("--tuned", f"cannot read {path}: {exc}", fix) from None
     if not isinstance(data, dict):
         raise ConfigError("--tuned", f"{path} is not a JSON object of controller -> gains")
     for name, g in data.items():

@@ -38,6 +38,7 @@ from wmr.config.naming import plural
 from wmr.core.plant import Plant, Pose
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError, LogError
+from wmr.infra.outputs import refuse_special
 
 if TYPE_CHECKING:  # matplotlib is imported where a figure is drawn: `wmr --help` need not wait
     from matplotlib.axes import Axes
@@ -518,6 +519,7 @@ def _run_scenarios(names: Sequence[str], log_dir: Path, fmu: Path,
 
 
 def _save(fig: Figure, path: Path) -> Path:
+    refuse_special(path)  # a FIFO there would block the save, a device be written
     fig.savefig(path, dpi=DPI)
     return path
 

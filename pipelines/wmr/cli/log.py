@@ -8,7 +8,10 @@ import sys
 
 def _cmd_recover(args: argparse.Namespace) -> int:
     from wmr.adapters.mcap.recover import recover_log
+    from wmr.infra.outputs import check_output
 
+    if args.out is not None:  # a device or FIFO there is refused even with --force
+        check_output(args.out, "--out")
     rec = recover_log(args.file, args.out, overwrite=args.force, scene=not args.no_scene)
     for line in rec.lost:
         print(f"wmr: lost: {line}", file=sys.stderr)

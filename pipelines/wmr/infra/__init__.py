@@ -1,3 +1,3 @@
-"""Infrastructure, below everything: typed errors, durable file writes, output-path checks, where
-the non-Python sources live.  Imports nothing of wmr.
+"""Infrastructure, below everything: typed errors, durable file writes, the one reader of input
+files, output-path checks, where the non-Python sources live.  Imports nothing of wmr.
 """

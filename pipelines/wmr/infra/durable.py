@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import BinaryIO, Final
 
 from wmr.infra.errors import DiskFullError, LogError
+from wmr.infra.outputs import refuse_special
 
 #: Suffix of a file being written (or left by a killed writer).
 PARTIAL_SUFFIX: Final = ".partial"
@@ -189,6 +190,7 @@ def replacing(path: str | os.PathLike[str], durable: bool = False) -> Iterator[B
         fsync the file and its folder, so that the rename survives a power loss.
     """
     target = Path(path)
+    refuse_special(target)
     fd, tmp = _unique_temp(target)
     try:
         with open(fd, "wb") as stream:
@@ -196,6 +198,7 @@ def replacing(path: str | os.PathLike[str], durable: bool = False) -> Iterator[B
             stream.flush()
             if durable:
                 os.fsync(stream.fileno())
+        refuse_special(target)
         os.replace(tmp, target)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
@@ -232,11 +235,15 @@ class AtomicFile:
     ------
     LogError
         The file cannot be created, or another process is writing it.
+    ConfigError
+        ``path`` is a device, a FIFO, a socket or a folder
+        (:func:`wmr.infra.outputs.refuse_special`), now or at :meth:`commit`.
     """
 
     def __init__(self, path: str | os.PathLike[str], what: str = "file",
                  buffer_bytes: int = 1 << 20, durable: bool = True) -> None:
         self.path = Path(path)
+        refuse_special(self.path)  # a device or FIFO there would be renamed over at the end
         self.durable = durable
         self.partial = partial_path(self.path)
         self._what = what
@@ -301,6 +308,7 @@ class AtomicFile:
                     os.fsync(self._fd)
                 except OSError as exc:
                     raise storage_error(exc, self.partial) from exc
+            refuse_special(self.path)  # a FIFO made meanwhile: the log stays in .partial
             os.replace(self.partial, self.path)  # still locked: nobody can reopen it meanwhile
         finally:
             self.abandon()

@@ -37,7 +37,8 @@ from pathlib import Path, PurePosixPath
 from typing import BinaryIO, Final
 from xml.parsers import expat
 
-from wmr.infra.errors import FmuError
+from wmr.infra.errors import ConfigError, FmuError
+from wmr.infra.inputs import MAX_ARCHIVE_BYTES, open_input, sha256_input
 
 MiB: Final = 1 << 20
 #: Default bounds of one archive (an FMU, or a package with the FMUs inside it).
@@ -302,14 +303,15 @@ def open_archive(path: str | os.PathLike[str], what: str = "FMU",
     """
     p = Path(path)
     label = where or str(p)
-    if not p.is_file():
-        hint = " (build one with 'wmr fmu build')" if what == "FMU" else ""
-        raise FmuError(f"{label}: no such {what} file{hint}")
     budget = budget if budget is not None else Budget()
-    try:
-        fp = open(p, "rb")  # closed by the with below
-    except OSError as exc:
-        raise FmuError(f"{label}: cannot read the {what}: {exc.strerror}") from exc
+    try:  # a FIFO, a device or a folder refused without blocking; closed by the with below
+        fp = open_input(p, label, max_bytes=MAX_ARCHIVE_BYTES, what=f"an {what}",
+                        fix=f"give an {what} file")
+    except FileNotFoundError:
+        hint = " (build one with 'wmr fmu build')" if what == "FMU" else ""
+        raise FmuError(f"{label}: no such {what} file{hint}") from None
+    except ConfigError as exc:
+        raise FmuError(str(exc)) from None
     with fp:
         try:
             directory = _central_directory(fp)
@@ -469,10 +471,12 @@ def parse_xml(data: bytes, where: str) -> ET.Element:
     return ET.fromstring(data)
 
 
-def file_sha256(path: Path) -> str:
-    """The SHA-256 of a file, read a chunk at a time (an archive may be large)."""
-    with open(path, "rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
+def file_sha256(path: Path, field: str | None = None) -> str:
+    """The SHA-256 of an FMU file, read a chunk at a time (an archive may be large), and only
+    a regular file of at most :data:`~wmr.infra.inputs.MAX_ARCHIVE_BYTES` (a FIFO or
+    ``/dev/zero`` was hashed for ever); a refusal names ``field`` (default: the path)."""
+    return sha256_input(path, field or str(path), max_bytes=MAX_ARCHIVE_BYTES, what="an FMU",
+                        fix="give an FMU file")
 
 
 __all__ = ["MAX_IDENTIFIER_CHARS", "MAX_MEMBERS", "MAX_MODEL_DESCRIPTION_BYTES",

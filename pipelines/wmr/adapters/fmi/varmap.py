@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
+from wmr.config.scenario import read_toml
 from wmr.core.plant import OUTPUT_NAMES, RobotParams
 from wmr.infra.errors import ConfigError
 
@@ -161,15 +161,9 @@ def parse_map(data: Mapping[str, Any], source: str = "map") -> VariableMap:
 def load_map(path: str | Path) -> VariableMap:
     """Read and validate a map file (TOML)."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError("--map", f"cannot read {p}: {exc.strerror}",
-                          "give the path of a map TOML file") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError("--map", f"{p} is not valid TOML: {exc}", "fix the syntax") from None
+    # the scenarios' reader: bounded, a FIFO or device refused, not UTF-8 and too deep nesting
+    # one line each (they were UnicodeDecodeError and RecursionError)
+    data, _ = read_toml(p, "--map", fix="give the path of a map TOML file")
     return parse_map(data, source=str(p))
 
 

@@ -78,7 +78,7 @@ def robot_parameters(spec: RunSpec) -> dict[str, float]:
 def _model_description(fmu: Path) -> Any:
     from fmpy import read_model_description
 
-    if not fmu.is_file():
+    if not fmu.exists():  # a FIFO or a device is refused by the archive door, in its words
         raise FmuError(f"{fmu}: no such FMU (run 'wmr fmu build' or give an existing file)")
     check_archive(fmu)  # the package carries it to other masters: the door of 'wmr run --fmu'
     try:

@@ -22,6 +22,8 @@ from wmr.apps.batch.spec import POSE_COLUMNS
 from wmr.apps.batch.summary import ID_COLUMNS, RESULT_COLUMNS, STATUSES, SUMMARY_PARQUET
 from wmr.config.naming import plural
 from wmr.infra.errors import ConfigError, LogError, WmrError
+from wmr.infra.inputs import open_input
+from wmr.infra.outputs import refuse_special
 
 #: Inputs with at most this many distinct values are plotted per value, others in bins.
 DISCRETE_MAX: Final = 12
@@ -43,6 +45,8 @@ def _floats(table: pa.Table, name: str) -> NDArray[np.float64]:
 #: Columns a summary must have for a report; the rest (metrics, ``mcap``) may be missing, as in
 #: a summary written by another version or by hand, and are then read as empty.
 _REQUIRED: Final = ("run_id", "status", "message")
+#: The most ``wmr report`` reads of a summary (10^6 runs make about 200 MB).
+MAX_SUMMARY_BYTES: Final = 2048 * (1 << 20)
 
 
 def _read_summary(path: Path) -> pa.Table:
@@ -51,7 +55,10 @@ def _read_summary(path: Path) -> pa.Table:
     import pyarrow.parquet as pq
 
     try:
-        table = pq.read_table(path)
+        # a FIFO there blocked the report for ever: opened as every input is
+        with open_input(path, "DIR", max_bytes=MAX_SUMMARY_BYTES, what="a batch summary",
+                        fix="give the --out folder of a 'wmr batch'") as stream:
+            table = pq.read_table(stream)
     except (pa.ArrowException, OSError) as exc:
         detail = " ".join(str(exc).split())[:200]  # Arrow's messages run over several lines
         raise LogError(f"{path}: not a readable Parquet summary ({detail}); "
@@ -116,6 +123,7 @@ def _plot_status(counts: dict[str, int], path: Path) -> None:
     converged_pct = 100.0 * counts.get("converged", 0) / total
     ax.set_title(f"{plural(total, 'run')}: {converged_pct:.1f} % converged")
     fig.tight_layout()
+    refuse_special(path)  # a FIFO there would block the save, a device be written
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -147,6 +155,7 @@ def _plot_against(name: str, x: NDArray[np.float64], ok: NDArray[np.bool_],
         ax.set_xlabel(name)
         ax.grid(alpha=0.3)
     fig.tight_layout()
+    refuse_special(path)  # a FIFO there would block the save, a device be written
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return rates
@@ -168,6 +177,7 @@ def _plot_spread(columns: dict[str, NDArray[np.float64]], ok: NDArray[np.bool_],
         ax.set_ylabel("runs")
     fig.suptitle(f"spread over the {int(ok.sum())} converged runs (median, 5 and 95 %)")
     fig.tight_layout()
+    refuse_special(path)  # a FIFO there would block the save, a device be written
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -242,6 +252,7 @@ def write_report(batch_dir: Path, max_plots: int = 8,
     if n == 0:
         lines.append("No finished runs.")
         path = out / "report.md"
+        refuse_special(path)
         path.write_text("\n".join(lines) + "\n", encoding="utf-8")
         return path
     rate = 100.0 * ok.mean()
@@ -302,6 +313,7 @@ def write_report(batch_dir: Path, max_plots: int = 8,
             lines.append(f"| ... | | {len(bad) - 20} more in the summary |")
         lines.append("")
     path = out / "report.md"
+    refuse_special(path)
     path.write_text("\n".join(lines), encoding="utf-8")
     return path
 

@@ -139,11 +139,19 @@ def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence
     return pa.table({f.name: pa.array(cols[f.name], f.type) for f in fields}, schema=schema)
 
 
+#: What a spreadsheet takes for the start of a formula (OWASP, "CSV Injection").
+FORMULA_STARTS: Final = ("=", "+", "-", "@", "\t", "\r")
+
+
 def _csv_cell(value: object) -> str:
     if value is None:
         return ""
     if isinstance(value, float):
-        return repr(value)  # shortest text that reads back to the same double
+        return repr(value)  # shortest text that reads back to the same double (-1.5 stays)
+    if isinstance(value, str) and value.startswith(FORMULA_STARTS):
+        # a run named '=HYPERLINK(...)' must not become a formula where the CSV is opened: a
+        # quote first makes it text, as OWASP recommends (only here: Parquet keeps the name)
+        return f"'{value}"
     return str(value)
 
 
@@ -185,6 +193,7 @@ def read_summary(out_dir: Path) -> pa.Table:
 
 
 __all__ = [
+    "FORMULA_STARTS",
     "RESULT_COLUMNS",
     "SHARD_RUNS",
     "SUMMARY_CSV",
