@@ -8,6 +8,7 @@ import math
 import tomllib
 from pathlib import Path
 
+import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
@@ -191,6 +192,12 @@ def test_a_batch_of_pi_and_astolfi_on_the_same_draws(fmu3: Path, tmp_path: Path)
     for pi, ast in zip(table[:3], table[3:], strict=True):
         assert {c: pi[c] for c in DRAWN} == {c: ast[c] for c in DRAWN}
         assert pi["time_to_goal_s"] != ast["time_to_goal_s"]
+    # docs/batch.md's pairing, as written there
+    s = pd.read_parquet(out / "summary.parquet")
+    t = s.pivot(index="draw", columns="controller", values="time_to_goal_s")
+    assert list(t.index) == [0, 1, 2] and sorted(t.columns) == ["astolfi", "pi"]
+    assert list(t["astolfi"] / t["pi"]) == [a["time_to_goal_s"] / p["time_to_goal_s"]
+                                            for p, a in zip(table[:3], table[3:], strict=True)]
     with (out / "summary.csv").open(encoding="utf-8", newline="") as f:
         rows = list(csv.DictReader(f))
     assert [(r["controller"], r["draw"]) for r in rows] == [
@@ -209,3 +216,13 @@ def test_the_summary_names_the_controller_when_it_is_not_varied(fmu3: Path,
     table = pq.read_table(tmp_path / "out" / "summary.parquet")
     assert table.column("controller").to_pylist() == ["astolfi", "astolfi"]
     assert table.column("draw").to_pylist() == [0, 1]
+
+
+def test_a_controller_fmu_spec_cannot_vary_the_controller() -> None:
+    """The controller FMU is the PI: a peer in the grid is refused, naming the grid's field."""
+    text = BASE.format(head="controller_fmu = true", n=2)
+    assert {r.controller for r in _parse(text + '[grid]\ncontroller = ["pi"]\n').runs} == {"pi"}
+    with pytest.raises(ConfigError) as err:
+        _parse(text + '[grid]\ncontroller = ["pi", "astolfi"]\n')
+    assert err.value.field == "grid.controller"
+    assert "controller FMU is the PI" in str(err.value) and "(run 2," in str(err.value)
