@@ -37,6 +37,10 @@ SKIP: dict[tuple[str, str], str] = {
         "needs ssp/fig11.ssp from `wmr ssp export`; tests/test_ssp.py runs it",
     ("ssp.md", "from wmr.adapters.ssp.ecos import simulate_ecos"):
         "needs ssp/fig11-fmi3.ssp from `wmr ssp export --fmi 3`; tests/test_ssp.py runs it",
+    # a 1000-run batch's summary: tests/test_batch_controllers.py pairs a small one the same way
+    ("batch.md", "import pandas as pd"):
+        "needs batches/pi_vs_astolfi from `wmr batch pi_vs_astolfi`; "
+        "tests/test_batch_controllers.py runs the same pivot on a real batch",
 }
 #: Pages whose python blocks take minutes (FMU runs, a batch, an optimal solve).
 SLOW_PAGES = {"api.md"}

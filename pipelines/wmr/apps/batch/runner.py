@@ -43,7 +43,7 @@ from wmr.apps.batch.journal import (
     logged_record,
 )
 from wmr.apps.batch.local import LocalPool, Outcome, check_open_files
-from wmr.apps.batch.spec import BatchRun, BatchSpec, run_index
+from wmr.apps.batch.spec import BatchRun, BatchSpec, RunList, run_index
 from wmr.apps.batch.summary import (
     STATUSES,
     SummaryRow,
@@ -569,9 +569,14 @@ def _row_of(index: int, line: Mapping[str, Any], batch: BatchSpec) -> SummaryRow
     row = line.get("row")
     if not isinstance(row, dict) or not _row_fits(row, batch.input_columns):
         return SummaryRow.of(batch.runs[index])
+    runs = batch.runs
+    # the controller and draw follow from the index (the journal's lines, as before, hold
+    # neither): a block of rows is not made again for them
+    controller, draw = runs.label(index) if isinstance(runs, RunList) else (
+        runs[index].controller, runs[index].draw)
     return SummaryRow(str(line["run_id"]), row["name"], row["base"], row["variant"],
                       {k: math.nan if v is None else v if isinstance(v, str) else float(v)
-                       for k, v in row["inputs"].items()})
+                       for k, v in row["inputs"].items()}, controller, draw)
 
 
 def _row_fits(row: Mapping[str, Any], columns: Sequence[str]) -> bool:

@@ -82,6 +82,7 @@ import numpy as np
 
 from wmr.apps.run import LOG_KEEPS, LogPolicy
 from wmr.config.scenario import parse_scenario, read_toml, resolve_scenario_path, with_overrides
+from wmr.core.control.peers import CONTROLLER_NAMES, controller_gains
 from wmr.core.control.stabiliser import Gains, Limits
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.runspec import RunSpec
@@ -109,7 +110,11 @@ _POSE_PARTS: Final[dict[str, tuple[str, ...]]] = {
     "goal": ("x_m", "y_m", "heading_deg"),
 }
 _SCALARS: Final = ("max_time_s", "stop_radius_m", "control_period_s", "heading_tolerance_deg")
-_FIELDS: Final = (*_GROUPS, *_POSE_PARTS, *_SCALARS)
+#: The controller dimension (``[grid]`` and ``[[list]]`` only: a random draw is shared by every
+#: controller, never drawn per controller).
+CONTROLLER: Final = "controller"
+CONTROLLER_GAINS: Final = "controller_gains"
+_FIELDS: Final = (*_GROUPS, *_POSE_PARTS, *_SCALARS, CONTROLLER, CONTROLLER_GAINS)
 _DISTS: Final[dict[str, tuple[tuple[str, ...], tuple[str, ...]]]] = {
     # name: (required keys, optional keys)
     "uniform": (("low", "high"), ()),
@@ -140,6 +145,10 @@ class BatchRun:
     inputs
         The varied fields as summary columns (``"params.m"``, ``"start.r_m"``, ...), plus the
         pose columns of :data:`POSE_COLUMNS`.
+    draw
+        Its random draw: the index of its ``[random]`` sample (0 without ``[random]``).  Runs
+        of one draw have the same random inputs, whatever their controller, grid point or list
+        entry (common random numbers).
     """
 
     run_id: str
@@ -149,11 +158,17 @@ class BatchRun:
     inputs: dict[str, float | str]
     #: :func:`spec_digest` of ``spec`` (its first 8 hex digits end the id).
     digest: str
+    draw: int = 0
 
     @property
     def name(self) -> str:
         """The run's name (``spec.name``)."""
         return self.spec.name
+
+    @property
+    def controller(self) -> str:
+        """The run's controller (``spec.controller``)."""
+        return self.spec.controller
 
 
 @dataclass(frozen=True)
@@ -236,7 +251,13 @@ def _unknown(where: str, allowed: Sequence[str]) -> ConfigError:
 
 
 def _value(field: str, value: object, where: str) -> Value:
-    """A variant's value: a name for :data:`NAME_COLUMNS`, a number otherwise."""
+    """A variant's value: a name for :data:`NAME_COLUMNS` and ``controller``, a number
+    otherwise."""
+    if field == CONTROLLER:
+        if value not in CONTROLLER_NAMES:
+            raise ConfigError(where, f"unknown controller {_cut(value)}",
+                              f"use one of: {', '.join(CONTROLLER_NAMES)}")
+        return str(value)
     if field in NAME_COLUMNS:
         if not isinstance(value, str):
             raise ConfigError(where, f"must be a name, got {value!r}", 'quote it, e.g. "ekf"')
@@ -276,10 +297,36 @@ def _leaves(table: Mapping[str, Any], where: str,
                     out.append((f"{key}.{name}", f"{src}.{name}", v))
             else:
                 out.append((key, src, value))
-        elif key in _SCALARS:
+        elif key in _SCALARS or key == CONTROLLER:
             out.append((key, src, value))
+        elif key == CONTROLLER_GAINS:
+            out.extend(_peer_gain_leaves(value, src))
         else:
             raise _unknown(src, (*skip, *_FIELDS))
+    return out
+
+
+def _peer_gain_leaves(value: object, where: str) -> list[tuple[str, str, object]]:
+    """``controller_gains`` of a ``[grid]`` or ``[[list]]``: a table by controller name of its
+    gains, each gain checked against the controller's declared ones (field
+    ``controller_gains.<controller>.<gain>``)."""
+    out: list[tuple[str, str, object]] = []
+    peers = tuple(n for n in CONTROLLER_NAMES if n != "pi")
+    for name, gains in _table(value, where, f"[{where}.astolfi] with k_rho = ...").items():
+        src = f"{where}.{name}"
+        if name == "pi":
+            raise ConfigError(src, "the PI takes its gains from [gains]",
+                              f"vary them as gains.K_ps, ...; {where} is for {', '.join(peers)}")
+        if name not in CONTROLLER_NAMES:
+            raise ConfigError(src, f"unknown controller {_cut(name)}",
+                              f"give the gains of one of: {', '.join(peers)}")
+        defaults = controller_gains(name)  # a peer's: never None
+        known = tuple(defaults.as_dict()) if defaults is not None else ()
+        for gain, raw in _table(gains, src, f"[{src}] with {known[0]} = ...").items():
+            if gain not in known:
+                raise ConfigError(f"{src}.{gain}", f"not a gain of {name}",
+                                  f"{name}'s gains: {', '.join(known)}")
+            out.append((f"{CONTROLLER_GAINS}.{name}.{gain}", f"{src}.{gain}", raw))
     return out
 
 
@@ -380,6 +427,12 @@ def _random(table: Mapping[str, Any], max_runs: int = MAX_RUNS
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= max_runs:
         raise ConfigError("random.n", f"must be an integer in [1, {max_runs}], got {_cut(n)}",
                           "write e.g. n = 100")
+    for key in (CONTROLLER, CONTROLLER_GAINS):
+        if key in table:
+            # every controller must see the same draws (common random numbers)
+            raise ConfigError(f"random.{key}", "is not drawn: each random draw is run under "
+                              "every controller of the batch", f"vary {key} in [grid] or "
+                              "[[list]]")
     dists: list[tuple[str, _Dist]] = []
     sources: dict[str, str] = {}
     for field, src, raw in _leaves(table, "random", skip=("seed", "n")):
@@ -473,12 +526,18 @@ def _resolve(base: RunSpec, values: Mapping[str, Value], name: str) -> RunSpec:
     def opt(key: str) -> float | None:
         return num(key) if key in values else None
 
+    controller = str(values.get(CONTROLLER, base.controller))
+    if controller != "pi" and base.controller_fmu is not None:
+        raise ConfigError(CONTROLLER, f"the controller FMU is the PI stabiliser, but "
+                          f"controller = {controller!r}", "drop controller_fmu or vary only pi")
     return with_overrides(
         base, start=Pose(sx, sy, sh), goal=Pose(gx, gy, gh), name=name,
         gains=group("gains"), limits=group("limits"), params=group("params"),
         period_s=opt("control_period_s"), stop_radius_m=opt("stop_radius_m"),
         t_max_s=opt("max_time_s"), heading_tolerance_deg=opt("heading_tolerance_deg"),
-        sensors=sensors)
+        sensors=sensors, controller=controller,
+        # the gains of the run's own controller; those given for another are not its own
+        controller_gains=group(f"{CONTROLLER_GAINS}.{controller}"))
 
 
 def _canonical(value: Any) -> Any:
@@ -542,12 +601,18 @@ def _inputs(spec: RunSpec, values: Mapping[str, Value], columns: Sequence[str]
     if spec.sensors is not None:
         actual.update({f"sensors.{k}": v for k, v in spec.sensors.as_dict().items()
                        if k in _GROUPS["sensors"]})
+    peer = controller_gains(spec.controller, dict(spec.controller_gains))
+    if peer is not None:  # every gain the run's controller uses, its defaults included
+        actual.update({f"{CONTROLLER_GAINS}.{spec.controller}.{k}": v
+                       for k, v in peer.as_dict().items()})
     for col in columns:
         if col in row:
             continue
         if col in actual:
             v = actual[col]
             row[col] = v if isinstance(v, str) else float(v)
+        elif col.startswith(f"{CONTROLLER_GAINS}."):  # another controller's gain: not this run's
+            row[col] = math.nan
         else:  # start.r_m, start.bearing_deg: as drawn, NaN where not given
             drawn = values.get(col)
             row[col] = float(drawn) if isinstance(drawn, int | float) else math.nan
@@ -638,8 +703,9 @@ class RunList(Sequence[BatchRun]):
         for i in range(self._total) if self._total <= CHECK_ALL_RUNS else self.probes():
             self._make(i)
 
-    def _values(self, i: int) -> tuple[int, str, dict[str, Value]]:
-        """Run ``i``'s base index, list entry name and values (grid, entry, sample)."""
+    def _fixed(self, i: int) -> tuple[int, str, dict[str, Value], int]:
+        """Run ``i``'s base index, list entry name, fixed values (grid point, then list entry)
+        and draw (its sample's index): what it is made of, nothing drawn yet."""
         i, k_sample = divmod(i, self._n_samples)
         i, k_entry = divmod(i, len(self._entries))
         k_base, k_point = divmod(i, self._n_points)
@@ -652,24 +718,83 @@ class RunList(Sequence[BatchRun]):
             values.update(pick)
         variant, entry = self._entries[k_entry]
         values.update(entry)
+        return k_base, variant, values, k_sample
+
+    def _values(self, i: int) -> tuple[int, str, dict[str, Value], int]:
+        """Run ``i``'s base index, list entry name, values (grid, entry, sample) and draw."""
+        k_base, variant, values, k_sample = self._fixed(i)
         if self._dists:
+            # drawn from the sample's index alone: the same draw under every controller, grid
+            # point and list entry (common random numbers)
             values.update(self._draw(k_sample))
-        return k_base, variant, values
+        return k_base, variant, values, k_sample
+
+    def label(self, index: int) -> tuple[str, int]:
+        """Run ``index``'s controller and draw, without making the run (a summary read back
+        from the journal has its rows but not its runs)."""
+        k_base, _, values, draw = self._fixed(operator.index(index))
+        return str(values.get(CONTROLLER, self._bases[k_base].controller)), draw
 
     def _make(self, index: int) -> BatchRun:
-        k_base, variant, values = self._values(index)
+        k_base, variant, values, draw = self._values(index)
         base = self._bases[k_base]
         label = base.name + (f"-{variant}" if variant else "")
+        controller = str(values.get(CONTROLLER, base.controller))
+        if CONTROLLER in self._sources and variant != controller:
+            label += f"-{controller}"  # the controller varies: every name says which
         name = label if self._n_variants == 1 else f"{label}-{index:0{self._width}d}"
         try:
             spec = _resolve(base, values, name)
         except ConfigError as exc:
-            field = self._sources.get(exc.field, exc.field)
+            field = self._source(exc.field, controller)
             raise ConfigError(field, f"{exc.problem} (run {index}, {name})", exc.fix) from None
         digest = spec_digest(spec)
         return BatchRun(run_id=f"{index:0{self._width}d}-{digest[:8]}", spec=spec,
                         base=base.name, variant=variant,
-                        inputs=_inputs(spec, values, self._columns), digest=digest)
+                        inputs=_inputs(spec, values, self._columns), digest=digest, draw=draw)
+
+    def _source(self, field: str, controller: str) -> str:
+        """Where in the spec the value of ``field`` came from (``field`` itself if from the
+        scenario part); a peer's gain (``controller_gains.k_rho``) is looked up under the run's
+        controller."""
+        if field.startswith(f"{CONTROLLER_GAINS}.") or field == CONTROLLER_GAINS:
+            peer = f"{CONTROLLER_GAINS}.{controller}{field[len(CONTROLLER_GAINS):]}"
+            found = self._sources.get(peer) or next(
+                (src.rpartition(".")[0] for key, src in self._sources.items()
+                 if key.startswith(f"{CONTROLLER_GAINS}.{controller}.")), None)
+            if found is not None:
+                return found
+        return self._sources.get(field, field)
+
+
+def _check_peer_gains_used(bases: Sequence[RunSpec], axes: Sequence[Sequence[dict[str, Value]]],
+                           entries: Sequence[tuple[str, dict[str, Value]]],
+                           sources: Mapping[str, str]) -> None:
+    """Refuse gains given for a controller that no run uses (a typo in the controller's name
+    would otherwise run every run with its default gains, silently)."""
+    used = {b.controller for b in bases}
+    for values in (*(v for axis in axes for v in axis), *(v for _, v in entries)):
+        if CONTROLLER in values:
+            used.add(str(values[CONTROLLER]))
+    gridded = {str(v[CONTROLLER]) for axis in axes for v in axis if CONTROLLER in v}
+    for axis in axes:
+        for key in axis[0]:
+            name = key.split(".")[1] if key.startswith(f"{CONTROLLER_GAINS}.") else None
+            if name is not None and gridded - {name}:
+                # the other controllers' runs would be repeated once per value, unchanged
+                raise ConfigError(sources[key], f"a grid of {name}'s gains beside a grid of "
+                                  f"controllers ({', '.join(sorted(gridded))}) repeats every "
+                                  f"run of the others once per value", f"give {name}'s gains "
+                                  f"in a [[list]] entry with controller = {name!r}, or grid "
+                                  f"them in a spec of {name} alone")
+    for key, src in sources.items():
+        if key.startswith(f"{CONTROLLER_GAINS}."):
+            name = key.split(".")[1]
+            if name not in used:
+                raise ConfigError(src.rpartition(".")[0], f"gains of {name}, which no run uses "
+                                  f"(the runs' controllers: {', '.join(sorted(used))})",
+                                  f"add {name!r} to the controllers (controller = [...]) or "
+                                  "drop the table")
 
 
 def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | None = None,
@@ -722,9 +847,10 @@ def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | N
         raise ConfigError("grid" if n_points > 1 else "random.n",
                           f"the spec expands to {total} runs, more than {max_runs}",
                           "use fewer values, or raise the limit with --max-runs")
+    _check_peer_gains_used(scenario.runs, axes, entries, sources)
     columns = list(POSE_COLUMNS)
     for key in sources:
-        if key not in columns:
+        if key not in columns and key != CONTROLLER:  # the summary's own column (summary.py)
             columns.append(key)
     seed = sections["random"]["seed"] if dists else 0
     log = _log_policy(_table(sections["log"], "log", '[log] with keep = "failed"')) \

@@ -24,7 +24,11 @@ from wmr.infra.durable import replacing
 
 SUMMARY_PARQUET: Final = "summary.parquet"
 SUMMARY_CSV: Final = "summary.csv"
-ID_COLUMNS: Final = ("run_id", "name", "base", "variant")
+#: What identifies a run: ``controller`` is the run's controller (varied or not), ``draw`` the
+#: index of its random sample (:attr:`wmr.apps.batch.spec.BatchRun.draw`): runs of one draw under
+#: different controllers had the same random inputs.  These two follow the input columns: a
+#: summary starts as it always did, its inputs after ``variant``.
+ID_COLUMNS: Final = ("run_id", "name", "base", "variant", "controller", "draw")
 #: Result columns: name -> Arrow type.
 RESULT_COLUMNS: Final[dict[str, pa.DataType]] = {
     "status": pa.string(),
@@ -84,10 +88,13 @@ class SummaryRow:
     base: str
     variant: str
     inputs: Mapping[str, float | str]
+    controller: str
+    draw: int
 
     @classmethod
     def of(cls, run: BatchRun) -> SummaryRow:
-        return cls(run.run_id, run.spec.name, run.base, run.variant, run.inputs)
+        return cls(run.run_id, run.spec.name, run.base, run.variant, run.inputs,
+                   run.controller, run.draw)
 
 
 def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence[str],
@@ -117,6 +124,8 @@ def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence
         cols["name"].append(run.name)
         cols["base"].append(run.base)
         cols["variant"].append(run.variant)
+        cols["controller"].append(run.controller)
+        cols["draw"].append(run.draw)
         for c in input_columns:
             v = run.inputs.get(c, math.nan)
             cols[c].append(v if isinstance(v, str) else None if math.isnan(v) else v)
@@ -131,9 +140,11 @@ def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence
                 cols[c].append(int(steps) if isinstance(steps, int) else None)
             else:
                 cols[c].append(_float(rec.get(c)))
-    fields = [pa.field(c, pa.string(), nullable=False) for c in ID_COLUMNS]
+    fields = [pa.field(c, pa.string(), nullable=False) for c in ID_COLUMNS[:4]]
     fields += [pa.field(c, pa.string() if c in NAME_COLUMNS else pa.float64())
                for c in input_columns]
+    fields += [pa.field("controller", pa.string(), nullable=False),
+               pa.field("draw", pa.int64(), nullable=False)]
     fields += [pa.field(c, t) for c, t in RESULT_COLUMNS.items()]
     schema = pa.schema(fields)
     return pa.table({f.name: pa.array(cols[f.name], f.type) for f in fields}, schema=schema)
