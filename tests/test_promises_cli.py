@@ -4,11 +4,13 @@ are one line without ``--debug`` and the whole traceback with it."""
 from __future__ import annotations
 
 import argparse
+import json
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+import wmr
 import wmr.apps.batch.command
 from wmr.cli import build_parser, main
 from wmr.infra.errors import ConfigError
@@ -79,3 +81,59 @@ def test_an_internal_error_is_one_line_exit_2_and_debug_raises_it(
     assert "--debug" in err
     with pytest.raises(RuntimeError, match="a bug"):
         main(["--debug", *args])
+
+
+def _parsers(parser: argparse.ArgumentParser) -> Iterator[argparse.ArgumentParser]:
+    yield parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _parsers(sub)
+
+
+def test_no_option_of_any_command_is_taken_by_a_prefix(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    parsers = list(_parsers(build_parser()))
+    assert len(parsers) > len(COMMANDS) and all(not p.allow_abbrev for p in parsers)
+    # --controller-f was --controller-fmu, --wor --workers: both refused now, by their command
+    for args, prefix in ((["run", "--controller-f", "x"], "--controller-f"),
+                         (["batch", str(tmp_path / "s.toml"), "--wor", "2"], "--wor 2")):
+        with pytest.raises(SystemExit) as stop:
+            main(args)
+        assert stop.value.code == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"usage: wmr {args[0]} ")
+        assert f"wmr {args[0]}: error: unrecognized arguments: {prefix}" in err
+
+
+def test_run_controller_runs_the_named_controller_and_lists_the_known_ones(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = tmp_path / "a.mcap"
+    code = main(["run", "--controller", "astolfi", "--max-time", "1", "--out", str(log),
+                 "--json"])
+    record = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert code == 3 and record["status"] == "timeout" and record["name"] == "fig11-astolfi-tmax=1"
+    assert wmr.read_log(log).metadata["run"]["controller"] == "astolfi"
+    assert main(["run", "--controller", "bogus", "--out", str(tmp_path / "b.mcap")]) == 1
+    err = capsys.readouterr().err
+    assert err == ("wmr: error: --controller: unknown controller 'bogus' (one of: pi, astolfi, "
+                   "graceful)\n")
+
+
+@pytest.mark.parametrize("args", [["run", "--bogus"], ["run", "--start", "1", "2"],
+                                  ["rerun", "DIR"], ["optimal", "--bogus"]],
+                         ids=["unknown", "short", "missing", "optimal"])
+def test_a_parse_error_with_json_is_one_json_line_and_exit_1(
+        args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as stop:
+        main([*args, "--json"])
+    assert stop.value.code == 1
+    captured = capsys.readouterr()
+    record = json.loads(captured.out)
+    assert captured.out.count("\n") == 1 and record["status"] == "error"
+    assert f"wmr {args[0]}: error: {record['message']}\n" == captured.err
+    with pytest.raises(SystemExit) as stop:  # without --json: argparse's usage, exit 2
+        main(args)
+    assert stop.value.code == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.startswith(f"usage: wmr {args[0]} ")

@@ -329,9 +329,41 @@ class BatchResult:
     out: Path
     summary: pd.DataFrame
 
-    def log(self, run_id: str) -> Log:
-        """The log of one run of the batch."""
-        return read_log(self.out / "runs" / f"{run_id}.mcap")
+    def log(self, run_id: str, *, rerun: bool = False) -> Log:
+        """The log of one run of the batch, wherever the batch kept it (the summary's ``mcap``
+        column: ``runs/<run_id>.mcap``, or ``runs/<shard>/<run_id>.mcap`` in a batch of over
+        1000 runs).
+
+        Parameters
+        ----------
+        run_id
+            The run's id (the summary's ``run_id``).
+        rerun
+            For a run whose log the batch's log policy did not keep: make the run again with
+            a full log (as ``wmr rerun DIR RUN_ID`` does, into ``DIR/rerun/<run_id>.mcap``)
+            and return that log.
+
+        Raises
+        ------
+        ConfigError
+            No such run in the summary, or its log was not kept (and ``rerun`` is False).
+        """
+        rows = self.summary.loc[self.summary["run_id"] == run_id, "mcap"]
+        if rows.empty:
+            raise ConfigError("run_id", f"no run {run_id!r} in {self.out / 'summary.parquet'}",
+                              "give one of .summary['run_id']")
+        rel = rows.iloc[0]
+        if isinstance(rel, str) and rel:
+            return read_log(self.out / rel)
+        from wmr.apps.batch.rerun import open_batch, rerun_run
+
+        if not rerun:
+            policy = open_batch(self.out, "out").log
+            raise ConfigError("run_id", f"the batch's log policy ({policy.describe()}) kept no "
+                              f"log of run {run_id}",
+                              f"make it again with its full log: .log({run_id!r}, rerun=True), "
+                              f"or wmr rerun {self.out} {run_id}")
+        return read_log(rerun_run(self.out, run_id)["mcap"])
 
     def _repr_html_(self) -> str:
         counts = self.summary["status"].value_counts().to_dict()
@@ -369,7 +401,9 @@ def batch(spec: str | Path, out: str | Path | None = None, *,
 
 def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | None = None,
            blueprint: str | Path | None = None, blueprint_for: bool = False,
-           viewer: bool | None = None) -> ReplayResult | Path | list[Path]:
+           viewer: bool | None = None, worst: int | None = None,
+           by: str = "time_to_goal_s",
+           status: str | None = None) -> ReplayResult | Path | list[Path]:
     """Replay run logs in Rerun, as ``wmr replay`` does: ``logs`` (a file or folder, or a list
     of them) in one recording, shown in a viewer or written to ``rrd``.
 
@@ -378,8 +412,11 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
     ``logs`` if given, and replay nothing; returns its path), ``blueprint_for``
     (``--blueprint-for``: ``X.rbl`` beside each log ``X.mcap``, for ``rerun X.mcap X.rbl``;
     returns their paths), ``viewer`` (``--no-viewer`` is
-    ``viewer=False``; None: a viewer when there is a screen and no ``rrd``).  Both check their
-    inputs in :func:`wmr.apps.replay.replay_logs`: the same one-line errors.
+    ``viewer=False``; None: a viewer when there is a screen and no ``rrd``), ``worst``, ``by``
+    and ``status`` (``--worst N --by COLUMN``, ``--status failed|timeout``: runs of one batch
+    folder, those whose logs were not kept made again into ``DIR/rerun/``, a warning saying
+    so).  Both check their inputs in :func:`wmr.apps.replay.replay_logs`: the same one-line
+    errors.
 
     Returns
     -------
@@ -390,8 +427,13 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
     from wmr.apps.replay import replay_logs
 
     inputs = [logs] if isinstance(logs, str | Path) else list(logs)
+    def say(line: str) -> None:
+        import warnings
+
+        warnings.warn(line, stacklevel=3)
+
     return replay_logs(inputs, rrd=rrd, blueprint=blueprint, blueprint_for=blueprint_for,
-                       viewer=viewer)
+                       viewer=viewer, worst=worst, by=by, status=status, say=say)
 
 
 __all__ = ["BatchResult", "Log", "RunResult", "batch", "load_scenario", "optimal",

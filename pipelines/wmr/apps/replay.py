@@ -6,7 +6,7 @@ loader (:func:`wmr.adapters.rerun.blueprint.write_blueprint`, one file;
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -17,13 +17,15 @@ if TYPE_CHECKING:
 
 #: The API's keywords -> the options of ``wmr replay`` that give them.
 _FLAGS = {"logs": "FILE.mcap|DIR", "rrd": "--rrd", "blueprint": "--blueprint",
-          "blueprint_for": "--blueprint-for"}
+          "blueprint_for": "--blueprint-for", "worst": "--worst", "status": "--status"}
 
 
 def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
                 rrd: str | os.PathLike[str] | None = None,
                 blueprint: str | os.PathLike[str] | None = None, blueprint_for: bool = False,
-                viewer: bool | None = None,
+                viewer: bool | None = None, worst: int | None = None,
+                by: str = "time_to_goal_s", status: str | None = None,
+                say: Callable[[str], None] | None = None,
                 command_line: bool = False) -> ReplayResult | Path | list[Path]:
     """Replay ``logs`` (files and folders of them) in one Rerun recording, or, with
     ``blueprint``, write that blueprint file (looking straight down on ``logs``, if given)
@@ -44,6 +46,12 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
     viewer
         Open a viewer: None when there is a screen and no ``rrd``, False never (then the
         recording goes to ``rrd`` or next to the input).
+    worst, by, status
+        With one batch folder in ``logs``: replay its ``worst`` runs by the summary column
+        ``by`` (the failed and timed-out runs first), or every run of ``status``
+        (``failed``, ``timeout``); a run whose log the batch did not keep is made again with
+        a full log into ``DIR/rerun/`` (:func:`wmr.apps.batch.rerun.batch_logs`), and ``say``
+        is told so.
     command_line
         Name the options in errors as ``wmr replay`` does (``--rrd``), else the keywords.
 
@@ -93,11 +101,58 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         return write_blueprint(out, frame=frame, sensing=sensing)
     if not logs:
         raise ConfigError(option("logs"), "no log given", "give run logs or folders of them")
+    if worst is not None or status is not None:
+        logs = _chosen_runs(logs, worst, by, status, say, command_line)
+    else:
+        _kept_logs(logs, command_line)
     if rrd is not None:
         check_output(rrd, option("rrd"), suffix=".rrd")
     from wmr.adapters.rerun.replay import replay
 
     return replay(logs, rrd=rrd, spawn=viewer)
+
+
+def _chosen_runs(logs: Sequence[str | os.PathLike[str]], worst: int | None, by: str,
+                 status: str | None, say: Callable[[str], None] | None,
+                 command_line: bool) -> list[Path]:
+    """The logs of the runs ``--worst``/``--status`` choose in the one batch folder of
+    ``logs`` (made again where the batch kept none)."""
+    from wmr.apps.batch.rerun import batch_logs, pick_runs
+
+    option = _FLAGS["worst" if worst is not None else "status"] if command_line \
+        else "worst" if worst is not None else "status"
+    if worst is not None and status is not None:
+        raise ConfigError(option, "given with --status" if command_line else "given with status",
+                          "give one of them")
+    if len(logs) != 1 or not Path(logs[0]).is_dir():
+        raise ConfigError(option, "chooses runs of one batch folder",
+                          "give one batch folder (the --out of wmr batch)")
+    out = Path(logs[0])
+    return batch_logs(out, pick_runs(out, worst=worst, by=by, status=status,
+                                     command_line=command_line), say)
+
+
+def _kept_logs(logs: Sequence[str | os.PathLike[str]], command_line: bool) -> None:
+    """A batch folder given whole that holds no log: say its log policy and how to see its
+    runs, not only that the folder has no ``.mcap`` file."""
+    from wmr.apps.batch.rerun import BATCH_JSON, open_batch
+
+    for item in logs:
+        folder = Path(item)
+        if not (folder / BATCH_JSON).is_file() or any(folder.rglob("*.mcap")):
+            continue
+        policy = open_batch(folder, "DIR" if command_line else "logs").log
+        how = (f"wmr replay {folder} --worst N [--by COLUMN], or --status failed|timeout, "
+               f"or wmr rerun {folder} RUN_ID" if command_line
+               else "worst=N [by=COLUMN], or status='failed'|'timeout'")
+        raise ConfigError(option_name(command_line), f"{folder} is a batch whose log policy "
+                          f"({policy.describe()}) kept no log",
+                          f"make runs again with their full logs: {how}")
+
+
+def option_name(command_line: bool) -> str:
+    """How an error names the logs given: ``FILE.mcap|DIR`` or ``logs``."""
+    return _FLAGS["logs"] if command_line else "logs"
 
 
 __all__ = ["replay_logs"]

@@ -428,10 +428,15 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
 
     sc = load_scenario(scenario)
     base = select_run(sc, run, command_line)
-    spec = with_overrides(base, start=pose(start, "start"), goal=pose(goal, "goal"),
-                          gains=gains, limits=limits, params=params, period_s=period_s,
-                          stop_radius_m=stop_radius_m, t_max_s=max_time_s,
-                          controller=controller, controller_gains=controller_gains)
+    try:
+        spec = with_overrides(base, start=pose(start, "start"), goal=pose(goal, "goal"),
+                              gains=gains, limits=limits, params=params, period_s=period_s,
+                              stop_radius_m=stop_radius_m, t_max_s=max_time_s,
+                              controller=controller, controller_gains=controller_gains)
+    except ConfigError as exc:  # an unknown controller is the option's (--controller)
+        if exc.field != "controller":
+            raise
+        raise ConfigError(_option("controller", command_line), exc.problem, exc.fix) from None
     if sensors is not None or sensor:
         spec = replace(spec, sensors=command_line_sensors(
             spec.sensors, sensors, [f"{k}={v}" for k, v in (sensor or {}).items()]))

@@ -9,6 +9,7 @@ import re
 import signal
 import sys
 from collections.abc import Callable, Sequence
+from contextvars import ContextVar
 from types import FrameType
 from typing import Any
 
@@ -111,14 +112,38 @@ def _environment_error(exc: OSError | MemoryError) -> str:
     return f"{where}{what}" + (f" ({fix})" if fix else "")
 
 
+#: Whether the command line being parsed asked for ``--json`` (set by :func:`main`): a parse
+#: error of a command that has ``--json`` is then one JSON line (:meth:`_Parser.error`).
+_JSON_ASKED: ContextVar[bool] = ContextVar("wmr_cli_json_asked", default=False)
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse's parser, whose usage errors are one sanitised line (argparse echoes the
     value it could not parse: a 100,000-character or escape-laden one must not reach the
-    terminal raw).  Sub-command parsers are made of the same class."""
+    terminal raw).  Sub-command parsers are made of the same class.
+
+    No option is taken by a prefix of its name (``allow_abbrev=False``): ``--controller``
+    must never pass for ``--controller-fmu``, nor a typo for another option.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs["allow_abbrev"] = False
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> Any:  # argparse's signature: NoReturn
+        line = error_line(Exception(message))
+        if _JSON_ASKED.get() and "--json" in self._option_string_actions:
+            # refused input of a command given --json: the README's contract, one JSON line
+            # on stdout (as any refused input) and exit 1, the error on stderr
+            print(f"{self.prog}: error: {line}", file=sys.stderr)
+            record = {"status": "error", "message": line}
+            field = re.match(r"argument (\S+?)(?:/\S+)?: ", message)
+            if field is not None:
+                record["field"] = field.group(1)
+            print(json.dumps(record))
+            self.exit(1)
         self.print_usage(sys.stderr)
-        self.exit(2, f"{self.prog}: error: {error_line(Exception(message))}\n")
+        self.exit(2, f"{self.prog}: error: {line}\n")
 
 
 def _cmd_fmu_build(args: argparse.Namespace) -> int:
@@ -182,10 +207,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
                                         None]]:
     """The ``register`` functions of the other sub-commands, in ``--help`` order."""
-    from wmr.cli import batch, log, optimal, replay, run, ssp
+    from wmr.cli import batch, log, optimal, replay, rerun, run, ssp
 
-    return [run.register, replay.register, batch.register, optimal.register, ssp.register,
-            log.register]
+    return [run.register, replay.register, batch.register, rerun.register, optimal.register,
+            ssp.register, log.register]
 
 
 class Terminated(KeyboardInterrupt):
@@ -256,7 +281,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"wmr: error: {out_of_memory(_LOADING)}", file=sys.stderr)
         return 1
-    args = parser.parse_args(argv)
+    args = _parse(parser, sys.argv[1:] if argv is None else list(argv))
     handler: Handler = args.handler
     signals = _Signals()
     signals.install()
@@ -268,6 +293,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         return signals.status(130)
     finally:
         signals.restore()
+
+
+def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
+    """``argv`` parsed; an argument no parser took is refused by the deepest sub-command's
+    parser (its usage, and its ``--json`` contract), not by ``wmr``'s."""
+    token = _JSON_ASKED.set("--json" in argv)
+    try:
+        args, extras = parser.parse_known_args(argv)
+        if extras:
+            _command_parser(parser, args).error(f"unrecognized arguments: {' '.join(extras)}")
+        return args
+    finally:
+        _JSON_ASKED.reset(token)
+
+
+def _command_parser(parser: argparse.ArgumentParser,
+                    args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The parser of the (sub-)sub-command that ``args`` chose, ``parser`` if none."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            chosen = action.choices.get(getattr(args, action.dest, None) or "")
+            if isinstance(chosen, argparse.ArgumentParser):
+                return _command_parser(chosen, args)
+    return parser
 
 
 def _dispatch(handler: Handler, args: argparse.Namespace) -> int:

@@ -16,7 +16,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
     result = replay_logs(args.logs, rrd=args.rrd, blueprint=args.blueprint,
                          blueprint_for=args.blueprint_for,
-                         viewer=False if args.no_viewer else None, command_line=True)
+                         viewer=False if args.no_viewer else None, worst=args.worst,
+                         by=args.by, status=args.status,
+                         say=lambda line: print(f"wmr: {line}", file=sys.stderr, flush=True),
+                         command_line=True)
     if isinstance(result, list):  # --blueprint-for: X.rbl beside each X.mcap
         for path in result:
             print(path)
@@ -89,6 +92,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="write X.rbl beside each log X.mcap (named for it, looking down on its "
                         "run), so that Rerun opening the raw log applies it: rerun X.mcap "
                         "X.rbl (docs/replay.md); and stop")
+    p.add_argument("--worst", type=int, metavar="N",
+                   help="of one batch folder DIR: its N worst runs by --by (the failed and "
+                        "timed-out runs first); a run whose log the batch did not keep is made "
+                        "again with a full log into DIR/rerun/ (said on stderr)")
+    p.add_argument("--by", default="time_to_goal_s", metavar="COLUMN",
+                   help="the summary column --worst ranks by, largest worst (default "
+                        "time_to_goal_s)")
+    p.add_argument("--status", choices=("failed", "timeout"),
+                   help="of one batch folder DIR: every run of this status (made again as "
+                        "--worst does when its log was not kept)")
     p.add_argument("--no-viewer", action="store_true",
                    help="do not open a viewer even if there is a screen (write the .rrd)")
     p.set_defaults(handler=_cmd_replay)

@@ -121,7 +121,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         args.scenario, run=args.run, start=args.start, goal=args.goal,
         gains=_key_values(args.gain, "--gain"), limits=_key_values(args.limit, "--limit"),
         params=_key_values(args.param, "--param"), period_s=args.period,
-        stop_radius_m=args.stop_radius, max_time_s=args.max_time, sensors=args.sensors,
+        stop_radius_m=args.stop_radius, max_time_s=args.max_time,
+        controller=args.controller, sensors=args.sensors,
         sensor=_sensor_items(args.sensor),
         controller_fmu=(None if args.controller_fmu is None
                         else args.controller_fmu or True),
@@ -136,6 +137,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
             line += (f"; as estimated: {record['estimated_final_position_error_m']:.4f} m, "
                      f"{record['estimated_final_heading_error_rad']:.5f} rad")
         print(line)
+    return exit_status(record)
+
+
+def exit_status(record: Mapping[str, Any]) -> int:
+    """The exit status of a command that made one run (``wmr run``, ``wmr rerun``): 0
+    converged, 3 timeout, 1 failed."""
     return 0 if record["status"] == "converged" else 3 if record["status"] == "timeout" else 1
 
 
@@ -181,6 +188,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "Exit status: 0 converged, 3 timeout, 1 failed.")
     add_scenario_choice(p, "simulate")
     add_run_overrides(p)
+    from wmr.core.control.peers import CONTROLLER_NAMES
+
+    p.add_argument("--controller", metavar="NAME",
+                   help=f"the controller to run: {', '.join(CONTROLLER_NAMES)} (scenario key "
+                        "controller, with its default gains; docs/control.md)")
     p.add_argument("--controller-fmu", nargs="?", const="", default=None, metavar="FILE.fmu",
                    help="run the stabiliser in the controller FMU (C, FMI --fmi) instead of "
                         "Python: the built one, or FILE.fmu (scenario key controller_fmu)")

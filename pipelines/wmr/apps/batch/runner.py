@@ -17,7 +17,6 @@ the others, half-written logs included; a run is never reported twice.
 from __future__ import annotations
 
 import fcntl
-import hashlib
 import itertools
 import json
 import math
@@ -32,7 +31,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-from wmr.adapters.fmi.archive import file_sha256
 from wmr.adapters.fmi.varmap import VariableMap, load_map
 from wmr.apps.batch.journal import (
     JOURNAL,
@@ -51,7 +49,7 @@ from wmr.apps.batch.summary import (
     summary_table,
     write_summary,
 )
-from wmr.apps.batch.worker import DISK_FULL, FAULTS, Task
+from wmr.apps.batch.worker import DISK_FULL, FAULTS, Task, fmu_digest
 from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.naming import plural
 from wmr.infra.durable import AtomicFile, open_own, partial_path, storage_error
@@ -260,11 +258,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     fmu = Path(fmu_path) if fmu_path is not None else batch.fmu or default_fmu(fmi_version)
     if var_map is None and batch.fmu_map is not None:
         var_map = load_map(batch.fmu_map)
-    fmu_sha = file_sha256(fmu)
-    if var_map is not None:
-        # a run through another map is another run: the journal must not reuse it
-        fmu_sha += "+map:" + hashlib.sha256(
-            json.dumps(var_map.as_dict(), sort_keys=True).encode()).hexdigest()[:16]
+    fmu_sha = fmu_digest(fmu, var_map)
     policy = log or batch.log or default_log_policy(len(batch.runs))
     lock = _Lock(out)
     try:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from wmr.adapters.fmi.archive import file_sha256
 from wmr.adapters.fmi.compiled_law import law_library
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
@@ -91,6 +92,17 @@ class Attachment:
 
     name: str
     data: bytes
+
+
+def fmu_digest(fmu: Path, var_map: VariableMap | None = None) -> str:
+    """The identity of the FMU a batch runs, as its journal and ``batch.json`` record it: the
+    file's SHA-256, plus a hash of its variable map when it has one (a run through another map
+    is another run: the journal must not reuse it)."""
+    digest = file_sha256(fmu)
+    if var_map is not None:
+        digest += "+map:" + hashlib.sha256(
+            json.dumps(var_map.as_dict(), sort_keys=True).encode()).hexdigest()[:16]
+    return digest
 
 
 def wall_limit_message(limit_s: float) -> str:
@@ -298,4 +310,5 @@ def dask_run_many(tasks: list[Task], fmu_sha256: str, attachment: Attachment | N
 
 
 __all__ = ["FAULTS", "Attachment", "PlantHolder", "Task", "WallClockLimit",
-           "dask_run", "dask_run_many", "execute", "materialise", "wall_limit_message"]
+           "dask_run", "dask_run_many", "execute", "fmu_digest", "materialise",
+           "wall_limit_message"]
