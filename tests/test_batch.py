@@ -534,7 +534,7 @@ def test_a_formula_in_a_summary_cell_is_text_in_the_csv_and_kept_in_parquet(
         tmp_path: Path) -> None:
     # issue 28 item 11: a run named '=HYPERLINK(...)' was a live formula in summary.csv
     names = ["=HYPERLINK(\"http://x\",\"y\")", "+1", "-cmd", "@SUM(A1)", "\tt", "ok", "\rr"]
-    rows = [SummaryRow(f"{i:04d}-00000000", n, n, "", {"gains.K_ps": -0.5})
+    rows = [SummaryRow(f"{i:04d}-00000000", n, n, "", {"gains.K_ps": -0.5}, "pi", 0)
             for i, n in enumerate(names)]
     records = {r.run_id: {"status": "converged", "message": "-x", "steps": 3} for r in rows}
     write_summary(summary_table(rows, ["gains.K_ps"], records), tmp_path)

@@ -167,7 +167,9 @@ def test_a_link_at_the_build_lock_is_refused_not_truncated(tmp_path: Path,
     out = tmp_path / "fmus"
     out.mkdir()
     _plant("symlink", out / ".wmr-build.lock", precious)
-    with pytest.raises(LogError, match=r"wmr-build\.lock"), _locked(out):
+    # refused naming the lock, and the folder's field and fix (ConfigError, since the cache's
+    # refusals name WMR_CACHE_DIR or --out)
+    with pytest.raises(ConfigError, match=r"wmr-build\.lock: is a symbolic link"), _locked(out):
         pass
     assert precious.read_bytes() == PRECIOUS
 
@@ -299,7 +301,7 @@ def _summary_folder(tmp_path: Path) -> Path:
 
     out = tmp_path / "batch"
     out.mkdir()
-    rows = [SummaryRow(f"000{i}-00000000", f"r{i}", f"r{i}", "", {}) for i in range(2)]
+    rows = [SummaryRow(f"000{i}-00000000", f"r{i}", f"r{i}", "", {}, "pi", 0) for i in range(2)]
     records = {r.run_id: {"status": "converged", "message": "", "steps": 3} for r in rows}
     write_summary(summary_table(rows, [], records), out)
     return out
