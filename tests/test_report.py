@@ -339,3 +339,22 @@ def test_a_negative_worst_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixt
     assert main(["report", str(tmp_path), "--worst", "-1"]) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("wmr: ") and "--worst: must be >= 0, got -1" in err and "\n" not in err
+
+
+def test_the_runs_per_status_of_a_large_summary_are_counted_in_one_pass(tmp_path: Path) -> None:
+    """The count per status was quadratic in the runs (each run counted its status again):
+    223 s of a 10^5-run report went there.  Another status a summary holds is counted too."""
+    import time
+
+    from wmr.apps.batch.report_data import Summary
+
+    n = 100_000
+    status = ["converged"] * (n - 30) + ["failed"] * 20 + ["timeout"] * 9 + ["other"]
+    pq.write_table(pa.table({"run_id": [f"{i:07d}" for i in range(n)], "status": status,
+                             "message": [""] * n}), tmp_path / SUMMARY_PARQUET)
+    s = Summary(tmp_path)
+    t0 = time.perf_counter()
+    counts = s.counts()
+    assert time.perf_counter() - t0 < 5.0
+    assert counts == {"converged": n - 30, "timeout": 9, "failed": 20, "other": 1}
+    assert list(counts) == ["converged", "timeout", "failed", "other"]

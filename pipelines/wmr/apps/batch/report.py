@@ -44,6 +44,8 @@ if TYPE_CHECKING:
 _COLOURS: Final = {"converged": "tab:green", "timeout": "tab:orange", "failed": "tab:red"}
 #: Runs that did not converge listed in the Markdown (all of them are in the JSON).
 LISTED_BAD: Final = 50
+#: Points of one status drawn in a scatter at most (the medians and rates use every run).
+SCATTER_MAX: Final = 2000
 #: A region of attraction from sampled starts: cells per axis, and heading sectors.
 _ROA_CELLS: Final = 12
 _ROA_SECTORS: Final = 4
@@ -102,6 +104,17 @@ def _plot_status(counts: dict[str, int], path: Path) -> None:
     plt.close(fig)
 
 
+def _shown(mask: NDArray[np.bool_], label: str) -> tuple[NDArray[np.bool_], str]:
+    """At most :data:`SCATTER_MAX` of the runs of ``mask``, drawn with a fixed seed, and the
+    legend label saying so: a scatter of 10^5 points took 4 s a plot and shows no more."""
+    k = int(mask.sum())
+    if k <= SCATTER_MAX:
+        return mask, label
+    pick = np.zeros_like(mask)
+    pick[np.random.default_rng(0).choice(np.flatnonzero(mask), SCATTER_MAX, replace=False)] = True
+    return pick, f"{label} ({SCATTER_MAX} of {k} drawn)"
+
+
 def _plot_against(name: str, x: NDArray[np.float64], ok: NDArray[np.bool_],
                   status: Sequence[str], ttg: NDArray[np.float64], path_len: NDArray[np.float64],
                   path: Path) -> list[tuple[float, int, float]]:
@@ -128,18 +141,19 @@ def _plot_against(name: str, x: NDArray[np.float64], ok: NDArray[np.bool_],
     for ax, y, label in ((axes[1], ttg, "time to goal, s"), (axes[2], path_len,
                                                               "path length, m")):
         for kind in kinds:
-            fin = (st == kind) & np.isfinite(y) & np.isfinite(x)
+            fin, label_of = _shown((st == kind) & np.isfinite(y) & np.isfinite(x), kind)
             if fin.any():
                 ax.scatter(x[fin], y[fin], s=6, alpha=0.5, color=_COLOURS.get(kind, "tab:gray"),
-                           label=kind)
+                           label=label_of)
         if y is ttg:  # no time to goal: shown at the top, or they vanish from the panel
             top = blended_transform_factory(ax.transData, ax.transAxes)
             for kind in kinds:
-                miss = (st == kind) & ~np.isfinite(y) & np.isfinite(x)
+                miss, label_of = _shown((st == kind) & ~np.isfinite(y) & np.isfinite(x),
+                                        f"{kind}: no time to goal (at the top)")
                 if miss.any():
                     ax.scatter(x[miss], np.full(int(miss.sum()), 0.97), s=14, marker="^",
                                color=_COLOURS.get(kind, "tab:gray"), transform=top,
-                               label=f"{kind}: no time to goal (at the top)")
+                               label=label_of)
         med = [float(np.median(y[m & ok])) if (m & ok & np.isfinite(y)).any() else math.nan
                for m in masks]
         ax.plot(centres, med, "k-", lw=1.5, label="median (converged)")

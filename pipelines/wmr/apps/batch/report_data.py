@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import shlex
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Final
@@ -171,10 +172,9 @@ class Summary:
 
     def counts(self) -> dict[str, int]:
         """Runs per status: the three statuses, then any other a summary holds."""
-        counts = {s: self.status.count(s) for s in STATUSES}
-        for s in self.status:
-            counts.setdefault(s, self.status.count(s))
-        return counts
+        # one pass: the count of each status per run was quadratic (10^10 steps at 10^5 runs)
+        seen = Counter(self.status)
+        return {**{s: seen[s] for s in STATUSES}, **seen}
 
     def is_grid(self) -> bool:
         """The spec's own varied inputs form a full grid."""
