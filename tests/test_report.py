@@ -42,7 +42,7 @@ def _summary(folder: Path, inputs: Mapping[str, Sequence[float]], status: Sequen
         cols[c] = list(poses.get(c, [5.0 if c == "goal.x_m" else 0.0] * n))
     cols.update({k: list(map(float, v)) for k, v in inputs.items()})
     cols.update({"status": list(status), "message": [
-                     "ok" if s == "converged" else f"{s}: limit | reached" for s in status],
+                     "ok" if s == "converged" else f"{s}: limit | reached\nat 60 s" for s in status],
                  "final_position_error_m": (0.01 + 0.5 * ~ok + rng.uniform(0, 0.01, n)).tolist(),
                  "final_heading_error_rad": [0.001] * n,
                  "time_to_goal_s": [float(v) if o else None for v, o in zip(t, ok, strict=True)],
@@ -247,7 +247,8 @@ def test_the_markdown_lists_the_first_50_failed_runs_with_a_count_and_their_reru
     assert "75 runs failed or timed out; the first 50" in section
     assert section.count("`wmr rerun ") == 50 and "... and 25 more." in section
     assert f"`wmr rerun {folder} 0000-" in section
-    assert "failed: limit / reached" in section  # a '|' in a message keeps the table
+    # a '|' or a line break in a message keeps the table
+    assert "| failed: limit / reached at 60 s |" in section
     worst = text.split("### By time to goal, s")[1].split("###")[0]
     assert worst.count("`wmr rerun ") == 3
 
@@ -358,3 +359,20 @@ def test_the_runs_per_status_of_a_large_summary_are_counted_in_one_pass(tmp_path
     assert time.perf_counter() - t0 < 5.0
     assert counts == {"converged": n - 30, "timeout": 9, "failed": 20, "other": 1}
     assert list(counts) == ["converged", "timeout", "failed", "other"]
+
+
+def test_a_hostile_run_id_or_folder_is_quoted_in_the_rerun_command(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A summary may come from anyone: the command printed for a run is one the shell reads
+    back as exactly ``wmr rerun DIR RUN_ID``, whatever the id and the folder hold."""
+    import shlex
+
+    folder = tmp_path / "my batch; rm -rf ~"
+    folder.mkdir()
+    _summary(folder, {"params.m": [1.0, 2.0]}, ["failed", "converged"])
+    table = pq.read_table(folder / SUMMARY_PARQUET)
+    evil = "0000-$(touch pwned)`id`"
+    table = table.set_column(0, "run_id", pa.array([evil, "0001-ok"]))
+    pq.write_table(table, folder / SUMMARY_PARQUET)
+    data = _json(folder, capsys)
+    assert shlex.split(data["not_converged"][0]["rerun"]) == ["wmr", "rerun", str(folder), evil]
