@@ -41,8 +41,9 @@ def _summary(folder: Path, inputs: Mapping[str, Sequence[float]], status: Sequen
     for c in POSES:
         cols[c] = list(poses.get(c, [5.0 if c == "goal.x_m" else 0.0] * n))
     cols.update({k: list(map(float, v)) for k, v in inputs.items()})
-    cols.update({"status": list(status), "message": [
-                     "ok" if s == "converged" else f"{s}: limit | reached\nat 60 s" for s in status],
+    cols.update({"status": list(status),
+                 "message": ["ok" if s == "converged" else f"{s}: limit | reached\nat 60 s"
+                             for s in status],
                  "final_position_error_m": (0.01 + 0.5 * ~ok + rng.uniform(0, 0.01, n)).tolist(),
                  "final_heading_error_rad": [0.001] * n,
                  "time_to_goal_s": [float(v) if o else None for v, o in zip(t, ok, strict=True)],
@@ -101,6 +102,13 @@ def test_a_monte_carlo_outcome_decided_by_one_input_ranks_it_first_and_a_shuffle
     assert data["sensitivity_line"].startswith(
         "Convergence depends most on limits.torque_max_nm (RBD-FAST ")
     assert "time to goal depends most on params.tau_c" in data["sensitivity_line"]
+    # the index in runs: the failures at the lowest and the highest torque bin, from pandas
+    df = pd.DataFrame({"t": torque, "bad": status != "converged"})
+    edges = np.linspace(torque.min(), torque.max(), 11)
+    low = df[df["t"] < edges[1]]["bad"].mean()
+    text = write_report(tmp_path).read_text()
+    assert (f"* Not converged against `limits.torque_max_nm`: {100 * low:.1f} % at "
+            f"{(edges[0] + edges[1]) / 2:.3g}, 0.0 % at") in text
 
 
 def test_an_outcome_decided_by_the_interaction_of_two_inputs_ranks_both_first(
@@ -179,6 +187,7 @@ def test_a_constant_outcome_and_too_few_runs_are_said_not_ranked(
     assert "too few runs to rank the inputs (40, RBD-FAST needs 100)" in \
         data["sensitivity_notes"]["converged"]
     text = write_report(few).read_text()
+    assert "Not converged against" not in text  # nothing ranked, nothing to explain
     assert "too few runs to rank the inputs" in text and "nan" not in text.lower()
 
 

@@ -467,7 +467,9 @@ def roa_figure(roa: RoaResult) -> Figure:
         ax.set_ylabel("y [m]")
         ax.set_aspect("equal")
         n_conv = int((st == "converged").sum())
-        ax.text(0.02, 0.02, f"{n_conv}/{st.size} converged", transform=ax.transAxes,
+        # a batch's map may have cells without runs (status ""): not counted
+        ax.text(0.02, 0.02, f"{n_conv}/{int((st != '').sum())} converged",
+                transform=ax.transAxes,
                 fontsize=7, color="k", bbox={"fc": "white", "alpha": 0.7, "lw": 0})
         if n == 0 and (timeout.any() or failed.any()):
             ax.legend(fontsize=7, loc="upper right")

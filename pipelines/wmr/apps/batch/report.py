@@ -337,6 +337,14 @@ def _sensitivity_section(data: Mapping[str, Any]) -> list[str]:
         if notes.get(o):
             lines.append(f"* `{o}`: {notes[o]} ({plural(data['sensitivity_runs'][o], 'run')}).")
     lines.append("")
+    for k in sens.get("converged", [])[:2]:  # what the index means, in runs
+        g = [e for e in data["against"][k["input"]]["groups"] if e["rate"] is not None]
+        if len(g) > 1:
+            lo, hi = g[0], g[-1]
+            lines.append(f"* Not converged against `{k['input']}`: {_pct(1.0 - lo['rate'])} "
+                         f"at {_fmt(lo['value'], 3)}, {_pct(1.0 - hi['rate'])} at "
+                         f"{_fmt(hi['value'], 3)} (lowest and highest "
+                         f"{'bin' if data['against'][k['input']]['binned'] else 'value'}).")
     ranked = {o: sens[o] for o in outcomes if sens[o]}
     if ranked:
         lines += ["| rank | " + " | ".join(f"{o}: input | index" for o in ranked) + " |",
@@ -465,9 +473,10 @@ def write_report(batch_dir: Path, max_plots: int = 8,
 
         progress("report: the region of attraction of the start poses")
         fig = roa_figure(roa)
-        fig.suptitle("Region of attraction: time to goal (median of the converged runs) by "
-                     "start position in the goal's frame and start heading relative to the "
-                     "goal's; a cell is marked with its runs' most common status", fontsize=9)
+        fig.suptitle("Region of attraction of the batch: median time to goal (converged) by "
+                     "start position in the goal's frame,\none panel per start heading "
+                     "relative to the goal's; a cell is marked with its runs' most common "
+                     "status", fontsize=9)
         fig.savefig(out / "roa.png", dpi=110)
         lines += ["## Region of attraction", "",
                   "Start positions relative to the goal (goal at the origin, heading along x), "
