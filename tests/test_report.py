@@ -385,3 +385,36 @@ def test_a_hostile_run_id_or_folder_is_quoted_in_the_rerun_command(
     pq.write_table(table, folder / SUMMARY_PARQUET)
     data = _json(folder, capsys)
     assert shlex.split(data["not_converged"][0]["rerun"]) == ["wmr", "rerun", str(folder), evil]
+
+
+def test_a_real_2d_grid_batch_reports_its_own_summary(fmu3: Path, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """Six short runs of a real 3 x 2 grid (no synthetic table): the JSON's numbers are those
+    pandas reads from the batch's summary, the design is a grid ranked by main effects, and
+    the report draws the grid's map."""
+    from wmr.apps.batch import load_batch
+    from wmr.apps.batch.runner import run_batch
+
+    spec = tmp_path / "g6.toml"
+    spec.write_text('name = "g6"\nstart = [1.0, 0.0, 0.0]\ngoal = [0.0, 0.0, 180.0]\n'
+                    "max_time_s = 15.0\n[grid.gains]\nK_ps = [0.3, 0.5, 0.8]\n"
+                    "[grid.params]\nm = [20.0, 30.0]\n")
+    out = tmp_path / "out"
+    result = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    assert result.finished == 6
+    data = _json(out, capsys)
+    df = pq.read_table(out / SUMMARY_PARQUET).to_pandas()
+    ok = df["status"] == "converged"
+    assert data["runs"] == 6 and data["success"]["converged"] == int(ok.sum())
+    assert data["design"] == "grid"
+    assert [i["input"] for i in data["inputs"]] == ["gains.K_ps", "params.m"]
+    assert (data["grid_map"]["x"], data["grid_map"]["y"]) == ("gains.K_ps", "params.m")
+    ttg = data["sensitivity"]["time_to_goal_s"]
+    assert {k["method"] for k in ttg} == {MAIN_EFFECT}
+    conv = df[ok]
+    for k in ttg:
+        means = conv.groupby(k["input"])["time_to_goal_s"].transform("mean")
+        expected = means.var(ddof=0) / conv["time_to_goal_s"].var(ddof=0)
+        assert k["index"] == pytest.approx(expected, abs=1e-4)
+    assert main(["report", str(out)]) == 0
+    assert (out / "report" / "grid_map.png").stat().st_size > 10_000

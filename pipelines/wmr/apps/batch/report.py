@@ -352,10 +352,12 @@ def _sensitivity_section(data: Mapping[str, Any]) -> list[str]:
         for r in range(max(len(v) for v in ranked.values())):
             cells = []
             for v in ranked.values():
-                k = v[r] if r < len(v) else None
-                cells += ["", ""] if k is None else [
-                    k["input"], f"{k['index']:.3f}"
-                    + (f" ± {k['conf']:.3f}" if k.get("conf") is not None else "")]
+                if r >= len(v):
+                    cells += ["", ""]
+                    continue
+                e = v[r]
+                cells += [e["input"], f"{e['index']:.3f}"
+                          + (f" ± {e['conf']:.3f}" if e.get("conf") is not None else "")]
             lines.append(f"| {r + 1} | " + " | ".join(cells) + " |")
         lines.append("")
     return lines
