@@ -418,3 +418,29 @@ def test_a_real_2d_grid_batch_reports_its_own_summary(fmu3: Path, tmp_path: Path
         assert k["index"] == pytest.approx(expected, abs=1e-4)
     assert main(["report", str(out)]) == 0
     assert (out / "report" / "grid_map.png").stat().st_size > 10_000
+
+
+def test_controllers_side_by_side_with_their_optimality_gaps(tmp_path: Path) -> None:
+    """A batch with the optimum (``time_gap``, ``energy_gap``) and two controllers: the gaps'
+    spread in the JSON equals pandas, each controller's median gap is in its row, and the
+    report draws their distributions."""
+    rng = np.random.default_rng(31)
+    n = 200
+    controller = np.repeat(["pi", "astolfi"], n // 2)
+    gap = np.where(controller == "pi", 1.3, 1.1) + rng.uniform(0, 0.2, n)
+    status = ["converged"] * (n - 2) + ["failed"] * 2
+    folder = _summary(tmp_path, {"params.m": np.tile(rng.uniform(15, 35, n // 2), 2)}, status,
+                      extra={"controller": controller.tolist(), "time_gap": gap.tolist(),
+                             "energy_gap": (gap * 1.5).tolist()})
+    data = report_data(folder)
+    df = pq.read_table(folder / SUMMARY_PARQUET).to_pandas()
+    conv = df[df["status"] == "converged"]
+    spread = {e["metric"]: e for e in data["spread"]}
+    assert spread["time_gap"]["median"] == pytest.approx(conv["time_gap"].median())
+    assert spread["energy_gap"]["p95"] == pytest.approx(conv["energy_gap"].quantile(0.95))
+    rows = {c["controller"]: c for c in data["controllers"]}
+    for name, g in conv.groupby("controller"):
+        assert rows[name]["median_time_gap"] == pytest.approx(g["time_gap"].median())
+    text = write_report(folder).read_text()
+    assert "## Against the optimum" in text and "| time to goal / optimal time | 198 |" in text
+    assert (folder / "report" / "optimality_gap.png").stat().st_size > 10_000

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from wmr.apps.batch.report_data import (
     CONTROLLER,
     DISCRETE_MAX,
+    GAPS,
     SPREAD,
     WORST,
     Summary,
@@ -186,6 +187,29 @@ def _plot_spread(columns: Mapping[str, NDArray[np.float64]], ok: NDArray[np.bool
         ax.set_xlabel(label)
         ax.set_ylabel("runs")
     fig.suptitle(f"spread over the {int(ok.sum())} converged runs (median, 5 and 95 %)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot_gaps(s: Summary, path: Path) -> None:
+    """Histograms of the optimality gaps over the converged runs, one per controller when the
+    batch compares several."""
+    import matplotlib.pyplot as plt
+
+    names = ([str(v) for v in s.table.column(CONTROLLER).to_pylist()]
+             if CONTROLLER in s.table.column_names else [""] * s.n)
+    fig, axes = plt.subplots(1, len(s.gaps), figsize=(6 * len(s.gaps), 3.6), squeeze=False)
+    for ax, col in zip(axes[0], s.gaps, strict=True):
+        for name in sorted(set(names)):
+            m = s.ok & np.array([v == name for v in names]) & np.isfinite(s.cols[col])
+            if m.any():
+                ax.hist(s.cols[col][m], bins=min(40, max(5, int(m.sum()) // 10)), alpha=0.6,
+                        label=f"{name or 'all runs'} (median {np.median(s.cols[col][m]):.3g})")
+        ax.axvline(1.0, color="k", lw=1, label="the optimum")
+        ax.set_xlabel(dict(GAPS)[col])
+        ax.set_ylabel("converged runs")
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -425,10 +449,14 @@ def write_report(batch_dir: Path, max_plots: int = 8,
     if data["controllers"]:
         lines += ["## Per controller", "",
                   "| controller | runs | converged | success | 95 % interval | "
-                  "median time to goal, s | median energy |", "|---|---:|---:|---:|---|---:|---:|"]
+                  "median time to goal, s | median energy |"
+                  + "".join(f" median {g} |" for g in s.gaps),
+                  "|---|---:|---:|---:|---|---:|---:|" + "---:|" * len(s.gaps)]
         lines += [f"| {_cell(c[CONTROLLER])} | {c['runs']} | {c['converged']} | "
                   f"{_pct(c['rate'])} | {_ci(c['ci95'])} | {_fmt(c['median_time_to_goal_s'])}"
-                  f" | {_fmt(c[f'median_{s.energy}'])} |" for c in data["controllers"]]
+                  f" | {_fmt(c[f'median_{s.energy}'])} |"
+                  + "".join(f" {_fmt(c[f'median_{g}'])} |" for g in s.gaps)
+                  for c in data["controllers"]]
         lines.append("")
     lines += _sensitivity_section(data)
     own = [c for c in s.varied if c not in s.derived]
@@ -455,6 +483,8 @@ def write_report(batch_dir: Path, max_plots: int = 8,
               "|---|---:|---:|---:|---:|---:|---:|---:|"]
     scales = {c: (label, scale) for c, label, scale in SPREAD}
     for e in data["spread"]:
+        if e["metric"] not in scales:  # an optimality gap: its own section
+            continue
         label, scale = scales[e["metric"]]
         lines.append(f"| {label} | " + " | ".join(
             _fmt(e[k] * scale) for k in ("min", "p5", "median", "p95", "max", "mean", "std"))
@@ -463,6 +493,17 @@ def write_report(batch_dir: Path, max_plots: int = 8,
     progress("report: plotting the spread of the metrics")
     _plot_spread(s.cols, s.ok, out / "spread.png")
 
+    gaps = [e for e in data["spread"] if e["metric"] in dict(GAPS)]
+    if gaps:
+        progress("report: plotting the optimality gaps")
+        _plot_gaps(s, out / "optimality_gap.png")
+        lines += ["## Against the optimum", "",
+                  "Each converged run's value over the optimal one (1 is the optimum).", "",
+                  "| gap | runs | min | 5 % | median | 95 % | max |",
+                  "|---|---:|---:|---:|---:|---:|---:|"]
+        lines += [f"| {dict(GAPS)[e['metric']]} | {e['runs']} | " + " | ".join(
+            _fmt(e[k]) for k in ("min", "p5", "median", "p95", "max")) + " |" for e in gaps]
+        lines += ["", "![optimality gap](optimality_gap.png)", ""]
     if data["grid_map"] is not None:
         progress("report: the map of the 2-D grid")
         _plot_grid_map(data["grid_map"], out / "grid_map.png")

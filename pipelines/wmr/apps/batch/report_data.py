@@ -34,6 +34,10 @@ SPREAD: Final = (("time_to_goal_s", "time to goal, s", 1.0),
                  ("final_heading_error_rad", "final heading error, deg", 180.0 / math.pi),
                  ("peak_torque_nm", "peak torque, N m", 1.0),
                  ("torque_sq_integral_n2m2s", "integral of torque^2, N^2 m^2 s", 1.0))
+#: The optimality gaps a batch with the optimum has (``optimal = "time"|"energy"`` in its spec):
+#: column, label; each is the run's value over the optimal one (1 is the optimum).
+GAPS: Final = (("time_gap", "time to goal / optimal time"),
+               ("energy_gap", "energy / optimal energy"))
 #: The energy outcome: the positive energy when the summary has it, else the effort metric
 #: every summary has had.
 ENERGY_COLUMNS: Final = ("energy_positive_j", "torque_sq_integral_n2m2s")
@@ -164,8 +168,9 @@ class Summary:
         self.ok = np.array([s == "converged" for s in self.status], dtype=bool)
         self.ids = [str(r) for r in self.table.column("run_id").to_pylist()]
         self.energy = energy_column(self.table)
+        self.gaps = [c for c, _ in GAPS if c in self.table.column_names]
         self.cols = {c: floats(self.table, c) for c in
-                     {*(c for c, _, _ in SPREAD), self.energy}}
+                     {*(c for c, _, _ in SPREAD), self.energy, *self.gaps}}
         self.varied = varied_inputs(self.table)
         self.derived = derived_inputs(self.varied)
         self.x = {c: floats(self.table, c) for c in self.varied}
@@ -251,7 +256,7 @@ class Summary:
 
 def _spread(s: Summary) -> list[dict[str, Any]]:
     out = []
-    for col, _, _ in SPREAD:
+    for col in (*(c for c, _, _ in SPREAD), *s.gaps):
         y = s.cols[col][s.ok]
         y = y[np.isfinite(y)]
         if not len(y):
@@ -281,7 +286,7 @@ def _controllers(s: Summary) -> list[dict[str, Any]]:
     for name in sorted(set(names)):
         m = np.array([v == name for v in names], dtype=bool)
         row: dict[str, Any] = {CONTROLLER: name, **_rate(int(s.ok[m].sum()), int(m.sum()))}
-        for col in ("time_to_goal_s", s.energy):
+        for col in ("time_to_goal_s", s.energy, *s.gaps):
             y = s.cols[col][m & s.ok]
             y = y[np.isfinite(y)]
             row[f"median_{col}"] = _num(float(np.median(y))) if y.size else None
@@ -345,6 +350,6 @@ def report_data(batch_dir: Path, worst: int = WORST, summary: Summary | None = N
     }
 
 
-__all__ = ["CONTROLLER", "DISCRETE_MAX", "SPREAD", "Summary", "derived_inputs", "floats",
+__all__ = ["CONTROLLER", "DISCRETE_MAX", "GAPS", "SPREAD", "Summary", "derived_inputs", "floats",
            "groups", "read_checked", "report_data", "rerun_command", "varied_inputs",
            "wilson"]
