@@ -444,3 +444,11 @@ def test_controllers_side_by_side_with_their_optimality_gaps(tmp_path: Path) -> 
     text = write_report(folder).read_text()
     assert "## Against the optimum" in text and "| time to goal / optimal time | 198 |" in text
     assert (folder / "report" / "optimality_gap.png").stat().st_size > 10_000
+
+
+def test_the_help_says_what_the_report_holds(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["report", "--help"])
+    assert info.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "95 % Wilson interval" in out and "%%" not in out and "--json" in out

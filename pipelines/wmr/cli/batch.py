@@ -122,7 +122,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     r = sub.add_parser(
         "report", help="a batch's summary as a Markdown report with plots",
         description="Write DIR/report/report.md and PNG plots from DIR/summary.parquet and "
-                    "print the report's path: the success rate with its 95 %% Wilson interval "
+                    "print the report's path: the success rate with its 95 % Wilson interval "
                     "(per status, per controller), every varied input ranked by its influence "
                     "on convergence, time to goal and energy (main effects for a grid, "
                     "RBD-FAST otherwise), the worst runs and every failed or timed-out run with "
