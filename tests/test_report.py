@@ -178,6 +178,9 @@ def test_a_constant_outcome_and_too_few_runs_are_said_not_ranked(
         "the same in all 300 runs: no input changes it"
     assert "Convergence: the same in all 300 runs" in data["sensitivity_line"]
     assert len(data["sensitivity"]["time_to_goal_s"]) == 2
+    # every run converged: the worst runs are still listed (they were not before)
+    assert [len(data["worst"][m]) for m in data["worst"]] == [10, 10, 10]
+    assert data["not_converged"] == []
     few = tmp_path / "few"
     few.mkdir()
     data = _json(_summary(few, {"params.m": rng.uniform(15, 35, 40),
