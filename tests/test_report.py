@@ -128,6 +128,20 @@ def test_an_outcome_decided_by_the_interaction_of_two_inputs_ranks_both_first(
     assert {k["input"] for k in conv[:2]} == {"params.tau_c", "limits.torque_max_nm"}
     assert all(0.2 < k["index"] < 0.45 for k in conv[:2])
     assert all(k["index"] < 0.03 for k in conv[2:])
+    # the map over the two that matter: every run of the failing corner failed, against pandas
+    g = data["grid_map"]
+    assert g["design"] == "sampled" and g["binned"]
+    assert (g["x"], g["y"]) == (conv[0]["input"], conv[1]["input"])
+    df = pd.DataFrame({g["x"]: tau if g["x"] == "params.tau_c" else torque,
+                       g["y"]: torque if g["x"] == "params.tau_c" else tau,
+                       "ok": status == "converged"})
+    for axis, key in ((g["x"], "ix"), (g["y"], "iy")):
+        edges = np.linspace(df[axis].min(), df[axis].max(), 11)
+        df[key] = np.clip(np.searchsorted(edges, df[axis], side="right") - 1, 0, 9)
+    rate = df.pivot_table(index="iy", columns="ix", values="ok", aggfunc="mean")
+    runs = df.pivot_table(index="iy", columns="ix", values="ok", aggfunc="size")
+    assert g["success_rate"] == rate.values.tolist() and g["runs"] == runs.values.tolist()
+    assert min(min(row) for row in g["success_rate"]) == 0.0
 
 
 def test_a_full_grid_is_ranked_by_its_exact_main_effects(tmp_path: Path,
@@ -335,6 +349,8 @@ def test_a_2d_grid_gets_maps_of_success_and_median_time(tmp_path: Path,
     rate = df.pivot_table(index="gains.K_theta", columns="gains.K_ps", values="ok",
                           aggfunc="mean")
     assert (grid["x"], grid["y"]) == ("gains.K_ps", "gains.K_theta")
+    assert grid["design"] == "grid" and not grid["binned"]
+    assert grid["runs"] == [[4, 4, 4], [4, 4, 4]]
     assert grid["success_rate"] == rate.values.tolist()
     med = df[df["ok"]].pivot_table(index="gains.K_theta", columns="gains.K_ps",
                                    values="time_to_goal_s", aggfunc="median")

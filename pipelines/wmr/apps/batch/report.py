@@ -505,11 +505,14 @@ def write_report(batch_dir: Path, max_plots: int = 8,
             _fmt(e[k]) for k in ("min", "p5", "median", "p95", "max")) + " |" for e in gaps]
         lines += ["", "![optimality gap](optimality_gap.png)", ""]
     if data["grid_map"] is not None:
-        progress("report: the map of the 2-D grid")
+        progress("report: the map over two inputs")
         _plot_grid_map(data["grid_map"], out / "grid_map.png")
-        lines += ["## Over the grid", "",
-                  f"Success rate and median time to goal over {data['grid_map']['x']} and "
-                  f"{data['grid_map']['y']}.", "", "![grid map](grid_map.png)", ""]
+        g = data["grid_map"]
+        lines += ["## Over the grid" if g["design"] == "grid" else
+                  "## Where runs fail: the two inputs that matter most for convergence", "",
+                  f"Success rate and median time to goal (converged) over {g['x']} and "
+                  f"{g['y']}" + (" (bin centres)" if g["binned"] else "") + ".", "",
+                  "![grid map](grid_map.png)", ""]
     roa = roa_of(s)
     if roa is not None:
         from wmr.apps.figures import roa_figure

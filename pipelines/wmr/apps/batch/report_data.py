@@ -230,26 +230,39 @@ class Summary:
         bad = [i for i, s in enumerate(self.status) if s != "converged"]
         return sorted(bad, key=lambda i: (rank.get(self.status[i], len(rank)), self.ids[i]))
 
-    def grid_map(self) -> dict[str, Any] | None:
-        """Success rate and median time to goal over a 2-D grid (the spec's own two inputs
-        form a full grid), ``None`` for any other design."""
+    def grid_map(self, rankings: Sequence[Ranking] = ()) -> dict[str, Any] | None:
+        """Success rate and median time to goal over two inputs: the spec's own two when they
+        form a full grid (per value); otherwise, in a sampled design with runs that did not
+        converge, the two inputs that matter most for convergence (per value, or in 10 bins
+        over 12 values), where the 1-D plots cannot show two inputs acting together.
+        ``None`` for any other design."""
         own = [c for c in self.varied if c not in self.derived]
-        if len(own) != 2 or not self.is_grid():
-            return None
-        a, b = own
-        xa, xb = np.unique(self.x[a]), np.unique(self.x[b])
-        rate = np.full((len(xb), len(xa)), math.nan)
+        sampled = False
+        if len(own) == 2 and self.is_grid():
+            a, b = own
+        else:
+            conv = next((r for r in rankings if r.outcome == "converged"), None)
+            if conv is None or len(conv.ranked) < 2 or self.is_grid():
+                return None
+            a, b = conv.ranked[0].input, conv.ranked[1].input
+            sampled = True
+        (ca, ma, ba), (cb, mb, bb) = groups(self.x[a]), groups(self.x[b])
+        rate = np.full((len(cb), len(ca)), math.nan)
         med = np.full_like(rate, math.nan)
+        runs = np.zeros(rate.shape, dtype=np.int64)
         ttg = self.cols["time_to_goal_s"]
-        for j, vb in enumerate(xb):
-            for i, va in enumerate(xa):
-                m = (self.x[a] == va) & (self.x[b] == vb)
-                rate[j, i] = self.ok[m].mean()
+        for j, mj in enumerate(mb):
+            for i, mi in enumerate(ma):
+                m = mi & mj
+                runs[j, i] = int(m.sum())
+                if runs[j, i]:
+                    rate[j, i] = self.ok[m].mean()
                 t = ttg[m & self.ok]
                 t = t[np.isfinite(t)]
                 med[j, i] = float(np.median(t)) if t.size else math.nan
-        return {"x": a, "y": b, "x_values": [_num(v) for v in xa],
-                "y_values": [_num(v) for v in xb],
+        return {"x": a, "y": b, "design": "sampled" if sampled else "grid", "binned": ba or bb,
+                "x_values": [_num(v) for v in ca], "y_values": [_num(v) for v in cb],
+                "runs": runs.tolist(),
                 "success_rate": [[_num(v) for v in row] for row in rate],
                 "median_time_to_goal_s": [[_num(v) for v in row] for row in med]}
 
@@ -346,7 +359,7 @@ def report_data(batch_dir: Path, worst: int = WORST, summary: Summary | None = N
         "worst": {m: [s.run_entry(i) for i in s.worst(m, worst)]
                   for m in ("time_to_goal_s", "final_position_error_m", s.energy)},
         "not_converged": [s.run_entry(i) for i in bad],
-        "grid_map": s.grid_map(),
+        "grid_map": s.grid_map(rankings),
     }
 
 
