@@ -17,8 +17,8 @@ input explains alone (:math:`S_i = \\mathrm{Var}(E[Y \\mid X_i]) / \\mathrm{Var}
 Convergence is the outcome 1 for a converged run, 0 for a failed or timed-out one; the time to
 goal and the energy are taken over the converged runs (the others have no time to goal, and
 their energy is that of a run cut short).  The deterministic simulation makes a grid's main
-effects exact; RBD-FAST's estimates have noise of about ``sqrt(2 M / N)`` (an input that
-does not matter reads 0.00 +- 0.03 on 2,000 runs), so an index below :data:`NOISE_FLOOR` is
+effects exact; RBD-FAST's estimates are noisy (an input that does not matter reads 0.00
++- 0.02 on 2,000 runs, bootstrap 95 %), so an index below :data:`NOISE_FLOOR` is
 not named in the plain-language line, nor a sampled index within its own 95 % interval of 0.
 """
 
@@ -37,7 +37,8 @@ MAIN_EFFECT: Final = "main effect"
 RBD_FAST: Final = "RBD-FAST"
 #: Fewer runs than this (with a value of the outcome) are too few to rank the inputs of a
 #: design other than a full grid: RBD-FAST's bias correction ``2 M / N`` (M = 10 harmonics) is
-#: then over 0.2, and an input that does not matter reads up to +-0.2 (bootstrap, 95 %).
+#: then over 0.2, and the 95 % half width of an input that does not matter, measured, grows
+#: from 0.2 to 0.3 at 100 runs to 0.8 to 1.0 at 50 (0.01 at 2,000): the order is noise.
 MIN_RUNS_SAMPLED: Final = 100
 #: A full grid needs this many runs: its main effects are exact, but on fewer runs than this
 #: an outcome's variance is that of a handful of numbers.
