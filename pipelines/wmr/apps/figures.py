@@ -325,7 +325,7 @@ class RoaResult:
     goal
         The goal pose.
     t_max_s
-        Time limit of each run.
+        Time limit of each run (NaN when unknown: a batch's summary need not say).
     wall_s
         Wall-clock time of the sweep.
     """
@@ -431,7 +431,9 @@ def roa_figure(roa: RoaResult) -> Figure:
     fig = _new_figure(4.0 * ncols + 1.2, 3.9 * nrows + 0.6)
     axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False).ravel())
     finite = roa.time_to_goal_s[np.isfinite(roa.time_to_goal_s)]
-    vmax = float(finite.max()) if finite.size else roa.t_max_s
+    # a batch's region of attraction may not know its time limit (NaN): then 1 s
+    vmax = float(finite.max()) if finite.size else (
+        roa.t_max_s if math.isfinite(roa.t_max_s) else 1.0)
     vmin = float(finite.min()) if finite.size else 0.0
     from matplotlib.colors import Normalize
 
@@ -451,7 +453,8 @@ def roa_figure(roa: RoaResult) -> Figure:
         timeout = st == "timeout"
         failed = st == "failed"
         ax.plot(xx[timeout], yy[timeout], "x", color="tab:red", markersize=7, mew=2,
-                label=f"timeout (> {roa.t_max_s:g} s)")
+                label=f"timeout (> {roa.t_max_s:g} s)" if math.isfinite(roa.t_max_s)
+                else "timeout")
         ax.plot(xx[failed], yy[failed], "+", color="k", markersize=8, mew=2, label="failed")
         th = float(roa.headings_rad[n])
         # start heading of this panel, drawn in every cell centre as a short tick
@@ -465,7 +468,9 @@ def roa_figure(roa: RoaResult) -> Figure:
         ax.set_ylabel("y [m]")
         ax.set_aspect("equal")
         n_conv = int((st == "converged").sum())
-        ax.text(0.02, 0.02, f"{n_conv}/{st.size} converged", transform=ax.transAxes,
+        # a batch's map may have cells without runs (status ""): not counted
+        ax.text(0.02, 0.02, f"{n_conv}/{int((st != '').sum())} converged",
+                transform=ax.transAxes,
                 fontsize=7, color="k", bbox={"fc": "white", "alpha": 0.7, "lw": 0})
         if n == 0 and (timeout.any() or failed.any()):
             ax.legend(fontsize=7, loc="upper right")

@@ -68,8 +68,15 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if args.max_plots < 0:
         raise ConfigError("--max-plots", f"must be >= 0, got {args.max_plots}",
                           "give e.g. --max-plots 8, or 0 for no input plots")
+    if args.json:
+        import json
+
+        from wmr.apps.batch.report_data import report_data
+
+        print(json.dumps(report_data(Path(args.dir), worst=args.worst), allow_nan=False))
+        return 0
     check_output(Path(args.dir) / "report", "DIR", "dir")
-    print(write_report(Path(args.dir), max_plots=args.max_plots,
+    print(write_report(Path(args.dir), max_plots=args.max_plots, worst=args.worst,
                        progress=lambda line: print(f"wmr: {line}", file=sys.stderr, flush=True)))
     return 0
 
@@ -114,10 +121,23 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
     r = sub.add_parser(
         "report", help="a batch's summary as a Markdown report with plots",
-        description="Write DIR/report/report.md and PNG plots (success rate, time to goal and "
-                    "path length against the varied inputs, histograms of the spread) from "
-                    "DIR/summary.parquet; print the report's path.")
+        description="Write DIR/report/report.md and PNG plots from DIR/summary.parquet and "
+                    "print the report's path: the success rate with its 95 % Wilson interval "
+                    "(per status, per controller), every varied input ranked by its influence "
+                    "on convergence, time to goal and energy (main effects for a grid, "
+                    "RBD-FAST otherwise), the worst runs and every failed or timed-out run with "
+                    "its inputs and the command that reruns it, the spread of the metrics, a "
+                    "map of a 2-D grid, the region of attraction when the start varies, and "
+                    "plots against each varied input.  With --json, print the same numbers as "
+                    "one JSON object instead and write nothing (docs/batch.md, \"Report\").")
     r.add_argument("dir", metavar="DIR", help="a batch folder (the --out of wmr batch)")
     r.add_argument("--max-plots", type=int, default=8, metavar="N",
-                   help="plot at most N varied inputs (default 8)")
+                   help="plot at most N varied inputs (default 8; the spec's own fields "
+                        "first)")
+    r.add_argument("--worst", type=int, default=10, metavar="N",
+                   help="list the N worst runs by time to goal, final position error and "
+                        "energy (default 10)")
+    r.add_argument("--json", action="store_true",
+                   help="print every table's numbers as one JSON object on stdout and write "
+                        "nothing")
     r.set_defaults(handler=_cmd_report)
