@@ -10,7 +10,12 @@
 
 from __future__ import annotations
 
+import json
+import os
+import signal
+import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
@@ -25,6 +30,7 @@ import wmr.infra.durable as durable_module
 from wmr.adapters.mcap import RunLogWriter, read_run
 from wmr.adapters.mcap.schemas import STEP_TOPICS
 from wmr.core.signals import SIGNALS
+from wmr.infra.durable import partial_path
 
 GOAL = (2.0, 1.0, 0.0)
 STEP_NS = 10_000_000  # 100 Hz: a chunk (1 s) every 100 rows
@@ -109,3 +115,95 @@ def test_an_interrupt_at_any_line_of_a_chunk_write_never_repeats_rows(tmp_path: 
         assert handed <= len(logged) <= handed + BLOCK, f"interrupt at line {at}"
         out.unlink()
     assert at > 200  # the lines of 9 calls and 2 chunk writes were all tried
+
+
+# -- item 4: an FMU that loops in C or crashes -----------------------------------------------------
+
+#: The variables of ours that the test robot (tests/other_fmus/fatal_robot.c) lacks.
+_UNMAPPED = ("phi_r", "phi_l", "x_G", "y_G", "E_kin", "v0", "omega0", "m", "r", "L", "l", "Ig",
+             "Iwm", "b_f", "tau_c", "w_c")
+
+
+def _misbehaving_run(tmp_path: Path, how: str) -> tuple[list[str], dict[str, str], Path]:
+    """The command of ``wmr run`` on ``stuck_robot.c`` built to ``how`` (``LOOPS`` or
+    ``CRASHES``) at t = 2 s, its environment (its own TMPDIR) and its log."""
+    from test_hostile_inputs import _fatal_robot
+
+    fmu = _fatal_robot(tmp_path, "stuck_robot.c", (how,))
+    unmapped = '", "'.join(_UNMAPPED)
+    (tmp_path / "map.toml").write_text(f'unmapped = ["{unmapped}"]\n')
+    log = tmp_path / "run.mcap"
+    argv = [sys.executable, "-m", "wmr.cli", "run", "--fmu", str(fmu), "--map",
+            str(tmp_path / "map.toml"), "--out", str(log), "--start", "1", "0", "0"]
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), TMPDIR=str(tmp))
+    return argv, env, log
+
+
+def _check_failed_log(log: Path, tmp: Path, words: str) -> None:
+    """The log is finished and in place, its result ``failed`` saying ``words``, with the
+    rows of its first second at least; no partial file, no FMU folder left."""
+    run = read_run(log)
+    assert not run.truncated, run.warnings
+    result = run.metadata["result"]
+    assert result["status"] == "failed" and words in result["message"], result
+    assert run.n_steps >= 100  # the chunk of [0, 1) s; the FMU misbehaves at 2 s
+    assert not partial_path(log).exists()
+    assert list(tmp.glob("wmr-fmu-*")) == []
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["sigint", "sigterm"])
+def test_wmr_run_answers_a_stop_signal_while_the_fmu_loops_in_c(
+        tmp_path: Path, signum: int) -> None:
+    """Issue 28 item 4: an FMU spinning in ``fmi2DoStep``: SIGINT and SIGTERM did nothing (a
+    signal reaches Python only between bytecodes), only SIGKILL ended ``wmr run``.  Now the
+    run answers within a second: exit 130/143, one line, the JSON line, its log finished
+    with a ``failed`` result and the rows flushed before the FMU hung."""
+    argv, env, log = _misbehaving_run(tmp_path, "LOOPS")
+    proc = subprocess.Popen([*argv, "--json"], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not partial_path(log).exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)  # 2 s of simulation take milliseconds: the FMU is spinning now
+        assert proc.poll() is None
+        sent = time.monotonic()
+        proc.send_signal(signum)  # the parent only, as kill and timeout(1) do
+        out, err = proc.communicate(timeout=30)
+        took_s = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:  # still spinning (the bug): never leave it behind
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 128 + signum, err
+    assert took_s < 2.0, took_s  # 0.5 s of grace, then the log recovered (about 0.7 s in all)
+    assert "Traceback" not in err and "internal error" not in err
+    lines = [line for line in err.splitlines() if line.startswith("wmr:")]
+    assert len(lines) == 1 and "did not return within 0.5 s" in lines[0], err
+    record = json.loads(out.splitlines()[-1])
+    assert record["status"] == "failed" and record["mcap"] == str(log)
+    assert signal.Signals(signum).name in record["message"]
+    _check_failed_log(log, tmp_path / "tmp", "did not return within 0.5 s")
+
+
+@pytest.mark.parametrize("json_line", [True, False], ids=["json", "text"])
+def test_an_fmu_that_crashes_wmr_run_is_one_line_and_a_finished_failed_log(
+        tmp_path: Path, json_line: bool) -> None:
+    """Issue 28 item 4: an FMU that writes through NULL: ``Segmentation fault``, exit 139, no
+    wmr line, no JSON line, the log left as ``.partial``.  Now: exit 1, the run's one line
+    (or JSON line) naming SIGSEGV, its log finished with a ``failed`` result."""
+    argv, env, log = _misbehaving_run(tmp_path, "CRASHES")
+    proc = subprocess.run(argv + ["--json"] * json_line, env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 1, proc.stderr
+    assert "Traceback" not in proc.stderr and "internal error" not in proc.stderr
+    last = proc.stdout.splitlines()[-1]
+    if json_line:
+        record = json.loads(last)
+        assert record["status"] == "failed" and "SIGSEGV" in record["message"]
+        assert record["mcap"] == str(log) and record["steps"] >= 100
+    else:
+        assert last.startswith("failed: the run process died of SIGSEGV") and str(log) in last
+    _check_failed_log(log, tmp_path / "tmp", "died of SIGSEGV")
