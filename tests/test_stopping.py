@@ -141,6 +141,16 @@ def _misbehaving_run(tmp_path: Path, how: str) -> tuple[list[str], dict[str, str
     return argv, env, log
 
 
+def _wait_for_spin(log: Path) -> None:
+    """Wait until the run of ``log`` has flushed its first chunk (1 s of simulation: the
+    stepper built, the run going), then 0.5 s more: its FMU is spinning since t = 2 s."""
+    partial = partial_path(log)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not (partial.exists() and partial.stat().st_size):
+        time.sleep(0.05)
+    time.sleep(0.5)
+
+
 def _check_failed_log(log: Path, tmp: Path, words: str) -> None:
     """The log is finished and in place, its result ``failed`` saying ``words``, with the
     rows of its first second at least; no partial file, no FMU folder left."""
@@ -164,10 +174,7 @@ def test_wmr_run_answers_a_stop_signal_while_the_fmu_loops_in_c(
     proc = subprocess.Popen([*argv, "--json"], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 60
-        while not partial_path(log).exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(1.0)  # 2 s of simulation take milliseconds: the FMU is spinning now
+        _wait_for_spin(log)
         assert proc.poll() is None
         sent = time.monotonic()
         proc.send_signal(signum)  # the parent only, as kill and timeout(1) do
@@ -207,3 +214,36 @@ def test_an_fmu_that_crashes_wmr_run_is_one_line_and_a_finished_failed_log(
     else:
         assert last.startswith("failed: the run process died of SIGSEGV") and str(log) in last
     _check_failed_log(log, tmp_path / "tmp", "died of SIGSEGV")
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, dead and not yet reaped, does not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
+
+
+def test_kill_9_of_wmr_run_ends_its_run_process_too(tmp_path: Path) -> None:
+    """The run goes on in a child of ``wmr run``: killed outright, ``wmr run`` takes it along
+    (``PR_SET_PDEATHSIG``), even while its FMU spins in C; no orphan keeps the log's lock."""
+    argv, env, log = _misbehaving_run(tmp_path, "LOOPS")
+    proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    child = 0
+    try:
+        _wait_for_spin(log)
+        child = int(Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()[0])
+        proc.kill()
+        proc.wait()
+        deadline = time.monotonic() + 5
+        while _alive(child) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not _alive(child)
+    finally:
+        if child and _alive(child):  # the bug: never leave it spinning
+            os.kill(child, signal.SIGKILL)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

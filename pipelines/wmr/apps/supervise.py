@@ -190,10 +190,13 @@ def _watch(pid: int, read_fd: int, grace_s: float) -> int | Abandoned:
         # have without a parent (wmr.cli: 128 + the first signal)
         return 128 + got[0][0] if got and answered is None else os.WEXITSTATUS(status)
     died_of = os.WTERMSIG(status)
-    if killed:
+    # (a signal forwarded before the child had its handlers, just after the fork, ends it)
+    if killed or (forwarded and died_of == got[0][0]):
         stop: int | None = got[0][0]
-        message = (f"interrupted ({_signal_name(got[0][0])}) while the FMU was in a call: it "
-                   f"did not return within {grace_s:g} s, so the run process was killed")
+        name = _signal_name(got[0][0])
+        message = (f"interrupted ({name}) while the FMU was in a call: it did not return "
+                   f"within {grace_s:g} s, so the run process was killed" if killed
+                   else f"interrupted ({name}) while the run was starting")
     else:
         stop = None
         message = (f"the run process died of {_signal_name(died_of)} (a crash in the FMU, "
