@@ -158,16 +158,18 @@ def test_ssp_run_refuses_a_stop_time_libcosim_cannot_buffer(
 _OUTPUTS = ("x", "y", "theta", "v", "omega", "omega_r", "omega_l")
 
 
-def _fatal_robot(folder: Path) -> Path:
-    """``tests/other_fmus/fatal_robot.c`` as an FMI 2.0 co-simulation FMU (skips without cc)."""
+def _fatal_robot(folder: Path, source: str = "fatal_robot.c",
+                 defines: tuple[str, ...] = ()) -> Path:
+    """``tests/other_fmus/fatal_robot.c`` (or ``source`` there, built with ``-D`` each of
+    ``defines``) as an FMI 2.0 co-simulation FMU (skips without cc)."""
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
         pytest.skip("no C compiler")
     root = folder / "fatal_robot"
     binary = root / "binaries" / "linux64" / "fatal_robot.so"
     binary.parent.mkdir(parents=True)
-    subprocess.run([cc, "-shared", "-fPIC", "-O1", "-o", str(binary),
-                    str(Path(__file__).parent / "other_fmus" / "fatal_robot.c"), "-lm"],
+    subprocess.run([cc, "-shared", "-fPIC", "-O1", *(f"-D{d}" for d in defines), "-o",
+                    str(binary), str(Path(__file__).parent / "other_fmus" / source), "-lm"],
                    check=True)
     names = [("tau_r", 'causality="input" variability="continuous"', '<Real start="0"/>'),
              ("tau_l", 'causality="input" variability="continuous"', '<Real start="0"/>')]

@@ -5,6 +5,7 @@ Each test reproduces one defect of the issue's attack: it failed before the fix.
 from __future__ import annotations
 
 import errno
+import fcntl
 import json
 import os
 import random
@@ -72,6 +73,21 @@ def _wait_for(pred: object, timeout_s: float = 60.0) -> None:
     raise AssertionError("timed out")
 
 
+def _locked(path: Path) -> bool:
+    """Whether a process holds the writer's lock on ``path`` (``flock``)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+    return False
+
+
 # -- kill -9 of wmr run ----------------------------------------------------------------------
 
 
@@ -87,6 +103,9 @@ def _kill_at_random_moments(tmp_path: Path, fmu3: Path, seeds: range) -> None:
         time.sleep(random.Random(seed).uniform(0.2, 2.5))
         proc.kill()
         proc.wait()
+        # the run itself is wmr run's child (wmr.apps.supervise), killed with its parent a
+        # moment later: its lock on the partial log goes with it
+        _wait_for(lambda: not _locked(partial_path(out)), timeout_s=10.0)
         # the log at the path is the old one or a finished new one, never damaged
         now = out.read_bytes()
         if now != old:

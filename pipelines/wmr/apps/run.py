@@ -248,7 +248,8 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
                also: BlockSink | None = None,
                controller_fmu: FmuController | None = None,
                durable: bool = True, log: LogPolicy = FULL_LOGS,
-               controller: Controller | None = None) -> dict[str, Any]:
+               controller: Controller | None = None,
+               on_log: Callable[[Path, str], None] | None = None) -> dict[str, Any]:
     """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
 
     The log attaches the run's effective scenario (:func:`scenario_attachment_name`), not
@@ -270,7 +271,9 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
     converge, with ``keep="none"`` never; with ``every_k_steps=k`` every k-th step and the
     last are logged, and the ``run`` record says ``log_every_k_steps``.  A run without a log
     leaves nothing at ``mcap_path`` (a log there from before is left alone) and its record's
-    ``mcap`` is ``None``.
+    ``mcap`` is ``None``.  ``on_log(path, run_name)`` is called once the log's ``.partial``
+    file is open (a supervising parent finishes it if this process dies:
+    :mod:`wmr.apps.supervise`).
 
     Returns
     -------
@@ -295,8 +298,11 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
 
     def open_log() -> RunLogWriter:
         path.parent.mkdir(parents=True, exist_ok=True)
-        return RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant),
-                            durable=durable, scene=True)
+        opened = RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant),
+                              durable=durable, scene=True)
+        if on_log is not None:
+            on_log(path, spec.name)
+        return opened
 
     with ExitStack() as stack:
         held: _Held | None = None
@@ -393,7 +399,9 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
                  out: str | Path | None = None, log: str | None = None,
                  log_every: int | None = None, view: bool = False,
                  progress_bar: ProgressBar | None = None,
-                 command_line: bool = False) -> tuple[dict[str, Any], RunSpec]:
+                 command_line: bool = False,
+                 on_log: Callable[[Path, str], None] | None = None
+                 ) -> tuple[dict[str, Any], RunSpec]:
     """One run of a scenario, as ``wmr run`` and :func:`wmr.run` make it: load, pick the run,
     apply the overrides, name it, check the log's place, open the FMUs, run and log.
 
@@ -405,7 +413,8 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
     or ``None`` (the scenario's choice); ``fmu``/``fmu_map`` another robot FMU and its map
     (else the scenario's, else the project's FMI ``fmi`` build); ``log``/``log_every`` the log
     policy (:class:`LogPolicy`); ``view`` the live Rerun view, saved next to the log.
-    ``command_line`` names inputs in errors as options (``--out``) rather than keywords.
+    ``command_line`` names inputs in errors as options (``--out``) rather than keywords;
+    ``on_log`` is :func:`run_to_log`'s.
 
     Returns
     -------
@@ -493,7 +502,7 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
             ctrl = stack.enter_context(FmuController(ctrl_path))
         try:
             record = run_to_log(spec, path, plant, scenario_file=sc.path, progress=progress,
-                                also=live, controller_fmu=ctrl, log=policy)
+                                also=live, controller_fmu=ctrl, log=policy, on_log=on_log)
         finally:
             if finish is not None:
                 finish()

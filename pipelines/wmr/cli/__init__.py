@@ -8,6 +8,7 @@ import json
 import re
 import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
 from contextvars import ContextVar
 from types import FrameType
@@ -17,6 +18,9 @@ from wmr import __version__
 from wmr.infra.errors import ConfigError, DiskFullError, WmrError
 
 Handler = Callable[[argparse.Namespace], int]
+#: ``supervisor(args, run)``: runs ``run(notify)`` (the command, ``notify`` told of the first
+#: stop signal) its own way and returns the exit status (``wmr run``: in a watched child).
+Supervisor = Callable[[argparse.Namespace, Callable[[Callable[[int], None] | None], int]], int]
 
 #: Longest field name (``--param`` key, TOML key, ...) an error line echoes.
 MAX_FIELD_CHARS = 80
@@ -213,6 +217,11 @@ def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.Argu
             ssp.register, log.register]
 
 
+#: Within this time of the first stop signal, the same signal again is the copy a supervising
+#: parent forwarded (``wmr run``), s.
+_SAME_SIGNAL_S = 0.25
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM (a scheduler, ``timeout``, ``kill``): handled like Ctrl-C, exit status 143."""
 
@@ -224,15 +233,24 @@ class _Signals:
     (a second Ctrl-C must not cut the cleanup short).  The exit status is ``128 + signal``
     of the first (130, 143), as shells report it."""
 
-    def __init__(self) -> None:
+    def __init__(self, notify: Callable[[int], None] | None = None) -> None:
         self.first: int | None = None
         self._old: dict[int, Any] = {}
+        self._notify = notify  # told of the first signal (a supervising parent: wmr run)
+        self._at = 0.0  # when the first came (time.monotonic)
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         if self.first is not None:
-            print("wmr: already stopping, finishing the logs and the summary", file=sys.stderr)
+            # a supervising parent forwards the signal that a Ctrl-C also sent this process:
+            # the same signal at once is that one, not a second Ctrl-C
+            if self._notify is None or signum != self.first or \
+                    time.monotonic() - self._at > _SAME_SIGNAL_S:
+                print("wmr: already stopping, finishing the logs and the summary",
+                      file=sys.stderr)
             return
-        self.first = signum
+        self.first, self._at = signum, time.monotonic()
+        if self._notify is not None:
+            self._notify(signum)
         raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
     def install(self) -> None:
@@ -283,7 +301,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     args = _parse(parser, sys.argv[1:] if argv is None else list(argv))
     handler: Handler = args.handler
-    signals = _Signals()
+    supervisor: Supervisor | None = getattr(args, "supervisor", None)
+    if supervisor is not None and argv is None:
+        # the process's own command (not main() called by a program or a test, whose
+        # output a child would not reach): the command runs in a child it watches
+        return supervisor(args, lambda notify: _run_command(handler, args, notify))
+    return _run_command(handler, args)
+
+
+def _run_command(handler: Handler, args: argparse.Namespace,
+                 notify: Callable[[int], None] | None = None) -> int:
+    """Run the command with SIGINT and SIGTERM handled (:class:`_Signals`; ``notify`` is
+    told of the first); its exit status."""
+    signals = _Signals(notify)
     signals.install()
     try:
         return signals.status(_dispatch(handler, args))

@@ -8,15 +8,11 @@ import argparse
 
 def _cmd_rerun(args: argparse.Namespace) -> int:
     from wmr.apps.batch.rerun import rerun_run
-    from wmr.apps.run import result_json
-    from wmr.cli.run import exit_status, result_summary
+    from wmr.cli.run import exit_status, print_result
 
     record = rerun_run(args.dir, args.run_id, out=args.out, fmu=args.fmu, fmu_map=args.map,
                        command_line=True)
-    if args.json:
-        print(result_json(record))
-    else:
-        print(f"{record['status']}: {record['message']}; {result_summary(record)}")
+    print_result(record, args.json, sensors=False)
     return exit_status(record)
 
 

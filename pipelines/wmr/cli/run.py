@@ -115,7 +115,7 @@ def select_run(scenario: Scenario, name: str | None) -> RunSpec:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from wmr.apps.run import result_json, run_scenario
+    from wmr.apps.run import run_scenario
 
     record, spec = run_scenario(
         args.scenario, run=args.run, start=args.start, goal=args.goal,
@@ -128,15 +128,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
                         else args.controller_fmu or True),
         fmi=args.fmi, fmu=args.fmu, fmu_map=args.map, out=args.out, log=args.log,
         log_every=args.log_every, view=args.view,
-        progress_bar=lambda name: _progress_bar(name, args.json), command_line=True)
-    if args.json:
-        print(result_json(record))
-    else:
-        line = f"{record['status']}: {record['message']}; {result_summary(record)}"
-        if spec.sensors is not None:
-            line += (f"; as estimated: {record['estimated_final_position_error_m']:.4f} m, "
-                     f"{record['estimated_final_heading_error_rad']:.5f} rad")
-        print(line)
+        progress_bar=lambda name: _progress_bar(name, args.json), command_line=True,
+        on_log=getattr(args, "report_log", None))
+    print_result(record, args.json, spec.sensors is not None)
     return exit_status(record)
 
 
@@ -144,6 +138,48 @@ def exit_status(record: Mapping[str, Any]) -> int:
     """The exit status of a command that made one run (``wmr run``, ``wmr rerun``): 0
     converged, 3 timeout, 1 failed."""
     return 0 if record["status"] == "converged" else 3 if record["status"] == "timeout" else 1
+
+
+def print_result(record: Mapping[str, Any], json_line: bool, sensors: bool) -> None:
+    """The result of a run on stdout: its JSON line, or its one line of text."""
+    from wmr.apps.run import result_json
+
+    if json_line:
+        print(result_json(dict(record)))
+        return
+    line = f"{record['status']}: {record['message']}; {result_summary(record)}"
+    if sensors:
+        line += (f"; as estimated: {record['estimated_final_position_error_m']:.4f} m, "
+                 f"{record['estimated_final_heading_error_rad']:.5f} rad")
+    print(line)
+
+
+def _supervised(args: argparse.Namespace,
+                run: Callable[[Callable[[int], None] | None], int]) -> int:
+    """``wmr run`` in a child process (:mod:`wmr.apps.supervise`): a run whose FMU loops in C
+    or crashes is still one line, a ``failed`` record and a finished log."""
+    from wmr.apps.supervise import GRACE_S, supervise
+
+    def child(channel: Any) -> int:
+        args.report_log = channel.log_opened
+        return run(channel.signalled)
+
+    outcome = supervise(child)
+    if isinstance(outcome, int):
+        return outcome
+    record = outcome.record
+    if outcome.stop_signal is None:  # a crash: the run failed
+        print_result(record, args.json, False)
+        return 1
+    import signal
+
+    what = "terminated" if outcome.stop_signal == signal.SIGTERM else "interrupted"
+    log = "" if record["mcap"] is None else f"; log {record['mcap']}"
+    print(f"wmr: {what}: the FMU did not return within {GRACE_S:g} s, the run process was killed"
+          f"{log}", file=sys.stderr)
+    if args.json:
+        print_result(record, True, False)
+    return 128 + outcome.stop_signal
 
 
 def _sensor_items(items: list[str] | None) -> dict[str, str]:
@@ -210,4 +246,4 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--view", action="store_true",
                    help="show the run live in Rerun (a viewer when there is a screen; always "
                         "also saved as FILE.rrd next to the log)")
-    p.set_defaults(handler=_cmd_run)
+    p.set_defaults(handler=_cmd_run, supervisor=_supervised)

@@ -297,6 +297,20 @@ class AtomicFile:
             self._unsynced = 0
             _start_writeback(self._fd)
 
+    def seek(self, offset: int) -> int:
+        """Move to byte ``offset`` (what is buffered is written out first)."""
+        try:
+            return self._file.seek(offset)
+        except OSError as exc:
+            raise storage_error(exc, self.partial) from exc
+
+    def truncate(self) -> int:
+        """Cut the file at the current position: the bytes after it are gone."""
+        try:
+            return self._file.truncate()
+        except OSError as exc:
+            raise storage_error(exc, self.partial) from exc
+
     def commit(self) -> None:
         """Write out, fsync, rename ``.partial`` over the final path, fsync the folder."""
         if self.closed:

@@ -25,7 +25,7 @@ import itertools
 import json
 import os
 import struct
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
@@ -49,7 +49,7 @@ from wmr.adapters.mcap.scene import (
     SceneRecorder,
 )
 from wmr.adapters.mcap.schemas import TORQUE_TOPIC
-from wmr.adapters.mcap.writer import McapFile
+from wmr.adapters.mcap.writer import McapFile, _str_dict
 from wmr.infra.durable import PARTIAL_SUFFIX, AtomicFile, partial_path
 from wmr.infra.errors import LogError
 
@@ -120,7 +120,7 @@ def _messages(buf: bytes) -> list[tuple[int, int, bytes]]:
 
 def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] | None = None,
                 *, overwrite: bool = False, limits: ReadLimits = DEFAULT_LIMITS,
-                scene: bool = True) -> Recovery:
+                scene: bool = True, result: Mapping[str, object] | None = None) -> Recovery:
     """Write what is intact in ``source`` as a finished MCAP log at ``output``.
 
     Parameters
@@ -138,6 +138,9 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
         Make the scene topics an unfinished source (no ``result`` record: a killed run)
         lacks from the rows it holds; off, the output holds exactly the source's intact
         messages.
+    result
+        The ``result`` record to give a source that has none (a run whose process died:
+        :mod:`wmr.apps.supervise`), written as the log writer writes it.
 
     Returns
     -------
@@ -176,7 +179,7 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
             src = aside
         scan = scan_log(log, limits, keep_chunks=True)
         rec = Recovery(source=src, output=dst)
-        _write(scan, src, log.size, rec, limits if scene else None)
+        _write(scan, src, log.size, rec, limits if scene else None, result)
     return rec
 
 
@@ -235,7 +238,8 @@ def _add_scene(file: McapFile, src: Path, scan: LogScan, limits: ReadLimits,
 
 
 def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery,
-           scene_limits: ReadLimits | None) -> None:
+           scene_limits: ReadLimits | None, result: Mapping[str, object] | None = None
+           ) -> None:
     """Write what ``scan`` kept to ``rec.output`` as a finished log; on failure nothing
     stays."""
     rec.lost = list(scan.warnings)
@@ -286,6 +290,8 @@ def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery,
             pending_bytes += sum(len(r) for _, _, r in kept)
         if scene_limits is not None:
             _add_scene(file, src, scan, scene_limits, rec)
+        if result is not None and "result" not in scan.metadata:
+            file.add_metadata("result", _str_dict("result", result))
         if rec.dropped_messages:
             rec.lost.append(f"{rec.dropped_messages} messages of lost channels left out")
         if late:

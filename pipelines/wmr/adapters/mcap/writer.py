@@ -121,6 +121,13 @@ class Sink(Protocol):
     def write(self, data: bytes, /) -> object: ...
     def flush(self) -> None: ...
     def close(self) -> None: ...
+    def seek(self, offset: int, /) -> object: ...
+    def truncate(self) -> object: ...
+
+
+#: What :meth:`McapFile.mark` saves: the position, the data section CRC, the chunk indexes
+#: written, the message count of each channel, the message count, first and last times.
+_Mark = tuple[int, int, int, dict[int, int], int, int, int]
 
 
 class McapFile:
@@ -157,6 +164,7 @@ class McapFile:
         self._t_first = 0
         self._t_last = 0
         self._crc = 0  # of the data section: every byte before Data End, magic included
+        self._broken = ""  # why the file cannot be finished (a rollback that failed)
         self._write(MAGIC)
         Header(profile="", library=library).write(self._rb)
         self._flush_records()
@@ -308,6 +316,27 @@ class McapFile:
         self._n_messages += n_messages
         self._stream.flush()
 
+    def mark(self) -> _Mark:
+        """Where the file is, for :meth:`rollback` (taken before a chunk is added)."""
+        return (self._pos, self._crc, len(self._chunk_indexes), dict(self._counts),
+                self._n_messages, self._t_first, self._t_last)
+
+    def rollback(self, mark: _Mark) -> None:
+        """Undo what was written since ``mark`` (a chunk cut anywhere, or whole): the file
+        is cut back to the marked position and the summary forgets it.  A stream that cannot
+        be cut back (a full disk refusing the buffered bytes) is given up: the file stays as
+        it is, readable up to its last whole chunk, and :meth:`finish` refuses to end it."""
+        pos, crc, chunks, counts, n_messages, t_first, t_last = mark
+        del self._chunk_indexes[chunks:]
+        self._counts = counts
+        self._n_messages, self._t_first, self._t_last = n_messages, t_first, t_last
+        self._pos, self._crc = pos, crc
+        try:
+            self._stream.seek(pos)
+            self._stream.truncate()
+        except Exception as exc:  # the caller's own exception is the one to report
+            self._broken = f"could not cut the log back after a failed write: {exc}"
+
     def abort(self) -> None:
         """Close the stream without a summary (the file stays readable up to its last chunk)."""
         self._stream.close()
@@ -317,7 +346,14 @@ class McapFile:
 
         A stream with a ``commit`` method (:class:`wmr.infra.durable.AtomicFile`) is committed
         instead of closed: the finished file then replaces the one at its final path.
+
+        Raises
+        ------
+        LogError
+            A chunk could not be cut back after a failed write (:meth:`rollback`).
         """
+        if self._broken:
+            raise LogError(self._broken)
         DataEnd(data_section_crc=self._crc).write(self._rb)
         self._flush_records()
         summary_start = self._pos
@@ -626,9 +662,10 @@ class RunLogWriter:
         # committed by McapFile.finish, or abandoned
         stream = AtomicFile(self.path, "log", durable=durable)
         self._period = int(chunk_period_ns)
-        self._pending_t: list[NDArray[np.int64]] = []
-        self._pending_x: list[NDArray[np.float64]] = []
-        self._pending_rows = 0
+        # the rows given and not yet in a chunk: (t_ns, block) pairs, each added and dropped
+        # in one step (see _write_chunk), so that no exception can leave a row in a chunk and
+        # pending both, nor a time without its row
+        self._pending: list[tuple[NDArray[np.int64], NDArray[np.float64]]] = []
         self._last_t = -1
         self._boundary = self._period
         self._rows = 0
@@ -686,7 +723,7 @@ class RunLogWriter:
     @property
     def rows_written(self) -> int:
         """Rows given to :meth:`write_block` so far (buffered or on disk)."""
-        return self._rows + self._pending_rows
+        return self._rows + sum(len(t) for t, _ in self._pending)
 
     def write_block(self, t_ns: ArrayLike, block: ArrayLike) -> None:
         """Log rows of the run: every per-step topic, one message per row.
@@ -722,9 +759,7 @@ class RunLogWriter:
                 f"t_ns must be non-negative and non-decreasing (got {t[0]} after {self._last_t})"
             )
         self._last_t = int(t[-1])
-        self._pending_t.append(t)
-        self._pending_x.append(x)
-        self._pending_rows += n
+        self._pending.append((t, x))
         if self._scene is not None:
             self._scene.add(t, x)
         if self._last_t >= self._boundary:
@@ -771,34 +806,49 @@ class RunLogWriter:
         self._file.add_chunk(b"".join(parts), {cid: (t, offsets)})
 
     def _flush_chunks(self, final: bool) -> None:
-        if not self._pending_rows:
+        if not self._pending:
             return
-        t = np.concatenate(self._pending_t) if len(self._pending_t) > 1 else self._pending_t[0]
-        x = np.concatenate(self._pending_x) if len(self._pending_x) > 1 else self._pending_x[0]
+        pending = self._pending
+        t = np.concatenate([p[0] for p in pending]) if len(pending) > 1 else pending[0][0]
+        x = np.concatenate([p[1] for p in pending]) if len(pending) > 1 else pending[0][1]
         while len(t):
             cut = int(np.searchsorted(t, self._boundary, side="left"))
             if cut == len(t) and not final:
                 break
             if cut:
-                self._write_chunk(t[:cut], x[:cut])
+                self._write_chunk(t[:cut], x[:cut], [(t[cut:], x[cut:])] if cut < len(t) else [])
                 t, x = t[cut:], x[cut:]
             if len(t):
                 self._boundary = (int(t[0]) // self._period + 1) * self._period
-        self._pending_t = [t] if len(t) else []
-        self._pending_x = [x] if len(t) else []
-        self._pending_rows = len(t)
 
-    def _write_chunk(self, t: NDArray[np.int64], x: NDArray[np.float64]) -> None:
+    def _write_chunk(self, t: NDArray[np.int64], x: NDArray[np.float64],
+                     rest: list[tuple[NDArray[np.int64], NDArray[np.float64]]]) -> None:
+        """Write the rows ``t, x`` as a chunk and leave ``rest`` pending, as one step: an
+        exception anywhere in it (a signal's ``KeyboardInterrupt`` between two bytecodes, a
+        full disk) puts the pending rows back and cuts the file back to where the chunk
+        began, so the rows are on disk once or pending, never both (``close`` would write
+        them again) and never lost."""
         if isinstance(self._encoder, _CRowEncoder):
             records, indexes = self._encoder.encode_chunk(t, x)
-            size = len(indexes) // len(self._channel_ids)
-            self._file.add_indexed_chunk(
-                records, int(t[0]), int(t[-1]), indexes,
-                [(cid, k * size, len(t)) for k, cid in enumerate(self._channel_ids)])
         else:
             records_, offsets = self._encoder.encode(t, x)
-            self._file.add_row_chunk(records_, t, offsets, self._channel_ids)
-        self._rows += len(t)
+        before = self._pending, self._rows
+        mark = self._file.mark()
+        try:
+            # forgotten first, in the same try: whichever line an exception stops, the
+            # handler below sees the whole step to undo
+            self._pending, self._rows = rest, self._rows + len(t)
+            if isinstance(self._encoder, _CRowEncoder):
+                size = len(indexes) // len(self._channel_ids)
+                self._file.add_indexed_chunk(
+                    records, int(t[0]), int(t[-1]), indexes,
+                    [(cid, k * size, len(t)) for k, cid in enumerate(self._channel_ids)])
+            else:
+                self._file.add_row_chunk(records_, t, offsets, self._channel_ids)
+        except BaseException:
+            self._pending, self._rows = before
+            self._file.rollback(mark)
+            raise
 
     def close(self, result: Mapping[str, object]) -> None:
         """Write the buffered rows, the ``result`` metadata record, and finish the file.
