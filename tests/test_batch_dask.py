@@ -1,0 +1,269 @@
+"""``wmr batch --scheduler``: a Dask cluster that goes away (its scheduler killed, no worker,
+a killed worker), with real ``dask scheduler`` and ``dask worker`` processes.
+
+A scheduler that goes away is not a result: the runs it had are not journalled, the batch
+stops with one line naming the scheduler and the command to resume, and the resume, on a
+restarted cluster, runs exactly the missing runs and ends with the local batch's summary.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from distributed.client import ClosedClientError, FutureCancelledError
+from distributed.comm.core import CommClosedError
+from distributed.scheduler import KilledWorker
+
+from wmr.apps.batch import dask_exec, load_batch, run_batch
+from wmr.apps.batch.dask_exec import task_failure
+from wmr.apps.batch.runner import _test_hooks
+from wmr.cli import main
+
+#: 40 short runs (about 25 ms each): 2 list entries x 20 random samples.
+SPEC40 = """
+name = "t40"
+start = [1.0, 0.0, 0.0]
+goal = [0.0, 0.0, 180.0]
+max_time_s = 15.0
+[random]
+seed = 3
+n = 20
+[random.start]
+r_m = { dist = "uniform", low = 0.5, high = 1.5 }
+bearing_deg = { dist = "uniform", low = -180.0, high = 180.0 }
+[random.goal]
+heading_deg = { dist = "along_x" }
+[random.params]
+m = { dist = "normal", mean = 25.0, std = 3.0, low = 18.0, high = 32.0 }
+[[list]]
+name = "a"
+[[list]]
+name = "b"
+gains = { K_ps = 0.8 }
+"""
+
+#: The venv's ``dask`` command (the one beside this interpreter).
+DASK = shutil.which("dask", path=str(Path(sys.executable).parent)) or "dask"
+
+
+# -- which failures are the cluster's ---------------------------------------------------------
+
+@pytest.mark.parametrize(("exc", "future_status", "client_status", "whose"), [
+    # the infrastructure went away: never a result
+    (FutureCancelledError("k", "scheduler-connection-lost"), "cancelled", "running", "cluster"),
+    (FutureCancelledError("k", None), "cancelled", "running", "cluster"),
+    (CommClosedError("in <TCP (closed)>: Stream is closed"), "pending", "running", "cluster"),
+    (CommClosedError("Stream is closed"), None, "running", "cluster"),
+    (ClosedClientError(), None, "running", "cluster"),
+    (OSError("Timed out trying to connect to tcp://127.0.0.1:1 after 20 s"), None, "running",
+     "cluster"),
+    (TimeoutError("no result"), "pending", "connecting", "cluster"),
+    (TimeoutError("no result"), "finished", "closed", "cluster"),
+    (ValueError("anything"), "error", "connecting", "cluster"),
+    # the worker died (or took the result with it): one more try
+    (KilledWorker("k", "tcp://127.0.0.1:2", 3), "error", "running", "worker"),
+    (TimeoutError("no result for k within 30 s"), "finished", "running", "worker"),
+    (TimeoutError("no result for k within 30 s"), "lost", "running", "worker"),
+    # the run's own failure: a failed row
+    (RuntimeError("FMU not shipped"), "error", "running", "run"),
+    (TimeoutError("raised by the task itself"), "error", "running", "run"),
+    (OSError("raised by the task itself"), "error", "running", "run"),
+    (ValueError("not a connection's"), None, "running", "run"),
+], ids=lambda v: v if isinstance(v, str | None) else type(v).__name__)
+def test_a_failure_is_the_run_s_its_worker_s_or_the_cluster_s(
+        exc: BaseException, future_status: str | None, client_status: str, whose: str) -> None:
+    assert task_failure(exc, future_status, client_status) == whose
+
+
+# -- real processes -----------------------------------------------------------------------------
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _wait_for(pred: Callable[[], bool], timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what}: not within {timeout_s} s")
+        time.sleep(0.05)
+
+
+class _Cluster:
+    """A ``dask scheduler`` on a fixed local port and ``dask worker`` processes, each in its
+    own process group (killed whole, the nanny and its worker alike)."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.port = _free_port()
+        self.address = f"tcp://127.0.0.1:{self.port}"
+        self.log_dir = log_dir
+        self.scheduler: subprocess.Popen[bytes] | None = None
+        self.workers: list[subprocess.Popen[bytes]] = []
+
+    def _start(self, *args: str) -> subprocess.Popen[bytes]:
+        log = self.log_dir / f"{args[0]}-{time.monotonic_ns()}.log"
+        with open(log, "wb") as f:
+            return subprocess.Popen([DASK, *args], stdout=f, stderr=subprocess.STDOUT,
+                                    start_new_session=True)
+
+    def _answers(self) -> bool:
+        try:
+            socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
+        except OSError:
+            return False
+        return True
+
+    def start_scheduler(self) -> None:
+        self.scheduler = self._start("scheduler", "--host", "127.0.0.1", "--port",
+                                     str(self.port), "--no-dashboard")
+        _wait_for(self._answers, 60, "the scheduler")
+
+    def start_worker(self) -> None:
+        self.workers.append(self._start("worker", self.address, "--nworkers", "1",
+                                        "--nthreads", "2", "--no-dashboard"))
+
+    @staticmethod
+    def _kill(proc: subprocess.Popen[bytes]) -> None:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=30)
+
+    def kill_scheduler(self) -> None:
+        assert self.scheduler is not None
+        self._kill(self.scheduler)
+        self.scheduler = None
+
+    def kill_all(self) -> None:
+        for proc in self.workers:
+            self._kill(proc)
+        self.workers = []
+        if self.scheduler is not None:
+            self.kill_scheduler()
+
+
+@pytest.fixture
+def cluster(tmp_path: Path) -> Iterator[_Cluster]:
+    logs = tmp_path / "dask-logs"
+    logs.mkdir()
+    c = _Cluster(logs)
+    try:
+        yield c
+    finally:
+        c.kill_all()
+
+
+@pytest.fixture
+def spec40(tmp_path: Path) -> Path:
+    path = tmp_path / "t40.toml"
+    path.write_text(SPEC40, encoding="utf-8")
+    return path
+
+
+def _journal(out: Path) -> list[dict[str, object]]:
+    path = out / "journal.jsonl"
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def _lines(out: Path) -> int:
+    try:
+        return (out / "journal.jsonl").read_bytes().count(b"\n")
+    except FileNotFoundError:
+        return 0
+
+
+@pytest.mark.timeout(300)
+def test_a_scheduler_killed_mid_batch_stops_it_and_the_resume_runs_the_missing(
+        tmp_path: Path, fmu3: Path, spec40: Path, cluster: _Cluster,
+        capfd: pytest.CaptureFixture[str]) -> None:
+    batch = load_batch(spec40)
+    local = tmp_path / "local"
+    run_batch(batch, local, workers=2, fmu_path=fmu3, progress=False)
+    out = tmp_path / "dask"
+    cluster.start_scheduler()
+    cluster.start_worker()
+    command = ["batch", str(spec40), "--out", str(out), "--fmu", str(fmu3), "--scheduler",
+               cluster.address, "--no-progress"]
+    kill_at = 10
+
+    def killer() -> None:  # the scheduler dies once 10 runs are journalled
+        _wait_for(lambda: _lines(out) >= kill_at, 120, "the first runs")
+        cluster.kill_scheduler()
+
+    thread = threading.Thread(target=killer)
+    capfd.readouterr()
+    # the last run hangs: the batch cannot end before the scheduler is killed
+    with _test_hooks(faults={batch.runs[-1].run_id: "hang"}):
+        thread.start()
+        t0 = time.monotonic()
+        code = main(command)
+        took_s = time.monotonic() - t0
+    thread.join(timeout=60)
+    err = capfd.readouterr().err
+    assert code == 1, err
+    done = _journal(out)
+    n = len(done)
+    assert kill_at <= n < len(batch.runs)
+    assert err.count("\n") == 1, f"one line, not: {err!r}"
+    assert re.fullmatch(
+        rf"wmr: error: the Dask scheduler {re.escape(cluster.address)} went away after {n} "
+        rf"of 40 runs \(\w+: [^\n]+\); the {n} finished are kept; start it \(dask "
+        rf"scheduler, dask worker\) and run the same command again to run the {40 - n} "
+        r"missing\n", err), err
+    assert took_s < 60, "no wait for the client's reconnection"
+    # the runs the scheduler had are not results: no made-up failed row, no record of a
+    # run whose result never came back
+    assert {line["record"]["status"] for line in done} == {"converged"}  # type: ignore[index]
+    assert len({line["run_id"] for line in done}) == n
+
+    cluster.kill_all()  # the cluster restarted: a new scheduler at the same address
+    cluster.start_scheduler()
+    cluster.start_worker()
+    code = main(command)
+    err = capfd.readouterr().err
+    assert code == 0, err
+    assert f"; {40 - n} run now, {n} done before;" in err
+    again = _journal(out)
+    assert [line["run_id"] for line in again[:n]] == [line["run_id"] for line in done]
+    assert sorted(line["run_id"] for line in again[n:]) == sorted(
+        {r.run_id for r in batch.runs} - {str(line["run_id"]) for line in done})
+    for name in ("summary.csv", "summary.parquet"):
+        assert (out / name).read_bytes() == (local / name).read_bytes(), name
+
+
+@pytest.mark.timeout(120)
+def test_a_scheduler_without_workers_stops_the_batch_in_bounded_time(
+        tmp_path: Path, fmu3: Path, spec40: Path, cluster: _Cluster,
+        capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(dask_exec, "WORKER_WAIT_S", 3.0)
+    cluster.start_scheduler()
+    out = tmp_path / "o"
+    capfd.readouterr()
+    t0 = time.monotonic()
+    code = main(["batch", str(spec40), "--out", str(out), "--fmu", str(fmu3), "--scheduler",
+                 cluster.address, "--no-progress"])
+    took_s = time.monotonic() - t0
+    err = capfd.readouterr().err
+    assert code == 1
+    assert err == (f"wmr: error: the Dask scheduler {cluster.address} has no workers (none "
+                   f"joined within 3 s); start some (dask worker {cluster.address}) and run "
+                   "the same command again to run the 40 missing\n")
+    assert took_s < 30
+    assert _journal(out) == []
