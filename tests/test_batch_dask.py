@@ -87,6 +87,50 @@ def test_a_failure_is_the_run_s_its_worker_s_or_the_cluster_s(
     assert task_failure(exc, future_status, client_status) == whose
 
 
+def test_worker_threads_read_model_descriptions_one_at_a_time(
+        fmu3: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each thread of a Dask worker opens its own FmuPlant: fmpy's schema check of the model
+    description must not run in two threads at once (libxml2 can break for the rest of the
+    process: a fresh two-thread worker failed every run, 'unreadable model description:
+    ... xmlSchemaPValAttrNodeValue, the given type is not a built-in type')."""
+    import fmpy
+
+    from wmr.adapters.fmi.robot import FmuPlant
+
+    real = fmpy.read_model_description
+    inside: list[int] = []
+    most = [0]
+    guard = threading.Lock()
+
+    def read(*args: object, **kwargs: object) -> object:
+        with guard:
+            inside.append(1)
+            most[0] = max(most[0], len(inside))
+        time.sleep(0.05)  # long enough for the other threads to come in, if they may
+        try:
+            return real(*args, **kwargs)  # type: ignore[arg-type]
+        finally:
+            with guard:
+                inside.pop()
+
+    monkeypatch.setattr(fmpy, "read_model_description", read)
+    start = threading.Barrier(4)
+    made: list[str] = []
+
+    def open_plant() -> None:
+        start.wait()
+        with FmuPlant(fmu3) as plant:
+            made.append(plant.fmi_version)
+
+    threads = [threading.Thread(target=open_plant) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert made == ["3.0"] * 4
+    assert most[0] == 1, f"{most[0]} model descriptions read at once"
+
+
 # -- real processes -----------------------------------------------------------------------------
 
 def _free_port() -> int:
@@ -267,3 +311,4 @@ def test_a_scheduler_without_workers_stops_the_batch_in_bounded_time(
                    "the same command again to run the 40 missing\n")
     assert took_s < 30
     assert _journal(out) == []
+
