@@ -312,3 +312,83 @@ def test_a_scheduler_without_workers_stops_the_batch_in_bounded_time(
     assert took_s < 30
     assert _journal(out) == []
 
+
+def test_a_worker_killed_mid_batch_ends_in_the_local_summary(
+        tmp_path: Path, fmu3: Path, spec40: Path, cluster: _Cluster) -> None:
+    """The worker process (not its nanny, which starts a new one) killed by SIGKILL mid-batch:
+    the scheduler gives its tasks to the new one; nothing stops, nothing fails."""
+    import psutil
+
+    text = SPEC40.replace("n = 20", "n = 40")  # 80 runs: a batch long enough to kill into
+    spec = tmp_path / "t80.toml"
+    spec.write_text(text, encoding="utf-8")
+    batch = load_batch(spec)
+    local = tmp_path / "local"
+    run_batch(batch, local, workers=2, fmu_path=fmu3, progress=False)
+    cluster.start_scheduler()
+    cluster.start_worker()
+    out = tmp_path / "dask"
+    killed_at: list[int] = []
+
+    def killer() -> None:
+        _wait_for(lambda: _lines(out) >= 10, 120, "the first runs")
+        nanny = psutil.Process(cluster.workers[0].pid)
+        workers = nanny.children(recursive=True)
+        killed_at.append(_lines(out))
+        for proc in workers:
+            proc.kill()
+
+    thread = threading.Thread(target=killer)
+    thread.start()
+    result = run_batch(batch, out, scheduler=cluster.address, fmu_path=fmu3, progress=False)
+    thread.join(timeout=60)
+    assert killed_at and killed_at[0] < len(batch.runs), "killed before the batch ended"
+    assert len(result.executed) == len(batch.runs) and result.counts["converged"] == 80
+    for name in ("summary.csv", "summary.parquet"):
+        assert (out / name).read_bytes() == (local / name).read_bytes(), name
+
+
+@pytest.mark.timeout(300)
+def test_workers_all_gone_mid_batch_stop_it_in_bounded_time_and_it_resumes(
+        tmp_path: Path, fmu3: Path, spec40: Path, cluster: _Cluster,
+        capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every worker (nanny and all) killed mid-batch: the tasks would wait for ever in the
+    scheduler; after WORKER_WAIT_S the batch stops saying so, and resumes once one is back."""
+    monkeypatch.setattr(dask_exec, "WORKER_WAIT_S", 3.0)
+    monkeypatch.setattr(dask_exec, "WORKER_POLL_S", 0.2)
+    batch = load_batch(spec40)
+    local = tmp_path / "local"
+    run_batch(batch, local, workers=2, fmu_path=fmu3, progress=False)
+    cluster.start_scheduler()
+    cluster.start_worker()
+    out = tmp_path / "dask"
+    command = ["batch", str(spec40), "--out", str(out), "--fmu", str(fmu3), "--scheduler",
+               cluster.address, "--no-progress"]
+
+    def killer() -> None:
+        _wait_for(lambda: _lines(out) >= 10, 120, "the first runs")
+        for proc in cluster.workers:
+            cluster._kill(proc)
+
+    thread = threading.Thread(target=killer)
+    capfd.readouterr()
+    with _test_hooks(faults={batch.runs[-1].run_id: "hang"}):  # it cannot end by itself
+        thread.start()
+        t0 = time.monotonic()
+        code = main(command)
+        took_s = time.monotonic() - t0
+    thread.join(timeout=60)
+    err = capfd.readouterr().err
+    n = len(_journal(out))
+    assert code == 1, err
+    assert err == (f"wmr: error: the Dask scheduler {cluster.address} has no workers left "
+                   f"after {n} of 40 runs (none for 3 s); the {n} finished are kept; start "
+                   f"some (dask worker {cluster.address}) and run the same command again to "
+                   f"run the {40 - n} missing\n")
+    assert took_s < 60
+    cluster.workers = []
+    cluster.start_worker()
+    assert main(command) == 0
+    assert f"; {40 - n} run now, {n} done before;" in capfd.readouterr().err
+    for name in ("summary.csv", "summary.parquet"):
+        assert (out / name).read_bytes() == (local / name).read_bytes(), name

@@ -18,6 +18,8 @@ import hashlib
 import itertools
 import logging
 import secrets
+import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import CancelledError
 from pathlib import Path
@@ -77,6 +79,9 @@ MAX_CHUNK: Final = 32
 #: none: a worker started with the batch joins within a few seconds; a batch sent to a
 #: scheduler without workers waited for ever.
 WORKER_WAIT_S: Final = 30.0
+#: Seconds between two looks at the scheduler's workers while the batch waits for its tasks:
+#: when every worker left mid-batch, the tasks would wait for ever.
+WORKER_POLL_S: Final = 1.0
 
 
 class DaskExecutor:
@@ -180,10 +185,8 @@ class DaskExecutor:
             except TimeoutError as exc:
                 if client.status != "running":
                     raise
-                raise ClusterError(f"the Dask scheduler {address} has no workers",
-                                   f"start some (dask worker {address}) and run the same "
-                                   "command again",
-                                   f"none joined within {WORKER_WAIT_S:g} s") from exc
+                raise _starved(address, "has no workers",
+                               f"none joined within {WORKER_WAIT_S:g} s") from exc
             threads = sum(client.nthreads().values()) or 1
         except ClusterError:
             raise
@@ -207,6 +210,9 @@ class DaskExecutor:
             chunk = list(itertools.islice(source, size))
             return submit(chunk, "") if chunk else None
 
+        stop, starved = threading.Event(), threading.Event()
+        threading.Thread(target=_watch_workers, args=(client, futures, stop, starved),
+                         name="wmr-dask-workers", daemon=True).start()
         try:
             for _ in range(WINDOW * threads):
                 if submit_next() is None:
@@ -231,6 +237,9 @@ class DaskExecutor:
                     how = task_failure(result, fut.status, client.status)
                     if how == "cluster":  # its runs were not run, or their results are
                         # lost with the connection: none is journalled, a resume runs them
+                        if starved.is_set():
+                            raise _starved(address, "has no workers left",
+                                           f"none for {WORKER_WAIT_S:g} s")
                         raise _lost(address, result)
                     if isinstance(result, TimeoutError):  # the result died with its worker
                         fut.cancel()
@@ -257,6 +266,39 @@ class DaskExecutor:
             if task_failure(exc, None, client.status) != "cluster":
                 raise
             raise _lost(address, exc) from None
+        finally:
+            stop.set()
+
+
+def _watch_workers(client: Client, futures: dict[Any, list[Task]], stop: threading.Event,
+                   starved: threading.Event) -> None:
+    """Until ``stop``: once the scheduler of ``client`` has had no worker for
+    :data:`WORKER_WAIT_S` s, set ``starved`` and cancel the tasks in ``futures`` (the batch
+    then stops, saying so; they would have waited for ever)."""
+    idle_since: float | None = None
+    while not stop.wait(WORKER_POLL_S):
+        try:
+            workers = client.nthreads()
+        except Exception:  # the connection's loss: the tasks' futures say it
+            return
+        now = time.monotonic()
+        if workers:
+            idle_since = None
+            continue
+        if idle_since is None:
+            idle_since = now
+        if now - idle_since < WORKER_WAIT_S:
+            continue
+        starved.set()
+        while True:
+            try:
+                pending = list(futures)
+                break
+            except RuntimeError:  # the batch changed it meanwhile
+                continue
+        with contextlib.suppress(Exception):
+            client.cancel(pending, reason="no-workers")
+        return
 
 
 def task_failure(exc: BaseException, future_status: str | None, client_status: str
@@ -331,6 +373,13 @@ def _quiet(lost: bool) -> Iterator[None]:
         yield
     finally:
         logger.setLevel(level)
+
+
+def _starved(address: str, what: str, cause: str) -> ClusterError:
+    """The :class:`ClusterError` of a scheduler at ``address`` without workers."""
+    return ClusterError(f"the Dask scheduler {address} {what}",
+                        f"start some (dask worker {address}) and run the same command again",
+                        cause)
 
 
 def _cut(text: str, limit: int = 120) -> str:
