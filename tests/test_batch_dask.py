@@ -20,6 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any, cast
 
 import pytest
 from distributed.client import ClosedClientError, FutureCancelledError
@@ -73,7 +74,7 @@ DASK = shutil.which("dask", path=str(Path(sys.executable).parent)) or "dask"
     (TimeoutError("no result"), "finished", "closed", "cluster"),
     (ValueError("anything"), "error", "connecting", "cluster"),
     # the worker died (or took the result with it): one more try
-    (KilledWorker("k", "tcp://127.0.0.1:2", 3), "error", "running", "worker"),
+    (KilledWorker("k", cast(Any, "tcp://127.0.0.1:2"), 3), "error", "running", "worker"),
     (TimeoutError("no result for k within 30 s"), "finished", "running", "worker"),
     (TimeoutError("no result for k within 30 s"), "lost", "running", "worker"),
     # the run's own failure: a failed row
@@ -85,6 +86,60 @@ DASK = shutil.which("dask", path=str(Path(sys.executable).parent)) or "dask"
 def test_a_failure_is_the_run_s_its_worker_s_or_the_cluster_s(
         exc: BaseException, future_status: str | None, client_status: str, whose: str) -> None:
     assert task_failure(exc, future_status, client_status) == whose
+
+
+class _FakeClient:
+    """What :class:`dask_exec._WorkerWatch` asks of a client: a scheduler that never has a
+    worker when looked at, and, with ``restarts``, one that a nanny restarts (and that dies at
+    once) every 0.05 s, between the looks."""
+
+    status = "running"
+
+    def __init__(self, restarts: bool) -> None:
+        self.restarts = restarts
+        self.cancelled: list[tuple[list[object], str]] = []
+        self.handler: Callable[[tuple[float, object]], None] | None = None
+        self._stop = threading.Event()
+
+    def nthreads(self) -> dict[str, int]:
+        return {}
+
+    def subscribe_topic(self, topic: str, handler: Callable[[tuple[float, object]], None]
+                        ) -> None:
+        assert topic == "all"
+        self.handler = handler
+        threading.Thread(target=self._restarts, daemon=True).start()
+
+    def _restarts(self) -> None:
+        while self.restarts and not self._stop.wait(0.05):
+            assert self.handler is not None
+            self.handler((time.time(), {"action": "gather", "count": 1}))
+            self.handler((time.time(), {"action": "add-worker", "worker": "tcp://w:1"}))
+
+    def unsubscribe_topic(self, topic: str) -> None:
+        self._stop.set()
+
+    def cancel(self, futures: list[object], reason: str | None = None) -> None:
+        self.cancelled.append((futures, str(reason)))
+
+
+@pytest.mark.parametrize("restarts", [False, True], ids=["workers-gone", "workers-restarting"])
+def test_the_worker_watch_tells_no_workers_from_workers_restarting(
+        restarts: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A worker restarted and dead again between two looks is a worker: only a scheduler that
+    no worker joined for WORKER_WAIT_S is one without workers (a run crashing every worker it
+    was given made the looks alone stop a batch that was going on)."""
+    monkeypatch.setattr(dask_exec, "WORKER_WAIT_S", 0.6)
+    monkeypatch.setattr(dask_exec, "WORKER_POLL_S", 0.1)
+    client = _FakeClient(restarts)
+    futures: dict[Any, list[Any]] = {"f1": [], "f2": []}
+    watch = dask_exec._WorkerWatch(client, futures)  # type: ignore[arg-type]
+    try:
+        starved = watch.starved.wait(2.0)
+    finally:
+        watch.stop()
+    assert starved is not restarts
+    assert client.cancelled == ([] if restarts else [(["f1", "f2"], "no-workers")])
 
 
 def test_worker_threads_read_model_descriptions_one_at_a_time(
@@ -108,7 +163,7 @@ def test_worker_threads_read_model_descriptions_one_at_a_time(
             most[0] = max(most[0], len(inside))
         time.sleep(0.05)  # long enough for the other threads to come in, if they may
         try:
-            return real(*args, **kwargs)  # type: ignore[arg-type]
+            return real(*args, **kwargs)
         finally:
             with guard:
                 inside.pop()
@@ -286,7 +341,7 @@ def test_a_scheduler_killed_mid_batch_stops_it_and_the_resume_runs_the_missing(
     assert f"; {40 - n} run now, {n} done before;" in err
     again = _journal(out)
     assert [line["run_id"] for line in again[:n]] == [line["run_id"] for line in done]
-    assert sorted(line["run_id"] for line in again[n:]) == sorted(
+    assert sorted(str(line["run_id"]) for line in again[n:]) == sorted(
         {r.run_id for r in batch.runs} - {str(line["run_id"]) for line in done})
     for name in ("summary.csv", "summary.parquet"):
         assert (out / name).read_bytes() == (local / name).read_bytes(), name

@@ -210,9 +210,12 @@ class DaskExecutor:
             chunk = list(itertools.islice(source, size))
             return submit(chunk, "") if chunk else None
 
-        stop, starved = threading.Event(), threading.Event()
-        threading.Thread(target=_watch_workers, args=(client, futures, stop, starved),
-                         name="wmr-dask-workers", daemon=True).start()
+        try:
+            watch = _WorkerWatch(client, futures)
+        except Exception as exc:
+            if task_failure(exc, None, client.status) != "cluster":
+                raise
+            raise _lost(address, exc) from None
         try:
             for _ in range(WINDOW * threads):
                 if submit_next() is None:
@@ -237,7 +240,7 @@ class DaskExecutor:
                     how = task_failure(result, fut.status, client.status)
                     if how == "cluster":  # its runs were not run, or their results are
                         # lost with the connection: none is journalled, a resume runs them
-                        if starved.is_set():
+                        if watch.starved.is_set():
                             raise _starved(address, "has no workers left",
                                            f"none for {WORKER_WAIT_S:g} s")
                         raise _lost(address, result)
@@ -267,38 +270,69 @@ class DaskExecutor:
                 raise
             raise _lost(address, exc) from None
         finally:
-            stop.set()
+            watch.stop()
 
 
-def _watch_workers(client: Client, futures: dict[Any, list[Task]], stop: threading.Event,
-                   starved: threading.Event) -> None:
-    """Until ``stop``: once the scheduler of ``client`` has had no worker for
-    :data:`WORKER_WAIT_S` s, set ``starved`` and cancel the tasks in ``futures`` (the batch
-    then stops, saying so; they would have waited for ever)."""
-    idle_since: float | None = None
-    while not stop.wait(WORKER_POLL_S):
-        try:
-            workers = client.nthreads()
-        except Exception:  # the connection's loss: the tasks' futures say it
-            return
-        now = time.monotonic()
-        if workers:
-            idle_since = None
-            continue
-        if idle_since is None:
-            idle_since = now
-        if now - idle_since < WORKER_WAIT_S:
-            continue
-        starved.set()
-        while True:
+class _WorkerWatch:
+    """Watches the workers of ``client``'s scheduler while a batch waits for its tasks: once
+    it has had none for :data:`WORKER_WAIT_S` s (all left mid-batch), sets :attr:`starved`
+    and cancels the tasks in ``futures``, which would wait for ever (the batch then stops,
+    saying so).
+
+    A look every :data:`WORKER_POLL_S` s can miss a worker that a nanny restarts and that
+    dies again in between (a run that crashes every worker it is given): each worker that
+    joins is an event of the scheduler's topic ``all``, and one joined since the last look
+    counts as one seen.  (A caller's own handler of that topic on the same client is
+    replaced for the batch.)
+    """
+
+    def __init__(self, client: Client, futures: dict[Any, list[Task]]) -> None:
+        self.client = client
+        self.futures = futures
+        self.starved = threading.Event()
+        self._stop = threading.Event()
+        self._joined = 0
+        client.subscribe_topic("all", self._event)
+        threading.Thread(target=self._watch, name="wmr-dask-workers", daemon=True).start()
+
+    def _event(self, event: tuple[float, Any]) -> None:
+        msg = event[1]
+        if isinstance(msg, dict) and msg.get("action") == "add-worker":
+            self._joined += 1
+
+    def _watch(self) -> None:
+        idle_since: float | None = None
+        joined = self._joined
+        while not self._stop.wait(WORKER_POLL_S):
             try:
-                pending = list(futures)
-                break
-            except RuntimeError:  # the batch changed it meanwhile
+                workers = self.client.nthreads()
+            except Exception:  # the connection's loss: the tasks' futures say it
+                return
+            now = time.monotonic()
+            if workers or self._joined != joined:
+                idle_since, joined = None, self._joined
                 continue
-        with contextlib.suppress(Exception):
-            client.cancel(pending, reason="no-workers")
-        return
+            if idle_since is None:
+                idle_since = now
+            if now - idle_since < WORKER_WAIT_S:
+                continue
+            self.starved.set()
+            while True:
+                try:
+                    pending = list(self.futures)
+                    break
+                except RuntimeError:  # the batch changed it meanwhile
+                    continue
+            with contextlib.suppress(Exception):
+                self.client.cancel(pending, reason="no-workers")
+            return
+
+    def stop(self) -> None:
+        """Stop watching (the client may have lost its scheduler: then no call on it)."""
+        self._stop.set()
+        if self.client.status == "running":
+            with contextlib.suppress(Exception):
+                self.client.unsubscribe_topic("all")
 
 
 def task_failure(exc: BaseException, future_status: str | None, client_status: str
