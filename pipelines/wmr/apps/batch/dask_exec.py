@@ -147,13 +147,9 @@ class DaskExecutor:
             (self.out_dir / TOKEN_FILE).write_text(token)
         address = self.scheduler or _address(self.client)
         own = self.client is None
-        try:
+        with _cluster_errors(address, None, "cannot be reached"):
             client = self.client if self.client is not None else Client(self.scheduler,
                                                                          timeout="20s")
-        except Exception as exc:
-            if task_failure(exc, None, "running") != "cluster":
-                raise
-            raise _lost(address, exc, "cannot be reached") from None
         futures: dict[Any, list[Task]] = {}
         lost = False
         try:
@@ -178,7 +174,7 @@ class DaskExecutor:
         cancels them)."""
         from distributed import as_completed
 
-        try:
+        with _cluster_errors(address, client):
             client.register_plugin(plugin, name=f"wmr-fmu-{plugin.sha256[:16]}")
             try:
                 client.wait_for_workers(1, timeout=WORKER_WAIT_S)
@@ -188,12 +184,7 @@ class DaskExecutor:
                 raise _starved(address, "has no workers",
                                f"none joined within {WORKER_WAIT_S:g} s") from exc
             threads = sum(client.nthreads().values()) or 1
-        except ClusterError:
-            raise
-        except Exception as exc:
-            if task_failure(exc, None, client.status) != "cluster":
-                raise
-            raise _lost(address, exc) from None
+            watch = _WorkerWatch(client, futures)
         out = str(self.out_dir.resolve())
         size = self.chunk or max(1, min(MAX_CHUNK, len(tasks) // (8 * threads)))
 
@@ -211,64 +202,53 @@ class DaskExecutor:
             return submit(chunk, "") if chunk else None
 
         try:
-            watch = _WorkerWatch(client, futures)
-        except Exception as exc:
-            if task_failure(exc, None, client.status) != "cluster":
-                raise
-            raise _lost(address, exc) from None
-        try:
-            for _ in range(WINDOW * threads):
-                if submit_next() is None:
-                    break
-            retried: set[str] = set()
-            # Not as_completed(with_results=True): it gathers each result inside its own
-            # tracking task, and a worker that dies during that gather raises KilledWorker
-            # there; the future is then never yielded and the batch waits for ever (seen with
-            # workers killed mid-run).  Waiting only for completion, then asking the finished
-            # future for its result here, cannot lose one.
-            done = as_completed(list(futures))
-            for fut in done:
-                chunk = futures.pop(fut)
-                more = submit_next()
-                if more is not None:
-                    done.add(more)
-                try:
-                    result = fut.result(timeout=RESULT_WAIT_S)
-                except Exception as exc:  # KilledWorker, CancelledError, TimeoutError, its own
-                    result = exc
-                if isinstance(result, BaseException):
-                    how = task_failure(result, fut.status, client.status)
-                    if how == "cluster":  # its runs were not run, or their results are
-                        # lost with the connection: none is journalled, a resume runs them
-                        if watch.starved.is_set():
-                            raise _starved(address, "has no workers left",
-                                           f"none for {WORKER_WAIT_S:g} s")
-                        raise _lost(address, result)
-                    if isinstance(result, TimeoutError):  # the result died with its worker
-                        fut.cancel()
-                    died = how == "worker"
-                    # the rule of the local pool: a run whose worker died gets one more
-                    # try, alone (the others of its chunk too: they died with it)
-                    again = [t for t in chunk if died and t.run_id not in retried]
-                    for task in again:
-                        retried.add(task.run_id)
-                        done.add(submit([task], "-retry"))
-                    for task in chunk:
-                        if task in again:
-                            continue
-                        yield Outcome(task.run_id, made_up_record(
-                            task.run_id, "failed", DIED_TWICE if died else
-                            f"the Dask task failed: {type(result).__name__}: {result}"),
-                            0.0, killed=True)
-                    continue
-                for run_id, record, data, wall in result:
-                    yield Outcome(run_id, record, wall, log=data)
-        except ClusterError:
-            raise
-        except Exception as exc:  # a submit or a wait on a client that lost its scheduler
-            if task_failure(exc, None, client.status) != "cluster":
-                raise
-            raise _lost(address, exc) from None
+            with _cluster_errors(address, client):
+                for _ in range(WINDOW * threads):
+                    if submit_next() is None:
+                        break
+                retried: set[str] = set()
+                # Not as_completed(with_results=True): it gathers each result inside its own
+                # tracking task, and a worker that dies during that gather raises KilledWorker
+                # there; the future is then never yielded and the batch waits for ever (seen with
+                # workers killed mid-run).  Waiting only for completion, then asking the finished
+                # future for its result here, cannot lose one.
+                done = as_completed(list(futures))
+                for fut in done:
+                    chunk = futures.pop(fut)
+                    more = submit_next()
+                    if more is not None:
+                        done.add(more)
+                    try:
+                        result = fut.result(timeout=RESULT_WAIT_S)
+                    except Exception as exc:  # KilledWorker, CancelledError, TimeoutError, its own
+                        result = exc
+                    if isinstance(result, BaseException):
+                        how = task_failure(result, fut.status, client.status)
+                        if how == "cluster":  # its runs were not run, or their results are
+                            # lost with the connection: none is journalled, a resume runs them
+                            if watch.starved.is_set():
+                                raise _starved(address, "has no workers left",
+                                               f"none for {WORKER_WAIT_S:g} s")
+                            raise _lost(address, result)
+                        if isinstance(result, TimeoutError):  # the result died with its worker
+                            fut.cancel()
+                        died = how == "worker"
+                        # the rule of the local pool: a run whose worker died gets one more
+                        # try, alone (the others of its chunk too: they died with it)
+                        again = [t for t in chunk if died and t.run_id not in retried]
+                        for task in again:
+                            retried.add(task.run_id)
+                            done.add(submit([task], "-retry"))
+                        for task in chunk:
+                            if task in again:
+                                continue
+                            yield Outcome(task.run_id, made_up_record(
+                                task.run_id, "failed", DIED_TWICE if died else
+                                f"the Dask task failed: {type(result).__name__}: {result}"),
+                                0.0, killed=True)
+                        continue
+                    for run_id, record, data, wall in result:
+                        yield Outcome(run_id, record, wall, log=data)
         finally:
             watch.stop()
 
@@ -377,6 +357,23 @@ def task_failure(exc: BaseException, future_status: str | None, client_status: s
     if isinstance(exc, TimeoutError):
         return "worker"
     return "run" if future_status == "finished" else "cluster"
+
+
+@contextlib.contextmanager
+def _cluster_errors(address: str, client: Client | None, what: str = "went away"
+                    ) -> Iterator[None]:
+    """Inside: an error that :func:`task_failure` calls the cluster's (a submit or a call on
+    a client that lost its scheduler at ``address``; ``client`` None: while connecting)
+    becomes one :class:`ClusterError`, the scheduler that ``what``; any other passes."""
+    try:
+        yield
+    except ClusterError:
+        raise
+    except Exception as exc:
+        if task_failure(exc, None, "running" if client is None else client.status) \
+                != "cluster":
+            raise
+        raise _lost(address, exc, what) from None
 
 
 def _address(client: Client | None) -> str:
