@@ -91,8 +91,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "under OUT/runs (in shards of 1000 runs over 1000 runs).  Rerunning the "
                     "same command skips the runs already done.  Exit status 0 when the batch "
                     "completed (whatever the runs' statuses), 130 when interrupted (143 on "
-                    "SIGTERM), 1 on bad input, a full disk, or when the first runs all fail "
-                    "before their first step (a broken FMU).")
+                    "SIGTERM), 1 on bad input, a full disk, when the first runs all fail "
+                    "before their first step (a broken FMU), or when the Dask scheduler goes "
+                    "away or has no workers (the runs finished are kept: rerun the same "
+                    "command).")
     p.add_argument("spec", metavar="SPEC", help="batch spec or scenario (.toml or name)")
     p.add_argument("--out", metavar="DIR", help="batch folder (default batches/SPEC_NAME)")
     p.add_argument("--workers", type=int, metavar="N",

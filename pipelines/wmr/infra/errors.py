@@ -49,3 +49,24 @@ class LogError(WmrError):
 
 class DiskFullError(WmrError):
     """An output cannot be written: no space left on its device (``ENOSPC``, ``EDQUOT``)."""
+
+
+class ClusterError(WmrError):
+    """The Dask cluster of a batch went away or cannot run it (its scheduler died or cannot be
+    reached, it has no workers): the runs it had are not results, and are run again on resume.
+
+    Parameters
+    ----------
+    problem
+        What happened, naming the scheduler (``the Dask scheduler tcp://... went away``).
+    fix
+        What brings the cluster back (``start a scheduler``).
+    cause
+        How it showed (``FutureCancelledError: ... scheduler-connection-lost``), or ``""``.
+    """
+
+    def __init__(self, problem: str, fix: str, cause: str = "") -> None:
+        self.problem = problem
+        self.fix = fix
+        self.cause = cause
+        super().__init__(f"{problem}{f' ({cause})' if cause else ''}; {fix}")

@@ -22,6 +22,7 @@ import shutil
 import stat
 import sys
 import tempfile
+import threading
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -154,6 +155,13 @@ def _fmi2_log(component: object, instance: bytes, status: int, category: bytes,
 
 _FMI2_CALLBACKS: list[Any] = []
 
+#: One model description read at a time in a process: fmpy validates it with a new lxml
+#: ``XMLSchema`` each time, and libxml2 parsing schemas in two threads at once can break its
+#: table of built-in types for the rest of the process (every later FMU then "unreadable
+#: model description: ... xmlSchemaPValAttrNodeValue, the given type is not a built-in
+#: type"): seen on a fresh two-thread Dask worker, all its runs failed.
+_READ_MD = threading.Lock()
+
 
 def fmi2_callbacks(log: Callable[..., None], *, format_messages: bool = False) -> Any:
     """fmpy's default FMI 2 callbacks (its ``calloc`` and ``free``) with ``log`` as the logger.
@@ -231,7 +239,8 @@ class FmuSlave:
         self._tmp_lock = _hold(self._tmp)
         try:
             safe_extract(self.fmu_path, self._tmp)
-            md = read_model_description(str(self._tmp))
+            with _READ_MD:
+                md = read_model_description(str(self._tmp))
         except FmuError:
             self.remove_folder()
             raise

@@ -13,12 +13,17 @@ local executor kills such a worker, the Dask one only reports it when its future
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import itertools
+import logging
 import secrets
+import threading
+import time
 from collections.abc import Iterator
+from concurrent.futures import CancelledError
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any, Final, Literal
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -26,6 +31,7 @@ from wmr.adapters.fmi.varmap import VariableMap
 from wmr.apps.batch import worker as _worker
 from wmr.apps.batch.local import DIED_TWICE, Outcome, made_up_record
 from wmr.apps.batch.worker import TOKEN_FILE, Attachment, Task, TaskSource, dask_run_many
+from wmr.infra.errors import ClusterError
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -69,6 +75,13 @@ RESULT_WAIT_S: Final = 30.0
 #: 13 % faster (failed-only) and 11 % slower (full logs) (docs/batch.md); a dead worker loses
 #: at most 32 runs' work.
 MAX_CHUNK: Final = 32
+#: Seconds a batch waits for its scheduler to have a worker before it stops, saying it has
+#: none: a worker started with the batch joins within a few seconds; a batch sent to a
+#: scheduler without workers waited for ever.
+WORKER_WAIT_S: Final = 30.0
+#: Seconds between two looks at the scheduler's workers while the batch waits for its tasks:
+#: when every worker left mid-batch, the tasks would wait for ever.
+WORKER_POLL_S: Final = 1.0
 
 
 class DaskExecutor:
@@ -112,86 +125,296 @@ class DaskExecutor:
         At most :data:`WINDOW` tasks per worker thread are submitted at a time, the next as one
         finishes: the client holds, and the scheduler tracks, a window of a large batch, not
         all of it.  Closing the iterator early cancels the runs not finished.
+
+        Raises
+        ------
+        ClusterError
+            The scheduler went away or cannot be reached, or has no worker within
+            :data:`WORKER_WAIT_S`: the runs not yielded are not results (none is made up).
         """
-        from distributed import Client, as_completed
+        from distributed import Client
 
+        # the local files first: an error reading them is not the cluster's
+        plugin = FmuPlugin(self.fmu_path.name, self.fmu_path.read_bytes())
+        att: Any = None
+        if self.attachment is not None:
+            # by value in each task (a spec is a few kB), not scattered: scattered data
+            # dies with the workers that hold it, and every task needing it is then
+            # cancelled instead of rescheduled when a worker process dies
+            att = Attachment(self.attachment.name, self.attachment.read_bytes())
+        token = secrets.token_hex(16)
+        if not self.ship_logs:
+            (self.out_dir / TOKEN_FILE).write_text(token)
+        address = self.scheduler or _address(self.client)
         own = self.client is None
-        client = self.client if self.client is not None else Client(self.scheduler,
-                                                                     timeout="20s")
+        with _cluster_errors(address, None, "cannot be reached"):
+            client = self.client if self.client is not None else Client(self.scheduler,
+                                                                         timeout="20s")
         futures: dict[Any, list[Task]] = {}
+        lost = False
         try:
-            plugin = FmuPlugin(self.fmu_path.name, self.fmu_path.read_bytes())
-            client.register_plugin(plugin, name=f"wmr-fmu-{plugin.sha256[:16]}")
-            att: Any = None
-            if self.attachment is not None:
-                # by value in each task (a spec is a few kB), not scattered: scattered data
-                # dies with the workers that hold it, and every task needing it is then
-                # cancelled instead of rescheduled when a worker process dies
-                att = Attachment(self.attachment.name, self.attachment.read_bytes())
-            token = secrets.token_hex(16)
-            if not self.ship_logs:
-                (self.out_dir / TOKEN_FILE).write_text(token)
-            out = str(self.out_dir.resolve())
-            threads = sum(client.nthreads().values()) or 1
-            size = self.chunk or max(1, min(MAX_CHUNK, len(tasks) // (8 * threads)))
-            def submit(chunk: list[Task], tag: str) -> Any:
-                fut = client.submit(dask_run_many, chunk, plugin.sha256, att, out, token,
-                                    self.var_map, pure=False, retries=0,
-                                    key=f"wmr-runs-{chunk[0].run_id}-{token[:8]}{tag}")
-                futures[fut] = chunk
-                return fut
-
-            source = iter(tasks)
-
-            def submit_next() -> Any:
-                chunk = list(itertools.islice(source, size))
-                return submit(chunk, "") if chunk else None
-
-            for _ in range(WINDOW * threads):
-                if submit_next() is None:
-                    break
-            retried: set[str] = set()
-            # Not as_completed(with_results=True): it gathers each result inside its own
-            # tracking task, and a worker that dies during that gather raises KilledWorker
-            # there; the future is then never yielded and the batch waits for ever (seen with
-            # workers killed mid-run).  Waiting only for completion, then asking the finished
-            # future for its result here, cannot lose one.
-            done = as_completed(list(futures))
-            for fut in done:
-                chunk = futures.pop(fut)
-                more = submit_next()
-                if more is not None:
-                    done.add(more)
-                try:
-                    result = fut.result(timeout=RESULT_WAIT_S)
-                except Exception as exc:  # KilledWorker, CancelledError, TimeoutError, its own
-                    result = exc
-                if isinstance(result, BaseException):
-                    lost = isinstance(result, TimeoutError)  # the result died with its worker
-                    if lost:
-                        fut.cancel()
-                    died = lost or type(result).__name__ == "KilledWorker"
-                    # the rule of the local pool: a run whose worker died gets one more
-                    # try, alone (the others of its chunk too: they died with it)
-                    again = [t for t in chunk if died and t.run_id not in retried]
-                    for task in again:
-                        retried.add(task.run_id)
-                        done.add(submit([task], "-retry"))
-                    for task in chunk:
-                        if task in again:
-                            continue
-                        yield Outcome(task.run_id, made_up_record(
-                            task.run_id, "failed", DIED_TWICE if died else
-                            f"the Dask task failed: {type(result).__name__}: {result}"),
-                            0.0, killed=True)
-                    continue
-                for run_id, record, data, wall in result:
-                    yield Outcome(run_id, record, wall, log=data)
+            yield from self._run(client, address, tasks, plugin, att, token, futures)
+        except ClusterError:
+            lost = True
+            raise
         finally:
-            if futures:
-                client.cancel(list(futures))
+            # never a call on a client that lost its scheduler: it raises (ClosedClientError)
+            # over the error that says so
+            if futures and not lost and client.status == "running":
+                with contextlib.suppress(Exception):
+                    client.cancel(list(futures))
             if own:
-                client.close()
+                with contextlib.suppress(Exception), _quiet(lost):
+                    client.close()
+
+    def _run(self, client: Client, address: str, tasks: TaskSource, plugin: FmuPlugin,
+             att: Attachment | None, token: str, futures: dict[Any, list[Task]]
+             ) -> Iterator[Outcome]:
+        """:meth:`run` on ``client``; ``futures`` holds the tasks in flight (the caller
+        cancels them)."""
+        from distributed import as_completed
+
+        with _cluster_errors(address, client):
+            client.register_plugin(plugin, name=f"wmr-fmu-{plugin.sha256[:16]}")
+            try:
+                client.wait_for_workers(1, timeout=WORKER_WAIT_S)
+            except TimeoutError as exc:
+                if client.status != "running":
+                    raise
+                raise _starved(address, "has no workers",
+                               f"none joined within {WORKER_WAIT_S:g} s") from exc
+            threads = sum(client.nthreads().values()) or 1
+            watch = _WorkerWatch(client, futures)
+        out = str(self.out_dir.resolve())
+        size = self.chunk or max(1, min(MAX_CHUNK, len(tasks) // (8 * threads)))
+
+        def submit(chunk: list[Task], tag: str) -> Any:
+            fut = client.submit(dask_run_many, chunk, plugin.sha256, att, out, token,
+                                self.var_map, pure=False, retries=0,
+                                key=f"wmr-runs-{chunk[0].run_id}-{token[:8]}{tag}")
+            futures[fut] = chunk
+            return fut
+
+        source = iter(tasks)
+
+        def submit_next() -> Any:
+            chunk = list(itertools.islice(source, size))
+            return submit(chunk, "") if chunk else None
+
+        try:
+            with _cluster_errors(address, client):
+                for _ in range(WINDOW * threads):
+                    if submit_next() is None:
+                        break
+                retried: set[str] = set()
+                # Not as_completed(with_results=True): it gathers each result inside its own
+                # tracking task, and a worker that dies during that gather raises KilledWorker
+                # there; the future is then never yielded and the batch waits for ever (seen with
+                # workers killed mid-run).  Waiting only for completion, then asking the finished
+                # future for its result here, cannot lose one.
+                done = as_completed(list(futures))
+                for fut in done:
+                    chunk = futures.pop(fut)
+                    more = submit_next()
+                    if more is not None:
+                        done.add(more)
+                    try:
+                        result = fut.result(timeout=RESULT_WAIT_S)
+                    except Exception as exc:  # KilledWorker, CancelledError, TimeoutError, its own
+                        result = exc
+                    if isinstance(result, BaseException):
+                        how = task_failure(result, fut.status, client.status)
+                        if how == "cluster":  # its runs were not run, or their results are
+                            # lost with the connection: none is journalled, a resume runs them
+                            if watch.starved.is_set():
+                                raise _starved(address, "has no workers left",
+                                               f"none for {WORKER_WAIT_S:g} s")
+                            raise _lost(address, result)
+                        if isinstance(result, TimeoutError):  # the result died with its worker
+                            fut.cancel()
+                        died = how == "worker"
+                        # the rule of the local pool: a run whose worker died gets one more
+                        # try, alone (the others of its chunk too: they died with it)
+                        again = [t for t in chunk if died and t.run_id not in retried]
+                        for task in again:
+                            retried.add(task.run_id)
+                            done.add(submit([task], "-retry"))
+                        for task in chunk:
+                            if task in again:
+                                continue
+                            yield Outcome(task.run_id, made_up_record(
+                                task.run_id, "failed", DIED_TWICE if died else
+                                f"the Dask task failed: {type(result).__name__}: {result}"),
+                                0.0, killed=True)
+                        continue
+                    for run_id, record, data, wall in result:
+                        yield Outcome(run_id, record, wall, log=data)
+        finally:
+            watch.stop()
 
 
-__all__ = ["DaskExecutor", "FmuPlugin"]
+class _WorkerWatch:
+    """Watches the workers of ``client``'s scheduler while a batch waits for its tasks: once
+    it has had none for :data:`WORKER_WAIT_S` s (all left mid-batch), sets :attr:`starved`
+    and cancels the tasks in ``futures``, which would wait for ever (the batch then stops,
+    saying so).
+
+    A look every :data:`WORKER_POLL_S` s can miss a worker that a nanny restarts and that
+    dies again in between (a run that crashes every worker it is given): each worker that
+    joins is an event of the scheduler's topic ``all``, and one joined since the last look
+    counts as one seen.  (A caller's own handler of that topic on the same client is
+    replaced for the batch.)
+    """
+
+    def __init__(self, client: Client, futures: dict[Any, list[Task]]) -> None:
+        self.client = client
+        self.futures = futures
+        self.starved = threading.Event()
+        self._stop = threading.Event()
+        self._joined = 0
+        client.subscribe_topic("all", self._event)
+        threading.Thread(target=self._watch, name="wmr-dask-workers", daemon=True).start()
+
+    def _event(self, event: tuple[float, Any]) -> None:
+        msg = event[1]
+        if isinstance(msg, dict) and msg.get("action") == "add-worker":
+            self._joined += 1
+
+    def _watch(self) -> None:
+        idle_since: float | None = None
+        joined = self._joined
+        while not self._stop.wait(WORKER_POLL_S):
+            try:
+                workers = self.client.nthreads()
+            except Exception:  # the connection's loss: the tasks' futures say it
+                return
+            now = time.monotonic()
+            if workers or self._joined != joined:
+                idle_since, joined = None, self._joined
+                continue
+            if idle_since is None:
+                idle_since = now
+            if now - idle_since < WORKER_WAIT_S:
+                continue
+            self.starved.set()
+            while True:
+                try:
+                    pending = list(self.futures)
+                    break
+                except RuntimeError:  # the batch changed it meanwhile
+                    continue
+            with contextlib.suppress(Exception):
+                self.client.cancel(pending, reason="no-workers")
+            return
+
+    def stop(self) -> None:
+        """Stop watching (the client may have lost its scheduler: then no call on it)."""
+        self._stop.set()
+        if self.client.status == "running":
+            with contextlib.suppress(Exception):
+                self.client.unsubscribe_topic("all")
+
+
+def task_failure(exc: BaseException, future_status: str | None, client_status: str
+                 ) -> Literal["run", "worker", "cluster"]:
+    """Whose failure ``exc`` is, raised asking a Dask task for its result (or asking the
+    client anything).
+
+    Parameters
+    ----------
+    exc
+        What was raised.
+    future_status
+        The task's future's status then (``"error"`` when the task raised or its workers
+        died; ``None`` when no task was asked).
+    client_status
+        The client's status then (``"running"`` while it is connected to its scheduler).
+
+    Returns
+    -------
+    str
+        ``"run"``: the task's runs failed (they raised): each is a ``failed`` row.
+        ``"worker"``: the worker running them died (``KilledWorker``), or took their result
+        with it (no result within :data:`RESULT_WAIT_S`): each gets one more try.
+        ``"cluster"``: the scheduler or the connection to it went away (a cancelled future,
+        a closed comm or client, a connection that timed out, anything while the client is
+        not connected): the runs were not run, or their results never came back; none of
+        them is a result.
+    """
+    from distributed.comm.core import CommClosedError
+
+    if client_status not in ("running", "newly-created"):
+        return "cluster"
+    if isinstance(exc, CancelledError | CommClosedError) \
+            or type(exc).__name__ == "ClosedClientError":
+        return "cluster"
+    if type(exc).__name__ == "KilledWorker":
+        return "worker"
+    if future_status == "error":
+        return "run"
+    if future_status is None:  # not a task's: only a connection's error is the cluster's
+        return "cluster" if isinstance(exc, OSError) else "run"
+    if isinstance(exc, TimeoutError):
+        return "worker"
+    return "run" if future_status == "finished" else "cluster"
+
+
+@contextlib.contextmanager
+def _cluster_errors(address: str, client: Client | None, what: str = "went away"
+                    ) -> Iterator[None]:
+    """Inside: an error that :func:`task_failure` calls the cluster's (a submit or a call on
+    a client that lost its scheduler at ``address``; ``client`` None: while connecting)
+    becomes one :class:`ClusterError`, the scheduler that ``what``; any other passes."""
+    try:
+        yield
+    except ClusterError:
+        raise
+    except Exception as exc:
+        if task_failure(exc, None, "running" if client is None else client.status) \
+                != "cluster":
+            raise
+        raise _lost(address, exc, what) from None
+
+
+def _address(client: Client | None) -> str:
+    """The scheduler address of ``client``, for messages."""
+    scheduler = getattr(client, "scheduler", None)
+    return str(getattr(scheduler, "address", None) or "of the given client")
+
+
+def _lost(address: str, exc: BaseException, what: str = "went away") -> ClusterError:
+    """The :class:`ClusterError` of a scheduler at ``address`` that ``what`` (``exc`` says
+    how), in one line."""
+    how = str(exc).strip().splitlines()
+    return ClusterError(f"the Dask scheduler {address} {what}",
+                        "start it (dask scheduler, dask worker) and run the same command "
+                        "again", type(exc).__name__ + (f": {_cut(how[0])}" if how else ""))
+
+
+@contextlib.contextmanager
+def _quiet(lost: bool) -> Iterator[None]:
+    """Inside: no ``distributed.client`` log lines if the client ``lost`` its scheduler
+    (closing it logs the reconnection it gives up, with a traceback): the batch's own error
+    line says what happened."""
+    logger = logging.getLogger("distributed.client")
+    level = logger.level
+    if lost:
+        logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+def _starved(address: str, what: str, cause: str) -> ClusterError:
+    """The :class:`ClusterError` of a scheduler at ``address`` without workers."""
+    return ClusterError(f"the Dask scheduler {address} {what}",
+                        f"start some (dask worker {address}) and run the same command again",
+                        cause)
+
+
+def _cut(text: str, limit: int = 120) -> str:
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+__all__ = ["DaskExecutor", "FmuPlugin", "task_failure"]

@@ -53,7 +53,7 @@ from wmr.apps.batch.worker import DISK_FULL, FAULTS, Task, fmu_digest
 from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.naming import plural
 from wmr.infra.durable import AtomicFile, open_own, partial_path, storage_error
-from wmr.infra.errors import ConfigError, DiskFullError, WmrError
+from wmr.infra.errors import ClusterError, ConfigError, DiskFullError, WmrError
 
 #: Default per-run wall-clock limit, s: generous (a 120 s simulated run takes about 1 s).
 DEFAULT_RUN_TIMEOUT_S: Final = 600.0
@@ -298,6 +298,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
 
         show()
         full: DiskFullError | None = None
+        lost: ClusterError | None = None
         started = False  # a run of this invocation got past its first step
         unstarted = 0  # runs of this invocation that failed before it
         try:
@@ -346,6 +347,8 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             result.interrupted = True
         except DiskFullError as exc:
             full = exc
+        except ClusterError as exc:  # the runs not journalled were not run: not results
+            lost = exc
         finally:
             close = getattr(stream, "close", None)
             if close is not None:
@@ -362,6 +365,12 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             raise DiskFullError(f"{full}; {result.finished} of {result.total} runs finished "
                                 "and are in the journal; free some space and rerun the same "
                                 "command to finish the batch") from full
+        if lost is not None:
+            n = result.finished
+            raise ClusterError(
+                f"{lost.problem} after {n} of {plural(result.total, 'run')}" if n else
+                lost.problem, (f"the {n} finished are kept; " if n else "")
+                + f"{lost.fix} to run the {result.total - n} missing", lost.cause) from lost
     finally:
         lock.release()
     return result

@@ -1,0 +1,449 @@
+"""``wmr batch --scheduler``: a Dask cluster that goes away (its scheduler killed, no worker,
+a killed worker), with real ``dask scheduler`` and ``dask worker`` processes.
+
+A scheduler that goes away is not a result: the runs it had are not journalled, the batch
+stops with one line naming the scheduler and the command to resume, and the resume, on a
+restarted cluster, runs exactly the missing runs and ends with the local batch's summary.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any, cast
+
+import pytest
+from distributed.client import ClosedClientError, FutureCancelledError
+from distributed.comm.core import CommClosedError
+from distributed.scheduler import KilledWorker
+
+from wmr.apps.batch import dask_exec, load_batch, run_batch
+from wmr.apps.batch.dask_exec import task_failure
+from wmr.apps.batch.runner import _test_hooks
+from wmr.cli import main
+
+#: 40 short runs (about 25 ms each): 2 list entries x 20 random samples.
+SPEC40 = """
+name = "t40"
+start = [1.0, 0.0, 0.0]
+goal = [0.0, 0.0, 180.0]
+max_time_s = 15.0
+[random]
+seed = 3
+n = 20
+[random.start]
+r_m = { dist = "uniform", low = 0.5, high = 1.5 }
+bearing_deg = { dist = "uniform", low = -180.0, high = 180.0 }
+[random.goal]
+heading_deg = { dist = "along_x" }
+[random.params]
+m = { dist = "normal", mean = 25.0, std = 3.0, low = 18.0, high = 32.0 }
+[[list]]
+name = "a"
+[[list]]
+name = "b"
+gains = { K_ps = 0.8 }
+"""
+
+#: The venv's ``dask`` command (the one beside this interpreter).
+DASK = shutil.which("dask", path=str(Path(sys.executable).parent)) or "dask"
+
+
+# -- which failures are the cluster's ---------------------------------------------------------
+
+@pytest.mark.parametrize(("exc", "future_status", "client_status", "whose"), [
+    # the infrastructure went away: never a result
+    (FutureCancelledError("k", "scheduler-connection-lost"), "cancelled", "running", "cluster"),
+    (FutureCancelledError("k", None), "cancelled", "running", "cluster"),
+    (CommClosedError("in <TCP (closed)>: Stream is closed"), "pending", "running", "cluster"),
+    (CommClosedError("Stream is closed"), None, "running", "cluster"),
+    (ClosedClientError(), None, "running", "cluster"),
+    (OSError("Timed out trying to connect to tcp://127.0.0.1:1 after 20 s"), None, "running",
+     "cluster"),
+    (TimeoutError("no result"), "pending", "connecting", "cluster"),
+    (TimeoutError("no result"), "finished", "closed", "cluster"),
+    (ValueError("anything"), "error", "connecting", "cluster"),
+    # the worker died (or took the result with it): one more try
+    (KilledWorker("k", cast(Any, "tcp://127.0.0.1:2"), 3), "error", "running", "worker"),
+    (TimeoutError("no result for k within 30 s"), "finished", "running", "worker"),
+    (TimeoutError("no result for k within 30 s"), "lost", "running", "worker"),
+    # the run's own failure: a failed row
+    (RuntimeError("FMU not shipped"), "error", "running", "run"),
+    (TimeoutError("raised by the task itself"), "error", "running", "run"),
+    (OSError("raised by the task itself"), "error", "running", "run"),
+    (ValueError("not a connection's"), None, "running", "run"),
+], ids=lambda v: v if isinstance(v, str | None) else type(v).__name__)
+def test_a_failure_is_the_run_s_its_worker_s_or_the_cluster_s(
+        exc: BaseException, future_status: str | None, client_status: str, whose: str) -> None:
+    assert task_failure(exc, future_status, client_status) == whose
+
+
+class _FakeClient:
+    """What :class:`dask_exec._WorkerWatch` asks of a client: a scheduler that never has a
+    worker when looked at, and, with ``restarts``, one that a nanny restarts (and that dies at
+    once) every 0.05 s, between the looks."""
+
+    status = "running"
+
+    def __init__(self, restarts: bool) -> None:
+        self.restarts = restarts
+        self.cancelled: list[tuple[list[object], str]] = []
+        self.handler: Callable[[tuple[float, object]], None] | None = None
+        self._stop = threading.Event()
+
+    def nthreads(self) -> dict[str, int]:
+        return {}
+
+    def subscribe_topic(self, topic: str, handler: Callable[[tuple[float, object]], None]
+                        ) -> None:
+        assert topic == "all"
+        self.handler = handler
+        threading.Thread(target=self._restarts, daemon=True).start()
+
+    def _restarts(self) -> None:
+        while self.restarts and not self._stop.wait(0.05):
+            assert self.handler is not None
+            self.handler((time.time(), {"action": "gather", "count": 1}))
+            self.handler((time.time(), {"action": "add-worker", "worker": "tcp://w:1"}))
+
+    def unsubscribe_topic(self, topic: str) -> None:
+        self._stop.set()
+
+    def cancel(self, futures: list[object], reason: str | None = None) -> None:
+        self.cancelled.append((futures, str(reason)))
+
+
+@pytest.mark.parametrize("restarts", [False, True], ids=["workers-gone", "workers-restarting"])
+def test_the_worker_watch_tells_no_workers_from_workers_restarting(
+        restarts: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A worker restarted and dead again between two looks is a worker: only a scheduler that
+    no worker joined for WORKER_WAIT_S is one without workers (a run crashing every worker it
+    was given made the looks alone stop a batch that was going on)."""
+    monkeypatch.setattr(dask_exec, "WORKER_WAIT_S", 0.6)
+    monkeypatch.setattr(dask_exec, "WORKER_POLL_S", 0.1)
+    client = _FakeClient(restarts)
+    futures: dict[Any, list[Any]] = {"f1": [], "f2": []}
+    watch = dask_exec._WorkerWatch(client, futures)  # type: ignore[arg-type]
+    try:
+        starved = watch.starved.wait(2.0)
+    finally:
+        watch.stop()
+    assert starved is not restarts
+    assert client.cancelled == ([] if restarts else [(["f1", "f2"], "no-workers")])
+
+
+def test_worker_threads_read_model_descriptions_one_at_a_time(
+        fmu3: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each thread of a Dask worker opens its own FmuPlant: fmpy's schema check of the model
+    description must not run in two threads at once (libxml2 can break for the rest of the
+    process: a fresh two-thread worker failed every run, 'unreadable model description:
+    ... xmlSchemaPValAttrNodeValue, the given type is not a built-in type')."""
+    import fmpy
+
+    from wmr.adapters.fmi.robot import FmuPlant
+
+    real = fmpy.read_model_description
+    inside: list[int] = []
+    most = [0]
+    guard = threading.Lock()
+
+    def read(*args: object, **kwargs: object) -> object:
+        with guard:
+            inside.append(1)
+            most[0] = max(most[0], len(inside))
+        time.sleep(0.05)  # long enough for the other threads to come in, if they may
+        try:
+            return real(*args, **kwargs)
+        finally:
+            with guard:
+                inside.pop()
+
+    monkeypatch.setattr(fmpy, "read_model_description", read)
+    start = threading.Barrier(4)
+    made: list[str] = []
+
+    def open_plant() -> None:
+        start.wait()
+        with FmuPlant(fmu3) as plant:
+            made.append(plant.fmi_version)
+
+    threads = [threading.Thread(target=open_plant) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert made == ["3.0"] * 4
+    assert most[0] == 1, f"{most[0]} model descriptions read at once"
+
+
+# -- real processes -----------------------------------------------------------------------------
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _wait_for(pred: Callable[[], bool], timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what}: not within {timeout_s} s")
+        time.sleep(0.05)
+
+
+class _Cluster:
+    """A ``dask scheduler`` on a fixed local port and ``dask worker`` processes, each in its
+    own process group (killed whole, the nanny and its worker alike)."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.port = _free_port()
+        self.address = f"tcp://127.0.0.1:{self.port}"
+        self.log_dir = log_dir
+        self.scheduler: subprocess.Popen[bytes] | None = None
+        self.workers: list[subprocess.Popen[bytes]] = []
+
+    def _start(self, *args: str) -> subprocess.Popen[bytes]:
+        log = self.log_dir / f"{args[0]}-{time.monotonic_ns()}.log"
+        with open(log, "wb") as f:
+            return subprocess.Popen([DASK, *args], stdout=f, stderr=subprocess.STDOUT,
+                                    start_new_session=True)
+
+    def _answers(self) -> bool:
+        try:
+            socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
+        except OSError:
+            return False
+        return True
+
+    def start_scheduler(self) -> None:
+        self.scheduler = self._start("scheduler", "--host", "127.0.0.1", "--port",
+                                     str(self.port), "--no-dashboard")
+        _wait_for(self._answers, 60, "the scheduler")
+
+    def start_worker(self) -> None:
+        self.workers.append(self._start("worker", self.address, "--nworkers", "1",
+                                        "--nthreads", "2", "--no-dashboard"))
+
+    @staticmethod
+    def _kill(proc: subprocess.Popen[bytes]) -> None:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=30)
+
+    def kill_scheduler(self) -> None:
+        assert self.scheduler is not None
+        self._kill(self.scheduler)
+        self.scheduler = None
+
+    def kill_all(self) -> None:
+        for proc in self.workers:
+            self._kill(proc)
+        self.workers = []
+        if self.scheduler is not None:
+            self.kill_scheduler()
+
+
+@pytest.fixture
+def cluster(tmp_path: Path) -> Iterator[_Cluster]:
+    logs = tmp_path / "dask-logs"
+    logs.mkdir()
+    c = _Cluster(logs)
+    try:
+        yield c
+    finally:
+        c.kill_all()
+
+
+@pytest.fixture
+def spec40(tmp_path: Path) -> Path:
+    path = tmp_path / "t40.toml"
+    path.write_text(SPEC40, encoding="utf-8")
+    return path
+
+
+def _journal(out: Path) -> list[dict[str, object]]:
+    path = out / "journal.jsonl"
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def _lines(out: Path) -> int:
+    try:
+        return (out / "journal.jsonl").read_bytes().count(b"\n")
+    except FileNotFoundError:
+        return 0
+
+
+@pytest.mark.timeout(300)
+def test_a_scheduler_killed_mid_batch_stops_it_and_the_resume_runs_the_missing(
+        tmp_path: Path, fmu3: Path, spec40: Path, cluster: _Cluster,
+        capfd: pytest.CaptureFixture[str]) -> None:
+    batch = load_batch(spec40)
+    local = tmp_path / "local"
+    run_batch(batch, local, workers=2, fmu_path=fmu3, progress=False)
+    out = tmp_path / "dask"
+    cluster.start_scheduler()
+    cluster.start_worker()
+    command = ["batch", str(spec40), "--out", str(out), "--fmu", str(fmu3), "--scheduler",
+               cluster.address, "--no-progress"]
+    kill_at = 10
+
+    def killer() -> None:  # the scheduler dies once 10 runs are journalled
+        _wait_for(lambda: _lines(out) >= kill_at, 120, "the first runs")
+        cluster.kill_scheduler()
+
+    thread = threading.Thread(target=killer)
+    capfd.readouterr()
+    # the last run hangs: the batch cannot end before the scheduler is killed
+    with _test_hooks(faults={batch.runs[-1].run_id: "hang"}):
+        thread.start()
+        t0 = time.monotonic()
+        code = main(command)
+        took_s = time.monotonic() - t0
+    thread.join(timeout=60)
+    err = capfd.readouterr().err
+    assert code == 1, err
+    done = _journal(out)
+    n = len(done)
+    assert kill_at <= n < len(batch.runs)
+    assert err.count("\n") == 1, f"one line, not: {err!r}"
+    assert re.fullmatch(
+        rf"wmr: error: the Dask scheduler {re.escape(cluster.address)} went away after {n} "
+        rf"of 40 runs \(\w+: [^\n]+\); the {n} finished are kept; start it \(dask "
+        rf"scheduler, dask worker\) and run the same command again to run the {40 - n} "
+        r"missing\n", err), err
+    assert took_s < 60, "no wait for the client's reconnection"
+    # the runs the scheduler had are not results: no made-up failed row, no record of a
+    # run whose result never came back
+    assert {line["record"]["status"] for line in done} == {"converged"}  # type: ignore[index]
+    assert len({line["run_id"] for line in done}) == n
+
+    cluster.kill_all()  # the cluster restarted: a new scheduler at the same address
+    cluster.start_scheduler()
+    cluster.start_worker()
+    code = main(command)
+    err = capfd.readouterr().err
+    assert code == 0, err
+    assert f"; {40 - n} run now, {n} done before;" in err
+    again = _journal(out)
+    assert [line["run_id"] for line in again[:n]] == [line["run_id"] for line in done]
+    assert sorted(str(line["run_id"]) for line in again[n:]) == sorted(
+        {r.run_id for r in batch.runs} - {str(line["run_id"]) for line in done})
+    for name in ("summary.csv", "summary.parquet"):
+        assert (out / name).read_bytes() == (local / name).read_bytes(), name
+
+
+@pytest.mark.timeout(120)
+def test_a_scheduler_without_workers_stops_the_batch_in_bounded_time(
+        tmp_path: Path, fmu3: Path, spec40: Path, cluster: _Cluster,
+        capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(dask_exec, "WORKER_WAIT_S", 3.0)
+    cluster.start_scheduler()
+    out = tmp_path / "o"
+    capfd.readouterr()
+    t0 = time.monotonic()
+    code = main(["batch", str(spec40), "--out", str(out), "--fmu", str(fmu3), "--scheduler",
+                 cluster.address, "--no-progress"])
+    took_s = time.monotonic() - t0
+    err = capfd.readouterr().err
+    assert code == 1
+    assert err == (f"wmr: error: the Dask scheduler {cluster.address} has no workers (none "
+                   f"joined within 3 s); start some (dask worker {cluster.address}) and run "
+                   "the same command again to run the 40 missing\n")
+    assert took_s < 30
+    assert _journal(out) == []
+
+
+def test_a_worker_killed_mid_batch_ends_in_the_local_summary(
+        tmp_path: Path, fmu3: Path, spec40: Path, cluster: _Cluster) -> None:
+    """The worker process (not its nanny, which starts a new one) killed by SIGKILL mid-batch:
+    the scheduler gives its tasks to the new one; nothing stops, nothing fails."""
+    import psutil
+
+    text = SPEC40.replace("n = 20", "n = 40")  # 80 runs: a batch long enough to kill into
+    spec = tmp_path / "t80.toml"
+    spec.write_text(text, encoding="utf-8")
+    batch = load_batch(spec)
+    local = tmp_path / "local"
+    run_batch(batch, local, workers=2, fmu_path=fmu3, progress=False)
+    cluster.start_scheduler()
+    cluster.start_worker()
+    out = tmp_path / "dask"
+    killed_at: list[int] = []
+
+    def killer() -> None:
+        _wait_for(lambda: _lines(out) >= 10, 120, "the first runs")
+        nanny = psutil.Process(cluster.workers[0].pid)
+        workers = nanny.children(recursive=True)
+        killed_at.append(_lines(out))
+        for proc in workers:
+            proc.kill()
+
+    thread = threading.Thread(target=killer)
+    thread.start()
+    result = run_batch(batch, out, scheduler=cluster.address, fmu_path=fmu3, progress=False)
+    thread.join(timeout=60)
+    assert killed_at and killed_at[0] < len(batch.runs), "killed before the batch ended"
+    assert len(result.executed) == len(batch.runs) and result.counts["converged"] == 80
+    for name in ("summary.csv", "summary.parquet"):
+        assert (out / name).read_bytes() == (local / name).read_bytes(), name
+
+
+@pytest.mark.timeout(300)
+def test_workers_all_gone_mid_batch_stop_it_in_bounded_time_and_it_resumes(
+        tmp_path: Path, fmu3: Path, spec40: Path, cluster: _Cluster,
+        capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every worker (nanny and all) killed mid-batch: the tasks would wait for ever in the
+    scheduler; after WORKER_WAIT_S the batch stops saying so, and resumes once one is back."""
+    monkeypatch.setattr(dask_exec, "WORKER_WAIT_S", 3.0)
+    monkeypatch.setattr(dask_exec, "WORKER_POLL_S", 0.2)
+    batch = load_batch(spec40)
+    local = tmp_path / "local"
+    run_batch(batch, local, workers=2, fmu_path=fmu3, progress=False)
+    cluster.start_scheduler()
+    cluster.start_worker()
+    out = tmp_path / "dask"
+    command = ["batch", str(spec40), "--out", str(out), "--fmu", str(fmu3), "--scheduler",
+               cluster.address, "--no-progress"]
+
+    def killer() -> None:
+        _wait_for(lambda: _lines(out) >= 10, 120, "the first runs")
+        for proc in cluster.workers:
+            cluster._kill(proc)
+
+    thread = threading.Thread(target=killer)
+    capfd.readouterr()
+    with _test_hooks(faults={batch.runs[-1].run_id: "hang"}):  # it cannot end by itself
+        thread.start()
+        t0 = time.monotonic()
+        code = main(command)
+        took_s = time.monotonic() - t0
+    thread.join(timeout=60)
+    err = capfd.readouterr().err
+    n = len(_journal(out))
+    assert code == 1, err
+    assert err == (f"wmr: error: the Dask scheduler {cluster.address} has no workers left "
+                   f"after {n} of 40 runs (none for 3 s); the {n} finished are kept; start "
+                   f"some (dask worker {cluster.address}) and run the same command again to "
+                   f"run the {40 - n} missing\n")
+    assert took_s < 60
+    cluster.workers = []
+    cluster.start_worker()
+    assert main(command) == 0
+    assert f"; {40 - n} run now, {n} done before;" in capfd.readouterr().err
+    for name in ("summary.csv", "summary.parquet"):
+        assert (out / name).read_bytes() == (local / name).read_bytes(), name
