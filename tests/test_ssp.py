@@ -437,3 +437,35 @@ def test_the_scenario_s_own_package_keeps_its_scenario_file(
     with zipfile.ZipFile(out) as zf:
         assert zf.read("resources/fig11.toml") == load_scenario("fig11").path.read_bytes()
     assert read_package(out).name == "fig11"
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_omsimulator_reads_a_weakly_coupled_system_stepped_at_the_control_period(
+        built: BuildResult, ssp_dir: Path, fmi: int) -> None:
+    """OMSimulator (src/OMSimulatorLib/Model.cpp, getSystemType; SystemWC.cpp,
+    importFromSSD_SimulationInformation) finds the system's type by literal tag names: the
+    ``ssd:System``'s ``ssd:Annotations/ssc:Annotation type="org.openmodelica"/oms:Annotations/
+    oms:SimulationInformation/oms:FixedStepMaster`` with a ``description`` (the solver, "oms-ma")
+    and a ``stepSize``.  Without it the system was oms_system_none and oms_importFile failed
+    ("[NewSystem] internal error").  The same SSD validates against the SSP 1.0 XSDs
+    (test_the_package_validates_against_the_ssp_schemas)."""
+    from xml.dom import minidom
+
+    spec = _spec("fig11", None)
+    with zipfile.ZipFile(_export(built, spec, ssp_dir, fmi)) as zf:
+        doc = minidom.parseString(zf.read("SystemStructure.ssd"))
+
+    def children(node: minidom.Element, tag: str) -> list[minidom.Element]:
+        return [c for c in node.childNodes
+                if isinstance(c, minidom.Element) and c.tagName == tag]
+
+    (system,) = children(doc.documentElement, "ssd:System")
+    (annotations,) = children(system, "ssd:Annotations")
+    vendor = [a for a in children(annotations, "ssc:Annotation")
+              if a.getAttribute("type") == "org.openmodelica"]
+    assert len(vendor) == 1
+    (oms,) = children(vendor[0], "oms:Annotations")
+    (info,) = children(oms, "oms:SimulationInformation")
+    (master,) = children(info, "oms:FixedStepMaster")
+    assert master.getAttribute("description") == "oms-ma"
+    assert float(master.getAttribute("stepSize")) == spec.period_s

@@ -55,9 +55,14 @@ NS: Final = {
     "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
     "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
     "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+    # the URI OMSimulator's own SSP export declares for its annotations
+    "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
 }
+#: OMSimulator's fixed-step master of a weakly coupled system (its solver ``oms_solver_wc_ma``).
+OMS_FIXED_STEP_MASTER: Final = "oms-ma"
 for _prefix, _uri in NS.items():
-    # libcosim reads the SSD with literal "ssd:", "ssc:", "ssv:" and "osp:" prefixes
+    # libcosim and OMSimulator read the SSD with literal "ssd:", "ssc:", "ssv:", "osp:" and
+    # "oms:" prefixes
     ET.register_namespace(_prefix, _uri)
 
 
@@ -185,6 +190,16 @@ def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tupl
         if factor != 1.0 or offset != 0.0:
             ET.SubElement(c, _q("ssc:LinearTransformation"), factor=_num(factor),
                           offset=_num(offset))
+    # OMSimulator takes the system's type from its vendor annotation alone: without it the
+    # system is oms_system_none and oms_importFile fails ("[NewSystem] internal error"); a
+    # fixed-step master makes it a weakly coupled system of co-simulation FMUs, stepped at
+    # the controller's period as the OSP annotation below steps libcosim
+    oms = ET.SubElement(ET.SubElement(system, _q("ssd:Annotations")), _q("ssc:Annotation"),
+                        type="org.openmodelica")
+    info = ET.SubElement(ET.SubElement(oms, _q("oms:Annotations")),
+                         _q("oms:SimulationInformation"))
+    ET.SubElement(info, _q("oms:FixedStepMaster"), description=OMS_FIXED_STEP_MASTER,
+                  stepSize=_num(spec.period_s))
     experiment = ET.SubElement(root, _q("ssd:DefaultExperiment"), startTime="0.0",
                                stopTime=_num(spec.t_max_s))
     annotations = ET.SubElement(experiment, _q("ssd:Annotations"))
