@@ -421,3 +421,19 @@ def test_waiting_on_another_build_is_reported(monkeypatch: pytest.MonkeyPatch,
     thread.join(10)
     assert entered.is_set()
     assert lines[-1].startswith("the other build finished after")
+
+
+def test_a_host_only_build_says_nothing_of_platforms_it_was_not_asked_for(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``wmr fmu build --platforms host`` printed "(FMI 2.0 names no platform for
+    aarch64-linux, aarch64-darwin)" for a build that was asked for neither."""
+    from wmr.build.platforms import host_platform
+
+    host = host_platform()
+    if host is None or host.fmi2 is None:
+        pytest.skip("needs a host that FMI 2.0 names")
+    assert main(["fmu", "build", "--platforms", "host", "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    fmi2 = [line for line in err.splitlines() if ": FMI 2.0, " in line]
+    assert len(fmi2) == 2 and all(f"binaries for {host.fmi2}" in line for line in fmi2), err
+    assert "names no platform" not in err and "aarch64" not in err, err

@@ -13,6 +13,7 @@ import math
 import subprocess
 import sys
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -393,3 +394,78 @@ def test_an_exported_package_has_the_mode_of_a_new_file(tmp_path: Path,
         os.umask(old_mask)
     assert stat.S_IMODE(out.stat().st_mode) == 0o644
     assert [p.name for p in tmp_path.iterdir()] == ["m.ssp"]  # no temporary file left
+
+
+def test_a_variant_package_is_named_and_documented_as_its_own_run(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``wmr ssp export fig11 --goal 5 5 30``: the SSD, the parameter sets and ``wmr ssp run``
+    carry the variant's name (as ``wmr run`` names it), and the provenance is its effective
+    scenario, which reads back into the exported run (it was ``fig11`` and fig11.toml, with
+    the unmodified goal)."""
+    import tomllib
+
+    from wmr.config.naming import run_name
+    from wmr.config.scenario import parse_scenario, with_overrides
+    from wmr.core.plant import Pose
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["ssp", "export", "fig11", "--goal", "5", "5", "30"]) == 0
+    base = _spec("fig11", None)
+    variant = with_overrides(base, goal=Pose(5.0, 5.0, math.radians(30.0)))
+    name = run_name(base, variant)
+    assert name != "fig11"
+    out = Path(capsys.readouterr().out.strip())
+    assert out == Path("ssp") / f"{name}.ssp"
+    assert read_package(out).name == name
+    with zipfile.ZipFile(out) as zf:
+        for ssv in ("resources/robot.ssv", "resources/controller.ssv"):
+            assert f'name="{name}"'.encode() in zf.read(ssv), ssv
+        tomls = [n for n in zf.namelist() if n.endswith(".toml")]
+        assert tomls == [f"resources/{name}.toml"]
+        runs = parse_scenario(tomllib.loads(zf.read(tomls[0]).decode())).runs
+    assert list(runs) == [replace(variant, name=name)]
+    assert main(["ssp", "run", str(out), "--stop-time", "0.5", "--json",
+                 "--out", str(tmp_path / "v.mcap")]) == 3
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["name"] == name
+
+
+def test_the_scenario_s_own_package_keeps_its_scenario_file(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "f11.ssp"
+    assert main(["ssp", "export", "fig11", "--out", str(out)]) == 0
+    with zipfile.ZipFile(out) as zf:
+        assert zf.read("resources/fig11.toml") == load_scenario("fig11").path.read_bytes()
+    assert read_package(out).name == "fig11"
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_omsimulator_reads_a_weakly_coupled_system_stepped_at_the_control_period(
+        built: BuildResult, ssp_dir: Path, fmi: int) -> None:
+    """OMSimulator (src/OMSimulatorLib/Model.cpp, getSystemType; SystemWC.cpp,
+    importFromSSD_SimulationInformation) finds the system's type by literal tag names: the
+    ``ssd:System``'s ``ssd:Annotations/ssc:Annotation type="org.openmodelica"/oms:Annotations/
+    oms:SimulationInformation/oms:FixedStepMaster`` with a ``description`` (the solver, "oms-ma")
+    and a ``stepSize``.  Without it the system was oms_system_none and oms_importFile failed
+    ("[NewSystem] internal error").  The same SSD validates against the SSP 1.0 XSDs
+    (test_the_package_validates_against_the_ssp_schemas)."""
+    from xml.dom import minidom
+
+    spec = _spec("fig11", None)
+    with zipfile.ZipFile(_export(built, spec, ssp_dir, fmi)) as zf:
+        doc = minidom.parseString(zf.read("SystemStructure.ssd"))
+
+    def children(node: minidom.Element, tag: str) -> list[minidom.Element]:
+        return [c for c in node.childNodes
+                if isinstance(c, minidom.Element) and c.tagName == tag]
+
+    (system,) = children(doc.documentElement, "ssd:System")
+    (annotations,) = children(system, "ssd:Annotations")
+    vendor = [a for a in children(annotations, "ssc:Annotation")
+              if a.getAttribute("type") == "org.openmodelica"]
+    assert len(vendor) == 1
+    (oms,) = children(vendor[0], "oms:Annotations")
+    (info,) = children(oms, "oms:SimulationInformation")
+    (master,) = children(info, "oms:FixedStepMaster")
+    assert master.getAttribute("description") == "oms-ma"
+    assert float(master.getAttribute("stepSize")) == spec.period_s

@@ -36,6 +36,10 @@ START_S, STOP_S, STEP_S = 0.0, 10.0, 0.01
 #: The FMU's own solver tolerance (fmu/src/README.md); the references are made without setting
 #: one, so that an importer that sets none reproduces them to rounding.
 REL_TOL = 1e-9
+#: The model-exchange reference's CVode tolerance: restarted at every input change, it is then
+#: the exact hold-input solution to about 3e-10 relative (tests/test_fmu_crosscheck.py, against
+#: SciPy's DOP853 on :mod:`wmr.core.physics`); at 1e-9 it was 1e-6.
+ME_REL_TOL = 1e-13
 #: The outputs in the reference (the rules recommend at most 10 variables).
 REFERENCE_OUTPUTS = ("x", "y", "theta", "v", "omega", "omega_r", "omega_l", "phi_r", "phi_l",
                      "E_kin")
@@ -64,20 +68,47 @@ def input_signal() -> np.ndarray:
     return np.array(list(INPUT_POINTS), dtype=dtype)
 
 
+def output_times() -> np.ndarray:
+    """The output points ``START_S + k STEP_S``, computed as fmpy computes its grid."""
+    n = round((STOP_S - START_S) / STEP_S)
+    return START_S + np.arange(n + 1) * STEP_S
+
+
+def held_input(signal: np.ndarray) -> np.ndarray:
+    """``signal`` sampled at the output points and held until the next one: a staircase, each
+    step a repeated time (the value before and after), which fmpy treats as an input event.
+
+    The input both references hold (docs/fmu.md).  Given to fmpy's model exchange, each event
+    enters event mode and restarts CVode with the new input: without them CVode integrated
+    past each output point with the old input (the robot moved from 0.04 s, not 0.02 s) and
+    the reference was 5 mm off the hold-input solution.
+    """
+    names = signal.dtype.names
+    assert names is not None
+    t = output_times()
+    held = {n: np.interp(t, signal[names[0]], signal[n]) for n in names[1:]}
+    rows = np.empty(2 * len(t) - 1, dtype=signal.dtype)
+    rows[names[0]] = np.repeat(t, 2)[1:]  # t0, t1, t1, t2, t2, ...
+    for n in names[1:]:
+        rows[n] = np.repeat(held[n], 2)[:-1]  # u0, u0, u1, u1, u2, ...
+    return rows
+
+
 def simulate(fmu: Path, fmi_type: str, signal: np.ndarray) -> np.ndarray:
     """Simulate ``fmu`` with fmpy over the reference interval and return the reference outputs.
 
     Co-simulation: fmpy sets the interpolated inputs at each communication point (STEP_S).
-    Model exchange: fmpy's CVode at ``REL_TOL``, output every STEP_S.
+    Model exchange: the same inputs held over each output interval (:func:`held_input`), CVode
+    at ``ME_REL_TOL`` restarted at each output point: the exact hold-input solution.
     """
     from fmpy import simulate_fmu
 
     me = fmi_type == "me"
     result = simulate_fmu(
         str(fmu), start_time=START_S, stop_time=STOP_S, fmi_type=_fmpy_type(fmi_type),
-        step_size=STEP_S, output_interval=STEP_S, input=signal,
+        step_size=STEP_S, output_interval=STEP_S, input=held_input(signal) if me else signal,
         output=list(REFERENCE_OUTPUTS), solver="CVode",
-        relative_tolerance=REL_TOL if me else None)
+        relative_tolerance=ME_REL_TOL if me else None, record_events=False)
     return np.asarray(result)
 
 
@@ -85,9 +116,10 @@ def _fmpy_type(fmi_type: str) -> str:
     return next(t for short, t in _INTERFACE.values() if short == fmi_type)
 
 
-def _ref_opt() -> str:
+def _ref_opt(fmi_type: str) -> str:
+    tol = ME_REL_TOL if fmi_type == "me" else REL_TOL
     return (f"StartTime, {START_S!r}\nStopTime, {STOP_S!r}\nStepSize, {STEP_S!r}\n"
-            f"RelTol, {REL_TOL!r}\n")
+            f"RelTol, {tol!r}\n")
 
 
 def _readme(fmi_version: str, fmi_type: str, platform: str, host: str) -> str:
@@ -98,8 +130,10 @@ def _readme(fmi_version: str, fmi_type: str, platform: str, host: str) -> str:
            f"communication point, linearly interpolated), communication step {STEP_S} s, no "
            "tolerance set (the FMU's own Dormand-Prince solver then uses rtol 1e-9)"
            if fmi_type == "cs" else
-           f"fmpy {fmpy.__version__} integrated the FMU with CVode at rtol {REL_TOL}, inputs "
-           f"from `{MODEL}_in.csv` linearly interpolated, output every {STEP_S} s")
+           f"fmpy {fmpy.__version__} integrated the FMU with CVode at rtol {ME_REL_TOL}, the "
+           f"inputs of `{MODEL}_in.csv` taken at each output point (every {STEP_S} s) and held "
+           "until the next, the integrator restarted at each: the exact solution under those "
+           "held inputs")
     where = ("on this platform" if platform == host else
              f"on {host}; the project's tests run the aarch64-linux binary under qemu-aarch64 "
              "and the win64 binary under wine and find the x86_64-linux result to 1e-12 "
@@ -117,7 +151,9 @@ wheel and motor inertia and friction, the paper's errata corrected); the FMU's
 are zero and friction is off, an independent check of the result.
 
 An importer that reproduces this setup should agree to about 1e-9 relative (co-simulation: to
-rounding, about 1e-12).
+rounding, about 1e-12). Model exchange: hold the inputs over each output interval and restart
+(or stop) the integrator at each output point, where the input changes; an integrator that
+steps past an output point with the old input is millimetres off.
 
 ## Exporting tool
 
@@ -164,7 +200,7 @@ def write_crosscheck(build: BuildResult, out_dir: Path) -> list[CrossCheckEntry]
                 shutil.copyfile(fmu, folder / f"{MODEL}.fmu")
                 write_csv(folder / f"{MODEL}_in.csv", signal)
                 write_csv(folder / f"{MODEL}_ref.csv", reference)
-                (folder / f"{MODEL}_ref.opt").write_text(_ref_opt())
+                (folder / f"{MODEL}_ref.opt").write_text(_ref_opt(fmi_type))
                 (folder / "ReadMe.md").write_text(
                     _readme(fmi_version, fmi_type, platform, str(host_folder)))
                 if major >= 3:

@@ -489,14 +489,17 @@ class FmuSummary:
     interfaces: tuple[str, ...]  # "co-simulation", "model exchange", "scheduled execution"
     platforms: tuple[str, ...]  # folder names under binaries/, in PLATFORMS order
 
-    def line(self) -> str:
+    def line(self, requested: Sequence[str] | None = None) -> str:
         """``<file name>: FMI 3.0, co-simulation, x86_64-linux aarch64-linux ...``; for FMI 2
-        also what it cannot carry."""
+        also which of the ``requested`` platforms (FMI 3 names; every platform by default) it
+        cannot carry: a host-only build asked for no aarch64 and is told of none."""
         text = (f"{self.path.name}: FMI {self.fmi_version}, {' + '.join(self.interfaces)}, "
                 f"binaries for {' '.join(self.platforms) or 'no platform'}")
         if self.fmi_version.startswith("2"):
-            missing = [p.name for p in PLATFORMS if p.fmi2 is None]
-            text += f" (FMI 2.0 names no platform for {', '.join(missing)})"
+            missing = [p.name for p in PLATFORMS if p.fmi2 is None
+                       and (requested is None or p.name in requested)]
+            if missing:
+                text += f" (FMI 2.0 names no platform for {', '.join(missing)})"
         return text
 
 

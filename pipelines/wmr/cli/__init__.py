@@ -164,7 +164,7 @@ def _cmd_fmu_build(args: argparse.Namespace) -> int:
     for fmu in [result.fmus[v] for v in sorted(result.fmus)] + \
             [result.controllers[v] for v in sorted(result.controllers)]:
         print(fmu)
-        print(summarize(fmu).line(), file=sys.stderr)
+        print(summarize(fmu).line(result.platforms), file=sys.stderr)
     if args.verbose:
         state = "reused" if result.reused else "built"
         print(f"{state}: digest {result.digest[:16]}", file=sys.stderr)

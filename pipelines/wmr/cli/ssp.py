@@ -10,6 +10,8 @@ from wmr.infra.errors import ConfigError
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from wmr.adapters.fmi.varmap import load_map
     from wmr.adapters.ssp.export import export_ssp
     from wmr.build.fmus import build_fmus
@@ -21,9 +23,14 @@ def _cmd_export(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     base = select_run(scenario, args.run)
     spec = with_overrides(base, start=args.start, goal=args.goal)
-    # ssp/ as runs/ and batches/, named as wmr run names a variant: another goal or FMI
-    # version never overwrites the scenario's own package
-    name = variant_name(run_name(base, spec), fmu_tokens(args.fmi, args.robot_fmu, 2))
+    # the scenario file is the provenance of its own run only: a variant's package carries
+    # its effective scenario instead (export_ssp), as a variant's log of 'wmr run' does
+    scenario_file = scenario.path if spec == base else None
+    # named as wmr run names a variant: the run (SSD, parameter sets) after what it changes,
+    # the file also after the FMI version, so that another goal or FMI version never
+    # overwrites the scenario's own package nor passes for it
+    spec = replace(spec, name=run_name(base, spec))
+    name = variant_name(spec.name, fmu_tokens(args.fmi, args.robot_fmu, 2))
     out = check_output(args.out if args.out else default_log_path(name, "ssp", ".ssp"),
                        "--out", suffix=".ssp")
     built = None
@@ -34,7 +41,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     map_path = Path(args.map) if args.map else scenario.fmu_map
     ctrl = (Path(args.controller_fmu) if args.controller_fmu
             else built.controllers[args.fmi])  # type: ignore[union-attr]
-    print(export_ssp(spec, out, robot, ctrl, scenario_file=scenario.path,
+    print(export_ssp(spec, out, robot, ctrl, scenario_file=scenario_file,
                      var_map=load_map(map_path) if map_path is not None else None))
     return 0
 

@@ -11,7 +11,9 @@ The package (a zip, ``FILE.ssp``) holds::
                                    (x0, y0, theta0, v0, omega0)
     resources/controller.ssv       the controller's: goal, gains, limits, params.r/L/...,
                                    control_period_s, stop_radius_m, heading_tolerance_deg
-    resources/SCENARIO.toml        the scenario file it came from (provenance, if any)
+    resources/SCENARIO.toml        provenance: the scenario file of the scenario's own run, or
+                                   the run's effective scenario (NAME.toml, one run: a
+                                   variant's start, goal and name), which 'wmr run' repeats
     resources/fmu_map.toml         the robot's variable map, for a robot FMU of another tool
                                    (its unit conversions are also on the connections)
 
@@ -35,10 +37,12 @@ from typing import Any, Final
 from wmr.adapters.fmi.archive import check_archive
 from wmr.adapters.fmi.controller import controller_parameters
 from wmr.adapters.fmi.varmap import INPUT_NAMES, ResolvedMap, VariableMap, resolve
+from wmr.config.scenario_file import run_spec_toml
 from wmr.core.plant import OUTPUT_NAMES
 from wmr.core.runspec import RunSpec
 from wmr.infra.durable import replacing
 from wmr.infra.errors import ConfigError, FmuError
+from wmr.infra.paths import safe_filename
 
 ROBOT: Final = "robot"
 CONTROLLER: Final = "controller"
@@ -51,9 +55,14 @@ NS: Final = {
     "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
     "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
     "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+    # the URI OMSimulator's own SSP export declares for its annotations
+    "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
 }
+#: OMSimulator's fixed-step master of a weakly coupled system (its solver ``oms_solver_wc_ma``).
+OMS_FIXED_STEP_MASTER: Final = "oms-ma"
 for _prefix, _uri in NS.items():
-    # libcosim reads the SSD with literal "ssd:", "ssc:", "ssv:" and "osp:" prefixes
+    # libcosim and OMSimulator read the SSD with literal "ssd:", "ssc:", "ssv:", "osp:" and
+    # "oms:" prefixes
     ET.register_namespace(_prefix, _uri)
 
 
@@ -181,6 +190,16 @@ def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tupl
         if factor != 1.0 or offset != 0.0:
             ET.SubElement(c, _q("ssc:LinearTransformation"), factor=_num(factor),
                           offset=_num(offset))
+    # OMSimulator takes the system's type from its vendor annotation alone: without it the
+    # system is oms_system_none and oms_importFile fails ("[NewSystem] internal error"); a
+    # fixed-step master makes it a weakly coupled system of co-simulation FMUs, stepped at
+    # the controller's period as the OSP annotation below steps libcosim
+    oms = ET.SubElement(ET.SubElement(system, _q("ssd:Annotations")), _q("ssc:Annotation"),
+                        type="org.openmodelica")
+    info = ET.SubElement(ET.SubElement(oms, _q("oms:Annotations")),
+                         _q("oms:SimulationInformation"))
+    ET.SubElement(info, _q("oms:FixedStepMaster"), description=OMS_FIXED_STEP_MASTER,
+                  stepSize=_num(spec.period_s))
     experiment = ET.SubElement(root, _q("ssd:DefaultExperiment"), startTime="0.0",
                                stopTime=_num(spec.t_max_s))
     annotations = ET.SubElement(experiment, _q("ssd:Annotations"))
@@ -195,6 +214,10 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
                controller_fmu: str | os.PathLike[str], *,
                scenario_file: Path | None = None, var_map: VariableMap | None = None) -> Path:
     """Write the SSP package of run ``spec`` to ``out``; return its path.
+
+    ``scenario_file`` is the provenance of a scenario's own run, unchanged; without it the
+    package carries the run's effective scenario (``resources/NAME.toml``, ``NAME`` the run's
+    name): give it only when ``spec`` is the file's run as it is, never for a variant.
 
     ``var_map`` maps our names to those of a robot FMU made by another tool
     (:mod:`wmr.adapters.fmi.varmap`): the connections then carry its unit conversions as SSP linear
@@ -249,6 +272,8 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     files = {robot_src: robot_path, ctrl_src: ctrl_path}
     if scenario_file is not None:
         files[f"resources/{scenario_file.name}"] = scenario_file
+    else:  # the run itself, which 'wmr run' reads back into the same run
+        members[f"resources/{safe_filename(spec.name)}.toml"] = run_spec_toml(spec).encode()
     target.parent.mkdir(parents=True, exist_ok=True)
     # a new file beside the target, renamed into place (mode 0666 less the umask)
     with replacing(target) as raw, zipfile.ZipFile(raw, "w", zipfile.ZIP_DEFLATED) as zf:
