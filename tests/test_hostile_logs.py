@@ -498,3 +498,26 @@ def test_the_read_budget_bounds_the_memory_a_read_takes(tmp_path: Path) -> None:
     assert 0 < int(rows) < 600_000
     assert any("ReadLimits.total_bytes" in w and "WMR_READ_LIMIT_MIB" in w
                and "--read-limit" in w for w in warnings), warnings
+
+
+def test_the_read_limit_is_raised_by_an_option_or_the_environment(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before: "give a higher limit" with no option to give it.  ``--read-limit MIB`` (wmr
+    replay, wmr log recover) and ``WMR_READ_LIMIT_MIB`` set the budget of every read."""
+    path = nanosecond_log(tmp_path / "ns.mcap", 100_000)  # 100,000 rows: about 100 MB
+    monkeypatch.delenv("WMR_READ_LIMIT_MIB", raising=False)
+    assert main(["replay", str(path), "--rrd", str(tmp_path / "a.rrd"), "--read-limit", "16"]) == 0
+    err = capsys.readouterr().err
+    assert "more than 16 MiB of memory (ReadLimits.total_bytes)" in err, err
+    monkeypatch.delenv("WMR_READ_LIMIT_MIB", raising=False)  # the option set it for the process
+    assert not read_run(path).truncated  # the default budget holds it whole
+    monkeypatch.setenv("WMR_READ_LIMIT_MIB", "16")
+    assert read_run(path).n_steps < 100_000
+    assert main(["replay", str(path), "--rrd", str(tmp_path / "b.rrd"),
+                 "--read-limit", "0"]) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("wmr: error: --read-limit: "), lines
+    monkeypatch.setenv("WMR_READ_LIMIT_MIB", "lots")
+    with pytest.raises(Exception, match="WMR_READ_LIMIT_MIB"):
+        read_run(path)

@@ -13,7 +13,9 @@ def _warn(line: str) -> None:
 
 def _cmd_replay(args: argparse.Namespace) -> int:
     from wmr.apps.replay import replay_logs
+    from wmr.cli.log import apply_read_limit
 
+    apply_read_limit(args)
     result = replay_logs(args.logs, rrd=args.rrd, blueprint=args.blueprint,
                          blueprint_for=args.blueprint_for,
                          viewer=False if args.no_viewer else None, command_line=True)
@@ -69,6 +71,7 @@ def _cmd_figures(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``replay`` and ``figures`` sub-commands."""
     from wmr.apps.figures import ROA_GRID, ROA_HEADINGS
+    from wmr.cli.log import add_read_limit
 
     p = sub.add_parser(
         "replay", help="replay run logs in Rerun (a viewer, or an .rrd file)",
@@ -91,6 +94,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         "X.rbl (docs/replay.md); and stop")
     p.add_argument("--no-viewer", action="store_true",
                    help="do not open a viewer even if there is a screen (write the .rrd)")
+    add_read_limit(p)
     p.set_defaults(handler=_cmd_replay)
 
     f = sub.add_parser(
