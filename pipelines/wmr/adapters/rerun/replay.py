@@ -48,6 +48,7 @@ import math
 import os
 import sys
 from collections.abc import Iterable, Mapping, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -69,6 +70,7 @@ from wmr.adapters.mcap.scene import (
     robot_geometry,
 )
 from wmr.core.signals import COLUMN
+from wmr.infra.durable import replacing_path
 from wmr.infra.errors import LogError, WmrError
 
 #: The Rerun application id of every recording written here.
@@ -1003,46 +1005,49 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
             warnings.append(f"could not start the Rerun viewer ({exc}): writing an .rrd instead")
     if not spawned and out is None:
         out = default_rrd_path(inputs)
-    if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        rec.save(out, default_blueprint=blueprint)
+    with ExitStack() as stack:
+        if out is not None:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            # written beside out and renamed over it once whole: a full disk keeps the previous
+            tmp = stack.enter_context(replacing_path(out))
+            rec.save(tmp, default_blueprint=blueprint)
 
-    log_grid(rec, bounds)
-    labels = [f"#{k}" for k in range(len(runs))]
-    label_every = len(runs) // _MAX_LABELS + 1
-    goals_labelled: set[tuple[float, float]] = set()
-    for k, (log, data) in enumerate(runs):
-        color = run_color(k, len(runs))
-        half_track, radius = robot_geometry(data.metadata.get("run", {}))
-        path_xy = np.column_stack([data.signals["x_m"], data.signals["y_m"]])
-        phase = _run_phase(data)
-        finite = np.isfinite(path_xy).all(axis=1)
-        # one label per goal position (runs to one goal with several headings: one label;
-        # the summary has each run's heading)
-        goal_label: str | None = None
-        if data.goal is not None:
-            key = (round(data.goal.x_m, 2), round(data.goal.y_m, 2))
-            if key not in goals_labelled:
-                goals_labelled.add(key)
-                goal_label = f"goal ({key[0]:g}, {key[1]:g})" if many else ""
-        log_run_static(rec, log.name, goal=data.goal, path_xy=path_xy[finite], color=color,
-                       run_color=color if many else None, half_track_m=half_track,
-                       wheel_radius_m=radius,
-                       phase=phase[finite] if phase is not None else None,
-                       start_label=(labels[k] if k % label_every == 0 else "")
-                       if many else None,
-                       stop_radius_m=_float(data.metadata.get("run", {}).get("stop_radius_m")),
-                       goal_label=goal_label)
-        send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many)
-        if sensing[k]:
-            log_sensing(rec, log.name, log.path, data)
-    summary = (_summary_many(labels, names, datas) if many
-               else _summary_single(names[0], datas[0], sensing[0]))
-    rec.log(SUMMARY_ENTITY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN),
-            static=True)
-    rec.flush()
-    if out is not None:
-        rec.disconnect()
+        log_grid(rec, bounds)
+        labels = [f"#{k}" for k in range(len(runs))]
+        label_every = len(runs) // _MAX_LABELS + 1
+        goals_labelled: set[tuple[float, float]] = set()
+        for k, (log, data) in enumerate(runs):
+            color = run_color(k, len(runs))
+            half_track, radius = robot_geometry(data.metadata.get("run", {}))
+            path_xy = np.column_stack([data.signals["x_m"], data.signals["y_m"]])
+            phase = _run_phase(data)
+            finite = np.isfinite(path_xy).all(axis=1)
+            # one label per goal position (runs to one goal with several headings: one label;
+            # the summary has each run's heading)
+            goal_label: str | None = None
+            if data.goal is not None:
+                key = (round(data.goal.x_m, 2), round(data.goal.y_m, 2))
+                if key not in goals_labelled:
+                    goals_labelled.add(key)
+                    goal_label = f"goal ({key[0]:g}, {key[1]:g})" if many else ""
+            log_run_static(rec, log.name, goal=data.goal, path_xy=path_xy[finite], color=color,
+                           run_color=color if many else None, half_track_m=half_track,
+                           wheel_radius_m=radius,
+                           phase=phase[finite] if phase is not None else None,
+                           start_label=(labels[k] if k % label_every == 0 else "")
+                           if many else None,
+                           stop_radius_m=_float(data.metadata.get("run", {}).get("stop_radius_m")),
+                           goal_label=goal_label)
+            send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many)
+            if sensing[k]:
+                log_sensing(rec, log.name, log.path, data)
+        summary = (_summary_many(labels, names, datas) if many
+                   else _summary_single(names[0], datas[0], sensing[0]))
+        rec.log(SUMMARY_ENTITY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN),
+                static=True)
+        rec.flush()
+        if out is not None:
+            rec.disconnect()
     return ReplayResult(runs=names, steps={log.name: d.n_steps for log, d in runs}, rrd=out,
                         spawned=spawned, warnings=warnings)
 
