@@ -495,3 +495,35 @@ def test_a_full_disk_keeps_the_previous_recording_and_says_so_in_one_line(
     assert lines[0].startswith(f"wmr: error: no space left on {full_disk} while writing {out}")
     assert out.read_bytes() == previous
     assert sorted(p.name for p in full_disk.iterdir()) == ["filler", out.name]  # no temp left
+
+
+# -- issue 28 item 12: a folder's links and bad files --------------------------------------------
+
+
+def test_a_folder_replays_its_good_logs_skipping_bad_ones_and_links_outside(
+        fig11_log: Path, tmp_path: Path) -> None:
+    """Before: ``wmr replay DIR`` followed a link to a file outside DIR, and one bad file
+    stopped the whole replay.  Now each is one line on stderr, the others are replayed, and
+    the exit status (4) says some were skipped."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "secret.mcap").write_bytes(fig11_log.read_bytes())
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "good.mcap").write_bytes(fig11_log.read_bytes())
+    (runs / "bad.mcap").write_bytes(b"not a log at all")
+    (runs / "link.mcap").symlink_to(outside / "secret.mcap")
+    (runs / "inside.mcap").symlink_to(runs / "good.mcap")  # a link within the folder: kept
+    code, _, err = run_cli("replay", str(runs), "--rrd", str(tmp_path / "r.rrd"))
+    lines = [line for line in err.splitlines() if line.startswith("wmr: ")]
+    assert code == 4, err
+    assert any(line.startswith(f"wmr: {runs / 'link.mcap'}: skipped: a link to ")
+               and "outside" in line for line in lines), lines
+    assert any(line.startswith(f"wmr: skipped: {runs / 'bad.mcap'}: ") for line in lines), lines
+    assert "wrote 2 runs" in err, err
+    ents, _ = read_rrd(tmp_path / "r.rrd")
+    assert {e.split("/")[2] for e in ents if e.startswith("/runs/")} == {"good", "inside"}
+    # every log bad: one line, exit 1, as for a single bad file
+    (runs / "good.mcap").write_bytes(b"neither")
+    code, _, err = run_cli("replay", str(runs), "--rrd", str(tmp_path / "s.rrd"))
+    assert code == 1 and len(err.strip().splitlines()) == 1, err

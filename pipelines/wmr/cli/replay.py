@@ -36,6 +36,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         return 0
     for line in result.warnings:
         _warn(line)
+    for line in result.skipped:
+        print(f"wmr: {line}", file=sys.stderr, flush=True)
     steps = sum(result.steps.values())
     runs = f"{len(result.runs)} run{'s' if len(result.runs) != 1 else ''}, {steps} steps"
     if result.spawned:
@@ -43,7 +45,11 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if result.rrd is not None:
         print(result.rrd)
         print(f"wrote {runs}; open it with: rerun {result.rrd}", file=sys.stderr)
-    return 0
+    return SKIPPED_STATUS if result.skipped else 0
+
+
+#: Exit status of ``wmr replay`` when the others were replayed but some logs were skipped.
+SKIPPED_STATUS = 4
 
 
 def _cmd_figures(args: argparse.Namespace) -> int:
@@ -80,7 +86,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "sim_time timeline.  Several logs (or folders of them) go into one "
                     "recording, each under runs/<name>.  Opens a viewer when there is a "
                     "screen; otherwise, or with --rrd, writes an .rrd file (default: next to "
-                    "the input) and prints its path.")
+                    "the input) and prints its path.  A log that cannot be read, or a link in "
+                    "a folder to a file outside it, is skipped with one line: exit status 4 "
+                    "(0 when every log was replayed, 1 when none could be).")
     p.add_argument("logs", nargs="*", metavar="FILE.mcap|DIR",
                    help="run logs, or folders searched recursively for *.mcap")
     p.add_argument("--rrd", metavar="OUT.rrd", help="write the recording to this file")

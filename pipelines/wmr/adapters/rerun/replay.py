@@ -205,13 +205,17 @@ class RunLog:
     path: Path
 
 
-def find_logs(inputs: Sequence[str | os.PathLike[str]]) -> list[RunLog]:
+def find_logs(inputs: Sequence[str | os.PathLike[str]],
+              skipped: list[str] | None = None) -> list[RunLog]:
     """The MCAP logs named by ``inputs``: files as given, folders searched recursively.
 
     Parameters
     ----------
     inputs
         ``.mcap`` files and folders (a batch output folder may hold sub-folders).
+    skipped
+        Gets one line per file of a folder left out: a symbolic link (or a file under one)
+        that leads outside the folder is not followed.
 
     Returns
     -------
@@ -228,7 +232,13 @@ def find_logs(inputs: Sequence[str | os.PathLike[str]]) -> list[RunLog]:
     for item in inputs:
         p = Path(item)
         if p.is_dir():
-            found = sorted(f for f in p.rglob("*.mcap") if f.is_file())
+            root = p.resolve()
+            found = []
+            for f in sorted(f for f in p.rglob("*.mcap") if f.is_file()):
+                if f.resolve().is_relative_to(root):
+                    found.append(f)
+                elif skipped is not None:
+                    skipped.append(f"{f}: skipped: a link to {f.resolve()}, outside {p}")
             if not found:
                 raise LogError(f"{p}: no .mcap files in this folder")
             paths.extend(found)
@@ -880,29 +890,44 @@ class ReplayResult:
     rrd: Path | None
     spawned: bool
     warnings: list[str] = field(default_factory=list)
+    #: One line per log left out (unreadable, damaged past reading, a link outside a folder).
+    skipped: list[str] = field(default_factory=list)
 
 
-def read_logs(logs: Sequence[RunLog]) -> tuple[list[tuple[RunLog, RunData]], list[str]]:
-    """Read every log; warn about truncated ones; raise on unreadable ones.
+def read_logs(logs: Sequence[RunLog], skipped: list[str] | None = None
+              ) -> tuple[list[tuple[RunLog, RunData]], list[str]]:
+    """Read every log; warn about truncated ones; raise on unreadable ones, or, given
+    ``skipped``, put one line there for each and read the others.
 
     Raises
     ------
     LogError
-        A file is not an MCAP log, or holds no complete control step.
+        A file is not an MCAP log, or holds no complete control step (the first such file
+        when ``skipped`` is None, else when no log is left).
     """
     runs: list[tuple[RunLog, RunData]] = []
     warnings: list[str] = []
+    first: LogError | None = None
     for log in logs:
-        data = read_run(log.path)
-        if data.n_steps == 0:
-            why = f" ({data.warnings[0]})" if data.warnings else ""
-            raise LogError(f"{log.path}: no readable control step in this log{why}")
+        try:
+            data = read_run(log.path)
+            if data.n_steps == 0:
+                why = f" ({data.warnings[0]})" if data.warnings else ""
+                raise LogError(f"{log.path}: no readable control step in this log{why}")
+        except LogError as exc:
+            if skipped is None:
+                raise
+            skipped.append(f"skipped: {exc}")
+            first = first or exc
+            continue
         if data.truncated:
             warnings.append(f"{log.path}: truncated log, replaying its first {data.n_steps} "
                             f"steps (to t = {data.t_s[-1]:.2f} s)")
         # what the reader left out or could not check: never replayed silently
         warnings += [f"{log.path}: {line}" for line in data.warnings]
         runs.append((log, data))
+    if not runs and first is not None:  # nothing to replay: the first reason is the error
+        raise first
     return runs, warnings
 
 
@@ -979,7 +1004,8 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     """
     if rrd is not None and Path(rrd).suffix != ".rrd":
         raise WmrError(f"{rrd}: the recording file must end in .rrd")
-    runs, warnings = read_logs(find_logs(inputs))
+    skipped: list[str] = []
+    runs, warnings = read_logs(find_logs(inputs, skipped), skipped)
     names = [log.name for log, _ in runs]
     datas = [d for _, d in runs]
     many = len(runs) > 1
@@ -1049,7 +1075,7 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
         if out is not None:
             rec.disconnect()
     return ReplayResult(runs=names, steps={log.name: d.n_steps for log, d in runs}, rrd=out,
-                        spawned=spawned, warnings=warnings)
+                        spawned=spawned, warnings=warnings, skipped=skipped)
 
 
 def iter_signal_names() -> Iterable[str]:
