@@ -443,3 +443,81 @@ def test_crc_checks_still_cover_the_whole_file(tmp_path: Path) -> None:
     path.write_bytes(bytes(data))
     run = read_run(path)
     assert any("data section CRC mismatch" in w for w in run.warnings), run.warnings
+
+
+# -- issue 28, items 7 and 12: the read budget bounds the memory used -------------------------
+
+
+def nanosecond_log(path: Path, n: int) -> Path:
+    """``n`` ``/robot/state`` messages 1 ns apart in 1 MiB zstd chunks: a few MB of file that
+    make ``n`` rows of every signal (issue 28 item 7 used 3 * 10^6, 54 MB)."""
+    topic = "/robot/state"
+    data = encode(topic, 0, {s: 1.0 for s in LAYOUT[topic].signals})
+    with open(path, "wb") as f:
+        w = Writer(f, compression=CompressionType.ZSTD, chunk_size=1 << 20)
+        w.start()
+        name = LAYOUT[topic].schema_name
+        cid = w.register_channel(topic, "protobuf",
+                                 w.register_schema(name, "protobuf", file_descriptor_set(name)))
+        for t in range(n):
+            w.add_message(cid, log_time=t, data=data, publish_time=t)
+        w.finish()
+    return path
+
+
+_PEAK = textwrap.dedent("""
+    import resource, sys
+    import pandas, wmr  # noqa: F401  (loaded before the baseline)
+    from wmr.adapters.mcap.reader import ReadLimits, read_run
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    run = read_run(sys.argv[1], ReadLimits(total_bytes=int(sys.argv[2])))
+    import pandas as pd
+    frame = pd.DataFrame(run.signals, index=pd.Index(run.t_s))
+    grew = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base
+    print(run.n_steps, grew * 1024, *run.warnings, sep="\\n")
+""")
+
+
+def test_the_read_budget_bounds_the_memory_a_read_takes(tmp_path: Path) -> None:
+    """600,000 messages 1 ns apart (3.5 MB of file) made 600,000 rows of 41 float64 signals,
+    about 190 MB of columns and as much again for the DataFrame, while the budget counted 100
+    bytes a message (60 MB, under its 64 MiB): the memory a read takes is now what is charged,
+    the rows that fit are read and the warning names the limit and how to raise it.  Run in a
+    subprocess under a 2 GiB address-space limit."""
+    path = nanosecond_log(tmp_path / "ns.mcap", 600_000)
+    budget = 64 * MiB
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.run(
+        ["bash", "-c", f'ulimit -v {2 << 20}; exec "$0" -c "$1" "$2" "$3"', sys.executable,
+         _PEAK, str(path), str(budget)],
+        env=env, capture_output=True, text=True, check=False, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rows, grew, *warnings = proc.stdout.splitlines()
+    # the inflated chunk being read (1 MiB) and the allocator's slack come on top
+    assert int(grew) <= budget + 16 * MiB, (int(grew) / MiB, warnings)
+    assert 0 < int(rows) < 600_000
+    assert any("ReadLimits.total_bytes" in w and "WMR_READ_LIMIT_MIB" in w
+               and "--read-limit" in w for w in warnings), warnings
+
+
+def test_the_read_limit_is_raised_by_an_option_or_the_environment(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before: "give a higher limit" with no option to give it.  ``--read-limit MIB`` (wmr
+    replay, wmr log recover) and ``WMR_READ_LIMIT_MIB`` set the budget of every read."""
+    path = nanosecond_log(tmp_path / "ns.mcap", 100_000)  # 100,000 rows: about 100 MB
+    monkeypatch.delenv("WMR_READ_LIMIT_MIB", raising=False)
+    assert main(["replay", str(path), "--rrd", str(tmp_path / "a.rrd"), "--read-limit", "16"]) == 0
+    err = capsys.readouterr().err
+    assert "more than 16 MiB of memory (ReadLimits.total_bytes)" in err, err
+    monkeypatch.delenv("WMR_READ_LIMIT_MIB", raising=False)  # the option set it for the process
+    assert not read_run(path).truncated  # the default budget holds it whole
+    monkeypatch.setenv("WMR_READ_LIMIT_MIB", "16")
+    assert read_run(path).n_steps < 100_000
+    assert main(["replay", str(path), "--rrd", str(tmp_path / "b.rrd"),
+                 "--read-limit", "0"]) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("wmr: error: --read-limit: "), lines
+    monkeypatch.setenv("WMR_READ_LIMIT_MIB", "lots")
+    with pytest.raises(Exception, match="WMR_READ_LIMIT_MIB"):
+        read_run(path)

@@ -448,8 +448,10 @@ def test_the_read_budget_admits_exactly_its_bytes_and_warns_once_naming_the_limi
     assert not scan.charge(1, "record 3")
     assert not scan.charge(1, "record 4")
     assert scan.kept_bytes == 2 * mib and scan.damaged and scan.over_budget
-    assert scan.warnings == ["the log holds more than 2 MiB (ReadLimits.total_bytes): read stops "
-                             "at record 3; give a higher limit to read it all"]
+    assert scan.warnings == ["reading the log takes more than 2 MiB of memory "
+                             "(ReadLimits.total_bytes): read stops at record 3; raise it (wmr "
+                             "replay/wmr log recover --read-limit MIB, or WMR_READ_LIMIT_MIB=MIB) "
+                             "to read it all"]
 
 
 # -- chunks built byte by byte, and another writer's log ---------------------------------------
@@ -577,7 +579,7 @@ def test_a_chunk_record_is_read_up_to_the_chunk_limit_plus_1_mib_and_left_out_pa
     assert scan.warnings == [
         *(f"the chunk at byte {at[i]} is {limit + 1} bytes, above the 1 MiB chunk limit "
           "(ReadLimits.chunk_bytes): left out" for i in (1, 3)),
-        "the data section CRC was not checked: damaged bytes were skipped"]
+        "the data section CRC was not checked: records over a read limit were skipped unread"]
 
 
 def _n_bytes(s: int) -> int:
@@ -696,12 +698,14 @@ def test_a_chunk_limit_is_said_in_mib_when_whole_else_in_bytes(
 @pytest.mark.parametrize("short", [0, 1])
 def test_the_read_budget_stops_at_the_first_chunk_past_it_and_counts_the_rest(
         tmp_path: Path, short: int) -> None:
-    """ReadLimits.total_bytes counts a chunk's declared size, then 100 bytes per message it
-    holds: with a budget of exactly the first chunks' bytes they are read, with one byte less
-    the last of them is not; after the first chunk past the budget (one warning) every chunk
-    is left out without another warning, and counted (after a damaged one)."""
+    """ReadLimits.total_bytes counts what a chunk's messages keep (their data, 16 bytes each
+    for time and place, 400 per channel's batch; a damaged chunk nothing): with a budget of
+    exactly the first chunks' bytes they are read, with one byte less the last of them is not;
+    after the first chunk past the budget (one warning) every chunk is left out without another
+    warning, and counted (after a damaged one)."""
     chunks = [_second_chunk(0, crc=0xBAD), *(_second_chunk(s) for s in range(1, 5))]
-    kept = [_n_bytes(0)] + [_n_bytes(s) + 3 * 100 for s in (1, 2)]  # second 0 is damaged
+    # second 0 is damaged
+    kept = [sum(len(d) for _, d in _second(s)) + 3 * 16 + 400 for s in (1, 2)]
     data, at = _hand_log(*chunks)
     scan = _scan(tmp_path, data, ReadLimits(total_bytes=sum(kept) - short))
     stop = 3 - short  # the first second not read
@@ -710,9 +714,10 @@ def test_the_read_budget_stops_at_the_first_chunk_past_it_and_counts_the_rest(
     assert scan.warnings == [
         f"the chunk at byte {at[0]} is damaged (chunk crc validation failed): "
         + _SPAN.format(s=0),
-        f"the log holds more than {sum(kept) - short} B (ReadLimits.total_bytes): read stops "
-        f"at the chunk at t = {stop} s; give a higher limit to read it all",
-        "the data section CRC was not checked: damaged bytes were skipped"]
+        f"reading the log takes more than {sum(kept) - short} B of memory "
+        f"(ReadLimits.total_bytes): read stops at the chunk at t = {stop} s; raise it (wmr "
+        "replay/wmr log recover --read-limit MIB, or WMR_READ_LIMIT_MIB=MIB) to read it all",
+        "the data section CRC was not checked: records over a read limit were skipped unread"]
 
 
 @pytest.mark.parametrize("compression", ["none", "lz4", "zstd"])
@@ -802,9 +807,9 @@ def test_a_crc_over_bytes_skipped_unread_is_not_checked_and_says_so(tmp_path: Pa
         data, _ = _hand_log(_second_chunk(0), index, _second_chunk(1), summary=_STATISTICS,
                             crc_xor=crc_xor)
         scan = _scan(tmp_path, data, limits)
-        assert scan.warnings == ["the data section CRC was not checked: damaged bytes were "
-                                 "skipped", "the summary CRC was not checked: damaged bytes "
-                                 "were skipped"]
+        assert scan.warnings == ["the data section CRC was not checked: records over a read "
+                                 "limit were skipped unread", "the summary CRC was not checked: "
+                                 "records over a read limit were skipped unread"]
         assert not scan.damaged and scan.complete
         assert scan.messages == {1: _second(0) + _second(1)}
     # a limit of exactly the record's length skips nothing: both CRCs are checked again

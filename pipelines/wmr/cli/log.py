@@ -6,10 +6,36 @@ import argparse
 import sys
 
 
+def add_read_limit(parser: argparse.ArgumentParser) -> None:
+    """Add ``--read-limit MIB``: the memory a log's read may take (``WMR_READ_LIMIT_MIB``)."""
+    parser.add_argument("--read-limit", type=float, metavar="MIB",
+                        help="memory a log's read may take, MiB (default 1536, or the "
+                             "environment variable WMR_READ_LIMIT_MIB): a larger log is read "
+                             "up to it, with a warning")
+
+
+def apply_read_limit(args: argparse.Namespace) -> None:
+    """Make ``--read-limit`` the limit of every read of this command (checked first)."""
+    import os
+
+    from wmr.adapters.mcap.reader import READ_LIMIT_ENV, default_limits
+
+    if args.read_limit is not None:
+        try:
+            default_limits(args.read_limit)
+        except Exception as exc:  # ConfigError naming read_limit: name the option instead
+            from wmr.infra.errors import ConfigError
+
+            raise ConfigError("--read-limit", f"{args.read_limit!r} is not a size in MiB "
+                              f"from 1 to {1 << 24}", "e.g. --read-limit 4096") from exc
+        os.environ[READ_LIMIT_ENV] = repr(args.read_limit)
+
+
 def _cmd_recover(args: argparse.Namespace) -> int:
     from wmr.adapters.mcap.recover import recover_log
     from wmr.infra.outputs import check_output
 
+    apply_read_limit(args)
     if args.out is not None:  # a device or FIFO there is refused even with --force
         check_output(args.out, "--out")
     rec = recover_log(args.file, args.out, overwrite=args.force, scene=not args.no_scene)
@@ -42,4 +68,5 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     r.add_argument("--no-scene", action="store_true",
                    help="do not make the missing scene topics (/scene/*, /controller/phase): "
                         "the output holds exactly the source's intact messages")
+    add_read_limit(r)
     r.set_defaults(handler=_cmd_recover)

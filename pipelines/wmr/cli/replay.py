@@ -13,7 +13,9 @@ def _warn(line: str) -> None:
 
 def _cmd_replay(args: argparse.Namespace) -> int:
     from wmr.apps.replay import replay_logs
+    from wmr.cli.log import apply_read_limit
 
+    apply_read_limit(args)
     result = replay_logs(args.logs, rrd=args.rrd, blueprint=args.blueprint,
                          blueprint_for=args.blueprint_for,
                          viewer=False if args.no_viewer else None, worst=args.worst,
@@ -37,6 +39,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         return 0
     for line in result.warnings:
         _warn(line)
+    for line in result.skipped:
+        print(f"wmr: {line}", file=sys.stderr, flush=True)
     steps = sum(result.steps.values())
     runs = f"{len(result.runs)} run{'s' if len(result.runs) != 1 else ''}, {steps} steps"
     if result.spawned:
@@ -44,7 +48,11 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if result.rrd is not None:
         print(result.rrd)
         print(f"wrote {runs}; open it with: rerun {result.rrd}", file=sys.stderr)
-    return 0
+    return SKIPPED_STATUS if result.skipped else 0
+
+
+#: Exit status of ``wmr replay`` when the others were replayed but some logs were skipped.
+SKIPPED_STATUS = 4
 
 
 def _cmd_figures(args: argparse.Namespace) -> int:
@@ -72,6 +80,7 @@ def _cmd_figures(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``replay`` and ``figures`` sub-commands."""
     from wmr.apps.figures import ROA_GRID, ROA_HEADINGS
+    from wmr.cli.log import add_read_limit
 
     p = sub.add_parser(
         "replay", help="replay run logs in Rerun (a viewer, or an .rrd file)",
@@ -80,7 +89,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "sim_time timeline.  Several logs (or folders of them) go into one "
                     "recording, each under runs/<name>.  Opens a viewer when there is a "
                     "screen; otherwise, or with --rrd, writes an .rrd file (default: next to "
-                    "the input) and prints its path.")
+                    "the input) and prints its path.  A log that cannot be read, or a link in "
+                    "a folder to a file outside it, is skipped with one line: exit status 4 "
+                    "(0 when every log was replayed, 1 when none could be).")
     p.add_argument("logs", nargs="*", metavar="FILE.mcap|DIR",
                    help="run logs, or folders searched recursively for *.mcap")
     p.add_argument("--rrd", metavar="OUT.rrd", help="write the recording to this file")
@@ -104,6 +115,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         "--worst does when its log was not kept)")
     p.add_argument("--no-viewer", action="store_true",
                    help="do not open a viewer even if there is a screen (write the .rrd)")
+    add_read_limit(p)
     p.set_defaults(handler=_cmd_replay)
 
     f = sub.add_parser(

@@ -9,8 +9,8 @@ SQLite and rosbag2 keep a committed file whole.  A process killed before the com
 No write can be redirected by a file someone planted: ``NAME.partial`` is opened with
 ``O_NOFOLLOW`` and refused (one :class:`~wmr.infra.errors.LogError` line) when it is a
 symbolic link, a hard link, not a regular file or another user's; any other temporary file
-(:func:`replacing`) gets a new random name, created ``O_CREAT | O_EXCL | O_NOFOLLOW``.  A
-final file is only ever renamed over, never written through.
+(:func:`replacing`, :func:`replacing_path`) gets a new random name, created ``O_CREAT |
+O_EXCL | O_NOFOLLOW``.  A final file is only ever renamed over, never written through.
 
 Every write checks its result: :func:`write_all` loops over short writes of ``os.write``, and
 a full disk (``ENOSPC``, ``EDQUOT``) becomes one :class:`~wmr.infra.errors.DiskFullError` line
@@ -208,6 +208,58 @@ def replacing(path: str | os.PathLike[str], durable: bool = False) -> Iterator[B
         raise
     if durable:
         fsync_dir(target.parent)
+
+
+#: Free bytes under which a writer's failure on a device is taken for a full disk (a library
+#: that writes the file itself, Rerun's file sink, says only that its thread stopped).
+_NEARLY_FULL: Final = 1 << 20
+
+
+@contextmanager
+def replacing_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """:func:`replacing` for a library that opens and writes the file itself (Rerun's
+    ``save``): the path of a new temporary file beside ``path`` to write, renamed over
+    ``path`` when the block ends, removed if it raises.  Until then ``path`` is the previous
+    file, byte for byte.
+
+    Raises
+    ------
+    DiskFullError
+        The device has less than 1 MiB free before the block, or the block raised (an
+        ``OSError``, or the library's own ``RuntimeError``) while it has, or with ``ENOSPC``:
+        one line naming the device and ``path``.
+    """
+    target = Path(path)
+
+    def free_bytes() -> int:
+        try:
+            st = os.statvfs(target.parent)
+        except OSError:
+            return _NEARLY_FULL
+        return st.f_bavail * st.f_frsize
+
+    def full() -> DiskFullError:
+        return DiskFullError(f"no space left on {mount_point(target)} while writing {target} "
+                             "(the previous file is kept)")
+
+    # Rerun's save() hangs for ever when its first write (the blueprint) fails: a device
+    # already (nearly) full is said before the library is given the file
+    if free_bytes() < _NEARLY_FULL:
+        raise full()
+    fd, tmp = _unique_temp(target)
+    os.close(fd)
+    try:
+        yield tmp
+        os.replace(tmp, target)
+    except (OSError, RuntimeError) as exc:
+        free = free_bytes()
+        tmp.unlink(missing_ok=True)
+        if (isinstance(exc, OSError) and exc.errno in _FULL) or free < _NEARLY_FULL:
+            raise full() from exc
+        raise
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 class AtomicFile:

@@ -51,7 +51,10 @@ MAX_NAME_CHARS: Final = 1024
 #: XML documents: an SSP's SSD and SSVs (we parse them into memory), an FMU's model
 #: description (fmpy and the masters do), each bounded while it inflates; nesting depth.
 MAX_XML_BYTES: Final = 32 * MiB
-MAX_MODEL_DESCRIPTION_BYTES: Final = 64 * MiB
+#: fmpy parses the model description whole with lxml, at about 25 bytes of memory per byte
+#: of XML (a 62.5 MiB one peaked at 1.54 GB): ours are a few kB, large real ones (thousands
+#: of variables) about 10 MB, so 16 MiB keeps every real one and the parse under ~0.4 GB.
+MAX_MODEL_DESCRIPTION_BYTES: Final = 16 * MiB
 MAX_XML_DEPTH: Final = 256
 _CHUNK: Final = MiB
 _ALLOWED_COMPRESSION: Final = (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED)

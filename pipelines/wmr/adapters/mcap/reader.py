@@ -10,7 +10,7 @@ import re
 import stat
 import struct
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Final, NamedTuple
 
@@ -127,7 +127,9 @@ class ReadLimits:
     """How much a log may make the reader hold or do: a file from anyone stays bounded.
 
     A log beyond a limit is still read up to it, with a warning naming the limit; raise a
-    limit (``read_run(path, limits=ReadLimits(total_bytes=...))``) to read a larger log.
+    limit (``read_run(path, limits=ReadLimits(total_bytes=...))``, or ``total_bytes`` for
+    every reader at once: ``WMR_READ_LIMIT_MIB`` or ``wmr replay --read-limit MIB``,
+    :func:`default_limits`) to read a larger log.
 
     Attributes
     ----------
@@ -138,8 +140,12 @@ class ReadLimits:
     record_bytes
         Largest record outside a chunk (an attachment, a metadata record), bytes.
     total_bytes
-        Everything kept: chunks inflated, attachments, metadata, and 100 bytes per message
-        for its Python objects, bytes.  A 60 s run at 100 Hz keeps about 80 MB.
+        The memory the read may take, bytes: everything kept (each message's data and 16
+        bytes for its time and place, attachments, metadata) and the rows made of it (8
+        bytes per signal, :data:`ROW_COPIES` times: the columns and what the caller makes of
+        them, a DataFrame or Rerun's columns).  A 10,000 s run at 100 Hz (wmr's own 390 MB
+        log of 10^6 rows) needs about 1 GiB; read with the default it peaks at about
+        1.3 GB.  The inflated chunk being read (at most ``chunk_bytes``) comes on top.
     records
         Records outside chunks other than messages (chunks, indexes, schemas, unknown
         opcodes): a file of a million tiny chunks takes about a minute.
@@ -149,16 +155,56 @@ class ReadLimits:
 
     chunk_bytes: int = 64 << 20
     record_bytes: int = 64 << 20
-    total_bytes: int = 512 << 20
+    total_bytes: int = 1536 << 20
     records: int = 1_000_000
     json_bytes: int = 1 << 20
     json_depth: int = 64
 
 
-#: The limits used when none are given.
+#: Signals per topic: the float64 columns a message of that topic is decoded into.
+_SIGNALS_OF: Final = {t.topic: len(t.signals) for t in (*STEP_TOPICS, TORQUE_TOPIC)}
+#: The limits used when none are given (and ``WMR_READ_LIMIT_MIB`` is not set).
 DEFAULT_LIMITS: Final = ReadLimits()
-#: Python objects of one kept message (tuple, bytes header, list slot), bytes.
-_MESSAGE_OVERHEAD: Final = 100
+#: The environment variable that sets ``total_bytes`` of :func:`default_limits`, in MiB.
+READ_LIMIT_ENV: Final = "WMR_READ_LIMIT_MIB"
+#: How to raise ``total_bytes``, for the warning that says it was reached.
+RAISE_HINT: Final = (f"raise it (wmr replay/wmr log recover --read-limit MIB, or "
+                     f"{READ_LIMIT_ENV}=MIB) to read it all")
+#: Bytes one kept message costs besides its data: its log time and its end offset (int64).
+_MESSAGE_OVERHEAD: Final = 16
+#: Bytes one batch of messages (a chunk's messages of one channel) costs: its three objects.
+_BATCH_OVERHEAD: Final = 400
+#: Copies of the rows' float64 signals that a read leads to, counted against ``total_bytes``:
+#: the decoded topics and the columns of :class:`RunData`, then the caller's own (a DataFrame
+#: in :func:`wmr.read_log`, the block and Rerun's columns in ``wmr replay``).
+ROW_COPIES: Final = 3
+
+
+def default_limits(total_mib: float | None = None) -> ReadLimits:
+    """The read limits with ``total_bytes`` from ``total_mib``, else ``WMR_READ_LIMIT_MIB``,
+    else :data:`DEFAULT_LIMITS`.
+
+    Raises
+    ------
+    ConfigError
+        ``WMR_READ_LIMIT_MIB`` (or ``total_mib``) is not a positive number of MiB.
+    """
+    from wmr.infra.errors import ConfigError
+
+    name = "read_limit"
+    text: str | None = str(total_mib)
+    if total_mib is None:
+        name, text = READ_LIMIT_ENV, os.environ.get(READ_LIMIT_ENV)
+        if not text:
+            return DEFAULT_LIMITS
+    try:
+        mib = float(text or "")
+    except ValueError:
+        mib = math.nan
+    if not (math.isfinite(mib) and 1 <= mib <= 1 << 24):
+        raise ConfigError(name, f"{text!r} is not a size in MiB from 1 to {1 << 24}",
+                          "give the read limit in MiB, e.g. 4096")
+    return ReadLimits(total_bytes=int(mib * (1 << 20)))
 #: Largest log time that fits the int64 ns of :class:`RunData` (year 2262).
 MAX_LOG_TIME_NS: Final = (1 << 63) - 1
 _HEAD: Final = struct.Struct("<BQ")
@@ -173,19 +219,83 @@ def _mib(n: int) -> str:
     return f"{n >> 20} MiB" if n >= 1 << 20 and not n % (1 << 20) else f"{n} B"
 
 
+class _OverLimit(McapError):
+    """A chunk declares more than the chunk limit (its message follows "the chunk at ...")."""
+
+
 class _Stop(Exception):
     """The records cannot be followed past this point (cut file, broken framing)."""
 
 
-class LogScan:
-    """Everything collected while walking the records of a file."""
+class ChannelMessages:
+    """The messages of one channel, kept compact: per batch (one chunk's messages of the
+    channel) their log times and end offsets as int64 arrays and their data end to end in one
+    ``bytes``: 16 bytes a message besides its data, not the ~130 of a tuple of an int and a
+    ``bytes`` (a log of 10^6 rows holds 6 * 10^6 messages)."""
 
-    def __init__(self, limits: ReadLimits, keep_chunks: bool) -> None:
+    __slots__ = ("_batches", "count")
+
+    def __init__(self) -> None:
+        self._batches: list[tuple[NDArray[np.int64], NDArray[np.int64], bytes]] = []
+        self.count = 0
+
+    def add(self, times: list[int], datas: list[bytes]) -> None:
+        """Keep one batch (``len(datas) + 16 * len(times)`` bytes and a few objects)."""
+        ends = np.cumsum(np.fromiter(map(len, datas), np.int64, len(datas)))
+        self._batches.append((np.array(times, np.int64), ends, b"".join(datas)))
+        self.count += len(times)
+
+    def batches(self) -> Iterator[tuple[NDArray[np.int64], list[bytes]]]:
+        """``(log times, datas)`` batch by batch (a list of ``bytes`` for one batch only)."""
+        for times, ends, blob in self._batches:
+            starts = np.r_[0, ends[:-1]].tolist()
+            yield times, [blob[a:b] for a, b in zip(starts, ends.tolist(), strict=True)]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes kept (what :meth:`LogScan.add_messages` charged, less the decoded rows)."""
+        return sum(len(blob) + _MESSAGE_OVERHEAD * len(times) + _BATCH_OVERHEAD
+                   for times, _, blob in self._batches)
+
+    def times(self) -> NDArray[np.int64]:
+        """Every log time, in file order."""
+        if not self._batches:
+            return np.zeros(0, np.int64)
+        return np.concatenate([times for times, _, _ in self._batches])
+
+    def __iter__(self) -> Iterator[tuple[int, bytes]]:
+        for times, datas in self.batches():
+            yield from zip(times.tolist(), datas, strict=True)
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __eq__(self, other: object) -> bool:
+        """Equal to the same messages as a list of ``(log time, data)`` (what the scan kept
+        before) or as another :class:`ChannelMessages`."""
+        if isinstance(other, ChannelMessages | list):
+            return list(self) == list(other)
+        return NotImplemented
+
+    __hash__ = None  # type: ignore[assignment]  # mutable, like the list it stands for
+
+
+class LogScan:
+    """Everything collected while walking the records of a file.
+
+    ``topics`` (None: all) are the topics whose messages are kept; the messages of a channel
+    on another topic are read for their CRC and dropped (a channel not yet seen keeps its
+    messages: its record may come later).
+    """
+
+    def __init__(self, limits: ReadLimits, keep_chunks: bool,
+                 topics: Collection[str] | None = None) -> None:
         self.limits = limits
         self.keep_chunks = keep_chunks
+        self.topics = None if topics is None else frozenset(topics)
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
-        self.messages: dict[int, list[tuple[int, bytes]]] = {}
+        self.messages: dict[int, ChannelMessages] = {}
         self.metadata: dict[str, dict[str, str]] = {}
         self.attachments: dict[str, bytes] = {}
         self.media_types: dict[str, str] = {}
@@ -194,8 +304,9 @@ class LogScan:
         self.in_summary = False
         self.bad_chunks = 0
         self.warnings: list[str] = []
-        #: The uncompressed records of every chunk that passed its checks (for recovery).
-        self.chunks: list[bytes] = []
+        #: ``(offset, length)`` of every Chunk record that passed its checks (for recovery,
+        #: which reads them again one at a time: :func:`read_chunk_at`).
+        self.chunks: list[tuple[int, int]] = []
         #: Message records outside chunks, whole (for recovery).
         self.loose: list[Message] = []
         #: Bytes kept so far, counted against ``limits.total_bytes``.
@@ -211,14 +322,22 @@ class LogScan:
         self.damaged = True
         self.warnings.append(what)
 
+    def fits(self, n_bytes: int) -> bool:
+        """Whether ``n_bytes`` more stay within the budget."""
+        return self.kept_bytes + n_bytes <= self.limits.total_bytes
+
+    def over(self, what: str) -> None:
+        """Say (once) that the budget is spent and the read stops at ``what``."""
+        if not self.over_budget:
+            self.over_budget = True
+            self.damage(f"reading the log takes more than {_mib(self.limits.total_bytes)} of "
+                        f"memory (ReadLimits.total_bytes): read stops at {what}; "
+                        f"{RAISE_HINT}")
+
     def charge(self, n_bytes: int, what: str) -> bool:
         """Count ``n_bytes`` against the budget; False (and one warning) once it is spent."""
-        if self.kept_bytes + n_bytes > self.limits.total_bytes:
-            if not self.over_budget:
-                self.over_budget = True
-                self.damage(f"the log holds more than {_mib(self.limits.total_bytes)} "
-                            f"(ReadLimits.total_bytes): read stops at {what}; give a higher "
-                            "limit to read it all")
+        if not self.fits(n_bytes):
+            self.over(what)
             return False
         self.kept_bytes += n_bytes
         return True
@@ -230,11 +349,36 @@ class LogScan:
             return False
         return True
 
-    def add_messages(self, messages: list[tuple[int, int, bytes]]) -> None:
-        """Keep ``(channel id, log time, data)`` messages, by channel."""
+    def wanted(self, channel_id: int) -> bool:
+        """Whether the messages of this channel are kept."""
+        if self.topics is None:
+            return True
+        channel = self.channels.get(channel_id)
+        return channel is None or channel.topic in self.topics
+
+    def add_messages(self, messages: list[tuple[int, int, bytes]], what: str) -> bool:
+        """Keep ``(channel id, log time, data)`` messages, by channel, if they fit the
+        budget (else none of them, and False)."""
+        by_channel: dict[int, tuple[list[int], list[bytes]]] = {}
+        n_bytes = 0
         for cid, log_time, data in messages:
-            if self.add_message_time(cid, log_time):
-                self.messages.setdefault(cid, []).append((log_time, data))
+            if not self.wanted(cid) or not self.add_message_time(cid, log_time):
+                continue
+            times, datas = by_channel.setdefault(cid, ([], []))
+            times.append(log_time)
+            datas.append(data)
+            n_bytes += len(data)
+        for cid, (times, _) in by_channel.items():
+            # what read_run decodes it into (a message of a few bytes can make many floats),
+            # twice: the batches' arrays and their concatenation
+            channel = self.channels.get(cid)
+            decoded = 16 * _SIGNALS_OF.get(channel.topic, 0) if channel is not None else 0
+            n_bytes += (_MESSAGE_OVERHEAD + decoded) * len(times)
+        if not self.charge(n_bytes + _BATCH_OVERHEAD * len(by_channel), what):
+            return False
+        for cid, (times, datas) in by_channel.items():
+            self.messages.setdefault(cid, ChannelMessages()).add(times, datas)
+        return True
 
 
 class _LogFile:
@@ -387,6 +531,48 @@ def _chunk_messages(buf: bytes, scan: LogScan) -> list[tuple[int, int, bytes]]:
     return out
 
 
+def _inflate_chunk(body: bytes, limits: ReadLimits) -> bytes:
+    """The records of a Chunk record's body, inflated no further than its declared size (at
+    most ``limits.chunk_bytes``) and checked against its size and CRC; raises on damage."""
+    _, _, usize, ucrc, clen = _CHUNK_HEAD.unpack_from(body, 0)
+    if usize > limits.chunk_bytes:
+        raise _OverLimit(f"declares {usize} bytes uncompressed, above the "
+                        f"{_mib(limits.chunk_bytes)} chunk limit (ReadLimits.chunk_bytes; a "
+                        "decompression bomb?)")
+    compression = body[32 : 32 + clen].decode()
+    (rlen,) = struct.unpack_from("<Q", body, 32 + clen)
+    data_at = 40 + clen
+    if data_at + rlen > len(body):
+        raise McapError("its data runs past the end of the record")
+    buf = _inflate(compression, body[data_at : data_at + rlen], usize)
+    if len(buf) != usize:
+        raise McapError(f"it inflates to {'more than ' if len(buf) > usize else ''}"
+                        f"{len(buf)} bytes, not the {usize} it declares")
+    if ucrc and zlib.crc32(buf) != ucrc:
+        raise McapError("chunk crc validation failed")
+    return buf
+
+
+def read_chunk_at(log: _LogFile, offset: int, length: int, limits: ReadLimits) -> bytes:
+    """The records of the Chunk record at ``offset`` (of ``length`` bytes after its opcode and
+    length), read again from the file: recovery keeps where the good chunks are, not their
+    inflated records (a 10^6-row log holds over 1 GB of them).
+
+    Raises
+    ------
+    LogError
+        The chunk no longer reads as it did (the file changed under the lock).
+    """
+    body = os.pread(log.fd, length, offset + _HEAD.size)
+    try:
+        if len(body) != length:
+            raise McapError("the file is shorter than it was")
+        return _inflate_chunk(body, limits)
+    except _DAMAGE as exc:
+        raise LogError(f"{log.name}: the chunk at byte {offset} changed while it was read "
+                       f"({str(exc) or type(exc).__name__})") from None
+
+
 def _read_chunk(log: _LogFile, start: int, length: int, scan: LogScan) -> None:
     """Check a Chunk record's sizes against the limits, inflate it bounded, keep its messages.
 
@@ -405,54 +591,41 @@ def _read_chunk(log: _LogFile, start: int, length: int, scan: LogScan) -> None:
         return
     body = log.read(length)
     try:
-        t0, t1, usize, ucrc, clen = _CHUNK_HEAD.unpack_from(body, 0)
+        t0, t1, _, _, _ = _CHUNK_HEAD.unpack_from(body, 0)
     except struct.error:
         scan.damage(f"{where} is damaged (its header is cut): left out")
         scan.bad_chunks += 1
         return
     span = f"its messages from t = {t0 * 1e-9:g} s to {t1 * 1e-9:g} s are left out"
-    if usize > limits.chunk_bytes:
-        scan.damage(f"{where} declares {usize} bytes uncompressed, above the "
-                    f"{_mib(limits.chunk_bytes)} chunk limit (ReadLimits.chunk_bytes; a "
-                    f"decompression bomb?): {span}")
-        scan.bad_chunks += 1
-        return
-    if not scan.charge(usize, f"the chunk at t = {t0 * 1e-9:g} s"):
-        scan.bad_chunks += 1
-        return
     try:
-        compression = body[32 : 32 + clen].decode()
-        (rlen,) = struct.unpack_from("<Q", body, 32 + clen)
-        data_at = 40 + clen
-        if data_at + rlen > length:
-            raise McapError("its data runs past the end of the record")
-        buf = _inflate(compression, body[data_at : data_at + rlen], usize)
+        buf = _inflate_chunk(body, limits)
         del body
-        if len(buf) != usize:
-            raise McapError(f"it inflates to {'more than ' if len(buf) > usize else ''}"
-                            f"{len(buf)} bytes, not the {usize} it declares")
-        if ucrc and zlib.crc32(buf) != ucrc:
-            raise McapError("chunk crc validation failed")
         messages = _chunk_messages(buf, scan)
+    except _OverLimit as exc:
+        scan.damage(f"{where} {exc}: {span}")
+        scan.bad_chunks += 1
+        return
     except _DAMAGE as exc:
         scan.damage(f"{where} is damaged ({str(exc) or type(exc).__name__}): {span}")
         scan.bad_chunks += 1
         return
-    if not scan.charge(_MESSAGE_OVERHEAD * len(messages), f"the chunk at t = {t0 * 1e-9:g} s"):
-        scan.bad_chunks += 1
-        return
     if scan.keep_chunks:
-        scan.chunks.append(buf)
-    else:
-        scan.add_messages(messages)
+        # recovery reads the chunk again when it writes it: only its place is kept
+        if scan.charge(_MESSAGE_OVERHEAD, f"the chunk at t = {t0 * 1e-9:g} s"):
+            scan.chunks.append((start, length))
+            return
+    elif scan.add_messages(messages, f"the chunk at t = {t0 * 1e-9:g} s"):
+        return
+    scan.bad_chunks += 1
 
 
 def _check_crc(scan: LogScan, log: _LogFile, crc: int, expected: int, what: str,
                consequence: str) -> None:
     if not expected:
         return
-    if not log.crc_whole:
-        scan.warnings.append(f"the {what} CRC was not checked: damaged bytes were skipped")
+    if not log.crc_whole:  # only records over a limit are skipped unread
+        scan.warnings.append(f"the {what} CRC was not checked: records over a read limit "
+                             "were skipped unread")
     elif crc != expected:
         scan.damage(f"the {what} is damaged ({what} CRC mismatch){consequence}")
 
@@ -470,13 +643,13 @@ def _parse_record(log: _LogFile, opcode: int, start: int, body: bytes, scan: Log
     rec = ReadDataStream(io.BytesIO(body))
     if opcode == Opcode.MESSAGE:
         message = Message.read(rec, len(body))
-        if not scan.charge(len(body) + _MESSAGE_OVERHEAD, f"the message at byte {start}"):
-            return
         if scan.keep_chunks:
-            if scan.add_message_time(message.channel_id, message.log_time):
+            if (scan.charge(len(body) + _MESSAGE_OVERHEAD, f"the message at byte {start}")
+                    and scan.add_message_time(message.channel_id, message.log_time)):
                 scan.loose.append(message)
         else:
-            scan.add_messages([(message.channel_id, message.log_time, message.data)])
+            scan.add_messages([(message.channel_id, message.log_time, message.data)],
+                              f"the message at byte {start}")
     elif opcode == Opcode.SCHEMA:
         schema = Schema.read(rec)
         if not scan.in_summary or schema.id not in scan.schemas:
@@ -569,16 +742,17 @@ def _walk(log: _LogFile, scan: LogScan) -> None:
 
 
 def scan_log(log: _LogFile, limits: ReadLimits = DEFAULT_LIMITS,
-             keep_chunks: bool = False) -> LogScan:
+             keep_chunks: bool = False, topics: Collection[str] | None = None) -> LogScan:
     """Walk every record of an open log, checking each CRC the file offers and each size
     against ``limits``.
 
     Records of the summary section never override those of the data section (a damaged
     summary must not hide an intact Schema); attachment, data section and summary CRCs are
     checked, and bytes after the closing magic are reported.  ``keep_chunks`` keeps the
-    inflated chunks and loose Message records (for recovery) instead of the messages.
+    places of the good chunks and the loose Message records (for recovery) instead of the
+    messages; ``topics`` (None: all) are the topics whose messages are kept.
     """
-    scan = LogScan(limits, keep_chunks)
+    scan = LogScan(limits, keep_chunks, topics)
     try:
         _walk(log, scan)
     except (_Stop, OSError) as exc:
@@ -596,8 +770,10 @@ def scan_log(log: _LogFile, limits: ReadLimits = DEFAULT_LIMITS,
     return scan
 
 
-def scan_file(name: str, limits: ReadLimits = DEFAULT_LIMITS) -> LogScan:
-    """Every readable record of the MCAP file ``name``, checked (:func:`scan_log`).
+def scan_file(name: str, limits: ReadLimits | None = None,
+              topics: Collection[str] | None = None) -> LogScan:
+    """Every readable record of the MCAP file ``name``, checked (:func:`scan_log`), within
+    ``limits`` (default :func:`default_limits`), keeping the messages of ``topics`` (all).
 
     Raises
     ------
@@ -605,7 +781,7 @@ def scan_file(name: str, limits: ReadLimits = DEFAULT_LIMITS) -> LogScan:
         The file is missing, not a regular file, empty, or not MCAP at all.
     """
     with open_log(name) as log:
-        return scan_log(log, limits)
+        return scan_log(log, default_limits() if limits is None else limits, topics=topics)
 
 def _generic_decoder(schema: Schema | None, channel: Channel) -> Callable[[bytes], Any] | None:
     try:
@@ -615,35 +791,42 @@ def _generic_decoder(schema: Schema | None, channel: Channel) -> Callable[[bytes
 
 
 def _decode_topic(
-    layout: TopicLayout, channel: Channel, schema: Schema | None, msgs: list[tuple[int, bytes]]
+    layout: TopicLayout, channel: Channel, schema: Schema | None, msgs: ChannelMessages
 ) -> NDArray[np.float64] | None:
-    """Signal columns of one topic: the vectorised inverse, else the file's protobuf schema."""
-    datas = [data for _, data in msgs]
+    """Signal columns of one topic, batch by batch: the vectorised inverse, else the file's
+    protobuf schema."""
     ours = (
         schema is not None
         and schema.name == layout.schema_name
         and schema.data == file_descriptor_set(layout.schema_name)
     )
-    if ours:
-        fast = decode_bodies(layout, datas)
+    decode: Callable[[bytes], Any] | None = None
+    parts: list[NDArray[np.float64]] = []
+    for _, datas in msgs.batches():
+        fast = decode_bodies(layout, datas) if ours else None
         if fast is not None:
-            return fast
-    decode = _generic_decoder(schema, channel)
-    if decode is None:
-        return None
-    out = np.full((len(datas), len(layout.signals)), np.nan)
-    try:
-        for i, data in enumerate(datas):
-            msg = decode(data)
-            for j, name in enumerate(layout.signals):
-                out[i, j] = getattr(msg, name, math.nan)
-    except Exception:  # a damaged or foreign schema (a field of another type): not ours
-        return None
-    return out
+            parts.append(fast)
+            continue
+        decode = decode or _generic_decoder(schema, channel)
+        if decode is None:
+            return None
+        out = np.full((len(datas), len(layout.signals)), np.nan)
+        try:
+            for i, data in enumerate(datas):
+                msg = decode(data)
+                for j, name in enumerate(layout.signals):
+                    out[i, j] = getattr(msg, name, math.nan)
+        except Exception:  # a damaged or foreign schema (a field of another type): not ours
+            return None
+        parts.append(out)
+    if not parts:
+        return (np.zeros((0, len(layout.signals))) if ours or _generic_decoder(schema, channel)
+                else None)
+    return np.concatenate(parts) if len(parts) > 1 else parts[0]
 
 
 def _goal(scan: LogScan, by_topic: dict[str, list[Channel]]) -> Pose2D | None:
-    msgs = [m for c in by_topic.get(GOAL_TOPIC, []) for m in scan.messages.get(c.id, [])]
+    msgs = [m for c in by_topic.get(GOAL_TOPIC, []) for m in scan.messages.get(c.id, ())]
     if not msgs:
         return None
     msg = message_class(GOAL_SCHEMA)()
@@ -667,11 +850,14 @@ def _topic_series(layout: TopicLayout, channels: list[Channel], scan: LogScan,
     times: list[NDArray[np.int64]] = []
     values: list[NDArray[np.float64]] = []
     for channel in channels:
-        msgs = scan.messages.get(channel.id, [])
+        # decoded, the raw messages go: they and the decoded rows are not held at once
+        msgs = scan.messages.pop(channel.id, ChannelMessages())
         decoded = _decode_topic(layout, channel, scan.schemas.get(channel.schema_id), msgs)
+        # the raw messages and the batches' decoded arrays are gone: the rows stay
+        scan.kept_bytes -= msgs.nbytes + 8 * len(layout.signals) * len(msgs)
         if decoded is None:
             continue
-        times.append(np.fromiter((t for t, _ in msgs), np.int64, len(msgs)))
+        times.append(msgs.times())
         values.append(decoded)
     lost = sum(scan.bad_times.get(c.id, 0) for c in channels)
     if lost:
@@ -718,7 +904,7 @@ def _join_by_time(series: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]
     return rows
 
 
-def read_run(path: str | os.PathLike[str], limits: ReadLimits = DEFAULT_LIMITS) -> RunData:
+def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None) -> RunData:
     """Read a run log; a cut or damaged file gives its readable prefix, marked truncated.
 
     Rows are joined by log time: row times are the log times of the signal topics, and a
@@ -729,7 +915,8 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits = DEFAULT_LIMITS) 
     path
         An MCAP file written by :class:`wmr.adapters.mcap.RunLogWriter`.
     limits
-        How much the file may make the reader hold (:class:`ReadLimits`).
+        How much the file may make the reader hold (:class:`ReadLimits`; default
+        :func:`default_limits`): past ``total_bytes``, the rows that fit, with a warning.
 
     Returns
     -------
@@ -742,7 +929,7 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits = DEFAULT_LIMITS) 
         The file is missing, not a regular file, empty, or not MCAP at all.
     """
     name = os.fspath(path)
-    scan = scan_file(name, limits)
+    scan = scan_file(name, limits, topics=_READ_TOPICS)
     by_topic: dict[str, list[Channel]] = {}
     for channel in sorted(scan.channels.values(), key=lambda c: c.id):
         by_topic.setdefault(channel.topic, []).append(channel)
@@ -766,6 +953,15 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits = DEFAULT_LIMITS) 
         series[layout.topic] = got
         layouts[layout.topic] = layout
     times = _join_by_time(series, warnings)
+    # the rows' columns, and what the caller makes of them, within what the budget has left
+    row_bytes = 8 * (len(SIGNALS) + 1) * ROW_COPIES
+    fit = max(0, scan.limits.total_bytes - scan.kept_bytes) // row_bytes
+    if times.size > fit:
+        scan.over(f"the row at t = {times[fit] * 1e-9:g} s ({fit} of {times.size} rows)")
+        warnings.append(scan.warnings[-1])
+        last = times[fit - 1] if fit else -1
+        times = times[:fit]
+        series = {topic: (t[t <= last], v[t <= last]) for topic, (t, v) in series.items()}
     n = times.size
     columns: dict[str, NDArray[np.float64]] = {}
     for topic, (t, values) in series.items():
@@ -788,7 +984,8 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits = DEFAULT_LIMITS) 
         attachments=scan.attachments,
         media_types=scan.media_types,
         goal=_goal(scan, by_topic),
-        truncated=not scan.complete or scan.damaged or bool(scan.bad_times),
+        truncated=not scan.complete or scan.damaged or bool(scan.bad_times)
+        or scan.over_budget,
         warnings=warnings,
     )
 
@@ -824,6 +1021,7 @@ def metadata_json(value: str, limits: ReadLimits = DEFAULT_LIMITS) -> Any:
     return json.loads(value)
 
 
+_READ_TOPICS: Final = frozenset({GOAL_TOPIC, *(t.topic for t in (*STEP_TOPICS, TORQUE_TOPIC))})
 _JSON_STRING: Final = re.compile(r'"(?:[^"\\]|\\.)*"')
 
 
@@ -837,5 +1035,6 @@ def _json_depth(text: str) -> int:
     return int(np.cumsum(step).max(initial=0))
 
 
-__all__ = ["DEFAULT_LIMITS", "MAX_LOG_TIME_NS", "Pose2D", "ReadLimits", "RunData", "metadata_json",
-           "open_log", "read_run", "scan_file", "scan_log"]
+__all__ = ["DEFAULT_LIMITS", "MAX_LOG_TIME_NS", "READ_LIMIT_ENV", "ROW_COPIES", "ChannelMessages",
+           "Pose2D", "ReadLimits", "RunData", "default_limits", "metadata_json", "open_log",
+           "read_chunk_at", "read_run", "scan_file", "scan_log"]

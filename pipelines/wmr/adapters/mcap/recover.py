@@ -34,11 +34,13 @@ import numpy as np
 import numpy.typing as npt
 
 from wmr.adapters.mcap.reader import (
-    DEFAULT_LIMITS,
     MAX_LOG_TIME_NS,
     LogScan,
     ReadLimits,
+    _LogFile,
+    default_limits,
     open_log,
+    read_chunk_at,
     scan_log,
 )
 from wmr.adapters.mcap.scene import (
@@ -119,7 +121,7 @@ def _messages(buf: bytes) -> list[tuple[int, int, bytes]]:
 
 
 def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] | None = None,
-                *, overwrite: bool = False, limits: ReadLimits = DEFAULT_LIMITS,
+                *, overwrite: bool = False, limits: ReadLimits | None = None,
                 scene: bool = True, result: Mapping[str, object] | None = None) -> Recovery:
     """Write what is intact in ``source`` as a finished MCAP log at ``output``.
 
@@ -133,7 +135,8 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
         Replace ``output`` if it exists.
     limits
         How much the source may make the reader hold (see
-        :class:`wmr.adapters.mcap.reader.ReadLimits`).
+        :class:`wmr.adapters.mcap.reader.ReadLimits`; default
+        :func:`wmr.adapters.mcap.reader.default_limits`).
     scene
         Make the scene topics an unfinished source (no ``result`` record: a killed run)
         lacks from the rows it holds; off, the output holds exactly the source's intact
@@ -157,6 +160,7 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
     """
     src = Path(source)
     dst = Path(output) if output is not None else default_output(src)
+    limits = default_limits() if limits is None else limits
     with open_log(str(src)) as log:
         # a live run holds an exclusive lock on its X.mcap.partial (wmr.infra.durable): its
         # log is still growing, and renaming it would strand the run's own commit
@@ -179,7 +183,7 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
             src = aside
         scan = scan_log(log, limits, keep_chunks=True)
         rec = Recovery(source=src, output=dst)
-        _write(scan, src, log.size, rec, limits if scene else None, result)
+        _write(scan, log, src, rec, limits if scene else None, result)
     return rec
 
 
@@ -237,11 +241,12 @@ def _add_scene(file: McapFile, src: Path, scan: LogScan, limits: ReadLimits,
     recorder.write(_SceneSink(file, missing, rec))
 
 
-def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery,
+def _write(scan: LogScan, log: _LogFile, src: Path, rec: Recovery,
            scene_limits: ReadLimits | None, result: Mapping[str, object] | None = None
            ) -> None:
-    """Write what ``scan`` kept to ``rec.output`` as a finished log; on failure nothing
-    stays."""
+    """Write what ``scan`` kept of ``log`` to ``rec.output`` as a finished log (its good
+    chunks read again one at a time); on failure nothing stays."""
+    src_bytes = log.size
     rec.lost = list(scan.warnings)
     if "result" not in scan.metadata:
         rec.lost.append("no 'result' metadata record: the run did not finish")
@@ -272,7 +277,9 @@ def _write(scan: LogScan, src: Path, src_bytes: int, rec: Recovery,
         # chunks gives a file of a few, not a million chunk records and indexes
         pending: list[tuple[int, int, bytes]] = []
         pending_bytes = 0
-        for messages in itertools.chain(map(_messages, scan.chunks), [loose, None]):
+        chunks = (_messages(read_chunk_at(log, offset, length, scan.limits))
+                  for offset, length in scan.chunks)
+        for messages in itertools.chain(chunks, [loose, None]):
             if messages is None or (pending and pending_bytes >= _CHUNK_BYTES):
                 if pending:
                     _write_chunk(file, pending)

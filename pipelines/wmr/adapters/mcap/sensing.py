@@ -124,7 +124,7 @@ def read_sensing(path: str | os.PathLike[str]) -> SensingTrace | None:
 
     from wmr.adapters.mcap.reader import scan_file
 
-    scan = scan_file(os.fspath(path))
+    scan = scan_file(os.fspath(path), topics=(GPS_TOPIC, ESTIMATE_TOPIC))
     gps: list[tuple[int, int, float, float]] = []
     est: list[tuple[int, int, float, float, float]] = []
     for cid, channel in scan.channels.items():

@@ -204,8 +204,11 @@ def write_blueprint(path: str | Path, application_id: str = APPLICATION_ID,
                     sensing: bool = False) -> Path:
     """Write the blueprint to ``path`` (``.rbl``) and return it (``frame``, ``sensing``: see
     :func:`raw_blueprint`)."""
+    from wmr.infra.durable import replacing_path
+
     out = Path(path)
-    raw_blueprint(frame, sensing=sensing).save(application_id, out)
+    with replacing_path(out) as tmp:  # a full disk keeps the previous blueprint whole
+        raw_blueprint(frame, sensing=sensing).save(application_id, tmp)
     return out
 
 

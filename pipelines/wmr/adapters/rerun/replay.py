@@ -48,6 +48,7 @@ import math
 import os
 import sys
 from collections.abc import Iterable, Mapping, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -69,6 +70,7 @@ from wmr.adapters.mcap.scene import (
     robot_geometry,
 )
 from wmr.core.signals import COLUMN
+from wmr.infra.durable import replacing_path
 from wmr.infra.errors import LogError, WmrError
 
 #: The Rerun application id of every recording written here.
@@ -203,13 +205,17 @@ class RunLog:
     path: Path
 
 
-def find_logs(inputs: Sequence[str | os.PathLike[str]]) -> list[RunLog]:
+def find_logs(inputs: Sequence[str | os.PathLike[str]],
+              skipped: list[str] | None = None) -> list[RunLog]:
     """The MCAP logs named by ``inputs``: files as given, folders searched recursively.
 
     Parameters
     ----------
     inputs
         ``.mcap`` files and folders (a batch output folder may hold sub-folders).
+    skipped
+        Gets one line per file of a folder left out: a symbolic link (or a file under one)
+        that leads outside the folder is not followed.
 
     Returns
     -------
@@ -226,7 +232,13 @@ def find_logs(inputs: Sequence[str | os.PathLike[str]]) -> list[RunLog]:
     for item in inputs:
         p = Path(item)
         if p.is_dir():
-            found = sorted(f for f in p.rglob("*.mcap") if f.is_file())
+            root = p.resolve()
+            found = []
+            for f in sorted(f for f in p.rglob("*.mcap") if f.is_file()):
+                if f.resolve().is_relative_to(root):
+                    found.append(f)
+                elif skipped is not None:
+                    skipped.append(f"{f}: skipped: a link to {f.resolve()}, outside {p}")
             if not found:
                 raise LogError(f"{p}: no .mcap files in this folder")
             paths.extend(found)
@@ -878,29 +890,44 @@ class ReplayResult:
     rrd: Path | None
     spawned: bool
     warnings: list[str] = field(default_factory=list)
+    #: One line per log left out (unreadable, damaged past reading, a link outside a folder).
+    skipped: list[str] = field(default_factory=list)
 
 
-def read_logs(logs: Sequence[RunLog]) -> tuple[list[tuple[RunLog, RunData]], list[str]]:
-    """Read every log; warn about truncated ones; raise on unreadable ones.
+def read_logs(logs: Sequence[RunLog], skipped: list[str] | None = None
+              ) -> tuple[list[tuple[RunLog, RunData]], list[str]]:
+    """Read every log; warn about truncated ones; raise on unreadable ones, or, given
+    ``skipped``, put one line there for each and read the others.
 
     Raises
     ------
     LogError
-        A file is not an MCAP log, or holds no complete control step.
+        A file is not an MCAP log, or holds no complete control step (the first such file
+        when ``skipped`` is None, else when no log is left).
     """
     runs: list[tuple[RunLog, RunData]] = []
     warnings: list[str] = []
+    first: LogError | None = None
     for log in logs:
-        data = read_run(log.path)
-        if data.n_steps == 0:
-            why = f" ({data.warnings[0]})" if data.warnings else ""
-            raise LogError(f"{log.path}: no readable control step in this log{why}")
+        try:
+            data = read_run(log.path)
+            if data.n_steps == 0:
+                why = f" ({data.warnings[0]})" if data.warnings else ""
+                raise LogError(f"{log.path}: no readable control step in this log{why}")
+        except LogError as exc:
+            if skipped is None:
+                raise
+            skipped.append(f"skipped: {exc}")
+            first = first or exc
+            continue
         if data.truncated:
             warnings.append(f"{log.path}: truncated log, replaying its first {data.n_steps} "
                             f"steps (to t = {data.t_s[-1]:.2f} s)")
         # what the reader left out or could not check: never replayed silently
         warnings += [f"{log.path}: {line}" for line in data.warnings]
         runs.append((log, data))
+    if not runs and first is not None:  # nothing to replay: the first reason is the error
+        raise first
     return runs, warnings
 
 
@@ -977,7 +1004,8 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     """
     if rrd is not None and Path(rrd).suffix != ".rrd":
         raise WmrError(f"{rrd}: the recording file must end in .rrd")
-    runs, warnings = read_logs(find_logs(inputs))
+    skipped: list[str] = []
+    runs, warnings = read_logs(find_logs(inputs, skipped), skipped)
     names = [log.name for log, _ in runs]
     datas = [d for _, d in runs]
     many = len(runs) > 1
@@ -1003,48 +1031,51 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
             warnings.append(f"could not start the Rerun viewer ({exc}): writing an .rrd instead")
     if not spawned and out is None:
         out = default_rrd_path(inputs)
-    if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        rec.save(out, default_blueprint=blueprint)
+    with ExitStack() as stack:
+        if out is not None:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            # written beside out and renamed over it once whole: a full disk keeps the previous
+            tmp = stack.enter_context(replacing_path(out))
+            rec.save(tmp, default_blueprint=blueprint)
 
-    log_grid(rec, bounds)
-    labels = [f"#{k}" for k in range(len(runs))]
-    label_every = len(runs) // _MAX_LABELS + 1
-    goals_labelled: set[tuple[float, float]] = set()
-    for k, (log, data) in enumerate(runs):
-        color = run_color(k, len(runs))
-        half_track, radius = robot_geometry(data.metadata.get("run", {}))
-        path_xy = np.column_stack([data.signals["x_m"], data.signals["y_m"]])
-        phase = _run_phase(data)
-        finite = np.isfinite(path_xy).all(axis=1)
-        # one label per goal position (runs to one goal with several headings: one label;
-        # the summary has each run's heading)
-        goal_label: str | None = None
-        if data.goal is not None:
-            key = (round(data.goal.x_m, 2), round(data.goal.y_m, 2))
-            if key not in goals_labelled:
-                goals_labelled.add(key)
-                goal_label = f"goal ({key[0]:g}, {key[1]:g})" if many else ""
-        log_run_static(rec, log.name, goal=data.goal, path_xy=path_xy[finite], color=color,
-                       run_color=color if many else None, half_track_m=half_track,
-                       wheel_radius_m=radius,
-                       phase=phase[finite] if phase is not None else None,
-                       start_label=(labels[k] if k % label_every == 0 else "")
-                       if many else None,
-                       stop_radius_m=_float(data.metadata.get("run", {}).get("stop_radius_m")),
-                       goal_label=goal_label)
-        send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many)
-        if sensing[k]:
-            log_sensing(rec, log.name, log.path, data)
-    summary = (_summary_many(labels, names, datas) if many
-               else _summary_single(names[0], datas[0], sensing[0]))
-    rec.log(SUMMARY_ENTITY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN),
-            static=True)
-    rec.flush()
-    if out is not None:
-        rec.disconnect()
+        log_grid(rec, bounds)
+        labels = [f"#{k}" for k in range(len(runs))]
+        label_every = len(runs) // _MAX_LABELS + 1
+        goals_labelled: set[tuple[float, float]] = set()
+        for k, (log, data) in enumerate(runs):
+            color = run_color(k, len(runs))
+            half_track, radius = robot_geometry(data.metadata.get("run", {}))
+            path_xy = np.column_stack([data.signals["x_m"], data.signals["y_m"]])
+            phase = _run_phase(data)
+            finite = np.isfinite(path_xy).all(axis=1)
+            # one label per goal position (runs to one goal with several headings: one label;
+            # the summary has each run's heading)
+            goal_label: str | None = None
+            if data.goal is not None:
+                key = (round(data.goal.x_m, 2), round(data.goal.y_m, 2))
+                if key not in goals_labelled:
+                    goals_labelled.add(key)
+                    goal_label = f"goal ({key[0]:g}, {key[1]:g})" if many else ""
+            log_run_static(rec, log.name, goal=data.goal, path_xy=path_xy[finite], color=color,
+                           run_color=color if many else None, half_track_m=half_track,
+                           wheel_radius_m=radius,
+                           phase=phase[finite] if phase is not None else None,
+                           start_label=(labels[k] if k % label_every == 0 else "")
+                           if many else None,
+                           stop_radius_m=_float(data.metadata.get("run", {}).get("stop_radius_m")),
+                           goal_label=goal_label)
+            send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many)
+            if sensing[k]:
+                log_sensing(rec, log.name, log.path, data)
+        summary = (_summary_many(labels, names, datas) if many
+                   else _summary_single(names[0], datas[0], sensing[0]))
+        rec.log(SUMMARY_ENTITY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN),
+                static=True)
+        rec.flush()
+        if out is not None:
+            rec.disconnect()
     return ReplayResult(runs=names, steps={log.name: d.n_steps for log, d in runs}, rrd=out,
-                        spawned=spawned, warnings=warnings)
+                        spawned=spawned, warnings=warnings, skipped=skipped)
 
 
 def iter_signal_names() -> Iterable[str]:
