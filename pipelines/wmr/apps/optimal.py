@@ -11,6 +11,7 @@ from typing import Any, Final
 from wmr.core.control import Limits
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.record import RECORD_KEYS, record
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 
 #: The advice of a failed solve, for users of this function and of the command line (who
@@ -226,5 +227,66 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
     return done
 
 
-__all__ = ["DEFAULT_GOAL", "DEFAULT_START", "optimal_command", "optimal_limits", "optimal_name",
-           "optimal_to_log"]
+#: ``optimal`` of a batch spec: the objectives a batch can solve beside every run.
+BATCH_OBJECTIVES: Final = ("time", "energy")
+#: The summary columns of the optimum (:func:`optimum_fields`), name -> kind.
+OPTIMUM_COLUMNS: Final = {"optimal_status": "string", "optimal_message": "string",
+                          "optimal_time_s": "float", "optimal_energy_j": "float",
+                          "time_gap": "float", "energy_gap": "float"}
+
+
+def _gap(value: object, optimum: float) -> float | None:
+    """``value / optimum``; None when either is missing or the optimum is not positive."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    if not (math.isfinite(value) and math.isfinite(optimum) and optimum > 0.0):
+        return None
+    return float(value) / optimum
+
+
+def optimum_fields(spec: RunSpec, objective: str, record: dict[str, Any],
+                   previous: Any = None) -> tuple[dict[str, Any], Any]:
+    r"""The optimum beside a batch's run: its summary fields (:data:`OPTIMUM_COLUMNS`) and the
+    solution (an :class:`~wmr.adapters.ocp.OptimalResult`, to warm-start the next, or None).
+
+    The OCP is the run's own: its start, goal, robot parameters and limits (all four of
+    :class:`~wmr.core.control.Limits`).  ``optimal_time_s`` is always the minimum time;
+    ``optimal_energy_j`` the positive motor work (:mod:`wmr.core.energy`, the run's
+    ``energy_positive_j``) of the minimum-time manoeuvre (``"time"``), or of the minimum-effort
+    one (``"energy"``: least :math:`\int \tau_r^2 + \tau_l^2 dt`) in the run's own time to
+    goal, or 1.5 times the minimum time for a run that did not converge.  ``time_gap`` and
+    ``energy_gap`` are the run's over the optimum's, for a converged run; a solver that fails
+    is ``optimal_status`` ``failed`` or ``infeasible`` with its message, never a bare NaN.
+    """
+    from wmr.adapters.ocp import FAILED_ADVICE, OptimalLimits, solve_optimal
+
+    out: dict[str, Any] = dict.fromkeys(OPTIMUM_COLUMNS)
+    limits = OptimalLimits.like(spec.limits)
+    try:
+        res = solve_optimal(spec.start, spec.goal, spec.params, objective="time",
+                            limits=limits, previous=previous)
+        t_min = res.final_time_s
+        if res.status == "solved" and objective == "energy":
+            t_run = record.get("time_to_goal_s") if record.get("status") == "converged" else None
+            t_fixed = t_run if isinstance(t_run, float) and t_run >= t_min > 0.0 \
+                else 1.5 * t_min
+            res = solve_optimal(spec.start, spec.goal, spec.params, objective="energy",
+                                limits=limits, final_time_s=t_fixed)
+    except Exception as exc:  # the solver's failure is the row's, not the batch's
+        out.update(optimal_status="failed", optimal_message=f"{type(exc).__name__}: {exc}")
+        return out, None
+    out["optimal_status"] = res.status
+    out["optimal_message"] = res.message.replace(FAILED_ADVICE, _CASE_ADVICE)
+    if res.status != "solved":
+        return out, None
+    out["optimal_time_s"] = t_min
+    out["optimal_energy_j"] = res.energy_positive_j
+    if record.get("status") == "converged":
+        out["time_gap"] = _gap(record.get("time_to_goal_s"), t_min)
+        out["energy_gap"] = _gap(record.get("energy_positive_j"), res.energy_positive_j)
+    return out, res if res.objective == "time" else None
+
+
+__all__ = ["BATCH_OBJECTIVES", "DEFAULT_GOAL", "DEFAULT_START", "OPTIMUM_COLUMNS",
+           "optimal_command", "optimal_limits", "optimal_name", "optimal_to_log",
+           "optimum_fields"]
