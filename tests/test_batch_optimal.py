@@ -145,3 +145,25 @@ def test_the_previous_solution_warm_starts_the_same_manoeuvre_only() -> None:
     assert same.final_time_s == pytest.approx(fresh.final_time_s, rel=1e-6)
     other = solve_optimal(Pose(2.0, 1.0, 0.0), goal, limits=limits, previous=first)
     assert other.solved and other.extra["guess"] == "kinematic"
+
+
+def test_wmr_optimal_takes_a_scenario_and_its_overrides(
+        fmu3: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``wmr optimal SCENARIO --param m=40`` solves the scenario's run on the heavier robot
+    (a longer optimum than the nominal one), names its log after the change, and a bad
+    ``--param`` is one line naming it, exit 1."""
+    import json
+
+    from wmr.cli import main
+
+    def solve(*extra: str) -> dict[str, object]:
+        out = tmp_path / f"{len(extra)}.mcap"
+        assert main(["optimal", "fig11", "--fmu", str(fmu3), "--out", str(out), "--json",
+                     *extra]) == 0
+        return dict(json.loads(capsys.readouterr().out.strip().splitlines()[-1]))
+
+    nominal, heavy = solve(), solve("--param", "m=40")
+    assert str(heavy["name"]).startswith("optimal-time-m=40")
+    assert heavy["final_time_s"] > nominal["final_time_s"]  # type: ignore[operator]
+    assert main(["optimal", "fig11", "--param", "bogus=1"]) == 1
+    assert "bogus" in capsys.readouterr().err
