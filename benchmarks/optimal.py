@@ -6,6 +6,13 @@ T = 10 s); the table gives the median IPOPT wall time (the NLP is built once per
 before timing), the iterations, the minimum time found and the ratio cold / warm.
 
 Run: ``python benchmarks/optimal.py [--repeats 5] [--closed-loop-limits]``.
+
+``--batch SPEC [--runs 10]``: the cost of a batch's ``optimal = "time"`` per run, on the first
+runs of SPEC (default ``mc_fig10``: its own random starts and robots, the PI's limits), solved
+in order as one worker solves them: from the cold start, from the kinematic warm start, and
+from the kinematic warm start with the worker's previous solution offered
+(:func:`wmr.apps.optimal.optimum_fields`); median and total wall time per run, and the
+projection to a 10^4-run batch on one core.
 """
 
 from __future__ import annotations
@@ -30,12 +37,47 @@ def _median_solve(start: object, goal: object, warm: bool, repeats: int,
     return statistics.median(times), last.iterations, last.final_time_s, last.status
 
 
+def _batch(spec_name: str, n_runs: int) -> None:
+    """The per-run cost of the optimum beside a batch's runs (``--batch``)."""
+    from wmr.adapters.ocp import OptimalLimits
+    from wmr.apps.batch import load_batch
+
+    runs = [r.spec for r in load_batch(spec_name).runs[:n_runs]]
+    _nlp(DEFAULT_INTERVALS, DEFAULT_RK_SUBSTEPS, 1000, 60.0)  # built once per worker, untimed
+    print(f"optimum beside the first {len(runs)} runs of {spec_name} (minimum time, the PI's "
+          f"limits, N = {DEFAULT_INTERVALS})")
+    for label, warm, chain in (("cold", False, False), ("kinematic", True, False),
+                               ("kinematic+previous", True, True)):
+        times, iters, status, previous = [], [], [], None
+        for spec in runs:
+            t0 = time.perf_counter()
+            r = solve_optimal(spec.start, spec.goal, spec.params, warm_start=warm,
+                              limits=OptimalLimits.like(spec.limits),
+                              previous=previous if chain else None)
+            times.append(time.perf_counter() - t0)  # the integrals after IPOPT included
+            iters.append(r.iterations)
+            status.append(r.status)
+            if r.solved:
+                previous = r
+        med, mean = statistics.median(times), statistics.mean(times)
+        print(f"{label:<19} median {med * 1e3:7.1f} ms/run, mean {mean * 1e3:7.1f} ms, "
+              f"median {statistics.median(iters):.0f} iterations, solved "
+              f"{status.count('solved')}/{len(runs)}; 10^4 runs: "
+              f"{mean * 1e4 / 60:.1f} core-minutes")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--batch", metavar="SPEC",
+                        help="the optimum's cost per run on the first runs of SPEC")
+    parser.add_argument("--runs", type=int, default=10, help="runs of --batch (default 10)")
     parser.add_argument("--closed-loop-limits", action="store_true",
                         help="torque 8 N.m, wheel speed 10 rad/s, v 1 m/s, omega 1.5 rad/s")
     args = parser.parse_args()
+    if args.batch:
+        _batch(args.batch, args.runs)
+        return
     limits: dict[str, float] = {}
     if args.closed_loop_limits:
         limits = {"torque_limit_nm": 8.0, "wheel_speed_limit_radps": 10.0,

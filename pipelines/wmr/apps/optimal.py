@@ -4,13 +4,14 @@ under the PI's limits, replay its torques open-loop on the FMU, log the replay t
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Final
 
 from wmr.core.control import Limits
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.record import RECORD_KEYS, record
+from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 
 #: The advice of a failed solve, for users of this function and of the command line (who
@@ -18,12 +19,14 @@ from wmr.infra.errors import ConfigError
 _CASE_ADVICE = "the goal may be too far or the limits too tight for the solver"
 
 
-def optimal_limits(torque_limit_nm: float | None = None, torque_only: bool = False) -> Any:
-    """The PI's limits as :class:`wmr.adapters.ocp.OptimalLimits` (only the torque's when
-    ``torque_only``), the torque limit replaced by ``torque_limit_nm`` if given."""
+def optimal_limits(torque_limit_nm: float | None = None, torque_only: bool = False,
+                   pi: Limits | None = None) -> Any:
+    """The PI's limits ``pi`` (default :class:`Limits`) as
+    :class:`wmr.adapters.ocp.OptimalLimits` (only the torque's when ``torque_only``), the
+    torque limit replaced by ``torque_limit_nm`` if given."""
     from wmr.adapters.ocp import OptimalLimits
 
-    pi = Limits()
+    pi = Limits() if pi is None else pi
     torque = pi.torque_max_nm if torque_limit_nm is None else torque_limit_nm
     if not math.isfinite(torque) or torque <= 0.0:
         raise ConfigError("torque_limit_nm", f"must be > 0, got {torque!r}")
@@ -54,6 +57,11 @@ def _as_flag(exc: ConfigError) -> ConfigError:
     return ConfigError(flag, exc.problem, fix)
 
 
+def _degrees(pose: Pose) -> tuple[float, float, float]:
+    """A run's pose as typed on the command line, ``(x_m, y_m, heading_deg)``."""
+    return (pose.x_m, pose.y_m, math.degrees(pose.heading_rad))
+
+
 def _pose(value: Sequence[float] | None, default: tuple[float, float, float],
           field: str) -> tuple[float, float, float]:
     """``(x_m, y_m, heading_deg)``, finite; ``default`` for None."""
@@ -71,7 +79,7 @@ def optimal_name(start: tuple[float, float, float], goal: tuple[float, float, fl
                  objective: str = "time", torque_limit_nm: float | None = None,
                  torque_only: bool = False, final_time_s: float | None = None,
                  period_s: float = 0.01, fmi: int = 3,
-                 fmu: str | Path | None = None) -> str:
+                 fmu: str | Path | None = None, extra: Sequence[str] = ()) -> str:
     """``optimal-OBJECTIVE`` and a token per input that changes the manoeuvre
     (:mod:`wmr.config.naming`); poses ``(x_m, y_m, heading_deg)``."""
     from wmr.config.naming import fmu_tokens, pose_token, variant_name
@@ -88,6 +96,7 @@ def optimal_name(start: tuple[float, float, float], goal: tuple[float, float, fl
         tokens.append(f"T={final_time_s:.10g}")
     if period_s != 0.01:
         tokens.append(f"period={period_s:.10g}")
+    tokens.extend(extra)  # --param and --limit, NAME=VALUE
     return variant_name(f"optimal-{objective}",
                         [*tokens, *fmu_tokens(fmi, None if fmu is None else str(fmu))])
 
@@ -98,12 +107,17 @@ def optimal_command(start: Sequence[float] | None = None, goal: Sequence[float] 
                     period_s: float = 0.01, out: str | Path | None = None,
                     fmi: int = 3, fmu: str | Path | None = None,
                     progress: Callable[[str], None] | None = None,
-                    command_line: bool = False) -> dict[str, Any]:
+                    command_line: bool = False, scenario: str | Path | None = None,
+                    run: str | None = None, params: Mapping[str, float] | None = None,
+                    limits: Mapping[str, float] | None = None) -> dict[str, Any]:
     """What ``wmr optimal`` and :func:`wmr.optimal` both do: check the inputs, name the case,
     solve, replay and log (:func:`optimal_to_log`); return the record.
 
     Poses are ``(x_m, y_m, heading_deg)`` (default :data:`DEFAULT_START`,
-    :data:`DEFAULT_GOAL`); the log goes to ``out`` (default ``runs/<name>.mcap``).  An error
+    :data:`DEFAULT_GOAL`, or the run ``run`` of ``scenario``, resolved as ``wmr run`` does);
+    ``params`` and ``limits`` replace the robot's parameters and the PI's limits by name, as
+    ``wmr run --param/--limit`` do; the log goes to ``out`` (default ``runs/<name>.mcap``).
+    An error
     names the option on the command line (``--final-time``), the keyword in the API
     (``final_time_s``).
 
@@ -119,13 +133,30 @@ def optimal_command(start: Sequence[float] | None = None, goal: Sequence[float] 
     def option(keyword: str) -> str:
         return _FLAGS[keyword] if command_line else keyword
 
+    spec = None
+    if scenario is not None or run is not None or params or limits:
+        from wmr.apps.run import select_run
+        from wmr.config.scenario import load_scenario, with_overrides
+
+        base = (select_run(load_scenario(scenario), run, command_line) if scenario is not None
+                or run is not None else RunSpec(name="", start=Pose(0.0, 0.0, 0.0),
+                                                goal=Pose(0.0, 0.0, 0.0)))
+        spec = with_overrides(base, params=params, limits=limits)
+        if start is None and scenario is not None:
+            start = _degrees(spec.start)
+        if goal is None and scenario is not None:
+            goal = _degrees(spec.goal)
     start_deg = _pose(start, DEFAULT_START, option("start"))
     goal_deg = _pose(goal, DEFAULT_GOAL, option("goal"))
     if not math.isfinite(period_s) or period_s <= 0.0:
         raise ConfigError(option("period_s"), f"must be > 0, got {period_s!r}")
+    changed = [] if spec is None else [
+        *(f"{k}={v:.10g}" for k, v in sorted((params or {}).items())),
+        *(f"{k}={v:.10g}" for k, v in sorted((limits or {}).items()))]
     name = optimal_name(start_deg, goal_deg, objective=objective,
                         torque_limit_nm=torque_limit_nm, torque_only=torque_only,
-                        final_time_s=final_time_s, period_s=period_s, fmi=fmi, fmu=fmu)
+                        final_time_s=final_time_s, period_s=period_s, fmi=fmi, fmu=fmu,
+                        extra=changed)
     path = check_output(out if out else default_log_path(name), option("out"), suffix=".mcap")
     if objective == "time" and final_time_s is not None:
         raise ConfigError(option("final_time_s"), "the time objective leaves the final time "
@@ -137,7 +168,9 @@ def optimal_command(start: Sequence[float] | None = None, goal: Sequence[float] 
                               Path(fmu) if fmu is not None else default_fmu(fmi), name=name,
                               objective=objective, torque_limit_nm=torque_limit_nm,
                               torque_only=torque_only, final_time_s=final_time_s,
-                              period_s=period_s, progress=progress)
+                              period_s=period_s, progress=progress,
+                              params=None if spec is None else spec.params,
+                              pi_limits=None if spec is None else spec.limits)
     except ConfigError as exc:  # solve_optimal's arguments, named as the caller named them
         if command_line:
             raise _as_flag(exc) from None
@@ -149,7 +182,8 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
                    torque_only: bool = False, final_time_s: float | None = None,
                    period_s: float = 0.01,
                    params: RobotParams | None = None,
-                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                   progress: Callable[[str], None] | None = None,
+                   pi_limits: Limits | None = None) -> dict[str, Any]:
     """Solve, replay on the FMU at ``fmu_path`` and log to ``out``; return the result record.
 
     ``objective="energy"`` without ``final_time_s`` takes 1.5 times the minimum time.  The
@@ -172,7 +206,7 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
     )
 
     params = RobotParams() if params is None else params
-    limits = optimal_limits(torque_limit_nm, torque_only)
+    limits = optimal_limits(torque_limit_nm, torque_only, pi_limits)
     note = ""
     if objective == "energy" and final_time_s is None:
         t_min = solve_optimal(start, goal, params, objective="time", limits=limits,
@@ -226,5 +260,66 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
     return done
 
 
-__all__ = ["DEFAULT_GOAL", "DEFAULT_START", "optimal_command", "optimal_limits", "optimal_name",
-           "optimal_to_log"]
+#: ``optimal`` of a batch spec: the objectives a batch can solve beside every run.
+BATCH_OBJECTIVES: Final = ("time", "energy")
+#: The summary columns of the optimum (:func:`optimum_fields`), name -> kind.
+OPTIMUM_COLUMNS: Final = {"optimal_status": "string", "optimal_message": "string",
+                          "optimal_time_s": "float", "optimal_energy_j": "float",
+                          "time_gap": "float", "energy_gap": "float"}
+
+
+def _gap(value: object, optimum: float) -> float | None:
+    """``value / optimum``; None when either is missing or the optimum is not positive."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    if not (math.isfinite(value) and math.isfinite(optimum) and optimum > 0.0):
+        return None
+    return float(value) / optimum
+
+
+def optimum_fields(spec: RunSpec, objective: str, record: dict[str, Any],
+                   previous: Any = None) -> tuple[dict[str, Any], Any]:
+    r"""The optimum beside a batch's run: its summary fields (:data:`OPTIMUM_COLUMNS`) and the
+    solution (an :class:`~wmr.adapters.ocp.OptimalResult`, to warm-start the next, or None).
+
+    The OCP is the run's own: its start, goal, robot parameters and limits (all four of
+    :class:`~wmr.core.control.Limits`).  ``optimal_time_s`` is always the minimum time;
+    ``optimal_energy_j`` the positive motor work (:mod:`wmr.core.energy`, the run's
+    ``energy_positive_j``) of the minimum-time manoeuvre (``"time"``), or of the minimum-effort
+    one (``"energy"``: least :math:`\int \tau_r^2 + \tau_l^2 dt`) in the run's own time to
+    goal, or 1.5 times the minimum time for a run that did not converge.  ``time_gap`` and
+    ``energy_gap`` are the run's over the optimum's, for a converged run; a solver that fails
+    is ``optimal_status`` ``failed`` or ``infeasible`` with its message, never a bare NaN.
+    """
+    from wmr.adapters.ocp import FAILED_ADVICE, OptimalLimits, solve_optimal
+
+    out: dict[str, Any] = dict.fromkeys(OPTIMUM_COLUMNS)
+    limits = OptimalLimits.like(spec.limits)
+    try:
+        res = solve_optimal(spec.start, spec.goal, spec.params, objective="time",
+                            limits=limits, previous=previous)
+        t_min = res.final_time_s
+        if res.status == "solved" and objective == "energy":
+            t_run = record.get("time_to_goal_s") if record.get("status") == "converged" else None
+            t_fixed = t_run if isinstance(t_run, float) and t_run >= t_min > 0.0 \
+                else 1.5 * t_min
+            res = solve_optimal(spec.start, spec.goal, spec.params, objective="energy",
+                                limits=limits, final_time_s=t_fixed)
+    except Exception as exc:  # the solver's failure is the row's, not the batch's
+        out.update(optimal_status="failed", optimal_message=f"{type(exc).__name__}: {exc}")
+        return out, None
+    out["optimal_status"] = res.status
+    out["optimal_message"] = res.message.replace(FAILED_ADVICE, _CASE_ADVICE)
+    if res.status != "solved":
+        return out, None
+    out["optimal_time_s"] = t_min
+    out["optimal_energy_j"] = res.energy_positive_j
+    if record.get("status") == "converged":
+        out["time_gap"] = _gap(record.get("time_to_goal_s"), t_min)
+        out["energy_gap"] = _gap(record.get("energy_positive_j"), res.energy_positive_j)
+    return out, res if res.objective == "time" else None
+
+
+__all__ = ["BATCH_OBJECTIVES", "DEFAULT_GOAL", "DEFAULT_START", "OPTIMUM_COLUMNS",
+           "optimal_command", "optimal_limits", "optimal_name", "optimal_to_log",
+           "optimum_fields"]

@@ -50,8 +50,12 @@ def _json_line(obj: Any) -> str:
 
 def _cmd_optimal(args: argparse.Namespace) -> int:
     from wmr.apps.optimal import optimal_command
+    from wmr.cli.run import _key_values
 
     record = optimal_command(args.start, args.goal, objective=args.objective,
+                             scenario=args.scenario, run=args.run,
+                             params=_key_values(args.param, "--param"),
+                             limits=_key_values(args.limit, "--limit"),
                              torque_limit_nm=args.torque_limit, torque_only=args.torque_only,
                              final_time_s=args.final_time, period_s=args.period,
                              out=args.out, fmi=args.fmi, fmu=args.fmu, progress=_progress,
@@ -216,6 +220,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "and log the FMU run to MCAP. Limits: the PI's (torque, wheel speed, v, "
                     "omega) unless --torque-only. Exit status: 0 solved, 3 infeasible, "
                     "1 failed.")
+    p.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
+                   help="the start, goal, robot and limits of this scenario's run (name or "
+                        "TOML file, as wmr run takes it; default: the options alone)")
+    p.add_argument("--run", metavar="NAME", help="the run of a multi-run scenario")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE",
+                   help="override a robot parameter, as wmr run --param")
+    p.add_argument("--limit", action="append", metavar="NAME=VALUE",
+                   help="override a limit of the PI (torque_max_nm, wheel_speed_max_radps, "
+                        "v_max_mps, omega_max_radps), as wmr run --limit")
     p.add_argument("--start", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),
                    help="start pose (default 0 0 0)")
     p.add_argument("--goal", nargs=3, type=float, metavar=("X", "Y", "THETA_DEG"),

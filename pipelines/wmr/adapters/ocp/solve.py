@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Final
 
 import numpy as np
 
@@ -28,9 +29,19 @@ from wmr.adapters.ocp.problem import (
 )
 from wmr.adapters.ocp.result import OptimalResult, _empty_result
 from wmr.adapters.ocp.transcription import _Nlp, _nlp, _nlp_built, _solve_nlp
-from wmr.adapters.ocp.warmstart import _cold_guess, _kinematic_guess, _wrap
+from wmr.adapters.ocp.warmstart import (
+    _cold_guess,
+    _Guess,
+    _kinematic_guess,
+    _previous_guess,
+    _wrap,
+)
 from wmr.core.plant import Pose, RobotParams
 from wmr.infra.errors import ConfigError
+
+#: The guesses of :func:`solve_optimal` as its messages name them.
+_GUESS_NAMES: Final = {"previous": "the previous solution", "kinematic": "the warm start",
+                       "cold": "the cold start"}
 
 
 def min_time_bound_s(start: Pose, goal: Pose, params: RobotParams,
@@ -192,6 +203,7 @@ def solve_optimal(
     max_iter: int = 1000,
     max_cpu_time_s: float = 60.0,
     progress: Callable[[str], None] | None = None,
+    previous: OptimalResult | None = None,
 ) -> OptimalResult:
     r"""The optimal rest-to-rest manoeuvre from ``start`` to ``goal`` under the limits.
 
@@ -242,6 +254,12 @@ def solve_optimal(
         Called with a line (IPOPT's iteration, T, the objective) at least every
         :data:`~wmr.adapters.ocp.transcription.PROGRESS_INTERVAL_S` while IPOPT runs, and when
         a failed solve is retried from the cold start; None: silent.
+    previous
+        An earlier solved manoeuvre (the last of a batch's worker): with ``warm_start``, IPOPT
+        starts from it, moved rigidly onto ``start``, when it then ends near ``goal``
+        (:func:`~wmr.adapters.ocp.warmstart._previous_guess`), else from the kinematic path.
+        A failure from it is retried from the kinematic path, then the cold start.
+        ``extra["guess"]`` of the result names the start that solved it.
 
     Returns
     -------
@@ -291,33 +309,48 @@ def solve_optimal(
         progress(f"building the NLP on {n} intervals (once per process)")
     nlp = _nlp(n, rk_substeps, max_iter, float(max_cpu_time_s))
     p = m.param_vector(params, start)
-    guess = (_kinematic_guess(start, goal, params, limits, n, T_fixed, p, allow_reverse)
-             if warm_start
-             else _cold_guess(start, goal, params, n, T_fixed))
     lbx, ubx, lbg, ubg = _bounds(nlp, start, goal, params, limits, allow_reverse, T_fixed)
     w_t, w_e = {"time": (1.0, 0.0), "energy": (0.0, 1.0), "mix": (1.0, mix_weight)}[objective]
     pn = np.concatenate([p, [goal.heading_rad, w_t, w_e]])
-
-    first = _solve_nlp(nlp, guess, lbx, ubx, lbg, ubg, pn, objective, start, goal, params,
-                       limits, rk_substeps, T_fixed, progress)
+    # the guesses in order, each tried only when the one before failed: the earlier solution
+    # (when given and near), the kinematic path, the cold start
+    guesses: list[tuple[str, Callable[[], _Guess | None]]] = []
+    if warm_start and previous is not None:
+        guesses.append(("previous", lambda: _previous_guess(previous, start, goal, n, T_fixed)))
+    if warm_start:
+        guesses.append(("kinematic", lambda: _kinematic_guess(
+            start, goal, params, limits, n, T_fixed, p, allow_reverse)))
+    guesses.append(("cold", lambda: _cold_guess(start, goal, params, n, T_fixed)))
     creep = _reverse_creep_mps(start, goal, allow_reverse)
-    if 0.0 < creep < math.inf:
-        first.message += f" (a turn on the spot: reversing up to {creep:g} m/s allowed)"
-        first.extra["reverse_creep_mps"] = creep
-    if first.status == "solved" or not warm_start:
-        return first
-    # a local failure from the kinematic guess: one retry from the cold guess
-    if progress is not None:
-        progress(f"IPOPT: {first.return_status} from the warm start after "
-                 f"{first.solve_time_s:.0f} s; retrying from the cold start")
-    second = _solve_nlp(nlp, _cold_guess(start, goal, params, n, T_fixed), lbx, ubx, lbg, ubg,
-                        pn, objective, start, goal, params, limits, rk_substeps, T_fixed,
-                        progress)
-    second.solve_time_s += first.solve_time_s
-    second.iterations += first.iterations
-    if second.status == "solved":
-        second.message += f" (after {first.return_status} from the warm start)"
-        return second
-    first.solve_time_s, first.iterations = second.solve_time_s, second.iterations
-    first.message += f"; a retry from the cold start also ended in {second.return_status}"
+    first: OptimalResult | None = None
+    last: OptimalResult | None = None
+    for label, make in guesses:
+        guess = make()
+        if guess is None:  # the earlier solution is another manoeuvre
+            continue
+        if last is not None and progress is not None:
+            progress(f"IPOPT: {last.return_status} from {_GUESS_NAMES[last.extra['guess']]} "
+                     f"after {last.solve_time_s:.0f} s; retrying from {_GUESS_NAMES[label]}")
+        res = _solve_nlp(nlp, guess, lbx, ubx, lbg, ubg, pn, objective, start, goal, params,
+                         limits, rk_substeps, T_fixed, progress)
+        res.extra["guess"] = label
+        if last is not None:
+            res.solve_time_s += last.solve_time_s
+            res.iterations += last.iterations
+        if first is None:
+            first = res
+            if 0.0 < creep < math.inf:
+                res.message += f" (a turn on the spot: reversing up to {creep:g} m/s allowed)"
+                res.extra["reverse_creep_mps"] = creep
+        elif res.status == "solved":
+            res.message += (f" (after {first.return_status} from "
+                            f"{_GUESS_NAMES[first.extra['guess']]})")
+        if res.status == "solved":
+            return res
+        last = res
+    assert first is not None and last is not None
+    if last is not first:
+        first.solve_time_s, first.iterations = last.solve_time_s, last.iterations
+        first.message += (f"; a retry from {_GUESS_NAMES[last.extra['guess']]} also ended in "
+                          f"{last.return_status}")
     return first

@@ -454,6 +454,11 @@ def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, out: Path,
                 continue
             remade.pop(i, None)
             checked, differs = _verified(runs[i], line, fmu_sha, out)
+            if checked is not None and batch.optimal is not None and not checked.get("killed") \
+                    and not checked["record"].get("optimal_status"):
+                # done before the spec asked for the optimum (or its record was made again from
+                # the log, which holds the run's alone): run it again with its optimum
+                checked = None
             if checked is None:
                 ledger.unmark(i)
             else:
@@ -614,7 +619,7 @@ def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger) -> Iter
         logs = {str(line["run_id"]): _line_log(line) for line in lines}
         yield summary_table([_row_of(i, line, batch) for (i, _), line in zip(block, lines,
                                                                               strict=True)],
-                            batch.input_columns, records, logs)
+                            batch.input_columns, records, logs, optimal=batch.optimal is not None)
         if len(block) < SUMMARY_BLOCK:
             return
 
@@ -630,6 +635,7 @@ class _Tasks:
                  faults: Mapping[str, str], log: LogPolicy) -> None:
         self._runs = batch.runs
         self._log = log
+        self._optimal = batch.optimal
         self._ledger = ledger
         self._n = len(self._runs) - ledger.n_done
         self._timeout, self._faults = run_timeout_s, faults
@@ -650,7 +656,7 @@ class _Tasks:
             self.in_flight[run.run_id] = (i, run.digest, _row_json(run))
             yield Task(run.run_id, run.spec, self._timeout, self._faults.get(run.run_id),
                        log_name=log_relpath(run.run_id, len(self._runs)).removeprefix("runs/"),
-                       log=self._log)
+                       log=self._log, optimal=self._optimal)
 
 
 def _recover_partial(log: Path) -> None:

@@ -80,6 +80,7 @@ from typing import Any, Final, overload
 
 import numpy as np
 
+from wmr.apps.optimal import BATCH_OBJECTIVES
 from wmr.apps.run import LOG_KEEPS, LogPolicy
 from wmr.config.scenario import parse_scenario, read_toml, resolve_scenario_path, with_overrides
 from wmr.core.control.peers import CONTROLLER_NAMES, controller_gains
@@ -90,8 +91,9 @@ from wmr.core.sensing.config import NAME_FIELDS, SensorConfig
 from wmr.core.sensing.models import NOISE_SEEDING
 from wmr.infra.errors import ConfigError
 
-#: Sections a batch spec adds to a scenario file.
-BATCH_SECTIONS: Final = ("grid", "sweep", "list", "random", "log")
+#: Sections a batch spec adds to a scenario file (``optimal`` is a top-level key: the
+#: objective of the optimum solved beside every run).
+BATCH_SECTIONS: Final = ("grid", "sweep", "list", "random", "log", "optimal")
 #: Upper bound on the number of runs of one spec (a typo in a grid should not mean 10^9 runs).
 MAX_RUNS: Final = 1_000_000
 #: Pose columns every summary has, resolved from the run itself.
@@ -203,6 +205,9 @@ class BatchSpec:
     #: The ``[log]`` table: which runs keep a log; ``None`` if the spec has none (the batch's
     #: size then decides, :func:`wmr.apps.batch.runner.default_log_policy`).
     log: LogPolicy | None = None
+    #: The top-level ``optimal``: ``"time"`` or ``"energy"``, the OCP solved beside every run
+    #: (:func:`wmr.apps.optimal.optimum_fields`); ``None``: none, and no optimum columns.
+    optimal: str | None = None
 
 
 @dataclass(frozen=True)
@@ -855,11 +860,16 @@ def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | N
     seed = sections["random"]["seed"] if dists else 0
     log = _log_policy(_table(sections["log"], "log", '[log] with keep = "failed"')) \
         if "log" in sections else None
+    optimal = sections.get("optimal")
+    if optimal is not None and optimal not in BATCH_OBJECTIVES:
+        raise ConfigError("optimal", f"unknown objective {_cut(optimal)}",
+                          f"write optimal = {' or '.join(map(repr, BATCH_OBJECTIVES))}, or drop "
+                          "it for no optimum")
     runs = RunList(scenario.runs, axes, entries, seed, n_samples, dists, columns, sources)
     runs.check()
     return BatchSpec(name=scenario.name, description=scenario.description, runs=runs,
                      input_columns=tuple(columns), path=path, source=raw,
-                     fmu=scenario.fmu, fmu_map=scenario.fmu_map, log=log)
+                     fmu=scenario.fmu, fmu_map=scenario.fmu_map, log=log, optimal=optimal)
 
 
 def load_batch(name_or_path: str | Path, max_runs: int = MAX_RUNS) -> BatchSpec:

@@ -20,6 +20,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from wmr.apps.batch.spec import NAME_COLUMNS, BatchRun
+from wmr.apps.optimal import OPTIMUM_COLUMNS
 from wmr.infra.durable import replacing
 
 SUMMARY_PARQUET: Final = "summary.parquet"
@@ -48,6 +49,13 @@ RESULT_COLUMNS: Final[dict[str, pa.DataType]] = {
     "mcap": pa.string(),
 }
 STATUSES: Final = ("converged", "timeout", "failed")
+#: The optimum's columns (:func:`wmr.apps.optimal.optimum_fields`), after the results, in a
+#: summary of a spec with ``optimal`` only: a spec without it keeps its summary byte for byte.
+OPTIMUM_RESULT_COLUMNS: Final[dict[str, pa.DataType]] = {
+    c: pa.string() if kind == "string" else pa.float64() for c, kind in OPTIMUM_COLUMNS.items()}
+
+#: ``optimal_message`` of a run without an optimum (killed by its executor: a hang, a crash).
+UNSOLVED: Final = "not solved: the run's worker was killed before the optimum"
 
 
 #: A batch of more runs than this keeps its logs in shards of this many runs each,
@@ -99,7 +107,8 @@ class SummaryRow:
 
 def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence[str],
                   records: Mapping[str, Mapping[str, Any]],
-                  logs: Mapping[str, str | None] | None = None) -> pa.Table:
+                  logs: Mapping[str, str | None] | None = None,
+                  optimal: bool = False) -> pa.Table:
     """The summary of the runs of ``runs`` that have a record, sorted by run id.
 
     Parameters
@@ -114,12 +123,18 @@ def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence
         Each run's log relative to the batch folder, ``None`` for a run without a log (its
         log policy kept none); a run missing here has :func:`log_relpath` (every run, when
         ``logs`` is ``None``).
+    optimal
+        Add :data:`OPTIMUM_RESULT_COLUMNS` (the spec has ``optimal``); a record without them
+        (its worker was killed before the solve) has ``optimal_status`` ``none`` and the
+        message :data:`UNSOLVED`.
     """
+    results = {**RESULT_COLUMNS, **(OPTIMUM_RESULT_COLUMNS if optimal else {})}
     done = sorted((r for r in runs if r.run_id in records), key=lambda r: r.run_id)
-    cols: dict[str, list[Any]] = {c: [] for c in (*ID_COLUMNS, *input_columns,
-                                                  *RESULT_COLUMNS)}
+    cols: dict[str, list[Any]] = {c: [] for c in (*ID_COLUMNS, *input_columns, *results)}
     for run in done:
         rec = records[run.run_id]
+        if optimal and not rec.get("optimal_status"):  # its worker died before the solve
+            rec = {**rec, "optimal_status": "none", "optimal_message": UNSOLVED}
         cols["run_id"].append(run.run_id)
         cols["name"].append(run.name)
         cols["base"].append(run.base)
@@ -129,7 +144,7 @@ def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence
         for c in input_columns:
             v = run.inputs.get(c, math.nan)
             cols[c].append(v if isinstance(v, str) else None if math.isnan(v) else v)
-        for c, kind in RESULT_COLUMNS.items():
+        for c, kind in results.items():
             if c == "mcap":
                 cols[c].append(log_relpath(run.run_id) if logs is None or run.run_id not in logs
                                else logs[run.run_id])
@@ -145,7 +160,7 @@ def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence
                for c in input_columns]
     fields += [pa.field("controller", pa.string(), nullable=False),
                pa.field("draw", pa.int64(), nullable=False)]
-    fields += [pa.field(c, t) for c, t in RESULT_COLUMNS.items()]
+    fields += [pa.field(c, t) for c, t in results.items()]
     schema = pa.schema(fields)
     return pa.table({f.name: pa.array(cols[f.name], f.type) for f in fields}, schema=schema)
 
@@ -205,6 +220,7 @@ def read_summary(out_dir: Path) -> pa.Table:
 
 __all__ = [
     "FORMULA_STARTS",
+    "OPTIMUM_RESULT_COLUMNS",
     "RESULT_COLUMNS",
     "SHARD_RUNS",
     "SUMMARY_CSV",

@@ -61,6 +61,10 @@ class Task:
         :func:`wmr.apps.batch.summary.log_relpath`); ``""``: ``<run_id>.mcap``.
     log
         Which runs keep a log, and how much of it.
+    optimal
+        The batch's ``optimal`` (``"time"``, ``"energy"``): the optimum solved after the run,
+        its fields added to the record (:func:`wmr.apps.optimal.optimum_fields`); ``None``:
+        none.
     """
 
     run_id: str
@@ -69,6 +73,7 @@ class Task:
     fault: str | None = None
     log_name: str = ""
     log: LogPolicy = FULL_LOGS
+    optimal: str | None = None
 
     @property
     def log_relpath(self) -> str:
@@ -203,6 +208,8 @@ class PlantHolder:
         self.plant = FmuPlant(fmu_path, var_map=var_map)
         # the compiled law's one check in this process, before any run's wall clock starts
         law_library()
+        #: The last optimum this worker solved: the next one's warm start.
+        self.previous_optimum: Any = None
 
     def run(self, task: Task, mcap_path: Path, attachment: Path | None) -> dict[str, Any]:
         """:func:`execute` on the held plant; a fresh plant after a failure.
@@ -221,6 +228,16 @@ class PlantHolder:
         if record["status"] == "failed":
             self.plant.close()
             self.plant = FmuPlant(self.fmu_path, var_map=self.var_map)
+        if task.optimal is not None:
+            # after the run, outside its wall clock; in the record, so that the journal keeps
+            # it and a resumed batch never solves it again
+            from wmr.apps.optimal import optimum_fields
+
+            fields, solved = optimum_fields(task.spec, task.optimal, record,
+                                            self.previous_optimum)
+            record.update(fields)
+            if solved is not None:
+                self.previous_optimum = solved
         return record
 
     def close(self) -> None:
