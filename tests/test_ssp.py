@@ -469,3 +469,81 @@ def test_omsimulator_reads_a_weakly_coupled_system_stepped_at_the_control_period
     (master,) = children(info, "oms:FixedStepMaster")
     assert master.getAttribute("description") == "oms-ma"
     assert float(master.getAttribute("stepSize")) == spec.period_s
+
+
+def test_every_master_run_to_the_stop_time_ends_where_wmr_run_stopped(
+        built: BuildResult, ssp_dir: Path) -> None:
+    """After its ``converged`` sample the controller FMU asks the master to stop (FMI 3
+    terminateSimulation, FMI 2 fmi2Terminated) and, for the masters here that step on to the
+    package's stop time (all of them), brakes the wheels to zero speed: the robot ends within
+    the bars of ``wmr run``'s final pose (it kept regulating: 20.8 mm and 0.45 deg off)."""
+    from fmpy.ssp.simulation import simulate_ssp
+
+    from wmr.adapters.ssp.package import fmpy_parameter_set
+
+    spec = _spec("fig11", None)
+    end = _wmr_run(spec, built.fmus[2])[-1]
+    finals: dict[str, npt.NDArray[np.float64]] = {}
+    package2 = _export(built, spec, ssp_dir, fmi=2)
+    finals["libcosim"] = simulate_libcosim(package2, stop_at_convergence=False).block[-1, :3]
+    for fmi in (2, 3):
+        run = simulate_ecos(_export(built, spec, ssp_dir, fmi=fmi), stop_at_convergence=False)
+        finals[f"ecos-fmi{fmi}"] = run.block[-1, :3]
+    package = read_package(package2)
+    out = simulate_ssp(str(package2), stop_time=package.stop_time_s,
+                       step_size=package.step_size_s, parameter_set=fmpy_parameter_set(package))
+    assert out["time"][-1] >= 119.0  # fmpy too ran to the stop time
+    finals["fmpy"] = np.array([out["robot.x"][-1], out["robot.y"][-1], out["robot.theta"][-1]])
+    for master, pose in finals.items():
+        dist = math.hypot(pose[0] - end[0], pose[1] - end[1])
+        assert dist <= POSITION_TOL_M and abs(pose[2] - end[2]) <= HEADING_TOL_RAD, (
+            master, dist, math.degrees(pose[2] - end[2]))
+
+
+def test_the_controller_fmu_asks_the_master_to_stop_after_its_converged_sample(
+        built: BuildResult) -> None:
+    """FMI 3: doStep's terminateSimulation; FMI 2: fmi2GetBooleanStatus(fmi2Terminated)."""
+    import ctypes
+
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave, fmi2Terminated
+    from fmpy.fmi3 import FMU3Slave
+
+    spec = _spec("fig11", None)
+    values = controller_parameters(spec)
+    goal = {"x": spec.goal.x_m, "y": spec.goal.y_m, "theta": spec.goal.heading_rad}
+    for fmi in (2, 3):
+        path = built.controllers[fmi]
+        md = read_model_description(str(path))
+        vr = {v.name: v.valueReference for v in md.modelVariables}
+        cls = FMU2Slave if fmi == 2 else FMU3Slave
+        slave = cls(guid=md.guid if fmi == 2 else md.instantiationToken,
+                    unzipDirectory=extract(str(path)),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="c")
+        slave.instantiate()
+        if fmi == 2:
+            slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        names = [*values, *goal]
+        refs = [vr[n] for n in names]
+        vals = [*values.values(), *goal.values()]
+        (slave.setReal if fmi == 2 else slave.setFloat64)(refs, vals)
+        slave.exitInitializationMode()
+        get = slave.getReal if fmi == 2 else slave.getFloat64
+        h, requested, converged_at = spec.period_s, [], None
+        for n in range(4):  # at the goal, at rest: alignment at sample 0, converged at 1
+            converged = get([vr["converged"]])[0] == 1.0
+            if converged and converged_at is None:
+                converged_at = n
+            if fmi == 3:
+                requested.append(bool(slave.doStep(n * h, h)[1]))
+            else:
+                slave.doStep(n * h, h)
+                flag = ctypes.c_int()
+                slave.fmi2GetBooleanStatus(slave.component, fmi2Terminated, ctypes.byref(flag))
+                requested.append(bool(flag.value))
+        assert converged_at == 1, fmi
+        assert requested == [False, True, True, True], (fmi, requested)
+        assert get([vr["tau_r"], vr["tau_l"], vr["converged"]])[2] == 1.0
+        slave.terminate()
+        slave.freeInstance()

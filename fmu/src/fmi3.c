@@ -528,6 +528,9 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     *earlyReturn = fmi3False;
     st = fl_do_step(fn, INST, currentCommunicationPoint, communicationStepSize, &t_last);
     *lastSuccessfulTime = t_last;
+    /* a sample of this step or before ended the run: ask the importer to stop (it then calls
+     * fmi3Terminate); a master that steps on gets the outputs held at rest */
+    if (st == FL_OK && INST->d.run_over) *terminateSimulation = fmi3True;
     return (fmi3Status)st;
 }
 

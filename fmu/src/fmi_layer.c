@@ -301,7 +301,13 @@ static int compute_initial_state(const char *fn, FlInstance *inst, double x[MODE
 static int compute_outputs(const char *fn, FlInstance *inst, const double x[MODEL_NX],
                            double y[MODEL_NY]) {
     int i;
+#if MODEL_SAMPLED
+    double z_next[MODEL_NX];
+    if (inst->d.run_over ? model_rest(x, inst->d.u, inst->d.p, y, z_next) != 0
+                         : model_outputs(x, inst->d.u, inst->d.p, y) != 0) {
+#else
     if (model_outputs(x, inst->d.u, inst->d.p, y) != 0) {
+#endif
         fl_log(inst, FL_ERROR, "%s: model_outputs failed at t = %.17g", fn, inst->d.time);
         return 0;
     }
@@ -521,6 +527,7 @@ FlStatus fl_exit_initialization_mode(const char *fn, FlInstance *inst) {
     d->time = d->start_time;
     d->n_comm_steps = 0;
     d->n_samples = 0;
+    d->run_over = 0;
     solver_reset_hint(&d->solver);
     d->mode = inst->model_exchange ? FL_EVENT_MODE : FL_STEP_MODE;
     fl_log(inst, FL_OK, "%s: initialised at t = %g", fn, d->time);
@@ -702,6 +709,7 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
     SolverStatus st;
 #if MODEL_SAMPLED
     unsigned long n = 0; /* samples taken by the end of the step */
+    int over = 0;        /* a sample ended the run (model_run_over) */
 #endif
 
     if (inst && last_successful_time) *last_successful_time = inst->d.time;
@@ -739,9 +747,22 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
         memcpy(z, d->x, sizeof(z));
         memcpy(ys, d->y_held, sizeof(ys));
         n = d->n_samples;
+        over = d->run_over;
         st = SOLVER_OK;
         msg[0] = '\0';
         while (st == SOLVER_OK && sample_time(d, n) < t_end - time_tol(t_end)) {
+            if (over) { /* after the run's end every sample holds the plant still */
+                if (model_rest(z, d->u, d->p, ys, x) != 0 || find_nonfinite(ys, MODEL_NY) >= 0
+                    || find_nonfinite(x, MODEL_NX) >= 0) {
+                    st = SOLVER_NONFINITE;
+                    snprintf(msg, sizeof(msg), "the sample at rest at t = %.17g failed",
+                             sample_time(d, n));
+                    break;
+                }
+                memcpy(z, x, sizeof(z));
+                n++;
+                continue;
+            }
             if (n == d->n_samples && !d->outputs_dirty && sample_due(d)) {
                 memcpy(ys, d->y, sizeof(ys)); /* the sample at tc, already read by the master */
             } else if (!compute_outputs(fn, inst, z, ys)) {
@@ -749,6 +770,12 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
                 snprintf(msg, sizeof(msg), "the sample at t = %.17g failed",
                          sample_time(d, n));
                 break;
+            }
+            if (!over && model_run_over(ys)) {
+                over = 1; /* this sample's outputs were the law's; the next ones are at rest */
+                fl_log(inst, FL_OK, "%s: the run ended at t = %.17g: the master is asked to "
+                       "stop, and the later samples hold the plant still", fn,
+                       sample_time(d, n));
             }
             if (model_update(z, d->u, d->p, x) != 0) {
                 st = SOLVER_MODEL_ERROR;
@@ -782,6 +809,7 @@ FlStatus fl_do_step(const char *fn, FlInstance *inst, double tc, double h,
     /* the outputs at t_end follow from the new state: the next sample g(z, u) if t_end is on
      * the grid, else the last sample held (evaluated on the next get) */
     d->n_samples = n;
+    d->run_over = over;
     memcpy(d->x, x, sizeof(x));
     memcpy(d->y_held, y, sizeof(y));
     d->outputs_dirty = 1;
@@ -1065,7 +1093,7 @@ FlStatus fl_partial_derivative(const char *fn, FlInstance *inst,
 
 static const char STATE_MAGIC[8] = {'W', 'M', 'R', 'S', 'T', 'A', 'T', 'E'};
 static const char BLOB_MAGIC[8] = {'W', 'M', 'R', 'F', 'M', 'U', 'S', 'T'};
-#define BLOB_FORMAT_VERSION 3u /* 2: Model Exchange modes; 3: the sample grid */
+#define BLOB_FORMAT_VERSION 4u /* 2: Model Exchange modes; 3: the sample grid; 4: the run's end */
 
 typedef struct {
     char magic[8];

@@ -74,6 +74,9 @@ typedef struct {
      * start_time + n_samples * period) and the outputs of the last one, held between samples */
     unsigned long n_samples;
     double y_held[MODEL_NY];
+    /* sampled-data models: 1 once a sample ended the run (model_run_over): no more samples,
+     * the outputs held at rest, and the master asked to stop */
+    int run_over;
 } FlData;
 
 typedef struct FlInstance {

@@ -129,6 +129,19 @@ double model_sample_period(const double p[MODEL_NP]);
 WMR_INTERNAL
 int model_update(const double z[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
                  double z_next[MODEL_NX]);
+
+/* 1 if the sample y ends the run (the controller: its converged output).  The layer then asks
+ * the master to stop (FMI 3 terminateSimulation; FMI 2 fmi2Terminated) and, for a master that
+ * steps on, takes every later sample with model_rest in place of model_outputs and
+ * model_update. */
+WMR_INTERNAL
+int model_run_over(const double y[MODEL_NY]);
+
+/* A sample after the run's end: outputs y and next state z_next that hold the plant still (the
+ * controller: zero wheel speed references to its servos).  Returns 0 on success. */
+WMR_INTERNAL
+int model_rest(const double z[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
+               double y[MODEL_NY], double z_next[MODEL_NX]);
 #endif
 
 #endif

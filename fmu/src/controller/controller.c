@@ -290,3 +290,26 @@ WMR_INTERNAL
 double model_sample_period(const double p[MODEL_NP]) {
     return p[P_control_period_s];
 }
+
+WMR_INTERNAL
+int model_run_over(const double y[MODEL_NY]) {
+    return y[Y_converged] != 0.0; /* wmr run ends here too (core.closedloop) */
+}
+
+WMR_INTERNAL
+int model_rest(const double z[MODEL_NX], const double u[MODEL_NU], const double p[MODEL_NP],
+               double y[MODEL_NY], double z_next[MODEL_NX]) {
+    int i;
+    /* the geometry of the sample as the law sees it; the law itself is off: no PI output, its
+     * state frozen, and the wheel servos brake to zero speed (zero torque lets the robot coast:
+     * 0.40 m and 71 deg by t = 120 s on Fig. 11) */
+    sample(z, u, p, p[P_goal_heading_deg] * DEG_TO_RAD, p[P_heading_tolerance_deg] * DEG_TO_RAD,
+           y, z_next);
+    for (i = 0; i < MODEL_NX; i++) z_next[i] = z[i];
+    y[Y_u_s] = y[Y_u_theta] = y[Y_p_s] = y[Y_i_s] = y[Y_p_theta] = y[Y_i_theta] = 0.0;
+    y[Y_omega_r_ref] = y[Y_omega_l_ref] = 0.0;
+    y[Y_tau_r] = servo(p, 0.0, u[U_omega_r], z[Z_servo_r_integral], &z_next[Z_servo_r_integral]);
+    y[Y_tau_l] = servo(p, 0.0, u[U_omega_l], z[Z_servo_l_integral], &z_next[Z_servo_l_integral]);
+    y[Y_converged] = 1.0; /* the run stays over whatever the robot does next */
+    return 0;
+}
