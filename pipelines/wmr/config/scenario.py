@@ -38,9 +38,10 @@ Every error is a :class:`~wmr.infra.errors.ConfigError` that names the field.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -84,12 +85,26 @@ class Scenario:
     fmu_map: Path | None = None
 
 
-def _check_keys(table: Mapping[str, Any], allowed: tuple[str, ...], where: str) -> None:
+def unknown_field(field: str, allowed: Sequence[str]) -> ConfigError:
+    """The error of an unknown ``field`` (dotted): every allowed name, and the closest of them
+    first when one is near (a misspelling such as ``[randm]`` or ``[[lists]]``).
+
+    Parameters
+    ----------
+    field
+        The unknown field's dotted path; its last part is what the user wrote.
+    allowed
+        Every name allowed where it stands.
+    """
+    near = difflib.get_close_matches(field.rsplit(".", 1)[-1], list(allowed), n=1)
+    hint = f"did you mean {near[0]!r}? " if near else ""
+    return ConfigError(field, "unknown field", f"{hint}allowed fields: {', '.join(allowed)}")
+
+
+def _check_keys(table: Mapping[str, Any], allowed: Sequence[str], where: str) -> None:
     for key in table:
         if key not in allowed:
-            field = f"{where}.{key}" if where else key
-            raise ConfigError(field, "unknown field",
-                              f"allowed fields: {', '.join(allowed)}")
+            raise unknown_field(f"{where}.{key}" if where else key, allowed)
 
 
 def _pose(value: object, field: str) -> Pose:
@@ -368,5 +383,6 @@ __all__ = [
     "load_scenario",
     "parse_scenario",
     "resolve_scenario_path",
+    "unknown_field",
     "with_overrides",
 ]

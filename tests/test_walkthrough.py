@@ -1,0 +1,41 @@
+"""Issue 30, "the rest of the same walk-through": defects a new user hit, each pinned here.
+
+Every test was seen failing on the code before its fix (see the commit messages).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from wmr.apps.batch.spec import BATCH_SECTIONS, parse_batch
+from wmr.config.scenario import TOP_FIELDS
+from wmr.infra.errors import ConfigError
+
+_BASE = {"name": "walk", "start": [0.0, 0.0, 0.0], "goal": [4.0, 2.0, 0.0]}
+
+
+@pytest.mark.parametrize(("typo", "value", "meant"), [
+    ("randm", {"seed": 1, "n": 3}, "random"),
+    ("lists", [{"name": "x"}], "list"),
+    ("logs", {"keep": "all"}, "log"),
+    ("gird", {"params": {"m": [20.0]}}, "grid"),
+])
+def test_a_misspelled_section_names_every_section_and_the_closest(
+        typo: str, value: object, meant: str) -> None:
+    """Before: ``randm: unknown field (allowed fields: name, ..., fmu_map)``, the list of a
+    plain scenario's fields, without grid, list, random and log."""
+    with pytest.raises(ConfigError) as err:
+        parse_batch({**_BASE, typo: value})
+    assert err.value.field == typo
+    assert f"did you mean {meant!r}?" in err.value.fix
+    listed = err.value.fix.split("allowed fields: ", 1)[1].split(", ")
+    assert listed == [*TOP_FIELDS, *BATCH_SECTIONS]
+    assert {"grid", "list", "random", "log"} <= set(listed)
+
+
+def test_an_unknown_field_far_from_every_name_gets_no_guess() -> None:
+    with pytest.raises(ConfigError) as err:
+        parse_batch({**_BASE, "grid": {"params": {"zzzz": [1.0]}}})
+    assert err.value.field == "grid.params.zzzz"
+    assert "did you mean" not in err.value.fix
+    assert err.value.fix.startswith("allowed fields: ")
