@@ -39,3 +39,28 @@ def test_an_unknown_field_far_from_every_name_gets_no_guess() -> None:
     assert err.value.field == "grid.params.zzzz"
     assert "did you mean" not in err.value.fix
     assert err.value.fix.startswith("allowed fields: ")
+
+
+def test_the_fmu_documentation_prints_start_values_as_written() -> None:
+    """Before: ``0.14999999999999999`` for a start of 0.15 (``%.17g``) and ``nan`` for the
+    outputs, which have no start value."""
+    import re
+
+    from wmr.build.documentation import index_html
+    from wmr.build.flatten import flatten
+    from wmr.infra import paths
+
+    model = flatten(paths.modelica_dir())
+    page = index_html(model)
+    starts = {v.name: v.start for v in (*model.inputs, *model.outputs, *model.parameters)}
+    assert starts["r"] == 0.15  # the case a user saw as 0.14999999999999999
+    assert "<td>nan</td>" not in page and "0.14999999999999999" not in page
+    for name, start in starts.items():
+        row = re.search(rf"<code>{re.escape(name)}</code></td><td>[^<]*</td><td>([^<]*)</td>",
+                        page)
+        assert row is not None, name
+        shown = row.group(1)
+        if start != start:  # NaN: no start value
+            assert shown == "none", (name, shown)
+        else:
+            assert float(shown) == start and shown == repr(start), (name, shown)
