@@ -64,3 +64,14 @@ def test_the_fmu_documentation_prints_start_values_as_written() -> None:
             assert shown == "none", (name, shown)
         else:
             assert float(shown) == start and shown == repr(start), (name, shown)
+
+
+def test_the_path_of_a_run_without_a_log_warns_how_to_get_it() -> None:
+    """Before: ``wmr.run(..., log="none").path`` was an empty DataFrame, without a word."""
+    import wmr
+
+    res = wmr.RunResult({"name": "fig11", "status": "converged", "mcap": None}, None)
+    with pytest.warns(UserWarning, match=r'log="none".*log="full"') as seen:
+        path = res.path
+    assert len(seen) == 1 and "'fig11'" in str(seen[0].message)
+    assert path.empty and list(path.columns) == ["x_m", "y_m", "theta_rad"]
