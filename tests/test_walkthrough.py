@@ -5,6 +5,9 @@ Every test was seen failing on the code before its fix (see the commit messages)
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import pytest
 
 from wmr.apps.batch.spec import BATCH_SECTIONS, parse_batch
@@ -44,8 +47,6 @@ def test_an_unknown_field_far_from_every_name_gets_no_guess() -> None:
 def test_the_fmu_documentation_prints_start_values_as_written() -> None:
     """Before: ``0.14999999999999999`` for a start of 0.15 (``%.17g``) and ``nan`` for the
     outputs, which have no start value."""
-    import re
-
     from wmr.build.documentation import index_html
     from wmr.build.flatten import flatten
     from wmr.infra import paths
@@ -75,3 +76,38 @@ def test_the_path_of_a_run_without_a_log_warns_how_to_get_it() -> None:
         path = res.path
     assert len(seen) == 1 and "'fig11'" in str(seen[0].message)
     assert path.empty and list(path.columns) == ["x_m", "y_m", "theta_rad"]
+
+
+@pytest.mark.parametrize(("heading_deg", "as_pi"), [
+    (1.5708, "pi/2"), (3.1416, "pi"), (0.7854, "pi/4"), (-1.5708, "-pi/2"),
+    (6.2832, "2pi"), (2.3562, "3pi/4"), (0.2618, "pi/12"),
+    (0.0, None), (1.0, None), (5.0, None), (5.5, None), (6.0, None), (30.0, None),
+    (45.0, None), (90.0, None), (180.0, None), (-90.0, None), (1.57, "pi/2"), (1.56, None),
+    (7.0, None),
+])
+def test_a_heading_that_looks_like_radians_is_told_apart(heading_deg: float,
+                                                         as_pi: str | None) -> None:
+    from wmr.config.scenario import heading_looks_like_radians
+
+    assert heading_looks_like_radians(heading_deg) == as_pi
+
+
+def test_a_goal_heading_in_radians_is_warned_and_the_result_says_its_units(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str], fmu3: Path) -> None:
+    """Before: ``wmr run --goal 5 5 1.5708`` ran to 1.57 deg without a word, and the result
+    gave the heading error in rad only, while the headings it takes are in degrees."""
+    from wmr.cli import main
+
+    code = main(["run", "--goal", "5", "5", "1.5708", "--fmu", str(fmu3),
+                 "--out", str(tmp_path / "g.mcap")])
+    out, err = capfd.readouterr()
+    assert code == 0, err
+    warned = [line for line in err.splitlines() if "looks like" in line]
+    assert warned == ["wmr: warning: --goal heading 1.5708 is in degrees but looks like "
+                      "pi/2 rad: give 90 if you meant pi/2 rad"], err
+    line = out.strip().splitlines()[-1]
+    assert re.search(r"heading error \d+\.\d{5} rad \(\d+\.\d{3} deg\)", line), line
+    # an ordinary heading in degrees: no warning
+    code = main(["run", "--goal", "5", "5", "90", "--fmu", str(fmu3),
+                 "--out", str(tmp_path / "h.mcap")])
+    assert code == 0 and "looks like" not in capfd.readouterr().err

@@ -9,6 +9,7 @@ master loop (:func:`~wmr.core.closedloop.run_closed_loop`) and the log
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import zipfile
@@ -423,7 +424,7 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
     """
     from wmr.adapters.fmi.varmap import load_map
     from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
-    from wmr.config.scenario import load_scenario, with_overrides
+    from wmr.config.scenario import heading_looks_like_radians, load_scenario, with_overrides
     from wmr.core.sensing.config import command_line_sensors
     from wmr.infra.outputs import check_output
 
@@ -433,7 +434,13 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
         if len(value) != 3:
             raise ConfigError(_option(field, command_line),
                               f"must be (x_m, y_m, heading_deg), got {value!r}")
-        return (float(value[0]), float(value[1]), float(value[2]))
+        heading_deg = float(value[2])
+        as_pi = heading_looks_like_radians(heading_deg)
+        if as_pi is not None:  # run as given (it may be meant), but never without a word
+            _notice(f"warning: {_option(field, command_line)} heading {heading_deg:g} is in "
+                    f"degrees but looks like {as_pi} rad: give "
+                    f"{math.degrees(heading_deg):.4g} if you meant {as_pi} rad")
+        return (float(value[0]), float(value[1]), heading_deg)
 
     sc = load_scenario(scenario)
     base = select_run(sc, run, command_line)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
@@ -102,8 +103,11 @@ def result_summary(record: Mapping[str, Any]) -> str:
         return "n/a" if value is None else f"{value:.{digits}f}"
 
     log = "no log kept (--log)" if record.get("mcap") is None else f"log {record['mcap']}"
+    # results are in rad while headings are given in degrees: both, so neither is misread
+    heading = record.get("final_heading_error_rad")
+    in_deg = "" if heading is None else f" ({math.degrees(heading):.3f} deg)"
     return (f"final position error {num('final_position_error_m', 4)} m, heading error "
-            f"{num('final_heading_error_rad', 5)} rad, path "
+            f"{num('final_heading_error_rad', 5)} rad{in_deg}, path "
             f"{num('path_length_m', 2)} m; {log}")
 
 

@@ -107,6 +107,34 @@ def _check_keys(table: Mapping[str, Any], allowed: Sequence[str], where: str) ->
             raise unknown_field(f"{where}.{key}" if where else key, allowed)
 
 
+#: A heading in degrees closer than this to a multiple of pi/12 rad looks like radians.
+RADIANS_LOOKALIKE_TOL: float = 1e-3
+
+
+def heading_looks_like_radians(heading_deg: float) -> str | None:
+    """``"pi/2"``-style text when a heading given in degrees looks like one in radians, else
+    ``None`` (headings are given in degrees; ``--goal 5 5 1.5708`` means 1.57 deg).
+
+    The rule: a non-zero ``|heading_deg| <= 2 pi`` within :data:`RADIANS_LOOKALIKE_TOL` of a
+    multiple of pi/12 (15 deg: 0.2618, 0.5236, 0.7854, 1.0472, 1.5708, 3.1416, ...).  No
+    whole number is that close to one (the nearest, 6 and 22 pi/12 = 5.760, are 0.02 apart),
+    so ordinary degree values (0, 1, 5, 30, 90) never trip it, nor does any heading above
+    2 pi.
+    """
+    from fractions import Fraction
+
+    value = abs(heading_deg)
+    if value == 0.0 or value > 2.0 * math.pi + RADIANS_LOOKALIKE_TOL:
+        return None
+    k = round(value / (math.pi / 12.0))
+    if k == 0 or abs(value - k * math.pi / 12.0) > RADIANS_LOOKALIKE_TOL:
+        return None
+    frac = Fraction(k, 12)
+    text = ("" if frac.numerator == 1 else str(frac.numerator)) + "pi" \
+        + ("" if frac.denominator == 1 else f"/{frac.denominator}")
+    return ("-" if heading_deg < 0 else "") + text
+
+
 def _pose(value: object, field: str) -> Pose:
     if not isinstance(value, list | tuple) or len(value) != 3:
         raise ConfigError(field, f"must be [x_m, y_m, heading_deg], got {value!r}",
@@ -380,6 +408,7 @@ __all__ = [
     "DEFAULT_SCENARIO",
     "Scenario",
     "expand",
+    "heading_looks_like_radians",
     "load_scenario",
     "parse_scenario",
     "resolve_scenario_path",
