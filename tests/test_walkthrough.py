@@ -111,3 +111,61 @@ def test_a_goal_heading_in_radians_is_warned_and_the_result_says_its_units(
     code = main(["run", "--goal", "5", "5", "90", "--fmu", str(fmu3),
                  "--out", str(tmp_path / "h.mcap")])
     assert code == 0 and "looks like" not in capfd.readouterr().err
+
+
+def test_a_multi_run_scenario_names_all_its_runs_and_lists_them(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: ``wmr run fig9`` named 6 of its 13 runs then "...", and there was no way to
+    list them but reading the TOML."""
+    from wmr.cli import main
+    from wmr.config.scenario import load_scenario
+
+    runs = load_scenario("fig9").runs
+    assert main(["run", "fig9"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("wmr: error: --run:")
+    assert all(r.name in err[0] for r in runs) and "wmr run fig9 --list" in err[0]
+    assert main(["run", "fig9", "--list"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert [line.split(":")[0] for line in lines] == [r.name for r in runs]
+    assert lines[0] == "fig9-thd-090: --start 0 0 0 --goal 20 10 -90"
+
+
+def test_a_scenario_of_many_runs_names_the_first_20_and_the_count() -> None:
+    from wmr.apps.run import select_run
+    from wmr.config.scenario import parse_scenario
+
+    sc = parse_scenario({"name": "many", "runs": [
+        {"name": f"r{i:02d}", "start": [0.0, 0.0, 0.0], "goal": [float(i + 1), 0.0, 0.0]}
+        for i in range(25)]})
+    with pytest.raises(ConfigError) as err:
+        select_run(sc, None)
+    assert "its 25 runs: r00, " in err.value.fix and "r19, ..." in err.value.fix
+    assert "r20" not in err.value.fix
+
+
+def test_a_shipped_scenario_file_name_resolves_and_suggestions_are_runnable(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before: ``wmr run fig11.toml`` outside the repository was "no such file", and an
+    unknown name was answered with the batch specs too (mc_fig10, ...), which ``wmr run``
+    refuses."""
+    from wmr.config.scenario import load_scenario, resolve_scenario_path, shipped_names
+    from wmr.infra.paths import scenarios_dir
+
+    monkeypatch.chdir(tmp_path)
+    assert resolve_scenario_path("fig11.toml") == scenarios_dir() / "fig11.toml"
+    assert load_scenario("fig11.toml").name == "fig11"
+    (tmp_path / "fig11.toml").write_text('name = "mine"\nstart = [0.0, 0.0, 0.0]\n'
+                                         'goal = [1.0, 0.0, 0.0]\n')
+    assert load_scenario("fig11.toml").name == "mine"  # a file here comes first
+    assert resolve_scenario_path("nothing.toml") == Path("nothing.toml")
+    with pytest.raises(ConfigError) as err:
+        load_scenario("fig1")
+    offered = err.value.fix.split("one of: ")[1].split(", ")
+    assert offered == shipped_names(batch_specs=False)
+    assert {"fig9", "fig10", "fig11"} <= set(offered)
+    for name in shipped_names():  # every other shipped file is a batch spec wmr run refuses
+        if name not in offered:
+            with pytest.raises(ConfigError, match="is a batch spec"):
+                load_scenario(name)
+    assert set(offered) < set(shipped_names())

@@ -366,6 +366,10 @@ def _option(keyword: str, command_line: bool) -> str:
     return f"--{keyword.replace('_', '-')}" if command_line else keyword
 
 
+#: Run names an error of :func:`select_run` lists before "...".
+LISTED_RUNS = 20
+
+
 def select_run(scenario: Scenario, name: str | None, command_line: bool = True) -> RunSpec:
     """The run ``name`` of ``scenario``, or its only run (``--run NAME``, ``run=NAME``)."""
     from wmr.config.naming import name_list
@@ -378,8 +382,13 @@ def select_run(scenario: Scenario, name: str | None, command_line: bool = True) 
     problem = (f"scenario {scenario.name} has no run {name!r}" if name is not None
                else f"scenario {scenario.name} has {len(runs)} runs")
     how = f"{option} NAME" if command_line else f"{option}=NAME"
-    raise ConfigError(option, problem, f"pick one with {how} of {name_list(names)}"
-                      + (" or run them all with 'wmr batch'" if command_line else ""))
+    # 20 names and the count (name_list): a scenario's runs are few, and a name cut short
+    # cannot be given back to --run; all of them with their poses: wmr run SCENARIO --list
+    listing = f"; all of them: wmr run {scenario.name} --list" if command_line else ""
+    raise ConfigError(option, problem, f"pick one with {how} of "
+                      f"{name_list(names, shown=LISTED_RUNS)}"
+                      + (" or run them all with 'wmr batch'" if command_line else "")
+                      + listing)
 
 
 #: ``progress_bar(run_name)``: the progress callback of a run and what closes it.

@@ -289,9 +289,30 @@ def resolve_scenario_path(name_or_path: str | Path | None = None) -> Path:
     if name_or_path is None:
         name_or_path = DEFAULT_SCENARIO
     p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists() or len(p.parts) > 1:
+    if p.exists() or len(p.parts) > 1:
         return p
+    if p.suffix == ".toml":
+        # ``fig11.toml`` with no such file here: the shipped one of that name, if any
+        shipped = scenarios_dir() / p.name
+        return shipped if shipped.is_file() else p
     return scenarios_dir() / f"{p.name}.toml"
+
+
+def shipped_names(batch_specs: bool = True) -> list[str]:
+    """The shipped scenarios' names (``scenarios/``), sorted; without the batch specs (files
+    with a ``[grid]``, ``[[list]]``, ``[random]`` or ``[sweep]``) when ``batch_specs`` is
+    false: what ``wmr run`` can run."""
+    names = []
+    for path in sorted(scenarios_dir().glob("*.toml")):
+        if not batch_specs:
+            try:
+                data = tomllib.loads(path.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+                continue
+            if any(key in data for key in BATCH_TABLES):
+                continue
+        names.append(path.stem)
+    return names
 
 
 def read_toml(path: Path, field: str = "scenario", fix: str | None = None
@@ -309,7 +330,8 @@ def read_toml(path: Path, field: str = "scenario", fix: str | None = None
                          fix=fix or "give a .toml file")
     except FileNotFoundError:
         if fix is None:
-            shipped = ", ".join(sorted(p.stem for p in scenarios_dir().glob("*.toml")))
+            # a scenario's suggestions leave out the batch specs, which wmr run refuses
+            shipped = ", ".join(shipped_names(batch_specs=field != "scenario"))
             fix = f"give a path to a .toml file or one of: {shipped}"
         raise ConfigError(field, f"no such file: {path}", fix) from None
     try:
@@ -412,6 +434,7 @@ __all__ = [
     "load_scenario",
     "parse_scenario",
     "resolve_scenario_path",
+    "shipped_names",
     "unknown_field",
     "with_overrides",
 ]
