@@ -169,3 +169,71 @@ def test_a_shipped_scenario_file_name_resolves_and_suggestions_are_runnable(
             with pytest.raises(ConfigError, match="is a batch spec"):
                 load_scenario(name)
     assert set(offered) < set(shipped_names())
+
+
+def test_progress_off_a_terminal_is_a_line_every_interval_with_count_and_time_left() -> None:
+    """Before: a batch whose stderr was not a terminal said nothing until it ended (tqdm's
+    bar, disabled off a terminal), and ``wmr benchmark`` printed a line per run with no
+    count or time left."""
+    import io
+
+    from wmr.apps.progress import ProgressLines
+
+    ticks = iter(float(t) for t in range(0, 1000, 3))  # 3 s per item
+    out = io.StringIO()
+    bar = ProgressLines(20, "mc", "run", initial=5, file=out, interval_s=10.0,
+                        clock=lambda: next(ticks))
+    for _ in range(9):
+        bar.set_postfix_str("ok 3, timeout 0, failed 0")
+        bar.update(1)
+    bar.close()
+    lines = out.getvalue().splitlines()
+    # items at 3, 6, ..., 27 s: a line at 12 s and at 24 s, and the last at close (30 s)
+    assert lines[0] == ("wmr: mc: 9/20 runs (45 %), ok 3, timeout 0, failed 0; 12 s elapsed, "
+                        "about 33 s left")  # 4 runs in 12 s: 3 s a run, 11 to go
+    assert lines[1].startswith("wmr: mc: 13/20 runs (65 %)") and "about 21 s left" in lines[1]
+    assert lines[2].startswith("wmr: mc: 14/20 runs (70 %)") and len(lines) == 3
+    quiet = io.StringIO()  # shorter than the interval: nothing, as before
+    short = ProgressLines(3, "mc", "run", file=quiet, interval_s=10.0)
+    short.update(3)
+    short.close()
+    assert quiet.getvalue() == ""
+
+
+def test_a_notebook_gets_one_bar_and_a_file_gets_lines(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before: ``progress=True`` in a notebook left about 33 lines of text bars."""
+    import sys
+
+    from tqdm.auto import tqdm as auto
+
+    from wmr.apps.progress import NOTEBOOK_INTERVAL_S, ProgressLines, count_progress
+
+    bar = count_progress(10, "mc", "run", None)  # pytest's stderr is no terminal
+    assert isinstance(bar, ProgressLines)
+    monkeypatch.setitem(sys.modules, "ipykernel", sys)  # as in a Jupyter kernel
+    nb = count_progress(10, "mc", "run", True)
+    try:
+        assert isinstance(nb, auto) and nb.mininterval == NOTEBOOK_INTERVAL_S
+    finally:
+        nb.close()
+    assert isinstance(count_progress(10, "mc", "run", None), ProgressLines)
+    off = count_progress(10, "mc", "run", False)
+    assert getattr(off, "disable", False) is True
+
+
+def test_a_batch_off_a_terminal_prints_progress_lines(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str], fmu3: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from wmr.apps import progress
+    from wmr.apps.batch.command import batch_command
+
+    monkeypatch.setattr(progress, "LINE_INTERVAL_S", 0.0)  # every run, not every 10 s
+    spec = tmp_path / "masses.toml"
+    spec.write_text('name = "masses"\nstart = [0.0, 0.0, 0.0]\ngoal = [2.0, 1.0, 0.0]\n'
+                    'max_time_s = 20.0\n[grid.params]\nm = [20.0, 40.0]\n')
+    batch_command(spec, tmp_path / "out", workers=1, fmu=fmu3, progress=None)
+    lines = [line for line in capfd.readouterr().err.splitlines()
+             if line.startswith("wmr: masses: ")]
+    assert [line.split(" runs")[0] for line in lines] == ["wmr: masses: 1/2",
+                                                          "wmr: masses: 2/2"], lines
+    assert "ok 1, timeout 0, failed 0" in lines[0] and "left" in lines[0]
