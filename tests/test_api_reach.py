@@ -32,6 +32,9 @@ CLI_ONLY = {
     # wmr batch --check makes every run and stops: the API's wmr.apps.batch.load_batch
     # (which wmr.batch calls first) does that check
     "check",
+    # wmr run --list prints a scenario's runs and runs nothing: the API's
+    # wmr.load_scenario(NAME).runs are those runs
+    "list",
 }
 
 API_OF: dict[str, Callable[..., Any]] = {"run": wmr.run, "batch": wmr.batch,

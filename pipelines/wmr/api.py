@@ -202,11 +202,21 @@ class RunResult:
 
     @property
     def path(self) -> pd.DataFrame:
-        """The robot's path: ``x_m``, ``y_m``, ``theta_rad`` against ``t_s`` (empty without a
-        log)."""
+        """The robot's path: ``x_m``, ``y_m``, ``theta_rad`` against ``t_s``.
+
+        Without a log (``log="none"``, or ``log="failed"`` and a run that did not fail) it is
+        empty, and a :class:`UserWarning` says so and how to get the path: an empty frame
+        alone read as a run that never moved.
+        """
         if self.log is None:
+            import warnings
+
             import pandas as pd
 
+            warnings.warn(
+                f"run {self.record.get('name', '')!r} wrote no log (log=\"none\", or "
+                "log=\"failed\" and the run did not fail), so its .path is empty: run it "
+                "again with log=\"full\" (the default) to get the path", stacklevel=2)
             return pd.DataFrame(columns=list(PATH_COLUMNS), index=pd.Index([], name="t_s"))
         return self.log.path
 

@@ -9,6 +9,7 @@ master loop (:func:`~wmr.core.closedloop.run_closed_loop`) and the log
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import zipfile
@@ -365,6 +366,10 @@ def _option(keyword: str, command_line: bool) -> str:
     return f"--{keyword.replace('_', '-')}" if command_line else keyword
 
 
+#: Run names an error of :func:`select_run` lists before "...".
+LISTED_RUNS = 20
+
+
 def select_run(scenario: Scenario, name: str | None, command_line: bool = True) -> RunSpec:
     """The run ``name`` of ``scenario``, or its only run (``--run NAME``, ``run=NAME``)."""
     from wmr.config.naming import name_list
@@ -377,8 +382,13 @@ def select_run(scenario: Scenario, name: str | None, command_line: bool = True) 
     problem = (f"scenario {scenario.name} has no run {name!r}" if name is not None
                else f"scenario {scenario.name} has {len(runs)} runs")
     how = f"{option} NAME" if command_line else f"{option}=NAME"
-    raise ConfigError(option, problem, f"pick one with {how} of {name_list(names)}"
-                      + (" or run them all with 'wmr batch'" if command_line else ""))
+    # 20 names and the count (name_list): a scenario's runs are few, and a name cut short
+    # cannot be given back to --run; all of them with their poses: wmr run SCENARIO --list
+    listing = f"; all of them: wmr run {scenario.name} --list" if command_line else ""
+    raise ConfigError(option, problem, f"pick one with {how} of "
+                      f"{name_list(names, shown=LISTED_RUNS)}"
+                      + (" or run them all with 'wmr batch'" if command_line else "")
+                      + listing)
 
 
 #: ``progress_bar(run_name)``: the progress callback of a run and what closes it.
@@ -423,7 +433,7 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
     """
     from wmr.adapters.fmi.varmap import load_map
     from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
-    from wmr.config.scenario import load_scenario, with_overrides
+    from wmr.config.scenario import heading_looks_like_radians, load_scenario, with_overrides
     from wmr.core.sensing.config import command_line_sensors
     from wmr.infra.outputs import check_output
 
@@ -433,7 +443,13 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
         if len(value) != 3:
             raise ConfigError(_option(field, command_line),
                               f"must be (x_m, y_m, heading_deg), got {value!r}")
-        return (float(value[0]), float(value[1]), float(value[2]))
+        heading_deg = float(value[2])
+        as_pi = heading_looks_like_radians(heading_deg)
+        if as_pi is not None:  # run as given (it may be meant), but never without a word
+            _notice(f"warning: {_option(field, command_line)} heading {heading_deg:g} is in "
+                    f"degrees but looks like {as_pi} rad: give "
+                    f"{math.degrees(heading_deg):.4g} if you meant {as_pi} rad")
+        return (float(value[0]), float(value[1]), heading_deg)
 
     sc = load_scenario(scenario)
     base = select_run(sc, run, command_line)

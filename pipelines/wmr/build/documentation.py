@@ -8,6 +8,7 @@ list what the model description declares; the equations and the errata are the o
 
 from __future__ import annotations
 
+import math
 from html import escape
 
 from wmr import __version__
@@ -47,10 +48,17 @@ ERRATA: tuple[tuple[str, str, str], ...] = (
 )
 
 
+def _start(value: float) -> str:
+    """A start value as a reader wants it: the shortest text that reads back as the same
+    float (``repr``: 0.15, not 0.14999999999999999), "none" for a variable without one
+    (an output's NaN)."""
+    return "none" if math.isnan(value) else repr(value)
+
+
 def _rows(variables: list[Variable]) -> str:
     return "\n".join(
         f"<tr><td><code>{escape(v.name)}</code></td><td>{escape(v.unit or '1')}</td>"
-        f"<td>{v.start:.17g}</td><td>{escape(v.description)}</td></tr>" for v in variables)
+        f"<td>{_start(v.start)}</td><td>{escape(v.description)}</td></tr>" for v in variables)
 
 
 def _table(title: str, variables: list[Variable], start: str) -> str:

@@ -89,6 +89,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         run_benchmark,
         write_tables,
     )
+    from wmr.apps.progress import count_progress
     from wmr.infra.outputs import check_output
 
     out = check_output(args.out if args.out else Path("runs") / "benchmark", "--out", "dir")
@@ -99,13 +100,25 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
               else [c.strip() for c in args.controllers.split(",") if c.strip()])
     tuned = load_tuned(args.tuned)
 
-    def progress(case: str, label: str) -> None:
-        if not args.json:
-            print(f"  {case}: {label}", file=sys.stderr, flush=True)
+    # one bar (a "k/N, about T left" line every 10 s off a terminal), not a line per run
+    steps = len(specs) * (len(labels) + (0 if args.no_optimal else 1))
+    bar = count_progress(steps, "benchmark", "run", False if args.json else None)
+    begun = [False]
 
-    with FmuPlant(_fmu_path(args)) as plant:
-        rows = run_benchmark(specs, plant, out, labels, tuned, optimal=not args.no_optimal,
-                             progress=progress)
+    def progress(case: str, label: str) -> None:  # told before each run: the last one is done
+        if begun[0]:
+            bar.update(1)
+        begun[0] = True
+        bar.set_postfix_str(f"{case}: {label}", refresh=False)
+
+    try:
+        with FmuPlant(_fmu_path(args)) as plant:
+            rows = run_benchmark(specs, plant, out, labels, tuned,
+                                 optimal=not args.no_optimal, progress=progress)
+        if begun[0]:
+            bar.update(1)
+    finally:
+        bar.close()
     csv_path, pq_path = write_tables(rows, out)
     print(format_tables(rows))
     print(f"tables: {csv_path}, {pq_path}; logs: {out / 'logs'}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
@@ -102,8 +103,11 @@ def result_summary(record: Mapping[str, Any]) -> str:
         return "n/a" if value is None else f"{value:.{digits}f}"
 
     log = "no log kept (--log)" if record.get("mcap") is None else f"log {record['mcap']}"
+    # results are in rad while headings are given in degrees: both, so neither is misread
+    heading = record.get("final_heading_error_rad")
+    in_deg = "" if heading is None else f" ({math.degrees(heading):.3f} deg)"
     return (f"final position error {num('final_position_error_m', 4)} m, heading error "
-            f"{num('final_heading_error_rad', 5)} rad, path "
+            f"{num('final_heading_error_rad', 5)} rad{in_deg}, path "
             f"{num('path_length_m', 2)} m; {log}")
 
 
@@ -114,8 +118,36 @@ def select_run(scenario: Scenario, name: str | None) -> RunSpec:
     return pick(scenario, name)
 
 
+def _pose_text(pose: Any) -> str:
+    """A pose as ``--start``/``--goal`` take it: ``X Y THETA_DEG`` (heading in degrees)."""
+    return (f"{pose.x_m:g} {pose.y_m:g} "
+            f"{round(math.degrees(pose.heading_rad), 9):g}")
+
+
+def list_runs(scenario: str | None, json_line: bool) -> int:
+    """``wmr run SCENARIO --list``: the scenario's runs, one a line, each with its start and
+    goal as ``--start``/``--goal`` take them (``--json``: one JSON list); nothing is run."""
+    import json
+
+    from wmr.config.scenario import load_scenario
+
+    sc = load_scenario(scenario)
+    if json_line:
+        print(json.dumps([{"name": r.name,
+                           "start": [float(v) for v in _pose_text(r.start).split()],
+                           "goal": [float(v) for v in _pose_text(r.goal).split()]}
+                          for r in sc.runs]))
+        return 0
+    for r in sc.runs:
+        print(f"{r.name}: --start {_pose_text(r.start)} --goal {_pose_text(r.goal)}")
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from wmr.apps.run import run_scenario
+
+    if args.list:
+        return list_runs(args.scenario, args.json)
 
     record, spec = run_scenario(
         args.scenario, run=args.run, start=args.start, goal=args.goal,
@@ -159,6 +191,9 @@ def _supervised(args: argparse.Namespace,
     """``wmr run`` in a child process (:mod:`wmr.apps.supervise`): a run whose FMU loops in C
     or crashes is still one line, a ``failed`` record and a finished log."""
     from wmr.apps.supervise import GRACE_S, supervise
+
+    if args.list:  # runs nothing: no child to watch
+        return run(None)
 
     def child(channel: Any) -> int:
         args.report_log = channel.log_opened
@@ -240,6 +275,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="set one field of the [sensors] table (gps_sigma_m=0.05, "
                         "estimator=ekf, ...)")
     p.add_argument("--out", metavar="FILE.mcap", help="log file (default runs/NAME.mcap)")
+    p.add_argument("--list", action="store_true",
+                   help="list the scenario's runs, one a line (name, --start, --goal), and "
+                        "run nothing")
     add_log_choice(p, "full")
     p.add_argument("--json", action="store_true",
                    help="print the result as one JSON object on the last line")

@@ -38,9 +38,10 @@ Every error is a :class:`~wmr.infra.errors.ConfigError` that names the field.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -84,12 +85,54 @@ class Scenario:
     fmu_map: Path | None = None
 
 
-def _check_keys(table: Mapping[str, Any], allowed: tuple[str, ...], where: str) -> None:
+def unknown_field(field: str, allowed: Sequence[str]) -> ConfigError:
+    """The error of an unknown ``field`` (dotted): every allowed name, and the closest of them
+    first when one is near (a misspelling such as ``[randm]`` or ``[[lists]]``).
+
+    Parameters
+    ----------
+    field
+        The unknown field's dotted path; its last part is what the user wrote.
+    allowed
+        Every name allowed where it stands.
+    """
+    near = difflib.get_close_matches(field.rsplit(".", 1)[-1], list(allowed), n=1)
+    hint = f"did you mean {near[0]!r}? " if near else ""
+    return ConfigError(field, "unknown field", f"{hint}allowed fields: {', '.join(allowed)}")
+
+
+def _check_keys(table: Mapping[str, Any], allowed: Sequence[str], where: str) -> None:
     for key in table:
         if key not in allowed:
-            field = f"{where}.{key}" if where else key
-            raise ConfigError(field, "unknown field",
-                              f"allowed fields: {', '.join(allowed)}")
+            raise unknown_field(f"{where}.{key}" if where else key, allowed)
+
+
+#: A heading in degrees closer than this to a multiple of pi/12 rad looks like radians.
+RADIANS_LOOKALIKE_TOL: float = 1e-3
+
+
+def heading_looks_like_radians(heading_deg: float) -> str | None:
+    """``"pi/2"``-style text when a heading given in degrees looks like one in radians, else
+    ``None`` (headings are given in degrees; ``--goal 5 5 1.5708`` means 1.57 deg).
+
+    The rule: a non-zero ``|heading_deg| <= 2 pi`` within :data:`RADIANS_LOOKALIKE_TOL` of a
+    multiple of pi/12 (15 deg: 0.2618, 0.5236, 0.7854, 1.0472, 1.5708, 3.1416, ...).  No
+    whole number is that close to one (the nearest, 6 and 22 pi/12 = 5.760, are 0.02 apart),
+    so ordinary degree values (0, 1, 5, 30, 90) never trip it, nor does any heading above
+    2 pi.
+    """
+    from fractions import Fraction
+
+    value = abs(heading_deg)
+    if value == 0.0 or value > 2.0 * math.pi + RADIANS_LOOKALIKE_TOL:
+        return None
+    k = round(value / (math.pi / 12.0))
+    if k == 0 or abs(value - k * math.pi / 12.0) > RADIANS_LOOKALIKE_TOL:
+        return None
+    frac = Fraction(k, 12)
+    text = ("" if frac.numerator == 1 else str(frac.numerator)) + "pi" \
+        + ("" if frac.denominator == 1 else f"/{frac.denominator}")
+    return ("-" if heading_deg < 0 else "") + text
 
 
 def _pose(value: object, field: str) -> Pose:
@@ -246,9 +289,30 @@ def resolve_scenario_path(name_or_path: str | Path | None = None) -> Path:
     if name_or_path is None:
         name_or_path = DEFAULT_SCENARIO
     p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists() or len(p.parts) > 1:
+    if p.exists() or len(p.parts) > 1:
         return p
+    if p.suffix == ".toml":
+        # ``fig11.toml`` with no such file here: the shipped one of that name, if any
+        shipped = scenarios_dir() / p.name
+        return shipped if shipped.is_file() else p
     return scenarios_dir() / f"{p.name}.toml"
+
+
+def shipped_names(batch_specs: bool = True) -> list[str]:
+    """The shipped scenarios' names (``scenarios/``), sorted; without the batch specs (files
+    with a ``[grid]``, ``[[list]]``, ``[random]`` or ``[sweep]``) when ``batch_specs`` is
+    false: what ``wmr run`` can run."""
+    names = []
+    for path in sorted(scenarios_dir().glob("*.toml")):
+        if not batch_specs:
+            try:
+                data = tomllib.loads(path.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+                continue
+            if any(key in data for key in BATCH_TABLES):
+                continue
+        names.append(path.stem)
+    return names
 
 
 def read_toml(path: Path, field: str = "scenario", fix: str | None = None
@@ -266,7 +330,8 @@ def read_toml(path: Path, field: str = "scenario", fix: str | None = None
                          fix=fix or "give a .toml file")
     except FileNotFoundError:
         if fix is None:
-            shipped = ", ".join(sorted(p.stem for p in scenarios_dir().glob("*.toml")))
+            # a scenario's suggestions leave out the batch specs, which wmr run refuses
+            shipped = ", ".join(shipped_names(batch_specs=field != "scenario"))
             fix = f"give a path to a .toml file or one of: {shipped}"
         raise ConfigError(field, f"no such file: {path}", fix) from None
     try:
@@ -365,8 +430,11 @@ __all__ = [
     "DEFAULT_SCENARIO",
     "Scenario",
     "expand",
+    "heading_looks_like_radians",
     "load_scenario",
     "parse_scenario",
     "resolve_scenario_path",
+    "shipped_names",
+    "unknown_field",
     "with_overrides",
 ]

@@ -8,11 +8,19 @@ passes the hard wall-clock limit, and starts a new one in its place.  Workers co
 ``forkserver`` that has imported the simulation code once, so a replacement starts in
 milliseconds and no worker inherits the parent's threads.  Workers ignore SIGINT and SIGTERM:
 the parent alone stops them; and they end as soon as it is gone, even killed outright.
+
+Workers never import the user's script: multiprocessing would run it again in each worker
+(as ``__mp_main__``) to find its functions, repeating a top-level ``wmr.batch`` call inside
+the batch; a worker needs only :mod:`wmr` (its target and every task it is sent are wmr's
+own), so the worker's start data leaves the main module out (:class:`_WorkerProcess`).
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
+import multiprocessing.context
+import multiprocessing.popen_forkserver
+import multiprocessing.spawn
 import os
 import select
 import signal
@@ -197,6 +205,42 @@ def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str
         conn.close()
 
 
+#: Held while a worker's start data is made without the main module (one launch at a time).
+_LAUNCH_LOCK = threading.Lock()
+
+
+class _PopenWithoutMain(multiprocessing.popen_forkserver.Popen):
+    """A forkserver child started without the parent's main module: its start data has no
+    ``init_main_from_path`` (a script) or ``init_main_from_name`` (``python -m``), which the
+    child would run again as ``__mp_main__`` before its target."""
+
+    def _launch(self, process_obj: Any) -> None:
+        # the stdlib reads the start data from one function of multiprocessing.spawn; it is
+        # wrapped for the length of this launch only, under a lock, and restored
+        with _LAUNCH_LOCK:
+            made = multiprocessing.spawn.get_preparation_data
+
+            def without_main(name: str) -> dict[str, Any]:
+                data: dict[str, Any] = made(name)
+                data.pop("init_main_from_path", None)
+                data.pop("init_main_from_name", None)
+                return data
+
+            multiprocessing.spawn.get_preparation_data = without_main
+            try:
+                super()._launch(process_obj)  # type: ignore[misc]  # not in typeshed
+            finally:
+                multiprocessing.spawn.get_preparation_data = made
+
+
+class _WorkerProcess(multiprocessing.context.ForkServerProcess):
+    """A batch worker: a forkserver process that does not import the user's script."""
+
+    @staticmethod
+    def _Popen(process_obj: Any) -> _PopenWithoutMain:  # the stdlib calls it by this name
+        return _PopenWithoutMain(process_obj)
+
+
 def _start_problem(exc: BaseException) -> str:
     """Why a worker could not be started, and what to do."""
     import errno
@@ -263,7 +307,7 @@ class LocalPool:
         except OSError as exc:
             raise WmrError(f"cannot make the pipe of batch worker {number}: "
                            f"{_start_problem(exc)}") from None
-        proc = self._ctx.Process(
+        proc = _WorkerProcess(
             target=_worker_main, name=f"wmr-batch-{number}", daemon=True,
             args=(child, str(self.fmu_path), str(self.runs_dir),
                   str(self.attachment) if self.attachment else None, log_file, os.getpid(),

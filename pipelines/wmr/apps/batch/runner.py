@@ -50,6 +50,7 @@ from wmr.apps.batch.summary import (
     write_summary,
 )
 from wmr.apps.batch.worker import DISK_FULL, FAULTS, Task, fmu_digest
+from wmr.apps.progress import count_progress
 from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.naming import plural
 from wmr.infra.durable import AtomicFile, open_own, partial_path, storage_error
@@ -214,7 +215,9 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     var_map
         The FMU's variable map (:mod:`wmr.adapters.fmi.varmap`); by default the spec's ``fmu_map``.
     progress
-        tqdm bar on stderr: ``None`` shows it on a terminal only.
+        Progress on stderr (:func:`wmr.apps.progress.count_progress`): ``None`` a tqdm bar
+        on a terminal, else a line every 10 s; ``True`` also a bar in a notebook; ``False``
+        nothing.
     dask_ship_logs
         On Dask, have every worker send its logs back, as workers on other hosts do.
     on_outcome
@@ -235,8 +238,6 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     FmuError
         The workers cannot open the FMU.
     """
-    from tqdm import tqdm
-
     from wmr.apps.run import default_fmu
 
     t0 = time.perf_counter()
@@ -287,9 +288,9 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                                                                           0.1 * run_timeout_s)
             stream = LocalPool(fmu, runs_dir, n, hard_limit_s=hard, attachment=attachment,
                                log_dir=out / "logs", var_map=var_map).run(tasks)
-        bar = tqdm(total=len(batch.runs), initial=ledger.n_done, unit="run", file=sys.stderr,
-                   disable=_bar_off(progress), smoothing=0.05,
-                   dynamic_ncols=True, desc=batch.name)
+        # a bar on a terminal, a line every 10 s elsewhere, one bar in a notebook
+        bar = count_progress(len(batch.runs), batch.name, "run", progress,
+                             initial=ledger.n_done, smoothing=0.05, dynamic_ncols=True)
         counts = ledger.counts()
 
         def show() -> None:

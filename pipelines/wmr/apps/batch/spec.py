@@ -82,7 +82,14 @@ import numpy as np
 
 from wmr.apps.optimal import BATCH_OBJECTIVES
 from wmr.apps.run import LOG_KEEPS, LogPolicy
-from wmr.config.scenario import parse_scenario, read_toml, resolve_scenario_path, with_overrides
+from wmr.config.scenario import (
+    TOP_FIELDS,
+    parse_scenario,
+    read_toml,
+    resolve_scenario_path,
+    unknown_field,
+    with_overrides,
+)
 from wmr.core.control.peers import CONTROLLER_NAMES, controller_gains
 from wmr.core.control.stabiliser import Gains, Limits
 from wmr.core.plant import Pose, RobotParams
@@ -252,7 +259,7 @@ def _table(value: object, where: str, example: str) -> Mapping[str, Any]:
 
 
 def _unknown(where: str, allowed: Sequence[str]) -> ConfigError:
-    return ConfigError(where, "unknown field", f"allowed fields: {', '.join(allowed)}")
+    return unknown_field(where, allowed)
 
 
 def _value(field: str, value: object, where: str) -> Value:
@@ -822,6 +829,9 @@ def parse_batch(data: Mapping[str, Any], source: str = "<batch>", path: Path | N
     ConfigError
         Naming the bad field.
     """
+    for key in data:  # here, not in parse_scenario: a spec's sections are allowed fields too
+        if key not in TOP_FIELDS and key not in BATCH_SECTIONS:
+            raise unknown_field(key, (*TOP_FIELDS, *BATCH_SECTIONS))
     sections = {k: data[k] for k in BATCH_SECTIONS if k in data}
     scenario = parse_scenario({k: v for k, v in data.items() if k not in BATCH_SECTIONS},
                               source=source, path=path)
