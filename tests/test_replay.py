@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import pyarrow as pa
@@ -470,13 +470,20 @@ def _fill(folder: Path, leave: int) -> None:
     (folder / "filler").write_bytes(bytes(max(0, free - leave)))
 
 
-@pytest.mark.parametrize(("option", "leave"), [("--rrd", 4096), ("--blueprint", 4096)])
+#: Free bytes that a recording of fig11 (1.22 MiB) fills in the middle of its write, above the
+#: 1 MiB under which bf01f8f refused before writing.
+_MID_WRITE: Final = (1 << 20) + (128 << 10)
+
+
+@pytest.mark.parametrize(("option", "leave"), [("--rrd", 4096), ("--blueprint", 4096),
+                                               ("--rrd", _MID_WRITE),
+                                               ("--blueprint", 128 << 10)])
 def test_a_full_disk_keeps_the_previous_recording_and_says_so_in_one_line(
         fig11_log: Path, full_disk: Path, option: str, leave: int) -> None:
     """Before: `internal error: RuntimeError: File-writer thread shut down prematurely`, the
     previous .rrd overwritten by a truncated one (the blueprint alike), or a hang in Rerun's
-    save when its first write fails: a disk full before the write (4 KiB left).  (A disk that
-    fills during a long write can still hang inside Rerun 0.41's file sink: not covered.)"""
+    save when one of its writes fails: a disk full before the write (4 KiB left), or during
+    it (1.125 MiB left for 1.22 MiB of recording; 128 KiB for a 240 KB blueprint)."""
     out = full_disk / ("x.rrd" if option == "--rrd" else "x.rbl")
     previous = b"the previous good file"
     out.write_bytes(previous)
@@ -487,7 +494,7 @@ def test_a_full_disk_keeps_the_previous_recording_and_says_so_in_one_line(
     # in a process of its own: the old code could hang in Rerun's flush in-process
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     proc = subprocess.run([sys.executable, "-m", "wmr.cli", "replay", str(fig11_log), option,
-                           str(out)], env=env, capture_output=True, text=True, timeout=120,
+                           str(out)], env=env, capture_output=True, text=True, timeout=60,
                           check=False)
     # Rerun's own logger adds its lines (ERROR re_log_encoding::...): ours is one line
     lines = [line for line in proc.stderr.splitlines() if line.startswith("wmr:")]

@@ -26,6 +26,7 @@ import os
 import secrets
 import stat
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -210,56 +211,67 @@ def replacing(path: str | os.PathLike[str], durable: bool = False) -> Iterator[B
         fsync_dir(target.parent)
 
 
-#: Free bytes under which a writer's failure on a device is taken for a full disk (a library
-#: that writes the file itself, Rerun's file sink, says only that its thread stopped).
-_NEARLY_FULL: Final = 1 << 20
-
-
 @contextmanager
-def replacing_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+def replacing_path(path: str | os.PathLike[str]) -> Iterator[str]:
     """:func:`replacing` for a library that opens and writes the file itself (Rerun's
-    ``save``): the path of a new temporary file beside ``path`` to write, renamed over
-    ``path`` when the block ends, removed if it raises.  Until then ``path`` is the previous
-    file, byte for byte.
+    ``save``): a path to give it, the write end of a pipe whose bytes a thread of ours writes,
+    as they come, to a new temporary file beside ``path``, renamed over ``path`` when the
+    block ends, removed if it raises.  Until then ``path`` is the previous file, byte for byte.
+
+    The library must have closed the file when the block ends (Rerun: ``disconnect``, or
+    ``save_blueprint`` returning): the thread writes until the pipe's end of file.
 
     Raises
     ------
     DiskFullError
-        The device has less than 1 MiB free before the block, or the block raised (an
-        ``OSError``, or the library's own ``RuntimeError``) while it has, or with ``ENOSPC``:
-        one line naming the device and ``path``.
+        The disk filled (``ENOSPC``, ``EDQUOT``): one line naming the device and ``path``.
+    OSError
+        Any other write error.
     """
     target = Path(path)
-
-    def free_bytes() -> int:
-        try:
-            st = os.statvfs(target.parent)
-        except OSError:
-            return _NEARLY_FULL
-        return st.f_bavail * st.f_frsize
-
-    def full() -> DiskFullError:
-        return DiskFullError(f"no space left on {mount_point(target)} while writing {target} "
-                             "(the previous file is kept)")
-
-    # Rerun's save() hangs for ever when its first write (the blueprint) fails: a device
-    # already (nearly) full is said before the library is given the file
-    if free_bytes() < _NEARLY_FULL:
-        raise full()
+    refuse_special(target)
     fd, tmp = _unique_temp(target)
-    os.close(fd)
+    failed: list[Exception] = []
+
+    def copy(read_fd: int) -> None:
+        # Rerun 0.41's file writer hangs for ever when one of its writes fails: the pipe is
+        # drained to its end whatever happens here, and our own write's error kept for later
+        while chunk := os.read(read_fd, 1 << 20):
+            if not failed:
+                try:
+                    write_all(fd, chunk, target)
+                except Exception as exc:  # raised in the caller's thread
+                    failed.append(exc)
+
+    read_fd, write_fd = os.pipe()
+    thread = threading.Thread(target=copy, args=(read_fd,), name="wmr-replacing-path",
+                              daemon=True)
+    thread.start()
     try:
-        yield tmp
+        try:
+            yield f"/dev/fd/{write_fd}"
+        finally:
+            os.close(write_fd)  # the library's own descriptor is closed: end of file
+            thread.join()
+            os.close(read_fd)
+        if failed:
+            raise failed[0]
+        os.close(fd)
+        fd = -1
+        refuse_special(target)
         os.replace(tmp, target)
-    except (OSError, RuntimeError) as exc:
-        free = free_bytes()
+    except (OSError, DiskFullError) as exc:
         tmp.unlink(missing_ok=True)
-        if (isinstance(exc, OSError) and exc.errno in _FULL) or free < _NEARLY_FULL:
-            raise full() from exc
+        err = storage_error(exc, target) if isinstance(exc, OSError) else exc
+        if isinstance(err, DiskFullError):
+            raise DiskFullError(f"{err} (the previous file is kept)") from exc
         raise
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    finally:
+        if fd >= 0:
+            os.close(fd)
 
 
 class AtomicFile:

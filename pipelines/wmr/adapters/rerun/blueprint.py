@@ -207,8 +207,9 @@ def write_blueprint(path: str | Path, application_id: str = APPLICATION_ID,
     from wmr.infra.durable import replacing_path
 
     out = Path(path)
-    with replacing_path(out) as tmp:  # a full disk keeps the previous blueprint whole
-        raw_blueprint(frame, sensing=sensing).save(application_id, tmp)
+    # Rerun writes a pipe, we write out (replacing_path): a full disk keeps the previous whole
+    with replacing_path(out) as pipe:
+        raw_blueprint(frame, sensing=sensing).save(application_id, pipe)
     return out
 
 

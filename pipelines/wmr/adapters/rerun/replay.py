@@ -1034,9 +1034,11 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     with ExitStack() as stack:
         if out is not None:
             out.parent.mkdir(parents=True, exist_ok=True)
-            # written beside out and renamed over it once whole: a full disk keeps the previous
-            tmp = stack.enter_context(replacing_path(out))
-            rec.save(tmp, default_blueprint=blueprint)
+            # Rerun writes a pipe, we write out (beside it, renamed over it once whole): a full
+            # disk is our error, not a hang in Rerun's file writer, and keeps the previous file
+            pipe = stack.enter_context(replacing_path(out))
+            rec.save(pipe, default_blueprint=blueprint)
+            stack.callback(rec.disconnect)  # closes the pipe, also when logging raised
 
         log_grid(rec, bounds)
         labels = [f"#{k}" for k in range(len(runs))]
@@ -1072,8 +1074,6 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
         rec.log(SUMMARY_ENTITY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN),
                 static=True)
         rec.flush()
-        if out is not None:
-            rec.disconnect()
     return ReplayResult(runs=names, steps={log.name: d.n_steps for log, d in runs}, rrd=out,
                         spawned=spawned, warnings=warnings, skipped=skipped)
 
