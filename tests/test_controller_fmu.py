@@ -503,6 +503,7 @@ def test_scenario_key_controller_fmu_and_its_errors(tmp_path: Path, built: Build
 
     missing = tmp_path / "missing.toml"
     missing.write_text(text.format("nowhere.fmu"))
+    capsys.readouterr()  # the good run's lines (a host build's, when none was made before)
     assert main(["run", str(missing), "--out", str(tmp_path / "m.mcap")]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--controller-fmu" in err[0] and "nowhere.fmu" in err[0]
@@ -679,3 +680,18 @@ def test_model_exchange_is_refused_and_not_declared(built: BuildResult, version:
         assert any("Model Exchange is not provided" in m for m in messages), messages
     finally:
         shutil.rmtree(unzipdir, ignore_errors=True)
+
+
+@pytest.mark.parametrize("option", [["--controller-fmu", "nowhere.fmu"],
+                                    ["--map", "nowhere.toml"]])
+def test_a_missing_input_file_is_refused_before_the_fmus_are_built(
+        option: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A missing controller FMU or map was named only after a build of the FMUs (seconds on
+    a fresh cache, and a screenful of build lines before the one that mattered)."""
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("WMR_CACHE_DIR", str(cache))
+    assert main(["run", "fig11", *option, "--out", str(tmp_path / "x.mcap")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nowhere" in err[0], err
+    assert not cache.exists() or not any(cache.rglob("*.fmu"))

@@ -488,9 +488,7 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
                         _option("out", command_line), suffix=".mcap")
     if view:
         check_output(path.with_suffix(".rrd"), _option("view", command_line))
-    fmu_path = Path(fmu) if fmu is not None else sc.fmu or default_fmu(fmi)
-    map_path = Path(fmu_map) if fmu_map is not None else sc.fmu_map
-    var_map = load_map(map_path) if map_path is not None else None
+    # the inputs are checked before the FMUs are built (seconds on a fresh machine)
     ctrl_path = None
     if ctrl_choice is not None:
         option = _option("controller_fmu", command_line)
@@ -502,6 +500,9 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
         if not ctrl_path.is_file():
             raise ConfigError(option, f"no such file: {ctrl_path}",
                               "give a controller .fmu, or no FILE for the built one")
+    map_path = Path(fmu_map) if fmu_map is not None else sc.fmu_map
+    var_map = load_map(map_path) if map_path is not None else None
+    fmu_path = Path(fmu) if fmu is not None else sc.fmu or default_fmu(fmi)
     policy = log_policy(log, log_every, None, command_line) or FULL_LOGS
     progress, finish = progress_bar(spec.name) if progress_bar is not None else (None, None)
     live = None
