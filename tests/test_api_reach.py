@@ -22,7 +22,7 @@ KEYWORD_OF = {
     "gain": "gains", "limit": "limits", "param": "params", "period": "period_s",
     "stop_radius": "stop_radius_m", "max_time": "max_time_s", "map": "fmu_map",
     "run_timeout": "run_timeout_s", "final_time": "final_time_s",
-    "torque_limit": "torque_limit_nm", "no_viewer": "viewer",
+    "torque_limit": "torque_limit_nm", "no_viewer": "viewer", "read_limit": "read_limit_mib",
 }
 
 #: Options with no meaning in the API, each with the reason.

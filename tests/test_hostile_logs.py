@@ -31,7 +31,7 @@ from wmr.api import read_log
 from wmr.cli import main
 from wmr.core.signals import SIGNALS
 from wmr.infra.durable import partial_path
-from wmr.infra.errors import LogError
+from wmr.infra.errors import ConfigError, LogError
 
 STEP_NS = 10_000_000
 GiB = 1 << 30
@@ -521,3 +521,23 @@ def test_the_read_limit_is_raised_by_an_option_or_the_environment(
     monkeypatch.setenv("WMR_READ_LIMIT_MIB", "lots")
     with pytest.raises(Exception, match="WMR_READ_LIMIT_MIB"):
         read_run(path)
+
+
+def test_the_api_s_read_limit_is_the_option_s_for_the_replay_only(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``wmr.replay(..., read_limit_mib=16)`` is ``--read-limit 16``: the replay reads up to it,
+    says so, and the process's limit is as it was afterwards; a bad value names the keyword."""
+    import warnings
+
+    import wmr
+
+    path = nanosecond_log(tmp_path / "ns.mcap", 100_000)
+    monkeypatch.delenv("WMR_READ_LIMIT_MIB", raising=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = wmr.replay(path, rrd=tmp_path / "a.rrd", read_limit_mib=16)
+    said = [str(w.message) for w in caught] + list(getattr(result, "warnings", []))
+    assert any("more than 16 MiB of memory" in w for w in said), said
+    assert "WMR_READ_LIMIT_MIB" not in os.environ
+    with pytest.raises(ConfigError, match="read_limit_mib"):
+        wmr.replay(path, rrd=tmp_path / "b.rrd", read_limit_mib=0)

@@ -15,7 +15,7 @@ from wmr.adapters.mcap import read_run
 from wmr.adapters.mcap.scene import GOAL_TOPIC, PATH_TOPIC, ROBOT_TOPIC
 from wmr.adapters.ssp.package import read_package
 from wmr.apps.benchmark import run_logged
-from wmr.apps.run import run_to_log
+from wmr.apps.run import LISTED_RUNS, run_to_log
 from wmr.build.fmus import BuildResult
 from wmr.cli import main
 from wmr.cli.run import add_run_overrides
@@ -44,18 +44,18 @@ def test_param_help_names_every_robot_parameter() -> None:
     assert listed.group(1).split(", ") == [f.name for f in fields(RobotParams)]
 
 
-def test_api_run_lists_how_many_runs_and_marks_a_cut_list() -> None:
-    """``wmr.run("fig10")`` says it has 12 runs and ends its shortened list with ``...``."""
+def test_api_run_lists_how_many_runs_and_names_them_all() -> None:
+    """``wmr.run("fig10")`` says it has 12 runs and names every one: a name cut short cannot
+    be given back as ``run=`` (up to ``LISTED_RUNS``; longer lists end in ``...``, below)."""
     names = [r.name for r in load_scenario("fig10").runs]
-    assert len(names) > LISTED_NAMES  # else the list is not cut and this test proves nothing
+    assert LISTED_NAMES < len(names) <= LISTED_RUNS  # the old cut would have shortened it
     for kwargs in ({}, {"run": "no-such-run"}):
         with pytest.raises(ConfigError) as info:
             wmr.run("fig10", **kwargs)  # type: ignore[arg-type]
         msg = str(info.value)
         assert f"{len(names)} runs" in msg
-        assert msg.endswith(", ...)"), msg
-        assert all(n in msg for n in names[:LISTED_NAMES])
-        assert names[-1] not in msg
+        assert "..." not in msg, msg
+        assert all(n in msg for n in names)
 
 
 def test_name_list_shows_a_whole_short_list_without_dots() -> None:

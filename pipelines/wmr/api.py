@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import html
 import math
-from collections.abc import Mapping, Sequence
+import os
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -311,13 +313,18 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
     return RunResult(record, read_log(record["mcap"]) if record.get("mcap") else None)
 
 
-def optimal(start: PoseLike = (0.0, 0.0, 0.0), goal: PoseLike = (20.0, 10.0, 0.0), *,
+def optimal(start: PoseLike | None = None, goal: PoseLike | None = None, *,
             objective: str = "time", torque_limit_nm: float | None = None,
             torque_only: bool = False, final_time_s: float | None = None,
             period_s: float = 0.01, out: str | Path | None = None,
-            fmi: int = 3, fmu: str | Path | None = None) -> RunResult:
+            fmi: int = 3, fmu: str | Path | None = None, scenario: str | Path | None = None,
+            run: str | None = None, params: Mapping[str, float] | None = None,
+            limits: Mapping[str, float] | None = None) -> RunResult:
     """The optimal manoeuvre, as ``wmr optimal`` makes it (solved, replayed on the FMU,
-    logged); ``start`` and ``goal`` are ``(x_m, y_m, heading_deg)``.
+    logged); ``start`` and ``goal`` are ``(x_m, y_m, heading_deg)`` (default ``(0, 0, 0)`` and
+    ``(20, 10, 0)``), or those of the run
+    ``run`` of ``scenario`` (a name or TOML file, as :func:`run` takes it); ``params`` and
+    ``limits`` replace the robot's parameters and the limits by name (``{"m": 40.0}``).
 
     Both check their inputs, name the case and its log in
     :func:`wmr.apps.optimal.optimal_command`: the same one-line errors, naming the keyword
@@ -328,7 +335,8 @@ def optimal(start: PoseLike = (0.0, 0.0, 0.0), goal: PoseLike = (20.0, 10.0, 0.0
 
     record = optimal_command(start, goal, objective=objective, torque_limit_nm=torque_limit_nm,
                              torque_only=torque_only, final_time_s=final_time_s,
-                             period_s=period_s, out=out, fmi=fmi, fmu=fmu)
+                             period_s=period_s, out=out, fmi=fmi, fmu=fmu, scenario=scenario,
+                             run=run, params=params, limits=limits)
     return RunResult(record, read_log(record["mcap"]) if record.get("mcap") else None)
 
 
@@ -412,8 +420,8 @@ def batch(spec: str | Path, out: str | Path | None = None, *,
 def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | None = None,
            blueprint: str | Path | None = None, blueprint_for: bool = False,
            viewer: bool | None = None, worst: int | None = None,
-           by: str = "time_to_goal_s",
-           status: str | None = None) -> ReplayResult | Path | list[Path]:
+           by: str = "time_to_goal_s", status: str | None = None,
+           read_limit_mib: float | None = None) -> ReplayResult | Path | list[Path]:
     """Replay run logs in Rerun, as ``wmr replay`` does: ``logs`` (a file or folder, or a list
     of them) in one recording, shown in a viewer or written to ``rrd``.
 
@@ -425,8 +433,9 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
     ``viewer=False``; None: a viewer when there is a screen and no ``rrd``), ``worst``, ``by``
     and ``status`` (``--worst N --by COLUMN``, ``--status failed|timeout``: runs of one batch
     folder, those whose logs were not kept made again into ``DIR/rerun/``, a warning saying
-    so).  Both check their inputs in :func:`wmr.apps.replay.replay_logs`: the same one-line
-    errors.
+    so), ``read_limit_mib`` (``--read-limit``: the memory a log's read may take, MiB; default
+    ``WMR_READ_LIMIT_MIB``, else 1536).  Both check their inputs in
+    :func:`wmr.apps.replay.replay_logs`: the same one-line errors.
 
     Returns
     -------
@@ -442,8 +451,33 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
 
         warnings.warn(line, stacklevel=3)
 
-    return replay_logs(inputs, rrd=rrd, blueprint=blueprint, blueprint_for=blueprint_for,
-                       viewer=viewer, worst=worst, by=by, status=status, say=say)
+    with _read_limit(read_limit_mib):
+        return replay_logs(inputs, rrd=rrd, blueprint=blueprint, blueprint_for=blueprint_for,
+                           viewer=viewer, worst=worst, by=by, status=status, say=say)
+
+
+@contextmanager
+def _read_limit(mib: float | None) -> Iterator[None]:
+    """``WMR_READ_LIMIT_MIB`` set to ``mib`` for the block (every read of the replay takes
+    it, as ``--read-limit`` makes it for the command), then as it was."""
+    if mib is None:
+        yield
+        return
+    from wmr.adapters.mcap.reader import READ_LIMIT_ENV, default_limits
+
+    try:
+        default_limits(mib)
+    except ConfigError as exc:
+        raise ConfigError("read_limit_mib", exc.problem, exc.fix) from None
+    old = os.environ.get(READ_LIMIT_ENV)
+    os.environ[READ_LIMIT_ENV] = repr(float(mib))
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(READ_LIMIT_ENV, None)
+        else:
+            os.environ[READ_LIMIT_ENV] = old
 
 
 __all__ = ["BatchResult", "Log", "RunResult", "batch", "load_scenario", "optimal",
