@@ -229,6 +229,7 @@ def test_a_forced_rebuild_elsewhere_gives_the_same_bytes(built: BuildResult,
         assert again.fmus[version].read_bytes() == path.read_bytes(), version
 
 
+@pytest.mark.slow  # a Zig cross-compile of the whole model: minutes on 2 cores
 def test_the_fmu_sources_alone_compile_to_a_dll_exporting_only_fmi(unpacked: dict[int, Path],
                                                                    tmp_path: Path) -> None:
     """What a Windows user gets who compiles the FMU's declared sources with no flag of ours

@@ -250,14 +250,6 @@ def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
     return _load(name_or_path)
 
 
-def _pose(value: PoseLike | None, name: str) -> tuple[float, float, float] | None:
-    if value is None:
-        return None
-    if len(value) != 3:
-        raise ConfigError(name, f"must be (x_m, y_m, heading_deg), got {value!r}")
-    return (float(value[0]), float(value[1]), float(value[2]))
-
-
 def run(scenario: str | Path | None = None, *, run: str | None = None,
         start: PoseLike | None = None, goal: PoseLike | None = None,
         params: Mapping[str, float] | None = None, gains: Mapping[str, float] | None = None,

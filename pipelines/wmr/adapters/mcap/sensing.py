@@ -27,7 +27,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Final, Protocol
+from typing import Final, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -153,43 +153,5 @@ def read_sensing(path: str | os.PathLike[str]) -> SensingTrace | None:
                         est_pose=e[:, 1:4])
 
 
-def replay_sensing(rec: Any, root: str, path: str | os.PathLike[str],
-                   color: tuple[int, int, int]) -> bool:
-    """Draw a log's fixes and estimated path next to its true path in Rerun.
-
-    Parameters
-    ----------
-    rec
-        The ``rerun.RecordingStream``.
-    root
-        The run's entity (``runs/<run>``, :func:`wmr.adapters.rerun.replay.run_entity`).
-    path
-        The log.
-    color
-        The run's colour: the estimate is drawn in a darker shade, the fixes as points.
-
-    Returns
-    -------
-    bool
-        Whether the log had sensing topics.
-    """
-    import rerun as rr
-
-    trace = read_sensing(path)
-    if trace is None:
-        return False
-    dark = tuple(int(0.55 * c) for c in color)
-    world = f"{root}/world"
-    if len(trace.gps_xy_m):
-        rec.log(f"{world}/gps", rr.Points2D(trace.gps_xy_m, colors=[dark], radii=[0.04],
-                                            labels=["GPS fixes"], show_labels=False),
-                static=True)
-    if len(trace.est_pose):
-        rec.log(f"{world}/estimate",
-                rr.LineStrips2D([trace.est_pose[:, :2]], colors=[dark], radii=[0.015],
-                                labels=["estimate"], show_labels=False), static=True)
-    return True
-
-
 __all__ = ["COVARIANCE_TOPIC", "ESTIMATE_TOPIC", "GPS_TOPIC", "PoseCovariance", "SensingTrace",
-           "read_sensing", "replay_sensing", "write_sensing"]
+           "read_sensing", "write_sensing"]
