@@ -413,7 +413,8 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
            blueprint: str | Path | None = None, blueprint_for: bool = False,
            viewer: bool | None = None, worst: int | None = None,
            by: str = "time_to_goal_s", status: str | None = None,
-           read_limit_mib: float | None = None) -> ReplayResult | Path | list[Path]:
+           read_limit_mib: float | None = None,
+           notebook: bool = False) -> ReplayResult | Path | list[Path]:
     """Replay run logs in Rerun, as ``wmr replay`` does: ``logs`` (a file or folder, or a list
     of them) in one recording, shown in a viewer or written to ``rrd``.
 
@@ -429,11 +430,17 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
     ``WMR_READ_LIMIT_MIB``, else 1536).  Both check their inputs in
     :func:`wmr.apps.replay.replay_logs`: the same one-line errors.
 
+    ``notebook=True`` (no option of the command: a notebook's own) shows the same recording
+    and blueprint inline, in the cell's output, through rerun-notebook (``pip install
+    'wmr-cosim[notebook]'``; without it, or outside a notebook, one ConfigError saying so);
+    no viewer is spawned and no ``.rrd`` written (``rrd`` and ``viewer=True`` are refused
+    with it), and ``.viewer`` of the result is that viewer (``rerun.notebook.Viewer``).
+
     Returns
     -------
     ReplayResult, Path or list of Path
         ``.runs``, ``.steps``, ``.rrd`` (None when only a viewer got it), ``.spawned``,
-        ``.warnings``; or the blueprint(s) written.
+        ``.warnings``, ``.viewer`` (``notebook=True``); or the blueprint(s) written.
     """
     from wmr.apps.replay import replay_logs
 
@@ -445,7 +452,8 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
 
     with _read_limit(read_limit_mib):
         return replay_logs(inputs, rrd=rrd, blueprint=blueprint, blueprint_for=blueprint_for,
-                           viewer=viewer, worst=worst, by=by, status=status, say=say)
+                           viewer=viewer, worst=worst, by=by, status=status, say=say,
+                           notebook=notebook)
 
 
 @contextmanager

@@ -26,7 +26,8 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
                 viewer: bool | None = None, worst: int | None = None,
                 by: str = "time_to_goal_s", status: str | None = None,
                 say: Callable[[str], None] | None = None,
-                command_line: bool = False) -> ReplayResult | Path | list[Path]:
+                command_line: bool = False, notebook: bool = False
+                ) -> ReplayResult | Path | list[Path]:
     """Replay ``logs`` (files and folders of them) in one Rerun recording, or, with
     ``blueprint``, write that blueprint file (looking straight down on ``logs``, if given)
     and replay nothing.
@@ -54,6 +55,10 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         is told so.
     command_line
         Name the options in errors as ``wmr replay`` does (``--rrd``), else the keywords.
+    notebook
+        Show the recording in the notebook's inline viewer (rerun-notebook) instead of a
+        viewer or an ``.rrd``; refused before any run is read or made again where it cannot
+        be shown (:func:`wmr.adapters.rerun.replay.check_notebook`).
 
     Returns
     -------
@@ -101,6 +106,10 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         return write_blueprint(out, frame=frame, sensing=sensing)
     if not logs:
         raise ConfigError(option("logs"), "no log given", "give run logs or folders of them")
+    if notebook:  # before --worst makes runs again, only to find no viewer to show them in
+        from wmr.adapters.rerun.replay import check_notebook
+
+        check_notebook(rrd, viewer)
     if worst is not None or status is not None:
         logs = _chosen_runs(logs, worst, by, status, say, command_line)
     else:
@@ -109,7 +118,7 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         check_output(rrd, option("rrd"), suffix=".rrd")
     from wmr.adapters.rerun.replay import replay
 
-    return replay(logs, rrd=rrd, spawn=viewer)
+    return replay(logs, rrd=rrd, spawn=viewer, notebook=notebook)
 
 
 def _chosen_runs(logs: Sequence[str | os.PathLike[str]], worst: int | None, by: str,

@@ -71,7 +71,7 @@ from wmr.adapters.mcap.scene import (
 )
 from wmr.core.signals import COLUMN
 from wmr.infra.durable import replacing_path
-from wmr.infra.errors import LogError, WmrError
+from wmr.infra.errors import ConfigError, LogError, WmrError
 
 #: The Rerun application id of every recording written here.
 APPLICATION_ID: Final = "wmr-cosim"
@@ -268,6 +268,48 @@ def has_screen() -> bool:
     if sys.platform in ("darwin", "win32"):
         return True
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+#: How to get the inline viewer of :func:`replay` (``notebook=True``).
+NOTEBOOK_EXTRA: Final = "pip install 'wmr-cosim[notebook]'"
+
+
+def check_notebook(rrd: str | os.PathLike[str] | None = None,
+                   spawn: bool | None = None) -> None:
+    """Refuse ``notebook=True`` where no inline viewer can be shown, before any log is read.
+
+    Raises
+    ------
+    ConfigError
+        Given with an ``rrd`` or a viewer to ``spawn``; rerun-notebook (or the widget
+        packages it needs) is not installed, naming the extra; or there is no notebook
+        kernel to show a widget in (a plain script would only print the widget's repr and
+        drop the recording).
+    """
+    if rrd is not None or spawn:
+        # the widget is the recording's one sink (Rerun has no tee of a callback sink)
+        raise ConfigError("notebook", "given with " + ("rrd" if rrd is not None
+                                                       else "a viewer"),
+                          "give one of them: replay twice to see it inline and keep an .rrd")
+    from rerun import notebook as rr_notebook
+
+    # False when rerun_notebook, anywidget or ipywidgets cannot be imported; rerun's own error
+    # comes later (inside Viewer, after the logs are read) and names no extra
+    if not rr_notebook.HAS_NOTEBOOK:
+        raise ConfigError("notebook", "the inline viewer needs rerun-notebook, which is not "
+                          "installed", NOTEBOOK_EXTRA)
+    from rerun_notebook import running_in_marimo
+
+    try:
+        from IPython import get_ipython
+    except ImportError:  # pragma: no cover - ipywidgets, hence HAS_NOTEBOOK, needs IPython
+        shell = None
+    else:
+        shell = get_ipython()
+    if getattr(shell, "kernel", None) is None and not running_in_marimo():
+        raise ConfigError("notebook", "not in a notebook: the inline viewer needs a Jupyter "
+                          "(or marimo) kernel",
+                          "call it from a notebook, or replay to a viewer or rrd= instead")
 
 
 def default_rrd_path(inputs: Sequence[str | os.PathLike[str]]) -> Path:
@@ -892,6 +934,10 @@ class ReplayResult:
     warnings: list[str] = field(default_factory=list)
     #: One line per log left out (unreadable, damaged past reading, a link outside a folder).
     skipped: list[str] = field(default_factory=list)
+    #: The notebook's inline viewer that got it (``notebook=True``; a
+    #: ``rerun.notebook.Viewer``: show it again in a later cell, or drive it with its
+    #: ``update_panels`` and ``set_time_ctrl``), else None.
+    viewer: Any = None
 
 
 def read_logs(logs: Sequence[RunLog], skipped: list[str] | None = None
@@ -978,8 +1024,8 @@ def framing(inputs: Sequence[str | os.PathLike[str]]
 
 
 def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[str] | None = None,
-           spawn: bool | None = None) -> ReplayResult:
-    """Replay run logs in one Rerun recording: a viewer, or an ``.rrd`` file.
+           spawn: bool | None = None, notebook: bool = False) -> ReplayResult:
+    """Replay run logs in one Rerun recording: a viewer, an ``.rrd`` file, or a notebook.
 
     Parameters
     ----------
@@ -990,6 +1036,10 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     spawn
         Open a viewer; default: when there is a screen and no ``rrd`` is given.  Without a
         viewer the recording goes to ``rrd`` or :func:`default_rrd_path`.
+    notebook
+        Show the recording in the notebook's output, in rerun-notebook's inline viewer (the
+        same recording and blueprint; no viewer spawned, no ``.rrd`` written, so ``rrd`` and
+        ``spawn`` must not be given).
 
     Returns
     -------
@@ -1001,9 +1051,13 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     ------
     LogError
         No log found, or a log that cannot be read.
+    ConfigError
+        ``notebook`` without rerun-notebook or outside a notebook (:func:`check_notebook`).
     """
     if rrd is not None and Path(rrd).suffix != ".rrd":
         raise WmrError(f"{rrd}: the recording file must end in .rrd")
+    if notebook:
+        check_notebook(rrd, spawn)
     skipped: list[str] = []
     runs, warnings = read_logs(find_logs(inputs, skipped), skipped)
     names = [log.name for log, _ in runs]
@@ -1022,14 +1076,22 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     out: Path | None = Path(rrd) if rrd is not None else None
     spawned = False
     if spawn is None:
-        spawn = out is None and has_screen()
-    if spawn:
+        spawn = out is None and not notebook and has_screen()
+    inline: Any = None
+    if notebook:
+        from rerun.notebook import Viewer
+
+        # the widget becomes the recording's sink: everything logged below is queued for it
+        # until the notebook's front end has loaded the viewer
+        inline = Viewer(recording=rec, blueprint=blueprint)
+        inline.display()
+    elif spawn:
         try:
             rec.spawn(default_blueprint=blueprint)
             spawned = True
         except Exception as exc:  # no viewer binary, or it would not start: save instead
             warnings.append(f"could not start the Rerun viewer ({exc}): writing an .rrd instead")
-    if not spawned and out is None:
+    if not spawned and not notebook and out is None:
         out = default_rrd_path(inputs)
     with ExitStack() as stack:
         if out is not None:
@@ -1075,7 +1137,7 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                 static=True)
         rec.flush()
     return ReplayResult(runs=names, steps={log.name: d.n_steps for log, d in runs}, rrd=out,
-                        spawned=spawned, warnings=warnings, skipped=skipped)
+                        spawned=spawned, warnings=warnings, skipped=skipped, viewer=inline)
 
 
 def iter_signal_names() -> Iterable[str]:
@@ -1087,6 +1149,7 @@ def iter_signal_names() -> Iterable[str]:
 
 __all__ = [
     "APPLICATION_ID",
+    "NOTEBOOK_EXTRA",
     "PANELS",
     "TIMELINE",
     "Bounds",
@@ -1094,6 +1157,7 @@ __all__ = [
     "ReplayResult",
     "RunLog",
     "Series",
+    "check_notebook",
     "default_rrd_path",
     "find_logs",
     "framing",
