@@ -10,6 +10,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+from numpy.typing import NDArray
+
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -52,7 +55,8 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         ``by`` (the failed and timed-out runs first), or every run of ``status``
         (``failed``, ``timeout``); a run whose log the batch did not keep is made again with
         a full log into ``DIR/rerun/`` (:func:`wmr.apps.batch.rerun.batch_logs`), and ``say``
-        is told so.
+        is told so.  When the batch's spec has ``optimal``, each chosen run's minimum-time
+        path is solved again and drawn beside it, labelled ``optimal``.
     command_line
         Name the options in errors as ``wmr replay`` does (``--rrd``), else the keywords.
     notebook
@@ -110,22 +114,54 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         from wmr.adapters.rerun.replay import check_notebook
 
         check_notebook(rrd, viewer)
+    optimal_paths: dict[Path, NDArray[np.float64]] = {}
     if worst is not None or status is not None:
-        logs = _chosen_runs(logs, worst, by, status, say, command_line)
+        chosen = _chosen_runs(logs, worst, by, status, say, command_line)
+        optimal_paths = _optimal_paths(Path(logs[0]), chosen, say)
+        logs = [log for _, log in chosen]
     else:
         _kept_logs(logs, command_line)
     if rrd is not None:
         check_output(rrd, option("rrd"), suffix=".rrd")
     from wmr.adapters.rerun.replay import replay
 
-    return replay(logs, rrd=rrd, spawn=viewer, notebook=notebook)
+    return replay(logs, rrd=rrd, spawn=viewer, notebook=notebook, optimal_paths=optimal_paths)
+
+
+def _optimal_paths(out: Path, chosen: Sequence[tuple[str, Path]],
+                   say: Callable[[str], None] | None) -> dict[Path, NDArray[np.float64]]:
+    """The minimum-time path (x, y, m; shape ``(n, 2)``) of each ``chosen`` run (run id, log)
+    of the batch ``out``, by log, when its spec has ``optimal``; else none.
+
+    The batch keeps the optimum's numbers, not its path: the OCP is solved again for these few
+    runs, as the batch's worker solved it (:func:`wmr.apps.optimal.optimum_fields`: the run's
+    start, goal, robot and limits, minimum time).  A run whose OCP is not solved gets no path,
+    and ``say`` is told why.
+    """
+    from wmr.apps.batch.rerun import open_batch
+
+    folder = open_batch(out)
+    if folder.spec.optimal is None:
+        return {}
+    from wmr.adapters.ocp import OptimalLimits, solve_optimal
+
+    paths: dict[Path, NDArray[np.float64]] = {}
+    for run_id, log in chosen:
+        spec = folder.run(run_id).spec
+        res = solve_optimal(spec.start, spec.goal, spec.params, objective="time",
+                            limits=OptimalLimits.like(spec.limits))
+        if res.status == "solved":
+            paths[log] = np.column_stack([res.states["x"], res.states["y"]])
+        elif say is not None:
+            say(f"run {run_id}: no optimal path ({res.status}: {res.message})")
+    return paths
 
 
 def _chosen_runs(logs: Sequence[str | os.PathLike[str]], worst: int | None, by: str,
                  status: str | None, say: Callable[[str], None] | None,
-                 command_line: bool) -> list[Path]:
-    """The logs of the runs ``--worst``/``--status`` choose in the one batch folder of
-    ``logs`` (made again where the batch kept none)."""
+                 command_line: bool) -> list[tuple[str, Path]]:
+    """The runs ``--worst``/``--status`` choose in the one batch folder of ``logs``: (run id,
+    log), the log made again where the batch kept none."""
     from wmr.apps.batch.rerun import batch_logs, pick_runs
 
     option = _FLAGS["worst" if worst is not None else "status"] if command_line \
@@ -137,8 +173,9 @@ def _chosen_runs(logs: Sequence[str | os.PathLike[str]], worst: int | None, by: 
         raise ConfigError(option, "chooses runs of one batch folder",
                           "give one batch folder (the --out of wmr batch)")
     out = Path(logs[0])
-    return batch_logs(out, pick_runs(out, worst=worst, by=by, status=status,
-                                     command_line=command_line), say)
+    picked = pick_runs(out, worst=worst, by=by, status=status, command_line=command_line)
+    return list(zip([run_id for run_id, _ in picked], batch_logs(out, picked, say),
+                    strict=True))
 
 
 def _kept_logs(logs: Sequence[str | os.PathLike[str]], command_line: bool) -> None:

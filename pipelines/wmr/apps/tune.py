@@ -21,7 +21,11 @@ deterministic, so a tuning is reproducible; the best point seen is returned, hen
 objective is never worse than the starting one.
 
 The default scenario set (:data:`DEFAULT_CASES`) is a subset of Figs. 9 and 10 that spans the
-headings and the start directions, to keep a tuning to about a minute.
+headings and the start directions, to keep a tuning to about a minute.  A robust tuning
+(``wmr tune --spec SPEC.toml --runs N``, :func:`batch_cases`) takes instead the first runs of a
+batch spec: its random draws of robots, frictions, limits and starts, drawn once, so every
+candidate gains are scored on the same draws (common random numbers: the objective's
+differences are the gains', not the draws').
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
@@ -88,6 +93,44 @@ def default_cases() -> list[RunSpec]:
             loaded[scen] = {r.name: r for r in load_scenario(scen).runs}
         out.append(loaded[scen][name])
     return out
+
+
+def batch_cases(spec: str | Path, runs: int | None = None) -> list[RunSpec]:
+    """The first ``runs`` runs of the batch spec ``spec``, expanded as ``wmr batch`` expands it.
+
+    The draws are made here once; :func:`tune` scores every candidate on this same list.
+
+    Parameters
+    ----------
+    spec
+        A batch spec (name or TOML file, as ``wmr batch`` takes it).
+    runs
+        How many of its runs, from the first (default: all).
+
+    Raises
+    ------
+    ConfigError
+        A bad spec (its field named), ``runs`` < 1 or more than the spec has, or a run driven
+        by a controller FMU (the tuning runs the Python controllers).
+    """
+    # here: the batch package brings its runner and executors, which a default tuning never needs
+    from wmr.apps.batch.spec import load_batch
+
+    if runs is not None and (isinstance(runs, bool) or not isinstance(runs, int) or runs < 1):
+        raise ConfigError("--runs", f"must be an integer >= 1, got {runs!r}",
+                          "give e.g. --runs 40")
+    batch = load_batch(spec)
+    if runs is not None and runs > len(batch.runs):
+        raise ConfigError("--runs", f"{runs} runs asked, the spec {batch.name} has "
+                          f"{len(batch.runs)}", f"give --runs {len(batch.runs)} or fewer, or "
+                          "raise the spec's [random] n")
+    chosen = [r.spec for r in batch.runs[:len(batch.runs) if runs is None else runs]]
+    for s in chosen:
+        if s.controller_fmu is not None:
+            raise ConfigError("controller_fmu", f"run {s.name} of {batch.name} is driven by a "
+                              "controller FMU, which wmr tune does not tune",
+                              "drop controller_fmu from the spec to tune the Python controller")
+    return chosen
 
 
 def with_gains(spec: RunSpec, controller: str, gains: Mapping[str, float]) -> RunSpec:
@@ -254,6 +297,7 @@ __all__ = [
     "TUNABLE",
     "TUNED_GAINS",
     "TuneResult",
+    "batch_cases",
     "case_cost",
     "default_cases",
     "evaluate",

@@ -7,10 +7,14 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from wmr.infra.errors import ConfigError
+
+if TYPE_CHECKING:
+    from wmr.core.closedloop import RunResult
 
 
 def _fmu_options(p: argparse.ArgumentParser) -> None:
@@ -153,10 +157,23 @@ class _TuneProgress:
                       f"objective {cost_s:.3f} s (best {best_s:.3f} s)")
 
 
+#: A spec's tuning prints its runs one a line up to this many (then their summary only).
+_LISTED_RUNS = 20
+
+
+def _draw_summary(results: Sequence[RunResult | None]) -> dict[str, Any]:
+    """The converged count and the mean time to goal (s, of the converged runs) of a tuning's
+    runs at its gains."""
+    times = [r.time_to_goal_s for r in results
+             if r is not None and r.status == "converged" and r.time_to_goal_s is not None]
+    return {"converged": len(times),
+            "mean_time_to_goal_s": sum(times) / len(times) if times else math.nan}
+
+
 def _cmd_tune(args: argparse.Namespace) -> int:
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.apps.benchmark import run_optimal
-    from wmr.apps.tune import DEFAULT_BUDGET, default_cases, tune
+    from wmr.apps.tune import DEFAULT_BUDGET, batch_cases, default_cases, tune
     from wmr.config.scenario import load_scenario
     from wmr.core.runspec import RunSpec
     from wmr.infra.outputs import check_output
@@ -168,7 +185,18 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     if args.save:
         check_output(args.save, "--save")
     specs: list[RunSpec] = []
-    if args.scenarios:
+    if args.spec is not None:
+        if args.scenarios:
+            raise ConfigError("--spec", "given with scenarios; a tuning set is one or the other",
+                              "drop the scenarios, or --spec")
+        specs = batch_cases(args.spec, args.runs)
+        if not args.no_optimal:  # one OCP per draw would cost more than the tuning itself
+            _progress("tune: no optimal reference times for a spec's runs (a batch with "
+                      "optimal = \"time\" gives them)")
+            args.no_optimal = True
+    elif args.runs is not None:
+        raise ConfigError("--runs", "given without --spec", "add --spec SPEC.toml")
+    elif args.scenarios:
         for s in args.scenarios:
             specs.extend(load_scenario(s).runs)
     else:
@@ -195,6 +223,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
             print(f"  start: {start}")
             print(f"  tuned: {gains}")
             ratios = []
+            per_run = args.spec is None or len(specs) <= _LISTED_RUNS
             for s, r, t_opt in zip(specs, res.results, opt_times or [None] * len(specs),
                                    strict=True):
                 t = r.time_to_goal_s if r is not None else None
@@ -207,14 +236,22 @@ def _cmd_tune(args: argparse.Namespace) -> int:
                     line += ("  optimal " + (f"{t_opt:7.2f} s" if t_opt is not None
                                              else "      - s")
                              + "  ratio " + (f"{ratio:.3f}" if ratio is not None else "-"))
-                print(line)
+                if per_run:
+                    print(line)
+            extra: dict[str, Any] = {}
+            if args.spec is not None:
+                extra = _draw_summary(res.results)
+                print(f"  on {len(specs)} runs of {args.spec}: {extra['converged']} converged, "
+                      f"their mean time to goal {extra['mean_time_to_goal_s']:.2f} s")
+                extra.update(spec=str(args.spec), runs=len(specs))
             if ratios:
                 print(f"  time / optimal time: mean {sum(ratios) / len(ratios):.3f}, "
                       f"max {max(ratios):.3f}")
             out.append({"controller": c, "gains": res.gains, "start_gains": res.start_gains,
                         "start_objective_s": res.start_cost_s, "objective_s": res.cost_s,
                         "evaluations": res.evaluations,
-                        "mean_time_ratio": sum(ratios) / len(ratios) if ratios else None})
+                        "mean_time_ratio": sum(ratios) / len(ratios) if ratios else None,
+                        **extra})
     if args.save:
         Path(args.save).parent.mkdir(parents=True, exist_ok=True)
         Path(args.save).write_text(json.dumps(saved, indent=2) + "\n", encoding="utf-8")
@@ -296,6 +333,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="controller to tune (default pi)")
     t.add_argument("--budget", type=int, default=None, metavar="N",
                    help="objective evaluations per controller (default 60)")
+    t.add_argument("--spec", metavar="SPEC.toml",
+                   help="tune on the runs of this batch spec instead (robust tuning: its "
+                        "random robots, limits and starts, the same draws for every candidate)")
+    t.add_argument("--runs", type=int, metavar="N",
+                   help="with --spec: its first N runs (default all)")
     t.add_argument("--save", metavar="FILE.json", help="write the tuned gains here")
     t.add_argument("--no-optimal", action="store_true", help="skip the optimal reference times")
     t.add_argument("--json", action="store_true", help="the result as JSON on the last line")

@@ -655,6 +655,21 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
                 static=True)
 
 
+#: Entity of a run's optimal path, under its world: ``runs/<name>/world/optimal``.
+OPTIMAL_ENTITY: Final = "world/optimal"
+
+
+def log_optimal_path(rec: rr.RecordingStream, name: str, path_xy: NDArray[np.float64],
+                     color: Rgb) -> None:
+    """Draw the optimal path of run ``name`` beside its own: in a lighter tint of the run's
+    ``color`` (Rerun has no dashed lines: lighter and thinner), under the run's path, labelled
+    ``optimal``."""
+    light = tuple(round(c + 0.55 * (255 - c)) for c in color)
+    rec.log(f"{run_entity(name)}/{OPTIMAL_ENTITY}",
+            rr.LineStrips2D([path_xy], colors=[light], radii=[-0.75], labels=["optimal"],
+                            show_labels=True, draw_order=9.0), static=True)
+
+
 def send_run_columns(rec: rr.RecordingStream, name: str, t_ns: NDArray[np.int64],
                      block: NDArray[np.float64], phase: NDArray[np.int8] | None = None, *,
                      construction: bool = True) -> None:
@@ -1024,7 +1039,8 @@ def framing(inputs: Sequence[str | os.PathLike[str]]
 
 
 def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[str] | None = None,
-           spawn: bool | None = None, notebook: bool = False) -> ReplayResult:
+           spawn: bool | None = None, notebook: bool = False,
+           optimal_paths: Mapping[Path, NDArray[np.float64]] | None = None) -> ReplayResult:
     """Replay run logs in one Rerun recording: a viewer, an ``.rrd`` file, or a notebook.
 
     Parameters
@@ -1040,6 +1056,9 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
         Show the recording in the notebook's output, in rerun-notebook's inline viewer (the
         same recording and blueprint; no viewer spawned, no ``.rrd`` written, so ``rrd`` and
         ``spawn`` must not be given).
+    optimal_paths
+        By log file: the optimal path (x, y, m; shape ``(n, 2)``) of that log's run, drawn
+        beside it (:func:`log_optimal_path`).
 
     Returns
     -------
@@ -1060,6 +1079,7 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
         check_notebook(rrd, spawn)
     skipped: list[str] = []
     runs, warnings = read_logs(find_logs(inputs, skipped), skipped)
+    optimal_by_log = {Path(k).resolve(): v for k, v in (optimal_paths or {}).items()}
     names = [log.name for log, _ in runs]
     datas = [d for _, d in runs]
     many = len(runs) > 1
@@ -1128,6 +1148,9 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                            if many else None,
                            stop_radius_m=_float(data.metadata.get("run", {}).get("stop_radius_m")),
                            goal_label=goal_label)
+            optimum = optimal_by_log.get(log.path.resolve())
+            if optimum is not None:
+                log_optimal_path(rec, log.name, optimum, color)
             send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many)
             if sensing[k]:
                 log_sensing(rec, log.name, log.path, data)
@@ -1150,6 +1173,7 @@ def iter_signal_names() -> Iterable[str]:
 __all__ = [
     "APPLICATION_ID",
     "NOTEBOOK_EXTRA",
+    "OPTIMAL_ENTITY",
     "PANELS",
     "TIMELINE",
     "Bounds",
@@ -1163,6 +1187,7 @@ __all__ = [
     "framing",
     "grid_spacing",
     "has_screen",
+    "log_optimal_path",
     "log_run_static",
     "log_sensing",
     "phase_strips",
