@@ -9,9 +9,12 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+import wmr
 from test_replay import fig11_log, fmu_plant, spec  # noqa: F401  (its fixtures)
+from wmr.adapters.mcap.scene import ALIGN, APPROACH, control_phases
 from wmr.adapters.rerun.replay import VIEWER_PORT, _listening
 
 # -- item 14: the spawned viewer and the caller's pipe -------------------------------------------
@@ -65,3 +68,32 @@ def test_a_spawned_viewer_keeps_neither_our_pipe_nor_our_terminal(
     # it never listened: the recording went to a file, said in one line
     assert "not listening on port" in text and log.with_suffix(".rrd").is_file(), text
     assert "INFO fake viewer line 49" in (tmp_path / "cache" / "viewer.log").read_text()
+
+
+# -- item 13: the control phase in wmr.read_log ---------------------------------------------------
+
+
+def test_read_log_gives_the_logged_control_phase_at_each_row(fig11_log: Path) -> None:  # noqa: F811
+    """Before: ``/controller/phase`` was logged but ``wmr.read_log`` had no phase.  Now
+    ``Log.phase`` is a column on the rows' index: the logged step plot, forward-filled, which
+    is the stabiliser's hysteresis on the logged distance to the goal."""
+    log = wmr.read_log(fig11_log)
+    phase = log.phase
+    assert phase is not None and phase.name == "phase"
+    assert phase.index.equals(log.signals.index)
+    expected = control_phases(log.signals["dr_m"].to_numpy(),
+                              float(log.metadata["run"]["stop_radius_m"]))
+    np.testing.assert_array_equal(phase.to_numpy(), expected.astype(np.float64))
+    # fig11 approaches, then aligns inside the stop radius until it converges
+    assert phase.iloc[0] == APPROACH and phase.iloc[-1] == ALIGN
+    assert set(np.unique(phase.to_numpy())) == {APPROACH, ALIGN}
+
+
+def test_a_log_without_the_phase_topic_has_no_phase(fig11_log: Path, tmp_path: Path) -> None:  # noqa: F811
+    """A log without ``/controller/phase`` (a killed run's) says so: ``phase`` is None."""
+    cut = tmp_path / "cut.mcap"
+    data = fig11_log.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])  # the scene topics are written at close
+    log = wmr.read_log(cut)
+    assert log.truncated and len(log.signals) > 0
+    assert log.phase is None

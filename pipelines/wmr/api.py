@@ -95,6 +95,11 @@ class Log:
         ``modelDescription.xml``).
     truncated, warnings
         A cut file's prefix, and what was skipped.
+    phase
+        The control phase at each row of ``signals`` (same index, name ``phase``): 0.0
+        approach, 1.0 align (the stabiliser's final turn inside the stop radius), from the
+        logged ``/controller/phase``; None when the log has none (a killed run before
+        ``wmr log recover``, an open-loop or optimal run, a log of another program).
     """
 
     path_to_file: Path
@@ -103,6 +108,7 @@ class Log:
     attachments: dict[str, bytes] = field(default_factory=dict)
     truncated: bool = False
     warnings: tuple[str, ...] = ()
+    phase: pd.Series | None = None
 
     @property
     def path(self) -> pd.DataFrame:
@@ -181,8 +187,10 @@ def read_log(path: str | Path) -> Log:
                 decoded[k] = v
                 warnings.append(f"metadata {rec}.{k} kept as text: {exc}")
         metadata[rec] = decoded
+    phase = (None if data.phase is None
+             else pd.Series(data.phase, index=frame.index, name="phase"))
     return Log(Path(path), frame, metadata, dict(data.attachments), data.truncated,
-               tuple(warnings))
+               tuple(warnings), phase)
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from mcap.records import (
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
+from wmr.adapters.mcap.scene import PHASE_TOPIC
 from wmr.adapters.mcap.schemas import (
     GOAL_SCHEMA,
     GOAL_TOPIC,
@@ -81,6 +82,11 @@ class RunData:
         ``warnings`` says what is missing.
     warnings
         Human-readable notes on anything missing or skipped.
+    phase
+        The control phase at each row, from ``/controller/phase`` (0 approach, 1 align:
+        :data:`wmr.adapters.mcap.scene.PHASE_NAMES`; the topic holds the changes only, each
+        row takes the last one at or before its time; NaN before the first), None when the
+        log has no such topic (a killed run's, an open-loop run's, another program's).
     """
 
     path: str
@@ -92,6 +98,7 @@ class RunData:
     goal: Pose2D | None = None
     truncated: bool = False
     warnings: list[str] = field(default_factory=list)
+    phase: NDArray[np.float64] | None = None
 
     @property
     def t_s(self) -> NDArray[np.float64]:
@@ -838,6 +845,34 @@ def _goal(scan: LogScan, by_topic: dict[str, list[Channel]]) -> Pose2D | None:
     return Pose2D(p.x, p.y, 2.0 * math.atan2(q.z, q.w))
 
 
+def _phase(scan: LogScan, channels: list[Channel], t_ns: NDArray[np.int64],
+           warnings: list[str]) -> NDArray[np.float64] | None:
+    """The control phase at each row time ``t_ns``: the last ``phase`` message at or before
+    it (the topic is a step plot: its changes only), NaN before the first."""
+    times: list[int] = []
+    values: list[float] = []
+    for channel in channels:
+        msgs = scan.messages.pop(channel.id, ChannelMessages())
+        decode = _generic_decoder(scan.schemas.get(channel.schema_id), channel)
+        if decode is not None:
+            try:
+                for log_time, data in msgs:
+                    values.append(float(decode(data).phase))
+                    times.append(log_time)
+            except Exception:  # not our ControlPhase (no double ``phase``), or damaged
+                decode = None
+        if decode is None:
+            warnings.append(f"topic {PHASE_TOPIC} cannot be decoded: the phase is NaN")
+            return np.full(t_ns.shape, np.nan)
+    if not times:
+        return None
+    order = np.argsort(np.array(times, np.int64), kind="stable")
+    t = np.array(times, np.int64)[order]
+    v = np.array(values, np.float64)[order]
+    at = np.searchsorted(t, t_ns, side="right") - 1
+    return np.where(at >= 0, v[np.maximum(at, 0)], np.nan)
+
+
 def _topic_series(layout: TopicLayout, channels: list[Channel], scan: LogScan,
                   warnings: list[str]) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
     """Log times and signal columns of one topic, from every channel on it, in time order.
@@ -984,6 +1019,8 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None) -> 
         attachments=scan.attachments,
         media_types=scan.media_types,
         goal=_goal(scan, by_topic),
+        phase=_phase(scan, by_topic[PHASE_TOPIC], times, warnings)
+        if PHASE_TOPIC in by_topic else None,
         truncated=not scan.complete or scan.damaged or bool(scan.bad_times)
         or scan.over_budget,
         warnings=warnings,
@@ -1021,7 +1058,8 @@ def metadata_json(value: str, limits: ReadLimits = DEFAULT_LIMITS) -> Any:
     return json.loads(value)
 
 
-_READ_TOPICS: Final = frozenset({GOAL_TOPIC, *(t.topic for t in (*STEP_TOPICS, TORQUE_TOPIC))})
+_READ_TOPICS: Final = frozenset({GOAL_TOPIC, PHASE_TOPIC,
+                                 *(t.topic for t in (*STEP_TOPICS, TORQUE_TOPIC))})
 _JSON_STRING: Final = re.compile(r'"(?:[^"\\]|\\.)*"')
 
 
