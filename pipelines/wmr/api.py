@@ -155,8 +155,13 @@ def _plot_path(path: pd.DataFrame, goal: Mapping[str, float] | None, label: str,
     return ax
 
 
-def read_log(path: str | Path) -> Log:
+def read_log(path: str | Path, pose_topic: str | None = None) -> Log:
     """Read a run log (``wmr run``, ``wmr batch``, ``wmr optimal``) into a :class:`Log`.
+
+    A log of poses only (a real robot's: ``foxglove.PoseInFrame`` or
+    ``foxglove.FrameTransform`` messages, found by schema name, or on ``pose_topic``) gives
+    ``x_m``, ``y_m`` and ``theta_rad`` (the yaw of its quaternions), from its first pose,
+    every other signal NaN, and a warning saying it is a pose-only log.
 
     Raises
     ------
@@ -171,7 +176,7 @@ def read_log(path: str | Path) -> Log:
     from wmr.core.signals import SIGNALS
     from wmr.infra.errors import LogError
 
-    data = read_run(path)
+    data = read_run(path, pose_topic=pose_topic)
     frame = pd.DataFrame({name: data.signals[name] for name in SIGNALS},
                          index=pd.Index(data.t_s, name="t_s"))
     metadata: dict[str, dict[str, Any]] = {}
