@@ -20,7 +20,7 @@ from mcap.writer import Writer
 from numpy.typing import NDArray
 
 import wmr
-from test_replay import fig11_log, fmu_plant, spec  # noqa: F401  (its fixtures)
+from test_replay import fig11_log, fmu_plant, read_rrd, run_cli, spec  # noqa: F401  (fixtures)
 from wmr.adapters.mcap import read_run
 from wmr.adapters.mcap.reader import ReadLimits
 from wmr.adapters.mcap.scene import ALIGN, APPROACH, control_phases
@@ -216,3 +216,18 @@ def test_a_pose_log_is_read_within_the_read_budget(tmp_path: Path) -> None:
     assert data.pose_topic == "/robot/pose"
     assert data.truncated and 0 < data.n_steps < _robot_truth()[0].size
     assert any("ReadLimits.total_bytes" in w for w in data.warnings)
+
+
+def test_wmr_replay_replays_a_real_robots_pose_only_log(tmp_path: Path) -> None:
+    """Before: ``wmr replay robot.mcap`` refused it ("no readable control step ... topic
+    /robot/state is missing").  Now its path and pose are replayed, with the one line saying
+    it is a pose-only log."""
+    path = write_robot_log(tmp_path / "robot.mcap")
+    out = tmp_path / "robot.rrd"
+    rc, stdout, stderr = run_cli("replay", str(path), "--rrd", str(out))
+    assert stdout.strip() == str(out)
+    assert rc == 0, stderr
+    assert "a pose-only log (foxglove.PoseInFrame on /robot/pose)" in stderr
+    ents, _ = read_rrd(out)
+    [strip] = ents["/runs/robot/world/path"].column("LineStrips2D:strips")
+    np.testing.assert_allclose(np.array(strip)[0], _robot_truth()[1][:, :2], atol=1e-6)
