@@ -95,6 +95,11 @@ class Log:
         ``modelDescription.xml``).
     truncated, warnings
         A cut file's prefix, and what was skipped.
+    phase
+        The control phase at each row of ``signals`` (same index, name ``phase``): 0.0
+        approach, 1.0 align (the stabiliser's final turn inside the stop radius), from the
+        logged ``/controller/phase``; None when the log has none (a killed run before
+        ``wmr log recover``, an open-loop or optimal run, a log of another program).
     """
 
     path_to_file: Path
@@ -103,6 +108,7 @@ class Log:
     attachments: dict[str, bytes] = field(default_factory=dict)
     truncated: bool = False
     warnings: tuple[str, ...] = ()
+    phase: pd.Series | None = None
 
     @property
     def path(self) -> pd.DataFrame:
@@ -149,8 +155,13 @@ def _plot_path(path: pd.DataFrame, goal: Mapping[str, float] | None, label: str,
     return ax
 
 
-def read_log(path: str | Path) -> Log:
+def read_log(path: str | Path, pose_topic: str | None = None) -> Log:
     """Read a run log (``wmr run``, ``wmr batch``, ``wmr optimal``) into a :class:`Log`.
+
+    A log of poses only (a real robot's: ``foxglove.PoseInFrame`` or
+    ``foxglove.FrameTransform`` messages, found by schema name, or on ``pose_topic``) gives
+    ``x_m``, ``y_m`` and ``theta_rad`` (the yaw of its quaternions), from its first pose,
+    every other signal NaN, and a warning saying it is a pose-only log.
 
     Raises
     ------
@@ -165,7 +176,7 @@ def read_log(path: str | Path) -> Log:
     from wmr.core.signals import SIGNALS
     from wmr.infra.errors import LogError
 
-    data = read_run(path)
+    data = read_run(path, pose_topic=pose_topic)
     frame = pd.DataFrame({name: data.signals[name] for name in SIGNALS},
                          index=pd.Index(data.t_s, name="t_s"))
     metadata: dict[str, dict[str, Any]] = {}
@@ -181,8 +192,10 @@ def read_log(path: str | Path) -> Log:
                 decoded[k] = v
                 warnings.append(f"metadata {rec}.{k} kept as text: {exc}")
         metadata[rec] = decoded
+    phase = (None if data.phase is None
+             else pd.Series(data.phase, index=frame.index, name="phase"))
     return Log(Path(path), frame, metadata, dict(data.attachments), data.truncated,
-               tuple(warnings))
+               tuple(warnings), phase)
 
 
 @dataclass(frozen=True)

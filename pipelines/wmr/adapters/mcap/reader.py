@@ -29,6 +29,7 @@ from mcap.records import (
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
+from wmr.adapters.mcap.scene import PHASE_TOPIC
 from wmr.adapters.mcap.schemas import (
     GOAL_SCHEMA,
     GOAL_TOPIC,
@@ -81,6 +82,15 @@ class RunData:
         ``warnings`` says what is missing.
     warnings
         Human-readable notes on anything missing or skipped.
+    phase
+        The control phase at each row, from ``/controller/phase`` (0 approach, 1 align:
+        :data:`wmr.adapters.mcap.scene.PHASE_NAMES`; the topic holds the changes only, each
+        row takes the last one at or before its time; NaN before the first), None when the
+        log has no such topic (a killed run's, an open-loop run's, another program's).
+    pose_topic
+        Set for a pose-only log (a real robot's: :func:`read_run`'s ``pose_topic``): the
+        topic its ``x_m``, ``y_m``, ``theta_rad`` come from; every other signal is NaN and
+        ``t_ns`` counts from its first pose.
     """
 
     path: str
@@ -92,6 +102,8 @@ class RunData:
     goal: Pose2D | None = None
     truncated: bool = False
     warnings: list[str] = field(default_factory=list)
+    phase: NDArray[np.float64] | None = None
+    pose_topic: str | None = None
 
     @property
     def t_s(self) -> NDArray[np.float64]:
@@ -838,6 +850,124 @@ def _goal(scan: LogScan, by_topic: dict[str, list[Channel]]) -> Pose2D | None:
     return Pose2D(p.x, p.y, 2.0 * math.atan2(q.z, q.w))
 
 
+def _phase(scan: LogScan, channels: list[Channel], t_ns: NDArray[np.int64],
+           warnings: list[str]) -> NDArray[np.float64] | None:
+    """The control phase at each row time ``t_ns``: the last ``phase`` message at or before
+    it (the topic is a step plot: its changes only), NaN before the first."""
+    times: list[int] = []
+    values: list[float] = []
+    for channel in channels:
+        msgs = scan.messages.pop(channel.id, ChannelMessages())
+        decode = _generic_decoder(scan.schemas.get(channel.schema_id), channel)
+        if decode is not None:
+            try:
+                for log_time, data in msgs:
+                    values.append(float(decode(data).phase))
+                    times.append(log_time)
+            except Exception:  # not our ControlPhase (no double ``phase``), or damaged
+                decode = None
+        if decode is None:
+            warnings.append(f"topic {PHASE_TOPIC} cannot be decoded: the phase is NaN")
+            return np.full(t_ns.shape, np.nan)
+    if not times:
+        return None
+    order = np.argsort(np.array(times, np.int64), kind="stable")
+    t = np.array(times, np.int64)[order]
+    v = np.array(values, np.float64)[order]
+    at = np.searchsorted(t, t_ns, side="right") - 1
+    return np.where(at >= 0, v[np.maximum(at, 0)], np.nan)
+
+
+#: Schemas a pose-only log (a real robot's) may carry its poses in, found by schema name.
+POSE_SCHEMAS: Final = ("foxglove.PoseInFrame", "foxglove.FrameTransform")
+#: The signals a pose-only log gives (the others are NaN).
+POSE_SIGNALS: Final = ("x_m", "y_m", "theta_rad")
+
+
+def _yaw_rad(q: Any) -> float:
+    """Heading of a quaternion: its rotation about z (ZYX Euler yaw), rad."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def _pose_topic(name: str, scan: LogScan, by_topic: dict[str, list[Channel]],
+                asked: str | None) -> str | None:
+    """The topic of a pose-only log's poses: ``asked``, else the one topic of a
+    :data:`POSE_SCHEMAS` message (our ``/goal`` aside); None when the file has none.
+
+    Raises
+    ------
+    LogError
+        ``asked`` is not a pose topic of the file, or several topics hold poses (one line
+        naming them and ``--pose-topic``).
+    """
+    def schema_of(topic: str) -> str:
+        schema = scan.schemas.get(by_topic[topic][0].schema_id)
+        return schema.name if schema is not None else ""
+
+    poses = sorted(t for t in by_topic if t != GOAL_TOPIC and schema_of(t) in POSE_SCHEMAS)
+    if asked is not None:
+        if asked not in by_topic or schema_of(asked) not in POSE_SCHEMAS:
+            raise LogError(f"{name}: no {' or '.join(POSE_SCHEMAS)} topic {asked!r} in this "
+                           f"log (its pose topics: {', '.join(poses) or 'none'}): give one "
+                           "of them to --pose-topic (pose_topic=)")
+        return asked
+    if len(poses) > 1:
+        raise LogError(f"{name}: a log of poses only, on {len(poses)} topics "
+                       f"({', '.join(poses)}): name the robot's with --pose-topic TOPIC "
+                       "(pose_topic=)")
+    return poses[0] if poses else None
+
+
+def _pose_series(topic: str, scan: LogScan, channels: list[Channel],
+                 warnings: list[str]) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+    """Log times and ``x_m``, ``y_m``, ``theta_rad`` (unwrapped yaw) of a pose topic, in time
+    order; a ``FrameTransform`` topic of several frame pairs gives its most frequent pair's."""
+    layout = TopicLayout(topic, "", b"", (), POSE_SIGNALS)
+    times: list[int] = []
+    rows: list[tuple[float, float, float]] = []
+    pairs: dict[tuple[str, str], int] = {}
+    keys: list[tuple[str, str]] = []
+    for channel in channels:
+        schema = scan.schemas.get(channel.schema_id)
+        msgs = scan.messages.pop(channel.id, ChannelMessages())
+        scan.kept_bytes -= msgs.nbytes  # decoded below, the raw messages go
+        decode = _generic_decoder(schema, channel)
+        if decode is None or schema is None:
+            continue
+        transform = schema.name == "foxglove.FrameTransform"
+        try:
+            for log_time, data in msgs:
+                msg = decode(data)
+                if transform:
+                    p, q = msg.translation, msg.rotation
+                    key = (msg.parent_frame_id, msg.child_frame_id)
+                    pairs[key] = pairs.get(key, 0) + 1
+                    keys.append(key)
+                else:
+                    p, q = msg.pose.position, msg.pose.orientation
+                rows.append((float(p.x), float(p.y), _yaw_rad(q)))
+                times.append(log_time)
+        except Exception:  # a damaged message, or a schema of that name but other fields
+            warnings.append(f"topic {topic}: a message cannot be decoded as "
+                            f"{schema.name}: its poses from there on are left out")
+    if not times:
+        return None
+    t = np.array(times, np.int64)
+    v = np.array(rows, np.float64).reshape(len(rows), len(layout.signals))
+    if len(pairs) > 1:
+        best = max(pairs, key=lambda k: pairs[k])
+        keep = np.array([k == best for k in keys])
+        warnings.append(f"topic {topic} holds {len(pairs)} frame pairs: the poses of "
+                        f"{best[0]} -> {best[1]} ({pairs[best]} messages) are read")
+        t, v = t[keep], v[keep]
+    order = np.argsort(t, kind="stable")
+    t, v = t[order], v[order]
+    first = np.r_[True, t[1:] != t[:-1]]
+    t, v = t[first], v[first]
+    v[:, 2] = np.unwrap(v[:, 2])
+    return t, v
+
+
 def _topic_series(layout: TopicLayout, channels: list[Channel], scan: LogScan,
                   warnings: list[str]) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
     """Log times and signal columns of one topic, from every channel on it, in time order.
@@ -904,7 +1034,8 @@ def _join_by_time(series: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]
     return rows
 
 
-def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None) -> RunData:
+def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
+             pose_topic: str | None = None) -> RunData:
     """Read a run log; a cut or damaged file gives its readable prefix, marked truncated.
 
     Rows are joined by log time: row times are the log times of the signal topics, and a
@@ -917,6 +1048,11 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None) -> 
     limits
         How much the file may make the reader hold (:class:`ReadLimits`; default
         :func:`default_limits`): past ``total_bytes``, the rows that fit, with a warning.
+    pose_topic
+        Read the file as a pose-only log (a real robot's), its poses from this topic (a
+        ``foxglove.PoseInFrame`` or ``foxglove.FrameTransform`` one).  Without it, a file
+        with none of our signal topics and one such topic is read that way; ``RunData``'s
+        ``pose_topic`` says so, and a warning line.
 
     Returns
     -------
@@ -933,12 +1069,27 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None) -> 
     by_topic: dict[str, list[Channel]] = {}
     for channel in sorted(scan.channels.values(), key=lambda c: c.id):
         by_topic.setdefault(channel.topic, []).append(channel)
+    foreign: str | None = None
+    if pose_topic is not None or not any(t.topic in by_topic for t in _SIGNAL_TOPICS):
+        foreign = _pose_topic(name, scan, by_topic, pose_topic)
+    if foreign is not None:
+        # a stranger's file, read again through the same bounded walk, keeping its poses
+        scan = scan_file(name, limits, topics={foreign})
     warnings = list(scan.warnings)
     open_loop = TORQUE_TOPIC.topic in by_topic
     expected = {t.topic for t in (OPEN_LOOP_TOPICS if open_loop else STEP_TOPICS)}
     series: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]] = {}
     layouts: dict[str, TopicLayout] = {}
-    for layout in (*STEP_TOPICS, TORQUE_TOPIC):
+    if foreign is not None:
+        schema = scan.schemas.get(by_topic[foreign][0].schema_id)
+        warnings.append(f"a pose-only log ({schema.name if schema else '?'} on {foreign}): "
+                        f"{', '.join(POSE_SIGNALS)} from its poses, the other signals NaN")
+        got = _pose_series(foreign, scan, by_topic[foreign], warnings)
+        if got is not None:
+            t0 = got[0][0]
+            series[foreign] = (got[0] - t0, got[1])  # from the first pose, like our logs
+            layouts[foreign] = TopicLayout(foreign, "", b"", (), POSE_SIGNALS)
+    for layout in (*STEP_TOPICS, TORQUE_TOPIC) if foreign is None else ():
         if not layout.signals:
             continue
         channels = by_topic.get(layout.topic)
@@ -973,7 +1124,7 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None) -> 
                 columns[sig] = np.full(n, np.nan)
                 columns[sig][at] = values[:, j]
     signals = {sig: columns[sig] if sig in columns else np.full(n, np.nan) for sig in SIGNALS}
-    for rec in ("run", "result"):
+    for rec in ("run", "result") if foreign is None else ():
         if rec not in scan.metadata:
             warnings.append(f"no {rec!r} metadata record")
     return RunData(
@@ -984,6 +1135,9 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None) -> 
         attachments=scan.attachments,
         media_types=scan.media_types,
         goal=_goal(scan, by_topic),
+        phase=_phase(scan, by_topic[PHASE_TOPIC], times, warnings)
+        if PHASE_TOPIC in by_topic and foreign is None else None,
+        pose_topic=foreign,
         truncated=not scan.complete or scan.damaged or bool(scan.bad_times)
         or scan.over_budget,
         warnings=warnings,
@@ -1021,7 +1175,10 @@ def metadata_json(value: str, limits: ReadLimits = DEFAULT_LIMITS) -> Any:
     return json.loads(value)
 
 
-_READ_TOPICS: Final = frozenset({GOAL_TOPIC, *(t.topic for t in (*STEP_TOPICS, TORQUE_TOPIC))})
+#: Topics whose presence makes a file one of our logs (not a pose-only one).
+_SIGNAL_TOPICS: Final = tuple(t for t in (*STEP_TOPICS, TORQUE_TOPIC) if t.signals)
+_READ_TOPICS: Final = frozenset({GOAL_TOPIC, PHASE_TOPIC,
+                                 *(t.topic for t in (*STEP_TOPICS, TORQUE_TOPIC))})
 _JSON_STRING: Final = re.compile(r'"(?:[^"\\]|\\.)*"')
 
 
@@ -1035,6 +1192,22 @@ def _json_depth(text: str) -> int:
     return int(np.cumsum(step).max(initial=0))
 
 
-__all__ = ["DEFAULT_LIMITS", "MAX_LOG_TIME_NS", "READ_LIMIT_ENV", "ROW_COPIES", "ChannelMessages",
-           "Pose2D", "ReadLimits", "RunData", "default_limits", "metadata_json", "open_log",
-           "read_chunk_at", "read_run", "scan_file", "scan_log"]
+__all__ = [
+    "DEFAULT_LIMITS",
+    "MAX_LOG_TIME_NS",
+    "POSE_SCHEMAS",
+    "POSE_SIGNALS",
+    "READ_LIMIT_ENV",
+    "ROW_COPIES",
+    "ChannelMessages",
+    "Pose2D",
+    "ReadLimits",
+    "RunData",
+    "default_limits",
+    "metadata_json",
+    "open_log",
+    "read_chunk_at",
+    "read_run",
+    "scan_file",
+    "scan_log",
+]

@@ -35,6 +35,7 @@ from wmr.adapters.rerun.replay import (
     replay_blueprint,
     run_entity,
     send_run_columns,
+    spawn_viewer,
 )
 from wmr.core.closedloop import BlockSink
 from wmr.core.signals import COLUMN, SIGNALS
@@ -260,7 +261,7 @@ def live_view_sink(spec_name: str, goal: Any, rrd: Path | None = None, *,
     spawned = False
     if spawn if spawn is not None else has_screen():
         try:
-            rec.spawn(default_blueprint=blueprint, connect=rrd is None)
+            spawn_viewer(rec, blueprint, connect=rrd is None)
             spawned = True
         except Exception as exc:  # no viewer binary, or it would not start
             print(f"wmr: warning: could not start the Rerun viewer ({exc}); saving an .rrd",

@@ -46,7 +46,11 @@ import colorsys
 import json
 import math
 import os
+import shutil
+import socket
+import subprocess
 import sys
+import time
 from collections.abc import Iterable, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -310,6 +314,98 @@ def check_notebook(rrd: str | os.PathLike[str] | None = None,
         raise ConfigError("notebook", "not in a notebook: the inline viewer needs a Jupyter "
                           "(or marimo) kernel",
                           "call it from a notebook, or replay to a viewer or rrd= instead")
+
+
+#: The port a spawned viewer listens on (Rerun's own default: a viewer already open there is
+#: reused, as ``rr.spawn`` does).
+VIEWER_PORT: Final = 9876
+#: How long a spawned viewer may take to listen before the recording goes to a file instead, s.
+VIEWER_READY_S: Final = 10.0
+
+
+def _listening(port: int) -> bool:
+    """Whether something accepts TCP connections on 127.0.0.1:``port``."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.settimeout(0.2)
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def _bundled_rerun() -> str:
+    """The viewer of the installed ``rerun-sdk`` (when its ``bin`` folder is not on PATH)."""
+    import rerun_cli
+
+    exe = Path(rerun_cli.__file__).parent / "rerun"
+    if not exe.is_file():
+        raise FileNotFoundError("no rerun executable on PATH")
+    return str(exe)
+
+
+def viewer_log_path() -> Path:
+    """Where a spawned viewer's own output goes (appended): ``viewer.log`` in the cache."""
+    from wmr.infra.paths import cache_dir
+
+    return cache_dir() / "viewer.log"
+
+
+def spawn_viewer(rec: rr.RecordingStream, blueprint: rrb.BlueprintLike | None, *,
+                 connect: bool = True, port: int = VIEWER_PORT,
+                 ready_s: float = VIEWER_READY_S) -> Path | None:
+    """Start the ``rerun`` viewer detached from us, and connect ``rec`` to it.
+
+    ``rr.spawn`` lets the viewer inherit our stdout and stderr: a pipe we write to
+    (``wmr replay ... | tail``) stays open as long as the viewer runs, and its INFO/WARN lines
+    flood the caller's terminal.  Here the viewer gets no stdin, writes to
+    :func:`viewer_log_path`, and runs in its own session (a Ctrl-C in our terminal leaves it
+    open, as before).
+
+    Parameters
+    ----------
+    rec
+        The recording to connect (when ``connect``).
+    blueprint
+        Its default blueprint.
+    connect
+        Connect ``rec`` to the viewer (else the caller sets its sinks).
+    port
+        The viewer's port; a viewer already listening there is used, none started.
+    ready_s
+        How long to wait for a started viewer to listen, s.
+
+    Returns
+    -------
+    Path or None
+        The viewer's log file, None when a viewer was already open.
+
+    Raises
+    ------
+    FileNotFoundError
+        No ``rerun`` executable on ``PATH`` nor in the ``rerun-sdk`` package.
+    RuntimeError
+        The viewer exited, or did not listen within ``ready_s`` (it is left running).
+    """
+    log_path: Path | None = None
+    if not _listening(port):
+        exe = shutil.which("rerun") or _bundled_rerun()
+        log_path = viewer_log_path()
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(log_path, "ab") as out:
+            proc = subprocess.Popen(
+                [exe, "--port", str(port), "--memory-limit", "75%",
+                 "--server-memory-limit", "1GiB", "--expect-data-soon"],
+                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                start_new_session=True, env={**os.environ, "RERUN_APP_ONLY": "true"})
+        deadline = time.monotonic() + ready_s
+        while not _listening(port):
+            if proc.poll() is not None:
+                raise RuntimeError(f"the viewer exited with status {proc.returncode}; "
+                                   f"its output is in {log_path}")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the viewer (pid {proc.pid}) is not listening on port "
+                                   f"{port} after {ready_s:g} s; its output is in {log_path}")
+            time.sleep(0.05)
+    if connect:
+        rec.connect_grpc(f"rerun+http://127.0.0.1:{port}/proxy", default_blueprint=blueprint)
+    return log_path
 
 
 def default_rrd_path(inputs: Sequence[str | os.PathLike[str]]) -> Path:
@@ -1107,7 +1203,7 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
         inline.display()
     elif spawn:
         try:
-            rec.spawn(default_blueprint=blueprint)
+            spawn_viewer(rec, blueprint)
             spawned = True
         except Exception as exc:  # no viewer binary, or it would not start: save instead
             warnings.append(f"could not start the Rerun viewer ({exc}): writing an .rrd instead")
@@ -1197,5 +1293,6 @@ __all__ = [
     "run_color",
     "run_entity",
     "send_run_columns",
+    "spawn_viewer",
     "varied_inputs",
 ]
