@@ -653,3 +653,17 @@ def test_wmr_ssp_check_refuses_a_package_without_its_scenario_in_one_line(
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "carries 0 scenario files" in err, err
     assert "wmr ssp export" in err
+
+
+def test_wmr_ssp_check_json_prints_the_json_line_alone(built: BuildResult,
+                                                       ssp_dir: Path) -> None:
+    """What the masters' C libraries print goes to standard error: standard output is the
+    report, one JSON line, in a process of its own (fd 1 as a user's shell sees it)."""
+    package = _export(built, _short_spec(), ssp_dir, fmi=2)
+    proc = _cli("ssp", "check", str(package), "--json")
+    assert proc.returncode == 0, proc.stderr
+    (line,) = proc.stdout.splitlines()
+    report = json.loads(line)
+    assert report["agrees"] is True and report["name"] == "short"
+    assert [r["master"].split()[0] for r in report["rows"]] == \
+        ["libcosim", "ecos", "fmpy", "omsimulator"]
