@@ -110,8 +110,18 @@ def test_the_package_validates_against_the_ssp_schemas(built: BuildResult, ssp_d
     assert ctrl == {k: v for k, v in controller_parameters(spec).items() if k in ctrl}
     assert package.stop_time_s == spec.t_max_s and package.step_size_s == spec.period_s
     with zipfile.ZipFile(path) as zf:
-        assert zf.read(f"resources/wmr_controller-fmi{fmi}.fmu") == \
-            built.controllers[fmi].read_bytes()
+        packed = zf.read(f"resources/wmr_controller-fmi{fmi}.fmu")
+    # the built controller FMU, every member byte for byte, but for the run's start values
+    # (its model description's and resources/start_values.txt: a master that applies no
+    # parameter set runs the package's run)
+    import io
+
+    with zipfile.ZipFile(io.BytesIO(packed)) as got, \
+            zipfile.ZipFile(built.controllers[fmi]) as want:
+        assert set(got.namelist()) == set(want.namelist()) | {"resources/start_values.txt"}
+        for name in want.namelist():
+            if name != "modelDescription.xml":
+                assert got.read(name) == want.read(name), name
 
 
 def test_the_schema_check_is_real(built: BuildResult, ssp_dir: Path, tmp_path: Path) -> None:
@@ -667,3 +677,107 @@ def test_wmr_ssp_check_json_prints_the_json_line_alone(built: BuildResult,
     assert report["agrees"] is True and report["name"] == "short"
     assert [r["master"].split()[0] for r in report["rows"]] == \
         ["libcosim", "ecos", "fmpy", "omsimulator"]
+
+
+def _variant_spec() -> RunSpec:
+    """A short run that is not the FMUs' compiled-in one (Fig. 11): another start and goal."""
+    from wmr.config.scenario import with_overrides
+    from wmr.core.plant import Pose
+
+    spec = with_overrides(_spec("fig11", None), start=Pose(0.5, -0.3, math.radians(170.0)),
+                          goal=Pose(-1.0, 0.5, math.radians(-60.0)))
+    return replace(spec, name="variant")
+
+
+def test_a_master_that_applies_no_parameter_set_runs_the_package_s_own_run(
+        built: BuildResult, ssp_dir: Path) -> None:
+    """fmpy's ``simulate_ssp`` without a parameter set and Ecos with the set unnamed apply no
+    parameter binding: they ran the FMUs' compiled-in Fig. 11 (issue 32: the variant --start 3
+    -2 170 --goal -4 5 -60 ended 24.5 m from its goal).  The package's FMUs now carry the run's
+    start values (resources/start_values.txt, read by their C at instantiation, and their
+    model descriptions' start): the same path, bit for bit, as with the parameters applied."""
+    from fmpy.ssp.simulation import simulate_ssp
+
+    from wmr.adapters.ssp.ecos import _ecospy
+    from wmr.adapters.ssp.package import fmpy_parameter_set, unpacked_package
+
+    spec = _variant_spec()
+    package = _export(built, spec, ssp_dir, fmi=2)
+    stop_s = 12.0
+    bare = simulate_ssp(str(package), stop_time=stop_s, step_size=spec.period_s)
+    applied = simulate_ssp(str(package), stop_time=stop_s, step_size=spec.period_s,
+                           parameter_set=fmpy_parameter_set(read_package(package)))
+    for name in ("robot.x", "robot.y", "robot.theta", "controller.converged"):
+        assert np.array_equal(bare[name], applied[name]), name
+    assert bare["controller.converged"][-1] == 1.0
+    end = math.hypot(bare["robot.x"][-1] - spec.goal.x_m, bare["robot.y"][-1] - spec.goal.y_m)
+    assert end <= spec.stop_radius_m, end
+    ecospy = _ecospy()
+    for fmi in (2, 3):
+        named = simulate_ecos(_export(built, spec, ssp_dir, fmi=fmi))
+        with unpacked_package(_export(built, spec, ssp_dir, fmi=fmi)) as (_, folder):
+            sim = ecospy.EcosSimulation(spec.period_s, ssp_path=str(folder))
+            try:
+                assert sim.init(0.0)  # no parameter set name: Ecos applies no binding
+                xs = [sim.get_real("robot::x")]
+                for _ in range(len(named.block) - 1):
+                    sim.step(1)
+                    xs.append(sim.get_real("robot::x"))
+                sim.terminate()
+            finally:
+                sim.free()
+        assert np.array_equal(np.array(xs), named.block[:, 0]), fmi
+
+
+@pytest.mark.parametrize(("line", "expected"), [
+    ("nosuch = 1.0", "nosuch is not a parameter of wmr_robot"),
+    ("x = 1.0", "x is not a parameter of wmr_robot"),
+    ("x0 = nan", "x0: the value is not a finite number"),
+    ("x0 1.0", 'not "name = value"'),
+])
+def test_start_values_an_fmu_cannot_use_refuse_the_instance(
+        built: BuildResult, tmp_path: Path, line: str, expected: str) -> None:
+    """An FMU whose resources/start_values.txt it cannot apply does not start (fmi2Instantiate
+    returns NULL and logs the file, line and variable): it would run other parameters than
+    its package's.  A good file is applied (the robot starts where it says)."""
+    import ctypes
+
+    import fmpy.fmi2 as fmi2
+    from fmpy import extract, read_model_description
+
+    md = read_model_description(str(built.fmus[2]))
+    folder = Path(extract(str(built.fmus[2]), unzipdir=str(tmp_path / "fmu")))
+    (folder / "resources").mkdir(exist_ok=True)
+    messages: list[tuple[int, str]] = []
+
+    def logger(_env: object, _name: bytes, status: int, _cat: bytes, message: bytes) -> None:
+        messages.append((status, message.decode()))
+
+    callbacks = fmi2.fmi2CallbackFunctions()
+    callbacks.logger = fmi2.fmi2CallbackLoggerTYPE(logger)
+    callbacks.allocateMemory = fmi2.defaultCallbacks.allocateMemory
+    callbacks.freeMemory = fmi2.defaultCallbacks.freeMemory
+    fmi2.addLoggerProxy(ctypes.byref(callbacks))  # fmpy's: formats the FMU's varargs
+
+    def slave() -> fmi2.FMU2Slave:
+        s = fmi2.FMU2Slave(guid=md.guid, unzipDirectory=str(folder),
+                           modelIdentifier=md.coSimulation.modelIdentifier, instanceName="r")
+        s.instantiate(callbacks=callbacks)
+        return s
+
+    (folder / "resources" / "start_values.txt").write_text(f"y0 = {(-0.25).hex()}\n")
+    good = slave()
+    good.setupExperiment(startTime=0.0)
+    good.enterInitializationMode()
+    good.exitInitializationMode()
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    assert good.getReal([vr["y"]]) == [-0.25]
+    good.terminate()
+    good.freeInstance()
+    (folder / "resources" / "start_values.txt").write_text(f"y0 = 1.0\n{line}\n")
+    messages.clear()
+    with pytest.raises(Exception, match="instantiate"):
+        slave()
+    errors = [m for status, m in messages if status == 3]  # fmi2Error
+    assert len(errors) == 1 and expected in errors[0], errors
+    assert "start_values.txt line 2" in errors[0], errors
