@@ -732,8 +732,9 @@ def test_a_master_that_applies_no_parameter_set_runs_the_package_s_own_run(
 @pytest.mark.parametrize(("line", "expected"), [
     ("nosuch = 1.0", "nosuch is not a parameter of wmr_robot"),
     ("x = 1.0", "x is not a parameter of wmr_robot"),
-    ("x0 = nan", "x0: the value is not a finite number"),
-    ("x0 1.0", 'not "name = value"'),
+    ("x0 = 1.0", "x0: the value is not the bits (0x...) of a finite number"),
+    ("x0 = 0x7ff8000000000000", "x0: the value is not the bits (0x...) of a finite number"),
+    ("x0 0x0", 'not "name = 0xBITS"'),
 ])
 def test_start_values_an_fmu_cannot_use_refuse_the_instance(
         built: BuildResult, tmp_path: Path, line: str, expected: str) -> None:
@@ -765,7 +766,8 @@ def test_start_values_an_fmu_cannot_use_refuse_the_instance(
         s.instantiate(callbacks=callbacks)
         return s
 
-    (folder / "resources" / "start_values.txt").write_text(f"y0 = {(-0.25).hex()}\n")
+    # the bits of -0.25, and a comment (as wmr ssp export writes it)
+    (folder / "resources" / "start_values.txt").write_text("y0 = 0xbfd0000000000000  # -0.25")
     good = slave()
     good.setupExperiment(startTime=0.0)
     good.enterInitializationMode()
@@ -774,7 +776,7 @@ def test_start_values_an_fmu_cannot_use_refuse_the_instance(
     assert good.getReal([vr["y"]]) == [-0.25]
     good.terminate()
     good.freeInstance()
-    (folder / "resources" / "start_values.txt").write_text(f"y0 = 1.0\n{line}\n")
+    (folder / "resources" / "start_values.txt").write_text(f"y0 = 0x0\n{line}\n")
     messages.clear()
     with pytest.raises(Exception, match="instantiate"):
         slave()

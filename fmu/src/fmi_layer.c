@@ -16,6 +16,7 @@
  * getters and fmiFreeInstance remain possible (as the FMI standard says).
  */
 #include <ctype.h>
+#include <errno.h>
 #include <float.h>
 #include <math.h>
 #include <stdarg.h>
@@ -417,9 +418,10 @@ static int start_values_path(const char *resources, int is_uri, char *out, size_
     return 1;
 }
 
-/* Read resources/start_values.txt, one "name = value" a line (value as C's strtod reads it,
- * hex floats exact): parameters only, finite and within their bounds.  No file: nothing to
- * apply.  Returns 0 (logged, naming the file, line and variable) on a file it cannot use: an
+/* Read resources/start_values.txt, one "name = 0xBITS" a line (the IEEE 754 binary64 bits in
+ * hex, then an optional "# comment"): exact, and unlike strtod independent of the master's
+ * locale (a comma radix would read "3.5" as 3).  Parameters only, finite and within their
+ * bounds.  No file: nothing to apply.  Returns 0 (logged, naming the file, line and variable) on a file it cannot use: an
  * instance that would run other parameters than its package's must not start. */
 static int read_start_values(const char *fn, FlInstance *inst, const char *resources,
                              int is_uri) {
@@ -433,13 +435,14 @@ static int read_start_values(const char *fn, FlInstance *inst, const char *resou
         char *name = line, *eq, *end, *value;
         size_t len;
         int v, found = -1;
+        uint64_t bits;
         double x;
         line_no++;
         while (isspace((unsigned char)*name)) name++;
         if (!*name || *name == '#') continue;
         eq = strchr(name, '=');
-        if (!eq || !strchr(line, '\n')) {
-            fl_log(inst, FL_ERROR, "%s: %s line %d: not \"name = value\" (or longer than "
+        if (!eq || !(strchr(line, '\n') || feof(f))) {
+            fl_log(inst, FL_ERROR, "%s: %s line %d: not \"name = 0xBITS\" (or longer than "
                    "%d characters)", fn, path, line_no, (int)sizeof(line) - 2);
             ok = 0;
             break;
@@ -449,17 +452,27 @@ static int read_start_values(const char *fn, FlInstance *inst, const char *resou
             if (strlen(MODEL_VARIABLES[v].name) == len &&
                 strncmp(MODEL_VARIABLES[v].name, name, len) == 0) found = v;
         value = eq + 1;
-        x = strtod(value, &end);
+        while (isspace((unsigned char)*value)) value++;
+        bits = 0;
+        end = value; /* not 0x...: refused below */
+        if (value[0] == '0' && (value[1] == 'x' || value[1] == 'X')) {
+            errno = 0;
+            bits = (uint64_t)strtoull(value, &end, 16);
+            if (errno == ERANGE) end = value;
+        }
+        memcpy(&x, &bits, sizeof(x));
         while (isspace((unsigned char)*end)) end++;
+        if (*end == '#') end += strlen(end);
         if (found < 0 || MODEL_VARIABLES[found].kind != MODEL_VAR_PARAMETER) {
             fl_log(inst, FL_ERROR, "%s: %s line %d: %.*s is not a parameter of %s", fn, path,
                    line_no, (int)len, name, MODEL_IDENTIFIER_STR);
             ok = 0;
         } else if (end == value || *end || !isfinite(x) || x < MODEL_VARIABLES[found].min ||
                    x > MODEL_VARIABLES[found].max) {
-            fl_log(inst, FL_ERROR, "%s: %s line %d: %s: the value is not a finite number "
-                   "within [%g, %g]", fn, path, line_no, MODEL_VARIABLES[found].name,
-                   MODEL_VARIABLES[found].min, MODEL_VARIABLES[found].max);
+            fl_log(inst, FL_ERROR, "%s: %s line %d: %s: the value is not the bits (0x...) "
+                   "of a finite number within [%g, %g]", fn, path, line_no,
+                   MODEL_VARIABLES[found].name, MODEL_VARIABLES[found].min,
+                   MODEL_VARIABLES[found].max);
             ok = 0;
         } else if (inst->n_start_values >= MODEL_NV) {
             fl_log(inst, FL_ERROR, "%s: %s: more than %d lines", fn, path, MODEL_NV);

@@ -30,6 +30,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import struct
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Mapping
@@ -130,7 +131,9 @@ def _with_start_values(fmu: Path, values: Mapping[str, float]) -> bytes | None:
             if count != 1:
                 raise FmuError(f"{fmu}: its model description has no start value of the "
                                f"parameter {name}")
-        text = "".join(f"{name} = {float(value).hex()}\n" for name, value in values.items())
+        # the bits, exact and read without strtod (whose radix is the master's locale's)
+        text = "".join(f"{name} = 0x{struct.unpack('<Q', struct.pack('<d', value))[0]:016x}"
+                       f"  # {float(value)!r}\n" for name, value in values.items())
         members = {n: zf.read(n) for n in names if n != START_VALUES}
     members["modelDescription.xml"] = md.encode()
     members[START_VALUES] = ("# the package's run (wmr ssp export): the parameters a master "
