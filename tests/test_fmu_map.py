@@ -267,3 +267,35 @@ def test_our_robot_renamed_by_fmu_manipulation_toolbox_gives_the_same_path(
     assert np.array_equal(logs[0], logs[1])  # every signal of every row
     with pytest.raises(ConfigError, match=r"no input named 'tau_r'.*drive\.torque_right"):
         FmuPlant(renamed)  # without the map: one line naming the variable and the candidates
+
+
+def test_wmr_ssp_check_of_a_package_of_another_tool_s_robot_uses_only_its_map(
+        tmp_path: Path, unicycle_fmu: Path, built: BuildResult) -> None:
+    """``wmr ssp check`` of a ``--map`` package: ``wmr run`` of the package's scenario on the
+    package's robot FMU through the package's map (the unicycle's names and units, none of
+    ours), libcosim within the bars of it, fmpy a row saying it ignores the transformations."""
+    from dataclasses import replace
+
+    from wmr.adapters.ssp.agreement import deviation, libcosim_path, wmr_run_path
+    from wmr.adapters.ssp.export import export_ssp
+    from wmr.apps.ssp_check import check_package
+    from wmr.config.scenario import load_scenario, with_overrides
+    from wmr.core.plant import Pose
+
+    base = next(iter(load_scenario("fig11").runs))
+    spec = replace(with_overrides(base, goal=Pose(1.0, 0.5, math.radians(30.0))),
+                   name="uni-short")
+    var_map = load_map(MAP)
+    package = export_ssp(spec, tmp_path / "uni.ssp", unicycle_fmu, built.controllers[2],
+                         var_map=var_map)
+    report = check_package(package)
+    rows = {r.master.split()[0]: r for r in report.rows}
+    status, ref = wmr_run_path(spec, unicycle_fmu, var_map)
+    assert status == "converged" and report.reference.said.startswith("converged")
+    _, path = libcosim_path(package)
+    pos, _ = deviation(path, ref, 0)
+    lib = rows["libcosim"]
+    assert lib.agrees and lib.lag_steps == 0, lib
+    assert lib.worst_distance_mm == pytest.approx(pos * 1e3, rel=1e-12)
+    assert not rows["fmpy"].ran and "unit transformations" in rows["fmpy"].said
+    assert rows["ecos"].agrees, rows["ecos"]  # Ecos applies the transformations too

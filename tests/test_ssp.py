@@ -110,8 +110,18 @@ def test_the_package_validates_against_the_ssp_schemas(built: BuildResult, ssp_d
     assert ctrl == {k: v for k, v in controller_parameters(spec).items() if k in ctrl}
     assert package.stop_time_s == spec.t_max_s and package.step_size_s == spec.period_s
     with zipfile.ZipFile(path) as zf:
-        assert zf.read(f"resources/wmr_controller-fmi{fmi}.fmu") == \
-            built.controllers[fmi].read_bytes()
+        packed = zf.read(f"resources/wmr_controller-fmi{fmi}.fmu")
+    # the built controller FMU, every member byte for byte, but for the run's start values
+    # (its model description's and resources/start_values.txt: a master that applies no
+    # parameter set runs the package's run)
+    import io
+
+    with zipfile.ZipFile(io.BytesIO(packed)) as got, \
+            zipfile.ZipFile(built.controllers[fmi]) as want:
+        assert set(got.namelist()) == set(want.namelist()) | {"resources/start_values.txt"}
+        for name in want.namelist():
+            if name != "modelDescription.xml":
+                assert got.read(name) == want.read(name), name
 
 
 def test_the_schema_check_is_real(built: BuildResult, ssp_dir: Path, tmp_path: Path) -> None:
@@ -547,3 +557,229 @@ def test_the_controller_fmu_asks_the_master_to_stop_after_its_converged_sample(
         assert get([vr["tau_r"], vr["tau_l"], vr["converged"]])[2] == 1.0
         slave.terminate()
         slave.freeInstance()
+
+
+def _short_spec() -> RunSpec:
+    """Fig. 11's robot and gains to a near goal (1, 0.5, 30 deg): about 6 s, 585 steps."""
+    from wmr.config.scenario import with_overrides
+    from wmr.core.plant import Pose
+
+    spec = with_overrides(_spec("fig11", None), goal=Pose(1.0, 0.5, math.radians(30.0)))
+    return replace(spec, name="short")
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_wmr_ssp_check_has_a_row_per_master_against_wmr_run_of_the_package_s_own_run(
+        built: BuildResult, ssp_dir: Path, fmi: int,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``wmr ssp check`` runs ``wmr run`` of the package's provenance scenario and the package
+    in each master; a row's figures are those of the agreement helpers on the same runs, and a
+    master that cannot load the package (FMI 3 in libcosim and fmpy) is a row saying so."""
+    from wmr.apps.ssp_check import check_package
+
+    spec = _short_spec()
+    package = _export(built, spec, ssp_dir, fmi=fmi)
+    report = check_package(package)
+    status, ref = wmr_run_path(spec, built.fmus[fmi])
+    assert status == "converged"
+    assert report.name == "short" and report.reference.said.startswith("converged")
+    rows = {r.master.split()[0]: r for r in report.rows}
+    assert list(rows) == ["libcosim", "ecos", "fmpy", "omsimulator"]
+    expected = {"ecos": simulate_ecos(package).block[:, :3]}
+    if fmi == 2:
+        expected["libcosim"] = simulate_libcosim(package).block[:, :3]
+        expected["fmpy"] = fmpy_path(package, spec.t_max_s)[1]
+    else:
+        for master in ("libcosim", "fmpy"):
+            assert not rows[master].ran and rows[master].agrees is None
+            assert "cannot load it" in rows[master].said and "FMI 3.0" in rows[master].said
+    for master, path in expected.items():
+        row = rows[master]
+        lag = measured_lag(path, ref)
+        pos, head = deviation(path, ref, lag)
+        assert row.ran and row.said == "ok" and row.lag_steps == lag, row
+        assert row.worst_distance_mm == pytest.approx(pos * 1e3, rel=1e-12)
+        assert row.worst_heading_deg == pytest.approx(math.degrees(head), rel=1e-12)
+        assert row.final_distance_mm == pytest.approx(
+            1e3 * math.hypot(*(path[-1, :2] - ref[-1, :2])), rel=1e-9, abs=1e-9)
+        assert row.converged_at_s == pytest.approx(len(ref) * spec.period_s, abs=0.05)
+        assert row.agrees
+    assert not rows["omsimulator"].ran  # not installed here
+    assert report.agrees
+    assert main(["ssp", "check", str(package)]) == 0
+    out = capsys.readouterr().out
+    table = out.splitlines()
+    assert table[1].split()[:2] == ["master", "FMI"] and table[2].startswith("wmr run")
+    assert "within 5 mm and 0.2 deg of wmr run: " in table[-1] and "NOT" not in table[-1]
+
+
+def test_wmr_ssp_check_shows_a_failing_master_as_a_row_and_exits_1(
+        built: BuildResult, ssp_dir: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A master that raises is its row ("failed: ..."), the others still run, and the exit
+    status is 1 with the verdict naming it; ``--json`` prints the same rows."""
+    from wmr.apps import ssp_check
+    from wmr.infra.errors import FmuError
+
+    package = _export(built, _short_spec(), ssp_dir, fmi=2)
+
+    def broken(ssp: Path, pkg: object) -> ssp_check.MasterRun:
+        raise FmuError("Ecos failed at t = 1.5 s: an FMU returned an error\nsecond line")
+
+    monkeypatch.setitem(ssp_check.MASTERS, "ecos", broken)
+    assert main(["ssp", "check", str(package)]) == 1
+    out = capsys.readouterr().out.splitlines()
+    (ecos,) = [line for line in out if line.startswith("ecos")]
+    assert ecos.endswith("failed: Ecos failed at t = 1.5 s: an FMU returned an error")
+    assert "NOT within: ecos (failed)" in out[-1] and "libcosim, fmpy" in out[-1]
+    assert main(["ssp", "check", str(package), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["agrees"] is False
+    rows = {r["master"].split()[0]: r for r in report["rows"]}
+    assert rows["ecos"]["agrees"] is False and rows["libcosim"]["agrees"] is True
+
+
+def test_wmr_ssp_check_exits_1_when_a_master_is_over_the_bar(
+        built: BuildResult, ssp_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Fig. 11 in fmpy: 0.244 deg of heading over the 0.2 deg bar (docs/ssp.md), so the check
+    says so and fails, while libcosim and Ecos agree."""
+    package = _export(built, _spec("fig11", None), ssp_dir, fmi=2)
+    assert main(["ssp", "check", str(package)]) == 1
+    verdict = capsys.readouterr().out.splitlines()[-1]
+    assert verdict.startswith("within 5 mm and 0.2 deg of wmr run: libcosim, ecos;")
+    assert "NOT within: fmpy (worst heading 0.244 deg)" in verdict
+
+
+def test_wmr_ssp_check_refuses_a_package_without_its_scenario_in_one_line(
+        built: BuildResult, ssp_dir: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    good = _export(built, _short_spec(), ssp_dir, fmi=2)
+    bad = tmp_path / "noscenario.ssp"
+    with zipfile.ZipFile(good) as src, zipfile.ZipFile(bad, "w") as dst:
+        for item in src.infolist():
+            if not item.filename.endswith(".toml"):
+                dst.writestr(item, src.read(item))
+    assert main(["ssp", "check", str(bad)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "carries 0 scenario files" in err, err
+    assert "wmr ssp export" in err
+
+
+def test_wmr_ssp_check_json_prints_the_json_line_alone(built: BuildResult,
+                                                       ssp_dir: Path) -> None:
+    """What the masters' C libraries print goes to standard error: standard output is the
+    report, one JSON line, in a process of its own (fd 1 as a user's shell sees it)."""
+    package = _export(built, _short_spec(), ssp_dir, fmi=2)
+    proc = _cli("ssp", "check", str(package), "--json")
+    assert proc.returncode == 0, proc.stderr
+    (line,) = proc.stdout.splitlines()
+    report = json.loads(line)
+    assert report["agrees"] is True and report["name"] == "short"
+    assert [r["master"].split()[0] for r in report["rows"]] == \
+        ["libcosim", "ecos", "fmpy", "omsimulator"]
+
+
+def _variant_spec() -> RunSpec:
+    """A short run that is not the FMUs' compiled-in one (Fig. 11): another start and goal."""
+    from wmr.config.scenario import with_overrides
+    from wmr.core.plant import Pose
+
+    spec = with_overrides(_spec("fig11", None), start=Pose(0.5, -0.3, math.radians(170.0)),
+                          goal=Pose(-1.0, 0.5, math.radians(-60.0)))
+    return replace(spec, name="variant")
+
+
+def test_a_master_that_applies_no_parameter_set_runs_the_package_s_own_run(
+        built: BuildResult, ssp_dir: Path) -> None:
+    """fmpy's ``simulate_ssp`` without a parameter set and Ecos with the set unnamed apply no
+    parameter binding: they ran the FMUs' compiled-in Fig. 11 (issue 32: the variant --start 3
+    -2 170 --goal -4 5 -60 ended 24.5 m from its goal).  The package's FMUs now carry the run's
+    start values (resources/start_values.txt, read by their C at instantiation, and their
+    model descriptions' start): the same path, bit for bit, as with the parameters applied."""
+    from fmpy.ssp.simulation import simulate_ssp
+
+    from wmr.adapters.ssp.ecos import _ecospy
+    from wmr.adapters.ssp.package import fmpy_parameter_set, unpacked_package
+
+    spec = _variant_spec()
+    package = _export(built, spec, ssp_dir, fmi=2)
+    stop_s = 12.0
+    bare = simulate_ssp(str(package), stop_time=stop_s, step_size=spec.period_s)
+    applied = simulate_ssp(str(package), stop_time=stop_s, step_size=spec.period_s,
+                           parameter_set=fmpy_parameter_set(read_package(package)))
+    for name in ("robot.x", "robot.y", "robot.theta", "controller.converged"):
+        assert np.array_equal(bare[name], applied[name]), name
+    assert bare["controller.converged"][-1] == 1.0
+    end = math.hypot(bare["robot.x"][-1] - spec.goal.x_m, bare["robot.y"][-1] - spec.goal.y_m)
+    assert end <= spec.stop_radius_m, end
+    ecospy = _ecospy()
+    for fmi in (2, 3):
+        named = simulate_ecos(_export(built, spec, ssp_dir, fmi=fmi))
+        with unpacked_package(_export(built, spec, ssp_dir, fmi=fmi)) as (_, folder):
+            sim = ecospy.EcosSimulation(spec.period_s, ssp_path=str(folder))
+            try:
+                assert sim.init(0.0)  # no parameter set name: Ecos applies no binding
+                xs = [sim.get_real("robot::x")]
+                for _ in range(len(named.block) - 1):
+                    sim.step(1)
+                    xs.append(sim.get_real("robot::x"))
+                sim.terminate()
+            finally:
+                sim.free()
+        assert np.array_equal(np.array(xs), named.block[:, 0]), fmi
+
+
+@pytest.mark.parametrize(("line", "expected"), [
+    ("nosuch = 1.0", "nosuch is not a parameter of wmr_robot"),
+    ("x = 1.0", "x is not a parameter of wmr_robot"),
+    ("x0 = 1.0", "x0: the value is not the bits (0x...) of a finite number"),
+    ("x0 = 0x7ff8000000000000", "x0: the value is not the bits (0x...) of a finite number"),
+    ("x0 0x0", 'not "name = 0xBITS"'),
+])
+def test_start_values_an_fmu_cannot_use_refuse_the_instance(
+        built: BuildResult, tmp_path: Path, line: str, expected: str) -> None:
+    """An FMU whose resources/start_values.txt it cannot apply does not start (fmi2Instantiate
+    returns NULL and logs the file, line and variable): it would run other parameters than
+    its package's.  A good file is applied (the robot starts where it says)."""
+    import ctypes
+
+    import fmpy.fmi2 as fmi2
+    from fmpy import extract, read_model_description
+
+    md = read_model_description(str(built.fmus[2]))
+    folder = Path(extract(str(built.fmus[2]), unzipdir=str(tmp_path / "fmu")))
+    (folder / "resources").mkdir(exist_ok=True)
+    messages: list[tuple[int, str]] = []
+
+    def logger(_env: object, _name: bytes, status: int, _cat: bytes, message: bytes) -> None:
+        messages.append((status, message.decode()))
+
+    callbacks = fmi2.fmi2CallbackFunctions()
+    callbacks.logger = fmi2.fmi2CallbackLoggerTYPE(logger)
+    callbacks.allocateMemory = fmi2.defaultCallbacks.allocateMemory
+    callbacks.freeMemory = fmi2.defaultCallbacks.freeMemory
+    fmi2.addLoggerProxy(ctypes.byref(callbacks))  # fmpy's: formats the FMU's varargs
+
+    def slave() -> fmi2.FMU2Slave:
+        s = fmi2.FMU2Slave(guid=md.guid, unzipDirectory=str(folder),
+                           modelIdentifier=md.coSimulation.modelIdentifier, instanceName="r")
+        s.instantiate(callbacks=callbacks)
+        return s
+
+    # the bits of -0.25, and a comment (as wmr ssp export writes it)
+    (folder / "resources" / "start_values.txt").write_text("y0 = 0xbfd0000000000000  # -0.25")
+    good = slave()
+    good.setupExperiment(startTime=0.0)
+    good.enterInitializationMode()
+    good.exitInitializationMode()
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    assert good.getReal([vr["y"]]) == [-0.25]
+    good.terminate()
+    good.freeInstance()
+    (folder / "resources" / "start_values.txt").write_text(f"y0 = 0x0\n{line}\n")
+    messages.clear()
+    with pytest.raises(Exception, match="instantiate"):
+        slave()
+    errors = [m for status, m in messages if status == 3]  # fmi2Error
+    assert len(errors) == 1 and expected in errors[0], errors
+    assert "start_values.txt line 2" in errors[0], errors

@@ -61,7 +61,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               fmi2Boolean loggingOn) {
     void (*logger)(void);
     void *env;
-    (void)fmuResourceLocation;
     (void)visible;
     if (!functions) return NULL;
     logger = (void (*)(void))functions->logger;
@@ -74,7 +73,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     }
     return (fmi2Component)fl_instantiate("fmi2Instantiate", instanceName, fmuGUID,
                                          fmuType == fmi2ModelExchange, loggingOn, log_adapter,
-                                         logger, env);
+                                         logger, env, fmuResourceLocation, 1);
 }
 
 void fmi2FreeInstance(fmi2Component c) { fl_free(INST); }

@@ -53,10 +53,11 @@ fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String in
                                           fmi3Boolean loggingOn,
                                           fmi3InstanceEnvironment instanceEnvironment,
                                           fmi3LogMessageCallback logMessage) {
-    (void)resourcePath; (void)visible;
+    (void)visible;
     return (fmi3Instance)fl_instantiate("fmi3InstantiateModelExchange", instanceName,
                                         instantiationToken, 1, loggingOn, log_adapter,
-                                        (void (*)(void))logMessage, instanceEnvironment);
+                                        (void (*)(void))logMessage, instanceEnvironment,
+                                        resourcePath, 0);
 }
 
 fmi3Instance fmi3InstantiateCoSimulation(
@@ -67,7 +68,7 @@ fmi3Instance fmi3InstantiateCoSimulation(
     fmi3LogMessageCallback logMessage, fmi3IntermediateUpdateCallback intermediateUpdate) {
     /* early return is never used (doStep always completes), intermediate
      * updates are never made */
-    (void)resourcePath; (void)visible; (void)earlyReturnAllowed;
+    (void)visible; (void)earlyReturnAllowed;
     (void)requiredIntermediateVariables; (void)nRequiredIntermediateVariables;
     (void)intermediateUpdate;
     if (eventModeUsed) {
@@ -79,7 +80,8 @@ fmi3Instance fmi3InstantiateCoSimulation(
     }
     return (fmi3Instance)fl_instantiate("fmi3InstantiateCoSimulation", instanceName,
                                         instantiationToken, 0, loggingOn, log_adapter,
-                                        (void (*)(void))logMessage, instanceEnvironment);
+                                        (void (*)(void))logMessage, instanceEnvironment,
+                                        resourcePath, 0);
 }
 
 fmi3Instance fmi3InstantiateScheduledExecution(

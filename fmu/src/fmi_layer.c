@@ -15,6 +15,8 @@
  * instance into the Error state, from which fmiSetFMUState, fmiReset, the
  * getters and fmiFreeInstance remain possible (as the FMI standard says).
  */
+#include <ctype.h>
+#include <errno.h>
 #include <float.h>
 #include <math.h>
 #include <stdarg.h>
@@ -267,6 +269,8 @@ static void set_start_values(FlInstance *inst) {
         if (mv->kind == MODEL_VAR_PARAMETER) d->p[mv->index] = mv->start;
         else if (mv->kind == MODEL_VAR_INPUT) d->u[mv->index] = mv->start;
     }
+    for (i = 0; i < inst->n_start_values; i++)
+        d->p[MODEL_VARIABLES[inst->start_vr[i]].index] = inst->start_value[i];
     solver_init(&d->solver);
     ok = model_initial_state(d->p, x0) == 0;
     for (i = 0; ok && i < MODEL_NX; i++) ok = isfinite(x0[i]);
@@ -381,10 +385,114 @@ static int compute_derivatives(const char *fn, FlInstance *inst, double dx[]) {
 /* creation and destruction                                                 */
 /* ------------------------------------------------------------------------ */
 
+#define FL_START_VALUES "start_values.txt"
+#define FL_PATH_SIZE 4096
+
+/* The path of resources/start_values.txt from the resource location the importer gave: FMI 2
+ * a file URI ("file:///dir", "file:/dir", "file://localhost/dir"; percent-encoded), FMI 3 a
+ * native path.  Returns 0 when there is no usable location (no file is then read). */
+static int start_values_path(const char *resources, int is_uri, char *out, size_t size) {
+    const char *p = resources;
+    size_t n = 0;
+    if (!p || !p[0]) return 0;
+    if (is_uri) {
+        if (strncmp(p, "file://localhost/", 17) == 0) p += 16;
+        else if (strncmp(p, "file:///", 8) == 0) p += 7;
+        else if (strncmp(p, "file:/", 6) == 0) p += 5;
+        else return 0; /* not a local file: nothing to read */
+        if (isalpha((unsigned char)p[1]) && p[2] == ':') p++; /* "/C:/..." on Windows */
+    }
+    for (; *p && n + 1 < size; p++) {
+        if (is_uri && p[0] == '%' && isxdigit((unsigned char)p[1]) &&
+            isxdigit((unsigned char)p[2])) {
+            char hex[3] = {p[1], p[2], 0};
+            out[n++] = (char)strtol(hex, NULL, 16);
+            p += 2;
+        } else {
+            out[n++] = *p;
+        }
+    }
+    if (n > 0 && out[n - 1] != '/' && out[n - 1] != '\\' && n + 1 < size) out[n++] = '/';
+    if (n + sizeof(FL_START_VALUES) > size) return 0;
+    memcpy(out + n, FL_START_VALUES, sizeof(FL_START_VALUES));
+    return 1;
+}
+
+/* Read resources/start_values.txt, one "name = 0xBITS" a line (the IEEE 754 binary64 bits in
+ * hex, then an optional "# comment"): exact, and unlike strtod independent of the master's
+ * locale (a comma radix would read "3.5" as 3).  Parameters only, finite and within their
+ * bounds.  No file: nothing to apply.  Returns 0 (logged, naming the file, line and variable) on a file it cannot use: an
+ * instance that would run other parameters than its package's must not start. */
+static int read_start_values(const char *fn, FlInstance *inst, const char *resources,
+                             int is_uri) {
+    char path[FL_PATH_SIZE], line[512];
+    FILE *f;
+    int line_no = 0, ok = 1;
+    if (!start_values_path(resources, is_uri, path, sizeof(path))) return 1;
+    f = fopen(path, "r");
+    if (!f) return 1; /* an FMU of no package: its compiled-in start values */
+    while (ok && fgets(line, sizeof(line), f)) {
+        char *name = line, *eq, *end, *value;
+        size_t len;
+        int v, found = -1;
+        uint64_t bits;
+        double x;
+        line_no++;
+        while (isspace((unsigned char)*name)) name++;
+        if (!*name || *name == '#') continue;
+        eq = strchr(name, '=');
+        if (!eq || !(strchr(line, '\n') || feof(f))) {
+            fl_log(inst, FL_ERROR, "%s: %s line %d: not \"name = 0xBITS\" (or longer than "
+                   "%d characters)", fn, path, line_no, (int)sizeof(line) - 2);
+            ok = 0;
+            break;
+        }
+        for (len = (size_t)(eq - name); len > 0 && isspace((unsigned char)name[len - 1]);) len--;
+        for (v = 0; v < MODEL_NV; v++)
+            if (strlen(MODEL_VARIABLES[v].name) == len &&
+                strncmp(MODEL_VARIABLES[v].name, name, len) == 0) found = v;
+        value = eq + 1;
+        while (isspace((unsigned char)*value)) value++;
+        bits = 0;
+        end = value; /* not 0x...: refused below */
+        if (value[0] == '0' && (value[1] == 'x' || value[1] == 'X')) {
+            errno = 0;
+            bits = (uint64_t)strtoull(value, &end, 16);
+            if (errno == ERANGE) end = value;
+        }
+        memcpy(&x, &bits, sizeof(x));
+        while (isspace((unsigned char)*end)) end++;
+        if (*end == '#') end += strlen(end);
+        if (found < 0 || MODEL_VARIABLES[found].kind != MODEL_VAR_PARAMETER) {
+            fl_log(inst, FL_ERROR, "%s: %s line %d: %.*s is not a parameter of %s", fn, path,
+                   line_no, (int)len, name, MODEL_IDENTIFIER_STR);
+            ok = 0;
+        } else if (end == value || *end || !isfinite(x) || x < MODEL_VARIABLES[found].min ||
+                   x > MODEL_VARIABLES[found].max) {
+            fl_log(inst, FL_ERROR, "%s: %s line %d: %s: the value is not the bits (0x...) "
+                   "of a finite number within [%g, %g]", fn, path, line_no,
+                   MODEL_VARIABLES[found].name, MODEL_VARIABLES[found].min,
+                   MODEL_VARIABLES[found].max);
+            ok = 0;
+        } else if (inst->n_start_values >= MODEL_NV) {
+            fl_log(inst, FL_ERROR, "%s: %s: more than %d lines", fn, path, MODEL_NV);
+            ok = 0;
+        } else {
+            inst->start_vr[inst->n_start_values] = (unsigned int)found;
+            inst->start_value[inst->n_start_values++] = x;
+        }
+    }
+    fclose(f);
+    if (ok && inst->n_start_values > 0)
+        fl_log(inst, FL_OK, "%s: %d start values from %s", fn, inst->n_start_values, path);
+    return ok;
+}
+
 WMR_INTERNAL
 FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char *token,
                            int model_exchange, int logging_on, FlLogAdapter adapter,
-                           void (*importer_logger)(void), void *importer_env) {
+                           void (*importer_logger)(void), void *importer_env,
+                           const char *resources, int resources_is_uri) {
     FlInstance *inst;
     char msg[FL_MSG_SIZE];
     size_t len;
@@ -429,6 +537,11 @@ FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char
     inst->logging_on = logging_on ? 1 : 0;
     inst->log_events = 1;
     inst->worst_status = FL_OK;
+    if (!read_start_values(fn, inst, resources, resources_is_uri)) {
+        free(inst->name);
+        free(inst);
+        return NULL;
+    }
     set_start_values(inst);
     fl_log(inst, FL_OK, "%s: instance \"%s\" of %s created for %s", fn, inst->name,
            MODEL_IDENTIFIER_STR, model_exchange ? "Model Exchange" : "Co-Simulation");

@@ -88,6 +88,12 @@ typedef struct FlInstance {
     int logging_on;                /* debug logging on (fmiSetDebugLogging / instantiate) */
     int log_events;                /* category logEvents enabled: info messages */
     FlStatus worst_status;         /* worst status returned since instantiation/reset */
+    /* the start values of the FMU's resources/start_values.txt (wmr ssp export writes it into
+     * a package's FMUs, so that a master that sets no parameter runs the package's run):
+     * parameters by value reference, applied over the compiled-in ones at every (re)start */
+    int n_start_values;
+    unsigned int start_vr[MODEL_NV];
+    double start_value[MODEL_NV];
     FlData d;
 } FlInstance;
 
@@ -107,7 +113,8 @@ typedef struct FlInstance {
 WMR_INTERNAL
 FlInstance *fl_instantiate(const char *fn, const char *instance_name, const char *token,
                            int model_exchange, int logging_on, FlLogAdapter adapter,
-                           void (*importer_logger)(void), void *importer_env);
+                           void (*importer_logger)(void), void *importer_env,
+                           const char *resources, int resources_is_uri);
 WMR_INTERNAL
 void fl_free(FlInstance *inst);
 

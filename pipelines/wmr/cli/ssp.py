@@ -1,5 +1,6 @@
-"""``wmr ssp export`` (the closed loop as an SSP 1.0 package) and ``wmr ssp run`` (a package
-in libcosim or Ecos, logged to MCAP like ``wmr run``)."""
+"""``wmr ssp export`` (the closed loop as an SSP 1.0 package), ``wmr ssp run`` (a package
+in libcosim or Ecos, logged to MCAP like ``wmr run``) and ``wmr ssp check`` (a package in every
+master here against ``wmr run``)."""
 
 from __future__ import annotations
 
@@ -84,6 +85,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0 if record["status"] == "converged" else 3
 
 
+def _cmd_check(args: argparse.Namespace) -> int:
+    import json
+
+    from wmr.apps.ssp_check import check_package, format_table
+
+    report = check_package(Path(args.ssp))
+    print(json.dumps(report.as_dict()) if args.json else format_table(report))
+    return 0 if report.agrees else 1
+
+
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from wmr.cli.run import add_scenario_choice
 
@@ -130,3 +141,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     run.add_argument("--json", action="store_true",
                      help="print the result as one JSON object on the last line")
     run.set_defaults(handler=_cmd_run)
+    check = ssp_sub.add_parser(
+        "check", help="run a package in every master installed here and compare with wmr run",
+        description="Run an SSP package in every master installed here (libcosim, Ecos, "
+                    "fmpy's simulate_ssp, OMSimulator) and 'wmr run' of the package's own "
+                    "scenario, and print one table: master, FMI version, converged at, final "
+                    "pose and worst path difference from wmr run, what the master said.  Exit "
+                    "status: 0 when every master that ran is within the agreement docs/ssp.md "
+                    "claims, 1 otherwise (the last line says which).")
+    check.add_argument("ssp", metavar="FILE.ssp", help="the package")
+    check.add_argument("--json", action="store_true",
+                       help="print the report as one JSON object instead of the table")
+    check.set_defaults(handler=_cmd_check)

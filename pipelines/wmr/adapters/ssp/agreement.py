@@ -5,11 +5,14 @@ loop driving the Python stabiliser on the robot FMU (FMI 2.0, as in the package)
 :func:`libcosim_path` and :func:`fmpy_path` run the package in libcosim and in fmpy's SSP
 simulator.  A master that passes connection values one step late gets its path compared
 ``lag`` steps later (:func:`deviation`); :func:`measured_lag` finds that shift.
-``tests/test_ssp.py`` holds the bars, ``benchmarks/ssp_agreement.py`` prints the table.
+``tests/test_ssp.py`` holds the bars (:data:`POSITION_BAR_M`, :data:`HEADING_BAR_RAD`, the
+agreement docs/ssp.md claims), ``benchmarks/ssp_agreement.py`` prints the table and ``wmr ssp
+check`` (:mod:`wmr.apps.ssp_check`) a package's.
 """
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -18,14 +21,18 @@ import numpy.typing as npt
 
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
-from wmr.adapters.ssp.cosim import simulate_libcosim
+from wmr.adapters.ssp.cosim import c_stdout_to_stderr, simulate_libcosim
 from wmr.adapters.ssp.package import fmpy_parameter_set, read_package
-from wmr.core.closedloop import run_closed_loop
+from wmr.core.closedloop import RunResult, run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
 
 _POSE = [COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]]
+#: The agreement docs/ssp.md claims of a master's path with ``wmr run``'s, after the master's
+#: measured lag: the worst distance and the worst heading difference over the run.
+POSITION_BAR_M = 5e-3
+HEADING_BAR_RAD = math.radians(0.2)
 
 
 class _Rows:
@@ -40,10 +47,18 @@ def wmr_run_path(spec: RunSpec, robot_fmu: str | os.PathLike[str],
                  var_map: VariableMap | None = None) -> tuple[str, npt.NDArray[np.float64]]:
     """``wmr run``'s status and ``(x, y, theta)`` rows of ``spec`` on ``robot_fmu`` (through
     ``var_map`` for a robot FMU of another tool)."""
+    result, path = wmr_run(spec, robot_fmu, var_map)
+    return result.status, path
+
+
+def wmr_run(spec: RunSpec, robot_fmu: str | os.PathLike[str],
+            var_map: VariableMap | None = None) -> tuple[RunResult, npt.NDArray[np.float64]]:
+    """``wmr run``'s result and ``(x, y, theta)`` rows of ``spec`` on ``robot_fmu`` (through
+    ``var_map`` for a robot FMU of another tool)."""
     rows = _Rows()
     with FmuPlant(Path(robot_fmu), var_map=var_map) as plant:
         result = run_closed_loop(spec, plant, sink=rows, controller=SpecController())
-    return result.status, np.vstack(rows.blocks)
+    return result, np.vstack(rows.blocks)
 
 
 def libcosim_path(ssp: str | os.PathLike[str]) -> tuple[str, npt.NDArray[np.float64]]:
@@ -61,17 +76,28 @@ def fmpy_path(ssp: str | os.PathLike[str], stop_time_s: float
     ``t_0, t_1, ...``: fmpy's row ``k`` holds the values after its step from ``t_k`` (the
     robot at ``t_{k+1}``), so row 0 here is the start pose of the package.
     """
+    converged_at_s, path = fmpy_run(ssp, stop_time_s)
+    return converged_at_s is not None, path
+
+
+def fmpy_run(ssp: str | os.PathLike[str], stop_time_s: float
+             ) -> tuple[float | None, npt.NDArray[np.float64]]:
+    """fmpy's ``simulate_ssp`` on the package with its own parameter sets, as
+    :func:`fmpy_path`, but with the time of the first sample whose ``converged`` output is 1
+    (fmpy's row ``k`` holds the controller's sample at ``t_(k+1)``), ``None`` if none is."""
     from fmpy.ssp.simulation import simulate_ssp
 
     package = read_package(Path(ssp))
     robot = package.components["robot"].parameters
     h = package.step_size_s
-    out = simulate_ssp(str(ssp), stop_time=stop_time_s, step_size=h,
-                       parameter_set=fmpy_parameter_set(package))
+    with c_stdout_to_stderr():  # what the FMUs' C prints is not our standard output
+        out = simulate_ssp(str(ssp), stop_time=stop_time_s, step_size=h,
+                           parameter_set=fmpy_parameter_set(package))
     start = np.array([[robot["x0"], robot["y0"], robot["theta0"]]])
     path = np.vstack([start, np.column_stack([out["robot.x"], out["robot.y"],
                                               out["robot.theta"]])])
-    return bool((out["controller.converged"] >= 0.5).any()), path
+    hit = np.flatnonzero(out["controller.converged"] >= 0.5)
+    return (float(out["time"][hit[0]]) if hit.size else None), path
 
 
 def deviation(path: npt.NDArray[np.float64], ref: npt.NDArray[np.float64], lag: int = 0
@@ -90,4 +116,5 @@ def measured_lag(path: npt.NDArray[np.float64], ref: npt.NDArray[np.float64],
     return min(range(max_lag + 1), key=lambda lag: deviation(path, ref, lag)[0])
 
 
-__all__ = ["deviation", "fmpy_path", "libcosim_path", "measured_lag", "wmr_run_path"]
+__all__ = ["HEADING_BAR_RAD", "POSITION_BAR_M", "deviation", "fmpy_path", "fmpy_run",
+           "libcosim_path", "measured_lag", "wmr_run", "wmr_run_path"]

@@ -27,7 +27,10 @@ step ``control_period_s``, the only step the controller FMU accepts.
 
 from __future__ import annotations
 
+import io
 import os
+import re
+import struct
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Mapping
@@ -97,6 +100,50 @@ def _model_description(fmu: Path) -> Any:
     if md.coSimulation is None:
         raise FmuError(f"{fmu}: not a co-simulation FMU")
     return md
+
+
+#: The member of an FMU of ours whose start values replace its compiled-in ones at
+#: instantiation (``fmu/src/fmi_layer.c``, ``read_start_values``).
+START_VALUES: Final = "resources/start_values.txt"
+
+
+def _with_start_values(fmu: Path, values: Mapping[str, float]) -> bytes | None:
+    """The FMU ``fmu`` (already through the archive door) whose defaults are ``values``: its
+    model description's ``start`` of each of those parameters, and :data:`START_VALUES`, which
+    its C reads when it is instantiated.  ``None`` for an FMU whose C does not read that file
+    (its shipped ``sources/fmi_layer.c`` does not name it: another tool's, or an older
+    build): its parameters reach it only through a master that applies the parameter sets.
+
+    Why: a master that does not apply an SSD's parameter bindings (fmpy's ``simulate_ssp``,
+    Ecos given no parameter set name) ran the FMUs' own defaults, another run (issue 32).
+    """
+    with zipfile.ZipFile(fmu) as zf:
+        names = zf.namelist()
+        if "sources/fmi_layer.c" not in names or \
+                Path(START_VALUES).name.encode() not in zf.read("sources/fmi_layer.c"):
+            return None
+        md = zf.read("modelDescription.xml").decode()
+        for name, value in values.items():
+            # FMI 2: <ScalarVariable name=N ...><Real ... start=S; FMI 3: <Float64 name=N start=S
+            pattern = (rf'(<(?:ScalarVariable|Float64) name="{re.escape(name)}"'
+                       r'[^>]*?(?:>\s*<Real[^>]*?)?\bstart=")[^"]*(")')
+            md, count = re.subn(pattern, rf"\g<1>{float(value)!r}\g<2>", md, count=1)
+            if count != 1:
+                raise FmuError(f"{fmu}: its model description has no start value of the "
+                               f"parameter {name}")
+        # the bits, exact and read without strtod (whose radix is the master's locale's)
+        text = "".join(f"{name} = 0x{struct.unpack('<Q', struct.pack('<d', value))[0]:016x}"
+                       f"  # {float(value)!r}\n" for name, value in values.items())
+        members = {n: zf.read(n) for n in names if n != START_VALUES}
+    members["modelDescription.xml"] = md.encode()
+    members[START_VALUES] = ("# the package's run (wmr ssp export): the parameters a master "
+                             "that sets none runs\n" + text).encode()
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as dst:
+        for name, data in members.items():
+            dst.writestr(zipfile.ZipInfo(name, date_time=(2020, 1, 1, 0, 0, 0)), data,
+                         compress_type=zipfile.ZIP_DEFLATED)
+    return out.getvalue()
 
 
 def _float_variables(md: Any, causality: str) -> list[Any]:
@@ -260,16 +307,24 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     ctrl_src = f"resources/{ctrl_path.name}"
     ssv = {ROBOT: "resources/robot.ssv", CONTROLLER: "resources/controller.ssv"}
     links = closed_loop_links(ctrl_md, robot_map)
+    ctrl_values = _bound(ctrl_md, controller_parameters(spec), ctrl_path)
     members: dict[str, bytes] = {
         SSD_NAME: system_structure_xml(spec, (robot_src, robot_md), (ctrl_src, ctrl_md), ssv,
                                        links),
         ssv[ROBOT]: parameter_set_xml(spec.name, robot_values),
-        ssv[CONTROLLER]: parameter_set_xml(
-            spec.name, _bound(ctrl_md, controller_parameters(spec), ctrl_path)),
+        ssv[CONTROLLER]: parameter_set_xml(spec.name, ctrl_values),
     }
     if var_map is not None:
         members[MAP_NAME] = var_map.to_toml().encode()
-    files = {robot_src: robot_path, ctrl_src: ctrl_path}
+    files: dict[str, Path] = {}
+    fmus: dict[str, bytes] = {}
+    for src, path, values in ((robot_src, robot_path, robot_values),
+                              (ctrl_src, ctrl_path, ctrl_values)):
+        data = _with_start_values(path, values)
+        if data is None:
+            files[src] = path
+        else:
+            fmus[src] = data
     if scenario_file is not None:
         files[f"resources/{scenario_file.name}"] = scenario_file
     else:  # the run itself, which 'wmr run' reads back into the same run
@@ -279,6 +334,8 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     with replacing(target) as raw, zipfile.ZipFile(raw, "w", zipfile.ZIP_DEFLATED) as zf:
         for name, data in members.items():
             zf.writestr(name, data)
+        for name, data in fmus.items():  # zips already: stored, not deflated again
+            zf.writestr(name, data, compress_type=zipfile.ZIP_STORED)
         for name, path in files.items():
             # the FMUs are zips already: stored, not deflated again
             zf.write(path, name, compress_type=zipfile.ZIP_STORED
