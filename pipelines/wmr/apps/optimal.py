@@ -260,8 +260,6 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
     return done
 
 
-#: ``optimal`` of a batch spec: the objectives a batch can solve beside every run.
-BATCH_OBJECTIVES: Final = ("time", "energy")
 #: The summary columns of the optimum (:func:`optimum_fields`), name -> kind.
 OPTIMUM_COLUMNS: Final = {"optimal_status": "string", "optimal_message": "string",
                           "optimal_time_s": "float", "optimal_energy_j": "float",
@@ -320,6 +318,6 @@ def optimum_fields(spec: RunSpec, objective: str, record: dict[str, Any],
     return out, res if res.objective == "time" else None
 
 
-__all__ = ["BATCH_OBJECTIVES", "DEFAULT_GOAL", "DEFAULT_START", "OPTIMUM_COLUMNS",
+__all__ = ["DEFAULT_GOAL", "DEFAULT_START", "OPTIMUM_COLUMNS",
            "optimal_command", "optimal_limits", "optimal_name", "optimal_to_log",
            "optimum_fields"]

@@ -29,12 +29,12 @@ from mcap.records import (
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
-from wmr.adapters.mcap.scene import PHASE_TOPIC
 from wmr.adapters.mcap.schemas import (
     GOAL_SCHEMA,
     GOAL_TOPIC,
     MAGIC,
     OPEN_LOOP_TOPICS,
+    PHASE_TOPIC,
     STEP_TOPICS,
     TORQUE_TOPIC,
     TopicLayout,

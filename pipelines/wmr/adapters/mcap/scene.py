@@ -50,7 +50,12 @@ import numpy.typing as npt
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 
-from wmr.adapters.mcap.schemas import WORLD_FRAME, descriptor_set, timestamped_doubles
+from wmr.adapters.mcap.schemas import (
+    PHASE_TOPIC,
+    WORLD_FRAME,
+    descriptor_set,
+    timestamped_doubles,
+)
 from wmr.core.signals import COLUMN
 from wmr.infra.errors import DiskFullError, LogError
 
@@ -59,7 +64,6 @@ PATH_TOPIC: Final = "/scene/path"
 GOAL_TOPIC: Final = "/scene/goal"
 GPS_SCENE_TOPIC: Final = "/scene/gps"
 ESTIMATE_SCENE_TOPIC: Final = "/scene/estimate"
-PHASE_TOPIC: Final = "/controller/phase"
 CLOUD_SCHEMA: Final = "foxglove.PointCloud"
 PHASE_SCHEMA: Final = "wmr.ControlPhase"
 

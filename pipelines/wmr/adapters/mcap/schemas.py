@@ -281,6 +281,8 @@ TORQUE_TOPIC: Final = _wmr_layout("/robot/torques", "wmr.Torques")
 #: The per-step topics of an open-loop log: the robot's, and the torques applied; no
 #: controller topics, so that no field is NaN for want of a controller.
 OPEN_LOOP_TOPICS: Final[tuple[TopicLayout, ...]] = (*STEP_TOPICS[:3], TORQUE_TOPIC)
+#: The controller's phase (approach, align), only where it changes (:mod:`.scene`).
+PHASE_TOPIC: Final = "/controller/phase"
 GOAL_TOPIC: Final = "/goal"
 GOAL_SCHEMA: Final = "foxglove.PoseInFrame"
 

@@ -80,7 +80,6 @@ from typing import Any, Final, overload
 
 import numpy as np
 
-from wmr.apps.optimal import BATCH_OBJECTIVES
 from wmr.apps.run import LOG_KEEPS, LogPolicy
 from wmr.config.scenario import (
     TOP_FIELDS,
@@ -97,6 +96,10 @@ from wmr.core.runspec import RunSpec
 from wmr.core.sensing.config import NAME_FIELDS, SensorConfig
 from wmr.core.sensing.models import NOISE_SEEDING
 from wmr.infra.errors import ConfigError
+
+#: ``optimal`` of a batch spec: the objectives a batch can solve beside every run
+#: (:func:`wmr.apps.optimal.optimum_fields`; the OCP's own ``mix`` is not offered).
+BATCH_OBJECTIVES: Final = ("time", "energy")
 
 #: Sections a batch spec adds to a scenario file (``optimal`` is a top-level key: the
 #: objective of the optimum solved beside every run).
