@@ -54,6 +54,27 @@ gps_sigma_m = 0.05
 estimator = ["none", "ekf"]
 """
 KEEPS = ("full", "failed", "none")
+# the PI and Astolfi on the same 2 draws (common random numbers): runs 0-1 the PI, 2-3 Astolfi,
+# Astolfi with a gain of its own so that its gains, not only its name, must reach the rerun
+CONTROLLERS = """
+name = "rc"
+start = [1.0, 0.0, 0.0]
+goal = [0.0, 0.0, 180.0]
+max_time_s = 15.0
+[grid]
+controller = ["pi", "astolfi"]
+[[list]]
+name = "a"
+controller_gains = { astolfi = { k_rho = 2.5 } }
+[random]
+seed = 5
+n = 2
+[random.start]
+r_m = { dist = "uniform", low = 0.5, high = 1.5 }
+bearing_deg = { dist = "uniform", low = -180.0, high = 180.0 }
+[random.goal]
+heading_deg = { dist = "along_x" }
+"""
 
 
 @pytest.fixture(scope="module")
@@ -75,6 +96,11 @@ def batches(tmp_path_factory: pytest.TempPathFactory, fmu3: Path) -> dict[str, P
     out["sensors"] = root / "sensors"
     run_batch(load_batch(sensors), out["sensors"], workers=1, fmu_path=fmu3, progress=False,
               log=LogPolicy("full"))
+    controllers = root / "rc.toml"
+    controllers.write_text(CONTROLLERS, encoding="utf-8")
+    out["controllers"] = root / "controllers"
+    run_batch(load_batch(controllers), out["controllers"], workers=1, fmu_path=fmu3,
+              progress=False, log=LogPolicy("failed"))
     return out
 
 
@@ -136,6 +162,28 @@ def test_rerun_reproduces_a_run_with_sensors(batches: dict[str, Path], tmp_path:
         _same_result(record, row)
         assert record["estimated_final_position_error_m"] is not None
         _same_log(Path(record["mcap"]), out / row["mcap"])
+
+
+def test_rerun_reproduces_the_summary_row_under_each_controller(
+        batches: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
+    """One run of each controller of a batch that varies it, made again from the batch
+    folder alone (no log was kept of these converged runs): its record is its summary row,
+    and its log is of its own controller, not the PI's."""
+    out = batches["controllers"]
+    rows = _rows(out)
+    assert [r["controller"] for r in rows] == ["pi", "pi", "astolfi", "astolfi"]
+    assert rows[1]["draw"] == rows[3]["draw"] == 1  # the same draw under each controller
+    assert all(r["status"] == "converged" and r["mcap"] is None for r in rows)
+    # same start and robot, another controller: another trip (a rerun on the PI would not be)
+    assert rows[1]["time_to_goal_s"] != rows[3]["time_to_goal_s"]
+    for row in (rows[1], rows[3]):
+        assert main(["rerun", str(out), row["run_id"], "--json"]) == 0
+        record = json.loads(capsys.readouterr().out.splitlines()[-1])
+        _same_result(record, row)
+        run = read_log(record["mcap"]).metadata["run"]
+        assert run["controller"] == row["controller"]
+        assert run["controller_gains"] == ({"k_rho": 2.5} if row["controller"] == "astolfi"
+                                           else {})
 
 
 def test_rerun_refuses_a_run_of_another_spec_and_a_folder_that_is_no_batch(

@@ -27,7 +27,11 @@ Shots (``NAME.png``):
 ``live``     the ``.rrd`` of ``wmr run fig11 --view`` without a screen (the live view);
 ``recovered`` the log of a Fig. 11 run killed after 15 s of simulation, recovered by ``wmr
              log recover`` and opened as it is (``rerun X.recovered.mcap``, Rerun's own
-             layout).
+             layout);
+``worst``    ``wmr replay DIR --worst 5 --by final_position_error_m`` of the Monte Carlo
+             ``scenarios/mc_failures.toml`` (800 runs, about a tenth time out; ``--log
+             failed``): the five runs that ended furthest from the goal
+             (docs/batch_walkthrough.md).
 
 Xvfb needs ``-extension COMPOSITE`` (else every grab is black); each viewer gets a private
 ``--port``, ``XDG_RUNTIME_DIR`` and ``XDG_DATA_HOME`` (its settings: never the user's), and is
@@ -50,7 +54,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-SHOTS = ("single", "sensors", "overlay", "raw", "direct", "live", "recovered")
+SHOTS = ("single", "sensors", "overlay", "raw", "direct", "live", "recovered", "worst")
 #: The viewer settings of the ``direct`` shot (a partial ``app.ron`` of the native viewer's
 #: persisted state): a blueprint given next to a file applies only when the file is not
 #: loaded via the Viewer catalog (Rerun 0.41's release notes), and the log time (ns from the
@@ -83,6 +87,8 @@ with FmuPlant(default_fmu()) as plant:
 WIDTH, HEIGHT = 1600, 1000
 #: The 20-run overlay: the Monte Carlo spec of Fig. 10 cut to 20 runs.
 OVERLAY_RUNS = 20
+#: The runs of the ``worst`` shot: the worst of the ``mc_failures`` batch.
+WORST_RUNS = 5
 #: Size limit of a PNG in docs/img.
 MAX_PNG_BYTES = 200_000
 
@@ -155,6 +161,14 @@ def make_recordings(logs: dict[str, Path], folder: Path,
                 raise SystemExit(f"the killed run ended with {code}, not 9")
             _run([*_wmr(), "log", "recover", f"{killed}.partial"], quiet=True)
             out[shot] = [killed.with_name("fig11.recovered.mcap")]
+        elif shot == "worst":
+            batch = folder / "mc_failures"
+            _run([*_wmr(), "batch", ROOT / "scenarios" / "mc_failures.toml", "--out", batch,
+                  "--log", "failed", "--no-progress", "--workers", "2"], quiet=True)
+            _run([*_wmr(), "replay", batch, "--worst", str(WORST_RUNS), "--by",
+                  "final_position_error_m", "--no-viewer",
+                  "--rrd", rrd], quiet=True)
+            out[shot] = [rrd]
         elif shot == "raw":
             rbl = folder / "wmr.rbl"
             _run([*_wmr(), "replay", "--blueprint", rbl, logs["raw"]], quiet=True)
