@@ -471,3 +471,22 @@ def test_the_help_says_what_the_report_holds(capsys: pytest.CaptureFixture[str])
     assert info.value.code == 0
     out = " ".join(capsys.readouterr().out.split())
     assert "95 % Wilson interval" in out and "%%" not in out and "--json" in out
+
+
+def test_the_optimum_s_columns_are_never_ranked_as_inputs(tmp_path: Path) -> None:
+    """A batch with ``optimal``: ``optimal_time_s``, ``optimal_energy_j``, ``time_gap`` and
+    ``energy_gap`` follow from each run (they vary with it), so they were ranked among the
+    inputs that "explain" its outcomes; only the spec's inputs are."""
+    rng = np.random.default_rng(5)
+    n = 400
+    m = rng.uniform(15, 35, n)
+    status = ["converged" if x < 30 else "timeout" for x in m]
+    optimal_time = 4.0 + 0.05 * m
+    folder = _summary(tmp_path, {"params.m": m}, status,
+                      extra={"optimal_time_s": optimal_time.tolist(),
+                             "optimal_energy_j": (2.0 * m).tolist(),
+                             "time_gap": (1.2 + 0.01 * m).tolist(),
+                             "energy_gap": (0.5 + 0.01 * m).tolist()})
+    data = report_data(folder)
+    ranked = {e["input"] for entries in data["sensitivity"].values() for e in entries}
+    assert ranked == {"params.m"}, ranked

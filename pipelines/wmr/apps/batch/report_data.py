@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from wmr.apps.batch.sensitivity import Ranking, is_full_grid, plain_line, rank_inputs
 from wmr.apps.batch.spec import POSE_COLUMNS
 from wmr.apps.batch.summary import ID_COLUMNS, RESULT_COLUMNS, STATUSES, SUMMARY_PARQUET
+from wmr.apps.optimal import OPTIMUM_COLUMNS
 from wmr.infra.errors import ConfigError, LogError
 from wmr.infra.inputs import open_input
 
@@ -101,7 +102,9 @@ def derived_inputs(columns: Sequence[str]) -> set[str]:
 def varied_inputs(table: pa.Table) -> list[str]:
     """Input columns with more than one distinct value: the spec's own fields first (the
     others, then the poses it gives), the columns that follow from them last."""
-    result = set(RESULT_COLUMNS)
+    # the optimum's columns are results (of the OCP), not inputs: ranked as inputs they would
+    # "explain" the outcomes they follow from
+    result = set(RESULT_COLUMNS) | set(OPTIMUM_COLUMNS)
     derived = derived_inputs(table.column_names)
     out = []
     for name in table.column_names:
