@@ -225,8 +225,10 @@ def test_worst_and_status_choose_the_right_runs(batches: dict[str, Path]) -> Non
 
     out = batches["failed"]
     frame = pd.read_parquet(out / "summary.parquet")
-    # the failed and timed-out runs first, then the slowest converged ones
-    bad = frame[frame["status"] != "converged"].sort_values("run_id")
+    # the failed and timed-out runs first (those that ended furthest from the goal first),
+    # then the slowest converged ones
+    bad = frame[frame["status"] != "converged"].sort_values(
+        ["final_position_error_m", "run_id"], ascending=[False, True])
     good = frame[frame["status"] == "converged"].sort_values(
         ["time_to_goal_s", "run_id"], ascending=[False, True])
     expected = [*bad["run_id"], *good["run_id"]]
@@ -237,7 +239,7 @@ def test_worst_and_status_choose_the_right_runs(batches: dict[str, Path]) -> Non
                                                                 ascending=False)
     assert [r for r, _ in pick_runs(out, worst=4, by="path_length_m")][3] \
         == by_path["run_id"].iloc[0]
-    assert [r for r, _ in pick_runs(out, status="timeout")] == list(bad["run_id"])
+    assert [r for r, _ in pick_runs(out, status="timeout")] == sorted(bad["run_id"])
     with pytest.raises(ConfigError, match="no failed run"):
         pick_runs(out, status="failed")
     with pytest.raises(ConfigError, match="'name' is not a numeric column"):

@@ -218,7 +218,8 @@ def pick_runs(out_dir: Path, *, worst: int | None = None, by: str = "time_to_goa
     shows, worst first: ``(run_id, log relative to DIR or None when none was kept)``.
 
     ``worst``: the ``worst`` runs, the failed and timed-out ones first (the runs without a
-    value of ``by`` first among them), then the largest ``by`` (ties by run id).
+    value of ``by`` first among them), then the largest ``by``; ties (timeouts have no time to
+    goal) by the largest final position error, then by run id.
     ``status``: every run of that status, in run-id order.
     """
     import math
@@ -252,12 +253,18 @@ def pick_runs(out_dir: Path, *, worst: int | None = None, by: str = "time_to_goa
     if by not in numeric:
         raise ConfigError(flag.get("by", "by"), f"{by!r} is not a numeric column of "
                           f"{path.name}", f"give one of: {', '.join(numeric)}")
-    rows = pq.read_table(path, columns=["run_id", "status", "mcap", by]).to_pylist()
+    error = "final_position_error_m"
+    columns = ["run_id", "status", "mcap", by] + ([error] if error in numeric and error != by
+                                                  else [])
+    rows = pq.read_table(path, columns=columns).to_pylist()
 
-    def rank(row: dict[str, Any]) -> tuple[bool, float, str]:
-        value = row[by]
-        missing = value is None or not math.isfinite(value)
-        return (row["status"] == "converged", math.inf if missing else -value, row["run_id"])
+    def descending(value: float | None) -> float:
+        return math.inf if value is None or not math.isfinite(value) else -value
+
+    def rank(row: dict[str, Any]) -> tuple[bool, float, float, str]:
+        # without the tie-break, a batch of many timeouts showed its first timeouts by run id
+        return (row["status"] == "converged", descending(row[by]),
+                descending(row.get(error)), row["run_id"])
 
     rows.sort(key=rank)
     return [(r["run_id"], r["mcap"]) for r in rows[:worst]]
