@@ -490,3 +490,21 @@ def test_the_optimum_s_columns_are_never_ranked_as_inputs(tmp_path: Path) -> Non
     data = report_data(folder)
     ranked = {e["input"] for entries in data["sensitivity"].values() for e in entries}
     assert ranked == {"params.m"}, ranked
+
+
+def test_the_sensitivity_table_never_runs_into_the_list_before_it(tmp_path: Path) -> None:
+    """Markdown takes a table right after a list item into that item: the "Not converged
+    against" bullets are followed by a blank line before the table."""
+    rng = np.random.default_rng(9)
+    n = 400
+    torque = rng.uniform(4, 12, n)
+    status = np.where(torque < 6.0, "failed", "converged")
+    folder = _summary(tmp_path, {"limits.torque_max_nm": torque,
+                                 "params.m": rng.uniform(15, 35, n)}, status.tolist())
+    from itertools import pairwise
+
+    lines = write_report(folder).read_text().splitlines()
+    assert any(line.startswith("* Not converged against") for line in lines)
+    for before, line in pairwise(lines):
+        if line.startswith("| rank |"):
+            assert not before.startswith("* "), before

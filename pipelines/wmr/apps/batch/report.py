@@ -379,6 +379,8 @@ def _sensitivity_section(data: Mapping[str, Any]) -> list[str]:
                          f"{'bin' if data['against'][k['input']]['binned'] else 'value'}).")
     ranked = {o: sens[o] for o in outcomes if sens[o]}
     if ranked:
+        if lines[-1]:  # a table right after a list is taken into its last item
+            lines.append("")
         lines += ["| rank | " + " | ".join(f"{o}: input | index" for o in ranked) + " |",
                   "|---:|" + "---|---:|" * len(ranked)]
         for r in range(max(len(v) for v in ranked.values())):
