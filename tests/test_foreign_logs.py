@@ -9,14 +9,12 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-from google.protobuf import descriptor_pb2
-from mcap.writer import Writer
+from mcap_protobuf.writer import Writer as ProtobufWriter
 from numpy.typing import NDArray
 
 import wmr
@@ -119,22 +117,6 @@ _STILL_S = 2.0
 _RADIUS_M, _OMEGA_RADPS, _DRIVE_S = 2.0, 0.5, 10.0
 
 
-def _descriptor_set(file: Any) -> bytes:
-    """The MCAP schema data of a protobuf file: its FileDescriptorSet, dependencies first."""
-    fds = descriptor_pb2.FileDescriptorSet()
-    seen: set[str] = set()
-
-    def add(fd: Any) -> None:
-        for dep in fd.dependencies:
-            if dep.name not in seen:
-                seen.add(dep.name)
-                add(dep)
-        fd.CopyToProto(fds.file.add())
-
-    add(file)
-    return fds.SerializeToString()
-
-
 def _robot_truth() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Times (s from the first pose) and the poses (x_m, y_m, yaw_rad) a real robot logs."""
     t = np.arange(int((_STILL_S + _DRIVE_S) * _HZ)) / _HZ
@@ -148,16 +130,13 @@ def _robot_truth() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
 
 def write_robot_log(path: Path, schema: str = "PoseInFrame",
                     topics: tuple[str, ...] = ("/robot/pose",)) -> Path:
-    """A real robot's log as Foxglove's own tools write it: the ``mcap`` library's Writer,
-    ``foxglove_schemas_protobuf`` messages, wall-clock times, no metadata of ours."""
+    """A real robot's log as Foxglove's own tools write it: ``mcap-protobuf-support``'s
+    Writer (schemas from the messages' own descriptors), ``foxglove_schemas_protobuf``
+    messages, wall-clock times, no metadata of ours."""
     cls = PoseInFrame if schema == "PoseInFrame" else FrameTransform
     t, poses = _robot_truth()
     with path.open("wb") as f:
-        w = Writer(f)
-        w.start(profile="", library="a robot")
-        sid = w.register_schema(f"foxglove.{schema}", "protobuf",
-                                _descriptor_set(cls.DESCRIPTOR.file))
-        cids = [w.register_channel(topic, "protobuf", sid) for topic in topics]
+        w = ProtobufWriter(f)
         for ti, (x, y, yaw) in zip(t, poses, strict=True):
             ns = _T0_NS + round(ti * 1e9)
             m = cls()
@@ -170,8 +149,8 @@ def write_robot_log(path: Path, schema: str = "PoseInFrame",
                 m.parent_frame_id, m.child_frame_id = "odom", "base_link"
             pos.x, pos.y = x, y
             q.z, q.w = math.sin(yaw / 2), math.cos(yaw / 2)
-            for cid in cids:
-                w.add_message(cid, log_time=ns, data=m.SerializeToString(), publish_time=ns)
+            for topic in topics:
+                w.write_message(topic, m, log_time=ns, publish_time=ns)
         w.finish()
     return path
 
