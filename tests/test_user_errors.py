@@ -170,3 +170,16 @@ def test_a_missing_random_seed_is_missing() -> None:
         parse_batch({"name": "r", "start": [0.0, 0.0, 0.0], "goal": [1.0, 0.0, 0.0],
                      "random": {"n": 2, "gains": {"K_ps": {"dist": "uniform", "low": 0.4,
                                                            "high": 0.6}}}})
+
+
+def test_an_error_line_names_a_long_path_whole_and_cuts_a_hostile_field() -> None:
+    """A path as an error's field was cut at 80 characters ("/tmp/... (94 characters) ...")
+    where CI's temporary folders made it longer; a key of thousands of characters is still
+    cut, and the line stays within MAX_LINE_CHARS."""
+    from wmr.cli import MAX_LINE_CHARS, error_line
+
+    path = "/tmp/pytest-of-root/pytest-0/popen-gw1/" + "a-long-test-name_0/" * 6 + "wmr.fmu"
+    assert 120 < len(path) < 300
+    assert error_line(ConfigError(path, "is a named pipe (FIFO)")).startswith(f"{path}: is a")
+    line = error_line(ConfigError("k" * 5000, "unknown field"))
+    assert "characters) ..." in line and len(line) <= MAX_LINE_CHARS

@@ -22,8 +22,10 @@ Handler = Callable[[argparse.Namespace], int]
 #: stop signal) its own way and returns the exit status (``wmr run``: in a watched child).
 Supervisor = Callable[[argparse.Namespace, Callable[[Callable[[int], None] | None], int]], int]
 
-#: Longest field name (``--param`` key, TOML key, ...) an error line echoes.
-MAX_FIELD_CHARS = 80
+#: Longest field name (``--param`` key, TOML key, an input's path, ...) an error line echoes:
+#: a field is often a path, and at 80 the middle of an ordinary one was left out (CI's
+#: temporary folders); a hostile key is still cut, and the whole line at MAX_LINE_CHARS.
+MAX_FIELD_CHARS = 300
 #: Longest error line; a longer one keeps its start and its end (the fix) around an ellipsis.
 MAX_LINE_CHARS = 600
 # C0 and C1 controls, DEL, line and paragraph separators, and the bidirectional overrides and

@@ -41,7 +41,7 @@ def refuse_special(path: str | os.PathLike[str], option: str | None = None,
     path
         The output.
     option
-        The option that gave it, named first in the error; default the path itself.
+        The option that gave it, named first in the error; default ``output``.
     kind
         What the output is.
 
@@ -57,7 +57,9 @@ def refuse_special(path: str | os.PathLike[str], option: str | None = None,
         return
     if (stat.S_ISDIR(mode) if kind == "dir" else stat.S_ISREG(mode)):
         return
-    named = "" if option is None else f"{p} "
+    # the path goes in the problem, never as the field: an error line cuts a field at 80
+    # characters, which left a long path's middle out ("/tmp/... (94 characters) ...png")
+    named = f"{p} "
     if kind == "dir":
         problem = "is a file, not a folder" if stat.S_ISREG(mode) else \
             f"is {file_kind(mode)}, not a folder"
@@ -68,7 +70,7 @@ def refuse_special(path: str | os.PathLike[str], option: str | None = None,
         problem = (f"is {file_kind(mode)}, not a regular file: wmr would replace it by a file, "
                    "even with --force")
         fix = "give the path of a regular file"
-    raise ConfigError(str(p) if option is None else option, f"{named}{problem}", fix)
+    raise ConfigError("output" if option is None else option, f"{named}{problem}", fix)
 
 
 def check_output(path: str | os.PathLike[str], option: str,
