@@ -203,7 +203,7 @@ def replacing(path: str | os.PathLike[str], durable: bool = False) -> Iterator[B
         os.replace(tmp, target)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise storage_error(exc, tmp) from exc
+        raise storage_error(exc, target) from exc  # the file asked for, not our temporary
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -229,49 +229,36 @@ def replacing_path(path: str | os.PathLike[str]) -> Iterator[str]:
         Any other write error.
     """
     target = Path(path)
-    refuse_special(target)
-    fd, tmp = _unique_temp(target)
     failed: list[Exception] = []
-
-    def copy(read_fd: int) -> None:
-        # Rerun 0.41's file writer hangs for ever when one of its writes fails: the pipe is
-        # drained to its end whatever happens here, and our own write's error kept for later
-        while chunk := os.read(read_fd, 1 << 20):
-            if not failed:
-                try:
-                    write_all(fd, chunk, target)
-                except Exception as exc:  # raised in the caller's thread
-                    failed.append(exc)
-
-    read_fd, write_fd = os.pipe()
-    thread = threading.Thread(target=copy, args=(read_fd,), name="wmr-replacing-path",
-                              daemon=True)
-    thread.start()
     try:
-        try:
-            yield f"/dev/fd/{write_fd}"
-        finally:
-            os.close(write_fd)  # the library's own descriptor is closed: end of file
-            thread.join()
-            os.close(read_fd)
-        if failed:
-            raise failed[0]
-        os.close(fd)
-        fd = -1
-        refuse_special(target)
-        os.replace(tmp, target)
-    except (OSError, DiskFullError) as exc:
-        tmp.unlink(missing_ok=True)
-        err = storage_error(exc, target) if isinstance(exc, OSError) else exc
-        if isinstance(err, DiskFullError):
-            raise DiskFullError(f"{err} (the previous file is kept)") from exc
-        raise
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    finally:
-        if fd >= 0:
-            os.close(fd)
+        with replacing(target) as stream:
+            fd = stream.fileno()  # written below the stream's buffer, which stays empty
+
+            def copy(read_fd: int) -> None:
+                # Rerun 0.41's file writer hangs for ever when one of its writes fails: the
+                # pipe is drained to its end whatever happens here, and our own write's error
+                # kept for later
+                while chunk := os.read(read_fd, 1 << 20):
+                    if not failed:
+                        try:
+                            write_all(fd, chunk, target)
+                        except Exception as exc:  # raised in the caller's thread
+                            failed.append(exc)
+
+            read_fd, write_fd = os.pipe()
+            thread = threading.Thread(target=copy, args=(read_fd,), name="wmr-replacing-path",
+                                      daemon=True)
+            thread.start()
+            try:
+                yield f"/dev/fd/{write_fd}"
+            finally:
+                os.close(write_fd)  # the library's own descriptor is closed: end of file
+                thread.join()
+                os.close(read_fd)
+            if failed:
+                raise failed[0]
+    except DiskFullError as exc:
+        raise DiskFullError(f"{exc} (the previous file is kept)") from exc
 
 
 class AtomicFile:
