@@ -43,7 +43,7 @@ def test_tune_reports_its_evaluations_at_least_every_interval(
         monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """One line at the start, then whenever the interval has passed, and at the last
     evaluation (a clock that moves 2 s per evaluation, an interval of 5 s)."""
-    from wmr.cli import optimal as cli
+    from wmr.cli import tune as cli
 
     ticks = iter(range(0, 1000, 2))
     report = cli._TuneProgress("pi", budget=10, cases=3)

@@ -213,10 +213,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _extra_commands() -> list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
                                         None]]:
     """The ``register`` functions of the other sub-commands, in ``--help`` order."""
-    from wmr.cli import batch, log, optimal, replay, rerun, run, ssp
+    from wmr.cli import batch, benchmark, figures, log, optimal, replay, rerun, run, ssp, tune
 
-    return [run.register, replay.register, batch.register, rerun.register, optimal.register,
-            ssp.register, log.register]
+    return [run.register, replay.register, figures.register, batch.register, rerun.register,
+            optimal.register, benchmark.register, tune.register, ssp.register, log.register]
 
 
 #: Within this time of the first stop signal, the same signal again is the copy a supervising
