@@ -35,7 +35,7 @@ from wmr.apps.run import run_to_log
 from wmr.build.fmus import build_fmus
 from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
-from wmr.core.control import Controller
+from wmr.core.control import PIController
 from wmr.core.control.from_spec import SpecController
 
 REPEATS = 7
@@ -83,7 +83,7 @@ def main() -> None:
                 plant.step(tr, tl, spec.period_s)
             fmu_t.append((time.perf_counter() - t0) / steps)
 
-            ctrl = Controller(spec.goal, spec.gains, spec.limits, spec.params, spec.period_s,
+            ctrl = PIController(spec.goal, spec.gains, spec.limits, spec.params, spec.period_s,
                               spec.stop_radius_m)
             t0 = time.perf_counter()
             for x, y, th, wr, wl in states:

@@ -2,7 +2,7 @@
 
 The C core (``fmu/src/controller/controller.c``) is compiled with a test-only loop over
 arrays, so that 100,000 random controller states run in one call; the Python reference is
-:class:`wmr.core.control.Controller` (PointStabiliser and two WheelServos) with its state set
+:class:`wmr.core.control.PIController` (PointStabiliser and two WheelServos) with its state set
 slot by slot.  The built FMUs are then checked as FMUs: validation,
 NaN measurements, names and defaults (the sampling in any master:
 ``tests/test_controller_sampling.py``).
@@ -42,7 +42,7 @@ from wmr.build.platforms import CFLAGS
 from wmr.cli import main
 from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
-from wmr.core.control import ALIGN, Controller, Gains, Limits
+from wmr.core.control import ALIGN, PIController, Gains, Limits
 from wmr.core.control.from_spec import SpecController
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.runspec import RunSpec
@@ -154,7 +154,7 @@ def _python_reference(p: dict[str, float], z: F64, u: F64) -> tuple[F64, F64]:
     gains = Gains(**{f.name: p[f"gains.{f.name}"] for f in fields(Gains)})
     limits = Limits(**{f.name: p[f"limits.{f.name}"] for f in fields(Limits)})
     params = RobotParams(**{k: p[f"params.{k}"] for k in ("r", "L", "b_f", "tau_c", "w_c")})
-    ctrl = Controller(Pose(p["goal.x_m"], p["goal.y_m"], math.radians(p["goal.heading_deg"])),
+    ctrl = PIController(Pose(p["goal.x_m"], p["goal.y_m"], math.radians(p["goal.heading_deg"])),
                       gains, limits, params, p["control_period_s"], p["stop_radius_m"])
     tol = math.radians(p["heading_tolerance_deg"])
     stab, right, left = ctrl.stabiliser, ctrl.right, ctrl.left

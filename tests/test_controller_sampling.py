@@ -24,7 +24,7 @@ from fmpy import extract, instantiate_fmu, read_model_description
 
 from wmr.build.controller_interface import INPUTS, SIGNAL_OUTPUTS, controller_model
 from wmr.build.fmus import BuildResult
-from wmr.core.control import Controller, Gains, Limits
+from wmr.core.control import PIController, Gains, Limits
 from wmr.core.plant import Pose, RobotParams
 
 H = 0.01  # the default control period
@@ -72,15 +72,15 @@ def driver(request: pytest.FixtureRequest, built: BuildResult) -> Iterator[Drive
     d.close()
 
 
-def _python() -> Controller:
+def _python() -> PIController:
     """The Python stabiliser with the FMU's default parameters."""
     defaults = {v.name: v.start for v in controller_model().parameters}
-    return Controller(Pose(defaults["goal.x_m"], defaults["goal.y_m"],
+    return PIController(Pose(defaults["goal.x_m"], defaults["goal.y_m"],
                            math.radians(defaults["goal.heading_deg"])), Gains(), Limits(),
                       RobotParams(), defaults["control_period_s"], defaults["stop_radius_m"])
 
 
-def _sample(ctrl: Controller, u: Sequence[float]) -> list[float]:
+def _sample(ctrl: PIController, u: Sequence[float]) -> list[float]:
     x, y, theta, _, _, w_r, w_l = u
     return list(ctrl.step(x, y, theta, w_r, w_l))
 

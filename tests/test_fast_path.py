@@ -2,7 +2,7 @@
 
 Every run here is made twice on the same FMU, with the stepper (one C call per step, or whole
 blocks in C with the controller FMU) and without it (``WMR_STEPPER=0``, the loop that was the
-only one before), and must give the same :class:`~wmr.core.closedloop.RunResult` (float
+only one before), and must give the same :class:`~wmr.core.closedloop.LoopOutcome` (float
 fields compared by their bits) and the same log bytes.
 """
 
@@ -25,7 +25,7 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.run import run_to_log
 from wmr.build.fmus import BuildResult, build_stepper
 from wmr.config.scenario import load_scenario, with_overrides
-from wmr.core.closedloop import Controller, RunResult, run_closed_loop
+from wmr.core.closedloop import Controller, LoopOutcome, run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.runspec import RunSpec
 
@@ -42,7 +42,7 @@ def _fig11(**overrides: Any) -> RunSpec:
     return with_overrides(load_scenario("fig11").runs[0], **overrides)
 
 
-def _bits(result: RunResult) -> dict[str, Any]:
+def _bits(result: LoopOutcome) -> dict[str, Any]:
     """The result's fields, floats as their bit patterns (NaN equals NaN, -0.0 is not 0.0)."""
     out: dict[str, Any] = {}
     for name, value in dataclasses.asdict(result).items():

@@ -13,7 +13,7 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.batch.spec import load_batch
 from wmr.apps.tune import PENALTY_S, case_cost, default_cases, evaluate, tune, with_gains
 from wmr.cli import main
-from wmr.core.closedloop import RunResult
+from wmr.core.closedloop import LoopOutcome
 from wmr.core.plant import Pose
 from wmr.core.runspec import RunSpec
 
@@ -72,8 +72,8 @@ def test_inadmissible_gains_cost_the_penalty(fmu: FmuPlant) -> None:
 def test_case_cost_orders_outcomes() -> None:
     spec = RunSpec(name="a", start=Pose(0, 0, 0), goal=Pose(3.0, 0.0, 0.0), t_max_s=30.0)
 
-    def result(status: str, t: float | None, d: float) -> RunResult:
-        return RunResult(status, "", d, 0.0, t, 1.0, 0.0, 0.0, 0.0, 0.0, 1, Pose(0, 0, 0))
+    def result(status: str, t: float | None, d: float) -> LoopOutcome:
+        return LoopOutcome(status, "", d, 0.0, t, 1.0, 0.0, 0.0, 0.0, 0.0, 1, Pose(0, 0, 0))
 
     ok = case_cost(result("converged", 12.0, 0.01), spec)
     late = case_cost(result("timeout", None, 0.5), spec)
@@ -121,7 +121,7 @@ def test_wmr_tune_on_a_spec_scores_every_candidate_on_the_same_draws(
     seen: list[tuple[tuple[object, ...], tuple[float, ...]]] = []
     real = tune_mod.run_closed_loop
 
-    def counting(s: RunSpec, *args: Any, **kwargs: Any) -> RunResult:
+    def counting(s: RunSpec, *args: Any, **kwargs: Any) -> LoopOutcome:
         seen.append((_draw_of(s), (s.gains.K_ps, s.gains.K_is, s.gains.K_ptheta,
                                    s.gains.K_itheta)))
         return real(s, *args, **kwargs)

@@ -51,7 +51,7 @@ from wmr.apps.run import run_metadata, scenario_attachment_name
 from wmr.apps.tune import TUNED_GAINS, with_gains
 from wmr.config.scenario import load_scenario
 from wmr.config.scenario_file import run_spec_toml
-from wmr.core.closedloop import RunResult, run_closed_loop
+from wmr.core.closedloop import LoopOutcome, run_closed_loop
 from wmr.core.control import Limits
 from wmr.core.control.from_spec import SpecController
 from wmr.core.energy import ENERGY_KEYS, wheel_work
@@ -120,12 +120,12 @@ class _RadiusTracker:
 
 
 def run_logged(spec: RunSpec, plant: FmuPlant, mcap: Path | None,
-               label: str = "") -> tuple[RunResult, float | None]:
+               label: str = "") -> tuple[LoopOutcome, float | None]:
     """One closed-loop run of ``spec`` on ``plant``, logged to ``mcap`` if given.
 
     Returns
     -------
-    (RunResult, float or None)
+    (LoopOutcome, float or None)
         The run's result and the time B first entered the stop radius, s.
     """
     if mcap is None:
@@ -138,7 +138,7 @@ def run_logged(spec: RunSpec, plant: FmuPlant, mcap: Path | None,
     with RunLogWriter(mcap, run=meta, goal=goal, attachments=fmu_attachments(plant)) as log:
         tracker = _RadiusTracker(log, spec.goal, spec.stop_radius_m)
         result = run_closed_loop(spec, plant, sink=tracker, controller=SpecController())
-        # the record of wmr run (docs/results.md), not RunResult's own field names
+        # the record of wmr run (docs/results.md), not LoopOutcome's own field names
         log.close({**result_record(spec.name, result), "mcap": str(mcap),
                    "time_to_radius_s": tracker.t_s})
     return result, tracker.t_s
@@ -167,7 +167,7 @@ class OptimalRun:
 
 
 def replay_figures(replay: Any, goal: Pose, stop_radius_m: float) -> dict[str, Any]:
-    r"""Figures of an open-loop replay (:class:`wmr.adapters.ocp.ReplayResult`).
+    r"""Figures of an open-loop replay (:class:`wmr.adapters.ocp.OpenLoopReplay`).
 
     Energy (:func:`wmr.core.energy.wheel_work`) and effort
     :math:`\sum_k h_k (\tau_{r,k}^2 + \tau_{l,k}^2)` are integrated per FMU step with the
@@ -231,7 +231,7 @@ def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
     path
         The ``.mcap`` file.
     result, replay
-        :class:`wmr.adapters.ocp.OptimalResult` and its :class:`wmr.adapters.ocp.ReplayResult`.
+        :class:`wmr.adapters.ocp.OptimalResult` and its :class:`wmr.adapters.ocp.OpenLoopReplay`.
     plant
         The FMU replayed (for the attachment).
     run, record

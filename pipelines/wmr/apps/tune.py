@@ -41,7 +41,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from wmr.config.scenario import load_scenario, with_overrides
-from wmr.core.closedloop import RunResult, run_closed_loop
+from wmr.core.closedloop import LoopOutcome, run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.control.peers import CONTROLLER_NAMES
 from wmr.core.plant import Plant
@@ -147,7 +147,7 @@ def with_gains(spec: RunSpec, controller: str, gains: Mapping[str, float]) -> Ru
     return with_overrides(spec, controller=controller, controller_gains=dict(gains))
 
 
-def case_cost(result: RunResult, spec: RunSpec) -> float:
+def case_cost(result: LoopOutcome, spec: RunSpec) -> float:
     r"""Cost :math:`c_i` of one run, s (module docstring)."""
     head = result.final_heading_error_rad
     head = 0.0 if not math.isfinite(head) else head
@@ -161,7 +161,7 @@ def case_cost(result: RunResult, spec: RunSpec) -> float:
 
 
 def evaluate(controller: str, gains: Mapping[str, float], specs: Sequence[RunSpec],
-             plant: Plant) -> tuple[float, list[RunResult | None]]:
+             plant: Plant) -> tuple[float, list[LoopOutcome | None]]:
     """Objective :math:`J` (s) of ``gains`` over ``specs`` and the run results.
 
     Gains outside the admissible set (a ``ConfigError``) cost :math:`2 t_{max} + P` per run
@@ -171,7 +171,7 @@ def evaluate(controller: str, gains: Mapping[str, float], specs: Sequence[RunSpe
         tuned = [with_gains(s, controller, gains) for s in specs]
     except ConfigError:
         return float(np.mean([2.0 * s.t_max_s + PENALTY_S for s in specs])), [None] * len(specs)
-    results: list[RunResult | None] = []
+    results: list[LoopOutcome | None] = []
     costs = []
     for s in tuned:
         r = run_closed_loop(s, plant, controller=SpecController())
@@ -207,7 +207,7 @@ class TuneResult:
     cost_s: float
     evaluations: int
     wall_time_s: float
-    results: list[RunResult | None] = field(default_factory=list)
+    results: list[LoopOutcome | None] = field(default_factory=list)
 
 
 def tune(controller: str, specs: Sequence[RunSpec], plant: Plant,

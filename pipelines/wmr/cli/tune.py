@@ -13,7 +13,7 @@ from wmr.cli.shared import add_fmu_options, fmu_path, json_line, progress_line
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
-    from wmr.core.closedloop import RunResult
+    from wmr.core.closedloop import LoopOutcome
 
 
 
@@ -43,7 +43,7 @@ class _TuneProgress:
 _LISTED_RUNS = 20
 
 
-def _draw_summary(results: Sequence[RunResult | None]) -> dict[str, Any]:
+def _draw_summary(results: Sequence[LoopOutcome | None]) -> dict[str, Any]:
     """The converged count and the mean time to goal (s, of the converged runs) of a tuning's
     runs at its gains."""
     times = [r.time_to_goal_s for r in results

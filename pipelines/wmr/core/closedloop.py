@@ -121,7 +121,7 @@ Progress = Callable[[float, float], None]
 
 
 @dataclass(frozen=True)
-class RunResult:
+class LoopOutcome:
     """Outcome of one closed-loop run."""
 
     status: str  # "converged", "timeout" or "failed"
@@ -238,7 +238,7 @@ def _loop_state(spec: RunSpec, block: _Block, tally: _Tally) -> LoopState:
 
 def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
                     progress: Progress | None = None, *,
-                    controller: Controller) -> RunResult:
+                    controller: Controller) -> LoopOutcome:
     """Simulate one run of ``spec`` on ``plant`` driven by ``controller``; write rows to
     ``sink`` if given.
 
@@ -296,7 +296,7 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
         known = sensing.pose
         est_pos_err = math.hypot(xd - known.x_m, yd - known.y_m)
         est_head_err = abs(wrap_angle(known.heading_rad - goal.heading_rad))
-    return RunResult(status=tally.status, message=tally.message,
+    return LoopOutcome(status=tally.status, message=tally.message,
                      final_position_error_m=pos_err,
                      final_heading_error_rad=head_err, time_to_goal_s=tally.time_to_goal,
                      path_length_m=tally.path, energy_net_j=tally.energy,
@@ -521,5 +521,13 @@ def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
         plant.raise_step_error(code)  # type: ignore[attr-defined]
 
 
-__all__ = ["BLOCK_ROWS", "BlockSink", "Controller", "LoopStabiliser", "LoopState", "Progress",
-           "RunResult", "run_closed_loop"]
+__all__ = [
+    "BLOCK_ROWS",
+    "BlockSink",
+    "Controller",
+    "LoopOutcome",
+    "LoopStabiliser",
+    "LoopState",
+    "Progress",
+    "run_closed_loop",
+]

@@ -3,7 +3,7 @@
 ``wmr run --json``, the ``result`` metadata of every log that holds a robot path (``wmr run``,
 ``wmr batch``, ``wmr benchmark --out``, ``wmr ssp run``, ``wmr optimal``) and a batch summary's
 row all carry :data:`RECORD_KEYS`, in that order, built here: :func:`result_record` from a
-closed-loop :class:`~wmr.core.closedloop.RunResult`, :func:`record` from the figures of a run
+closed-loop :class:`~wmr.core.closedloop.LoopOutcome`, :func:`record` from the figures of a run
 another master made (an SSP master, the optimal's open-loop replay).  A path's own fields
 follow these keys.  Non-finite figures are ``None`` (JSON ``null``).
 """
@@ -14,7 +14,7 @@ import math
 from typing import TYPE_CHECKING, Any, Final
 
 if TYPE_CHECKING:
-    from wmr.core.closedloop import RunResult
+    from wmr.core.closedloop import LoopOutcome
 
 #: The keys of the record, in order (the table of ``docs/results.md``).
 RECORD_KEYS: Final = (
@@ -63,7 +63,7 @@ def record(*, name: str, status: str, message: str, final_position_error_m: floa
     }
 
 
-def result_record(name: str, result: RunResult) -> dict[str, Any]:
+def result_record(name: str, result: LoopOutcome) -> dict[str, Any]:
     """The record of a closed-loop run (``mcap`` None: the caller sets the log's path)."""
     return record(
         name=name, status=result.status, message=result.message,

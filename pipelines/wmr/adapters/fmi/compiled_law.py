@@ -155,7 +155,7 @@ def compiled_law_agrees(lib: Any, n_states: int = 200, seed: int = 20261124) -> 
     next state must equal the Python law's, and ``wmr_law_hypot`` must equal ``math.hypot``
     on the same distances and on pairs of wide exponent range.
     """
-    from wmr.core.control import Controller, Gains, Limits
+    from wmr.core.control import Gains, Limits, PIController
     from wmr.core.control.stabiliser import ALIGN, APPROACH, PointStabiliser
     from wmr.core.plant import Pose, RobotParams
 
@@ -183,7 +183,7 @@ def compiled_law_agrees(lib: Any, n_states: int = 200, seed: int = 20261124) -> 
                        stop_radius_m=float(rng.choice([0.05, 0.2])))
         law = _Law(spec, n_x)
         for _ in range(40):
-            py = Controller(goal, gains, Limits(), params, spec.period_s, spec.stop_radius_m)
+            py = PIController(goal, gains, Limits(), params, spec.period_s, spec.stop_radius_m)
             near = rng.random() < 0.5
             scale = spec.stop_radius_m * 3 if near else 15.0
             x, yy = (goal.x_m + rng.uniform(-scale, scale), goal.y_m + rng.uniform(-scale, scale))

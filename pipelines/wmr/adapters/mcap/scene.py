@@ -43,7 +43,7 @@ import math
 import struct
 import warnings
 from collections.abc import Mapping, Sequence
-from typing import Any, Final, Protocol, overload
+from typing import Any, Final, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -53,6 +53,7 @@ from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from wmr.adapters.mcap.schemas import (
     PHASE_TOPIC,
     WORLD_FRAME,
+    MessageLog,
     descriptor_set,
     timestamped_doubles,
 )
@@ -367,15 +368,6 @@ _FRAME: Final = PointCloud(frame_id=WORLD_FRAME).SerializeToString(deterministic
 
 #: The ``FileDescriptorSet`` of ``foxglove.PointCloud``, dependencies first.
 _CLOUD_SCHEMA_DATA: Final = descriptor_set(PointCloud.DESCRIPTOR.file)
-
-
-class MessageLog(Protocol):
-    """What the scene needs of a log writer (:class:`wmr.adapters.mcap.RunLogWriter`)."""
-
-    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
-                       t_ns: npt.ArrayLike, messages: Sequence[bytes]) -> None:
-        """Log serialised messages on a topic of their own."""
-        ...
 
 
 def _write_cloud(log: MessageLog, topic: str, points: npt.NDArray[np.void]) -> None:

@@ -24,15 +24,16 @@ from __future__ import annotations
 import functools
 import itertools
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 import numpy as np
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 from google.protobuf.descriptor import FileDescriptor
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from wmr.core.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
 
@@ -57,6 +58,16 @@ WMR_MESSAGES: Final[dict[str, tuple[str, ...]]] = {
     "wmr.Torques": ("tau_r_nm", "tau_l_nm"),
 }
 WMR_PROTO_FILE: Final = "wmr/signals.proto"
+
+
+class MessageLog(Protocol):
+    """What the scene and the sensing topics need of a log writer
+    (:class:`wmr.adapters.mcap.RunLogWriter`)."""
+
+    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                       t_ns: ArrayLike, messages: Sequence[bytes]) -> None:
+        """Log serialised messages on a topic of their own."""
+        ...
 
 
 def _wmr_file_proto() -> descriptor_pb2.FileDescriptorProto:

@@ -25,15 +25,19 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Final, Protocol
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
-from wmr.adapters.mcap.schemas import WORLD_FRAME, file_descriptor_set, timestamped_doubles
+from wmr.adapters.mcap.schemas import (
+    WORLD_FRAME,
+    MessageLog,
+    file_descriptor_set,
+    timestamped_doubles,
+)
 from wmr.core.sensing.estimator import SensingRecord
 
 GPS_TOPIC: Final = "/sensors/gps"
@@ -60,16 +64,6 @@ def _pose_bytes(t_ns: int, x: float, y: float, theta: float | None) -> bytes:
         msg.pose.orientation.z = math.sin(0.5 * theta)
         msg.pose.orientation.w = math.cos(0.5 * theta)
     return msg.SerializeToString()
-
-
-class MessageLog(Protocol):
-    """What :func:`write_sensing` needs of a log writer
-    (:class:`wmr.adapters.mcap.RunLogWriter`)."""
-
-    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
-                       t_ns: npt.ArrayLike, messages: Sequence[bytes]) -> None:
-        """Log serialised messages on a topic of their own."""
-        ...
 
 
 def write_sensing(log: MessageLog, rec: SensingRecord) -> None:

@@ -47,7 +47,7 @@ from wmr.adapters.ocp.problem import (
     fig9_cases,
     fig10_cases,
 )
-from wmr.adapters.ocp.replay import ReplayResult, replay_open_loop
+from wmr.adapters.ocp.replay import OpenLoopReplay, replay_open_loop
 from wmr.adapters.ocp.result import OptimalResult
 from wmr.adapters.ocp.solve import min_time_bound_s, solve_optimal
 from wmr.adapters.ocp.transcription import _nlp
@@ -70,9 +70,9 @@ __all__ = [
     "SPOT_TURN_RADIUS_M",
     "FloatArray",
     "Objective",
+    "OpenLoopReplay",
     "OptimalLimits",
     "OptimalResult",
-    "ReplayResult",
     "Status",
     "_kinematic_guess",
     "_model",

@@ -17,7 +17,7 @@ from wmr.infra.errors import ConfigError
 
 
 @dataclass
-class ReplayResult:
+class OpenLoopReplay:
     """The optimal torques applied open-loop to an FMU.
 
     Attributes
@@ -50,7 +50,7 @@ class ReplayResult:
 
 def replay_open_loop(result: OptimalResult, fmu_path: str | Path | Any,
                      params: RobotParams | None = None, start: Pose | None = None,
-                     control_period_s: float = 0.01) -> ReplayResult:
+                     control_period_s: float = 0.01) -> OpenLoopReplay:
     """Drive the FMU open-loop with the optimal torques.
 
     Each torque interval of length h is applied in ``ceil(h / control_period_s)`` equal FMU
@@ -69,7 +69,7 @@ def replay_open_loop(result: OptimalResult, fmu_path: str | Path | Any,
 
     Returns
     -------
-    ReplayResult
+    OpenLoopReplay
         FMU outputs at every step and the final errors against ``result.goal``.
 
     Raises
@@ -105,7 +105,7 @@ def replay_open_loop(result: OptimalResult, fmu_path: str | Path | Any,
     arr = np.array(rows)
     outputs = {n: arr[:, i].copy() for i, n in enumerate(OUTPUT_NAMES)}
     goal = result.goal
-    return ReplayResult(
+    return OpenLoopReplay(
         t_s=np.array(times), outputs=outputs, torques=np.array(taus).reshape(-1, 2),
         final_position_error_m=math.hypot(outputs["x"][-1] - goal.x_m,
                                           outputs["y"][-1] - goal.y_m),

@@ -23,7 +23,7 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
 from wmr.adapters.ssp.cosim import c_stdout_to_stderr, simulate_libcosim
 from wmr.adapters.ssp.package import fmpy_parameter_set, read_package
-from wmr.core.closedloop import RunResult, run_closed_loop
+from wmr.core.closedloop import LoopOutcome, run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
@@ -52,7 +52,7 @@ def wmr_run_path(spec: RunSpec, robot_fmu: str | os.PathLike[str],
 
 
 def wmr_run(spec: RunSpec, robot_fmu: str | os.PathLike[str],
-            var_map: VariableMap | None = None) -> tuple[RunResult, npt.NDArray[np.float64]]:
+            var_map: VariableMap | None = None) -> tuple[LoopOutcome, npt.NDArray[np.float64]]:
     """``wmr run``'s result and ``(x, y, theta)`` rows of ``spec`` on ``robot_fmu`` (through
     ``var_map`` for a robot FMU of another tool)."""
     rows = _Rows()

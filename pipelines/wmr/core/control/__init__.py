@@ -4,7 +4,7 @@ Fig. 5 / Fig. 7 block structure, one period::
 
     errors (eqs. 25-27, ROC) -> PI (eq. 29) -> D^-1 (eq. 28) -> wheel actuators -> robot
 
-:class:`Controller` wires :class:`~wmr.core.control.stabiliser.PointStabiliser` (errors, PI,
+:class:`PIController` wires :class:`~wmr.core.control.stabiliser.PointStabiliser` (errors, PI,
 :math:`D^{-1}`) to one :class:`~wmr.core.control.actuator.WheelServo` per wheel.
 """
 
@@ -48,7 +48,7 @@ class Stabiliser(Protocol):
 class ServoedController:
     """Any stabiliser feeding the two wheel speed servos: the Fig. 7 structure.
 
-    The paper's :class:`Controller` and the peer stabilisers (:mod:`wmr.core.control.peers`) share
+    The paper's :class:`PIController` and the peer stabilisers (:mod:`wmr.core.control.peers`) share
     this class, so that a comparison differs only in the law, never in the actuators.
 
     Parameters
@@ -96,7 +96,7 @@ class ServoedController:
                 i_theta, w_r_ref, w_l_ref, tau_r, tau_l, d_x, d_y, r_x, r_y)
 
 
-class Controller(ServoedController):
+class PIController(ServoedController):
     """Stabiliser plus wheel actuators: the complete controller of Fig. 7.
 
     Parameters
@@ -124,9 +124,9 @@ class Controller(ServoedController):
 __all__ = [
     "ALIGN",
     "APPROACH",
-    "Controller",
     "Gains",
     "Limits",
+    "PIController",
     "PointStabiliser",
     "ServoedController",
     "Stabiliser",

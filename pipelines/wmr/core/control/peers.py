@@ -111,7 +111,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Final
 
-from wmr.core.control import Controller, ServoedController
+from wmr.core.control import PIController, ServoedController
 from wmr.core.control.stabiliser import (
     ALIGN,
     APPROACH,
@@ -483,7 +483,7 @@ def make_controller(name: str, goal: Pose, gains: Gains, limits: Limits, params:
     name
         One of :data:`CONTROLLER_NAMES`.
     goal, gains, limits, params, period_s, stop_radius_m
-        As for :class:`wmr.core.control.Controller`; a peer uses ``gains`` only for its wheel
+        As for :class:`wmr.core.control.PIController`; a peer uses ``gains`` only for its wheel
         servos and ``limits`` for its command and torque limits.
     controller_gains_
         The peer's own gains by name (defaults: the published ones); empty for the PI.
@@ -496,7 +496,7 @@ def make_controller(name: str, goal: Pose, gains: Gains, limits: Limits, params:
         return PeerController(GracefulStabiliser(goal, peer, limits, params, period_s,
                                                  stop_radius_m), gains, limits, params,
                               period_s)
-    return Controller(goal, gains, limits, params, period_s, stop_radius_m)
+    return PIController(goal, gains, limits, params, period_s, stop_radius_m)
 
 
 __all__ = [
