@@ -67,3 +67,31 @@ def test_api_input_errors_name_the_argument(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="goal"):
         wmr.run(goal=(1.0, 2.0), out=tmp_path / "x.mcap")
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_a_run_reads_its_log_only_when_its_signals_are_asked(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``wmr.run`` costs what ``wmr run`` costs (issue 31): the log is not read into memory
+    when the run ends, only when ``.path``/``.signals``/``.log`` first need it, and then once.
+    Seen failing when ``run`` read the log eagerly (``read_log`` called before any access)."""
+    import wmr.api
+
+    reads: list[Path] = []
+    real_read_log = wmr.api.read_log
+
+    def counting_read_log(path: str | Path, **kwargs: object) -> wmr.Log:
+        reads.append(Path(path))
+        return real_read_log(path, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(wmr.api, "read_log", counting_read_log)
+    res = wmr.run("fig11", max_time_s=2.0, out=tmp_path / "short.mcap")
+    assert res.status == "timeout" and res.mcap == tmp_path / "short.mcap"
+    assert reads == []  # the record alone: nothing read yet
+    path = res.path
+    assert reads == [tmp_path / "short.mcap"]
+    # the path read back is the run's: 2 s of 10 ms steps, starting at fig11's start
+    assert len(path) == 201 and path["x_m"].iloc[0] == 0.0
+    assert res.signals.shape[0] == 201 and res.log is not None
+    assert reads == [tmp_path / "short.mcap"]  # read once, then kept
+    no_log = wmr.RunResult({"name": "x", "status": "converged", "mcap": None})
+    assert no_log.log is None and reads == [tmp_path / "short.mcap"]

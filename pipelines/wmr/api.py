@@ -198,12 +198,35 @@ def read_log(path: str | Path, pose_topic: str | None = None) -> Log:
                tuple(warnings), phase)
 
 
-@dataclass(frozen=True)
-class RunResult:
-    """A run made by :func:`run` or :func:`optimal`: its result record and its log."""
+#: ``RunResult``'s log not read yet: it is read from ``record["mcap"]`` when first asked.
+_UNREAD: Any = object()
 
-    record: dict[str, Any]
-    log: Log | None
+
+class RunResult:
+    """A run made by :func:`run` or :func:`optimal`: its result record and its log.
+
+    The log is read from its file (``record["mcap"]``) when :attr:`log`, :attr:`path`,
+    :attr:`signals` or :meth:`plot` first needs it, not when the run ends: a long run costs
+    the notebook what it costs ``wmr run`` (no frame of every step held in memory) until its
+    signals are asked for.
+    """
+
+    __slots__ = ("_log", "record")
+
+    def __init__(self, record: dict[str, Any], log: Log | None = _UNREAD) -> None:
+        self.record = record
+        self._log = log
+
+    @property
+    def log(self) -> Log | None:
+        """The run's log (:class:`Log`), read on first use; None when nothing was logged."""
+        if self._log is _UNREAD:
+            mcap = self.record.get("mcap")
+            self._log = read_log(mcap) if mcap else None
+        return self._log
+
+    def __repr__(self) -> str:
+        return f"RunResult(record={self.record!r}, mcap={self.mcap!r})"
 
     @property
     def status(self) -> str:
@@ -315,7 +338,7 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
                              sensors=sensors, sensor=sensor, controller_fmu=controller_fmu,
                              fmi=fmi, fmu=fmu, fmu_map=fmu_map, out=out, log=log,
                              log_every=log_every, view=view)
-    return RunResult(record, read_log(record["mcap"]) if record.get("mcap") else None)
+    return RunResult(record)
 
 
 def optimal(start: PoseLike | None = None, goal: PoseLike | None = None, *,
@@ -342,7 +365,7 @@ def optimal(start: PoseLike | None = None, goal: PoseLike | None = None, *,
                              torque_only=torque_only, final_time_s=final_time_s,
                              period_s=period_s, out=out, fmi=fmi, fmu=fmu, scenario=scenario,
                              run=run, params=params, limits=limits)
-    return RunResult(record, read_log(record["mcap"]) if record.get("mcap") else None)
+    return RunResult(record)
 
 
 @dataclass(frozen=True)
