@@ -347,3 +347,27 @@ def test_a_planted_pymoca_pickle_is_never_unpickled_on_the_build_path(
     assert model.parameters  # the model was parsed from its source
     assert pymoca.parser.parse_text.__name__ == "parse_text" and \
         pymoca.parser.parse_text.__module__ == "pymoca.parser"  # pymoca left as it was
+
+
+def test_untrusted_names_the_first_part_that_fails(tmp_path: Path) -> None:
+    """``infra.trust.untrusted`` directly: a file in our 0700 folder may be used; the same file
+    in a folder others can write, behind a link, or outside the root may not, and the line
+    names that part. Seen failing with the group/other write check dropped."""
+    from wmr.infra.trust import untrusted
+
+    root = tmp_path / "cache"
+    root.mkdir(mode=0o700)
+    os.chmod(tmp_path, 0o700)
+    (root / "sub").mkdir(mode=0o700)
+    lib = root / "sub" / "lib.so"
+    lib.write_bytes(b"x")
+    os.chmod(lib, 0o600)
+    assert untrusted(lib, root) is None
+    assert untrusted(root / "sub" / "not-yet.so", root) is None  # nothing there to use
+    os.chmod(root / "sub", 0o777)
+    assert untrusted(lib, root) == f"{root / 'sub'}: is writable by other users (mode 777)"
+    os.chmod(root / "sub", 0o700)
+    (root / "link.so").symlink_to(lib)
+    assert untrusted(root / "link.so", root) == f"{root / 'link.so'}: is a symbolic link"
+    assert untrusted(tmp_path / "elsewhere.so", root) == \
+        f"{tmp_path / 'elsewhere.so'}: is not inside {root}"

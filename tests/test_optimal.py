@@ -486,3 +486,34 @@ def test_the_rollout_work_of_a_turning_run_is_its_kinetic_energy() -> None:
     # and the miss is the distance of the end of that run from the goal
     assert miss == pytest.approx(math.hypot(s[0] - FIG11_GOAL.x_m, s[1] - FIG11_GOAL.y_m),
                                  rel=1e-6)
+
+
+@pytest.mark.parametrize("allow_reverse", [False, True])
+def test_the_kinematic_warm_start_is_a_rest_to_rest_path_from_start_to_goal(
+        allow_reverse: bool) -> None:
+    """``ocp.warmstart._kinematic_guess``: the guess IPOPT starts from leaves the start and
+    reaches the goal pose, at rest at both ends, within the torque limit, and its heading
+    changes only as fast as its angular speed says (``d theta/dt = omega``, eq. 7, by the
+    trapezoid rule over the nodes). Seen failing with the second rotation left out."""
+    from wmr.adapters.ocp.model import _model
+    from wmr.adapters.ocp.warmstart import _kinematic_guess
+
+    m = _model()
+    start, goal = Pose(0.0, 0.0, 0.0), Pose(-4.0, 3.0, math.radians(-60.0))
+    params, limits, n = RobotParams(), OptimalLimits(8.0, 10.0, 1.0, 1.5), 60
+    guess = _kinematic_guess(start, goal, params, limits, n, None,
+                             m.param_vector(params, start), allow_reverse)
+    nx = len(m.state_names)
+    xs = guess.w0[: nx * (n + 1)].reshape((n + 1, nx)).T
+    us = guess.w0[nx * (n + 1): nx * (n + 1) + 2 * n]
+    ix, iy, ith, iv, iw = (m.sx(s) for s in ("x", "y", "theta", "v", "omega"))
+    assert (xs[ix, 0], xs[iy, 0], xs[ith, 0]) == (0.0, 0.0, 0.0)
+    assert xs[ix, -1] == pytest.approx(goal.x_m, abs=1e-9)
+    assert xs[iy, -1] == pytest.approx(goal.y_m, abs=1e-9)
+    turned = math.remainder(xs[ith, -1] - goal.heading_rad, 2 * math.pi)
+    assert turned == pytest.approx(0.0, abs=1e-9)
+    assert abs(xs[iv, 0]) + abs(xs[iw, 0]) + abs(xs[iv, -1]) + abs(xs[iw, -1]) < 1e-9
+    assert np.all(np.abs(us) <= 8.0)
+    h = guess.final_time_s / n
+    heading_from_omega = np.concatenate(([0.0], np.cumsum(0.5 * h * (xs[iw, 1:] + xs[iw, :-1]))))
+    assert np.max(np.abs(heading_from_omega - xs[ith])) < 0.05  # trapezoid rule, 60 nodes

@@ -137,3 +137,30 @@ def test_a_parse_error_with_json_is_one_json_line_and_exit_1(
     assert stop.value.code == 2
     captured = capsys.readouterr()
     assert captured.out == "" and captured.err.startswith(f"usage: wmr {args[0]} ")
+
+
+def test_json_lines_write_nan_and_infinities_as_null() -> None:
+    """``cli.shared.json_line``: one line of strict JSON (a NaN in a result is ``null``, never
+    ``NaN``, which JSON readers refuse), nested values too. Seen failing with the float
+    check removed (``ValueError: Out of range float values``)."""
+    import json
+    import math
+
+    from wmr.cli.shared import json_line
+
+    line = json_line({"a": math.nan, "b": [1.0, math.inf, {"c": -math.inf}], "d": "x"})
+    assert "\n" not in line
+    assert json.loads(line) == {"a": None, "b": [1.0, None, {"c": None}], "d": "x"}
+
+
+def test_a_build_error_names_the_commands_option() -> None:
+    """``cli.building.build_for``: an unknown platform is ``--platforms``' one-line error, as
+    the user typed it (the build layer names its own field ``platforms``)."""
+    import argparse
+
+    from wmr.cli.building import build_for
+    from wmr.infra.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        build_for(argparse.Namespace(platforms="x86_64-linux,no-such-os"), None)
+    assert err.value.field == "--platforms" and "no-such-os" in str(err.value)

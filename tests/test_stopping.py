@@ -247,3 +247,36 @@ def test_kill_9_of_wmr_run_ends_its_run_process_too(tmp_path: Path) -> None:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_supervise_returns_the_childs_status_and_a_record_for_a_child_that_died() -> None:
+    """``apps.supervise.supervise`` directly: a child that returns keeps its status (also a
+    ``SystemExit``'s); a child that dies of a signal with no log open becomes a ``failed``
+    record (docs/results.md's keys, every figure null) that names the signal, not a status.
+    Seen failing with ``WTERMSIG`` read as an exit status (``_watch`` returning ``status``)."""
+    from wmr.apps.supervise import Abandoned, RunChannel, supervise
+    from wmr.core.record import record
+
+    def returns(channel: RunChannel) -> int:
+        return 7
+
+    def exits(channel: RunChannel) -> int:
+        raise SystemExit(5)
+
+    def dies(channel: RunChannel) -> int:
+        os.kill(os.getpid(), signal.SIGKILL)
+        return 0
+
+    assert supervise(returns) == 7
+    assert supervise(exits) == 5
+    out = supervise(dies)
+    assert isinstance(out, Abandoned) and out.stop_signal is None
+    assert out.record["status"] == "failed" and out.record["mcap"] is None
+    assert "died of SIGKILL" in out.record["message"]
+    keys = record(name="", status="failed", message="", final_position_error_m=None,
+                  final_heading_error_rad=None, time_to_goal_s=None, path_length_m=None,
+                  energy_net_j=None, energy_positive_j=None, energy_abs_j=None,
+                  torque_sq_integral_n2m2s=None, peak_torque_nm=None, steps=0).keys()
+    assert out.record.keys() == keys
+    assert all(out.record[k] is None for k in keys
+               if k not in ("name", "status", "message", "steps"))
