@@ -107,18 +107,23 @@ def test_api_run_with_sensors_and_the_controller_fmu(tmp_path: Path) -> None:
     """``wmr.run("fig11", sensors="gps", controller_fmu=True)`` gives the one-line error
     ``wmr run --sensors gps --controller-fmu`` gives (the controller FMU takes the true
     state only) — or runs, if the command does."""
-    from wmr.apps.run import run_scenario
+    import contextlib
+    import io
 
-    def outcome(**kw: Any) -> tuple[str, str]:
-        try:
-            record, _ = run_scenario("fig11", sensors="gps", controller_fmu=True,
-                                     max_time_s=0.5, **kw)
-        except ConfigError as exc:
-            return "error", f"{exc.problem} ({exc.fix})"
-        return record["status"], record["message"]
+    from wmr.cli import main
 
-    by_api = outcome(out=tmp_path / "api.mcap")
-    by_command = outcome(out=tmp_path / "cli.mcap", command_line=True)
+    try:
+        record = wmr.run("fig11", sensors="gps", controller_fmu=True, max_time_s=0.5,
+                         out=tmp_path / "api.mcap").record
+        by_api = (record["status"], record["message"])
+    except ConfigError as exc:
+        by_api = ("error", f"{exc.problem} ({exc.fix})")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(["run", "fig11", "--sensors", "gps", "--controller-fmu", "--max-time", "0.5",
+                     "--out", str(tmp_path / "cli.mcap")])
+    by_command = ("error" if code == 1 and "error" in err.getvalue()
+                  else {0: "converged", 3: "timeout"}.get(code, "failed"), err.getvalue())
     assert by_api[0] == by_command[0]
     res = None
     if by_api[0] != "error":

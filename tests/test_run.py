@@ -10,18 +10,20 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import read_run
+from wmr.apps.request import Overrides, RunRequest
 from wmr.apps.run import run_to_log
 from wmr.build.fmus import BuildResult
 from wmr.cli import main
 from wmr.config.scenario import load_scenario
 from wmr.core.plant import Pose, RobotParams
-from wmr.infra.errors import FmuError
+from wmr.infra.errors import ConfigError, FmuError
 
 RESULT_FIELDS = {"status", "final_position_error_m", "final_heading_error_rad",
                  "time_to_goal_s", "path_length_m", "mcap"}
@@ -231,3 +233,27 @@ def test_a_record_holds_json_numbers_only() -> None:
     assert rec["final_position_error_m"] == 1.5 and rec["steps"] == 3
     doc = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
     assert all(f"`{key}`" in doc for key in rec)
+
+
+@pytest.mark.parametrize(("make", "field"), [
+    (lambda: RunRequest(overrides=Overrides(goal=(1.0, 2.0))), "goal"),  # type: ignore[arg-type]
+    (lambda: RunRequest(overrides=Overrides(start="0 0 0")), "start"),  # type: ignore[arg-type]
+    (lambda: RunRequest(overrides=Overrides(period_s=math.nan)), "period_s"),
+    (lambda: RunRequest(overrides=Overrides(max_time_s="10")), "max_time_s"),  # type: ignore[arg-type]
+    (lambda: RunRequest(overrides=Overrides(params=[("m", 1.0)])), "params"),  # type: ignore[arg-type]
+    (lambda: RunRequest(fmi=4), "fmi"),
+])
+def test_a_run_request_is_checked_when_made(make: Any, field: str) -> None:
+    """``apps.request``: a request that cannot be run is refused when it is made, naming the
+    field by its keyword (the CLI names it by its option), before any scenario is loaded.
+    Seen failing with ``Overrides.__post_init__`` and ``RunRequest.__post_init__`` removed
+    (nothing raised when the request was made)."""
+    with pytest.raises(ConfigError) as err:
+        make()
+    assert err.value.field == field
+
+
+def test_a_run_request_keeps_what_it_was_given() -> None:
+    request = RunRequest("fig9", run="r1", overrides=Overrides(goal=[5, 5, 30], gains={"K_ps": 1}))
+    assert request.overrides.goal == (5.0, 5.0, 30.0) and request.overrides.gains == {"K_ps": 1}
+    assert (request.scenario, request.run, request.fmi, request.log) == ("fig9", "r1", 3, None)

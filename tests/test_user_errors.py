@@ -33,7 +33,7 @@ def _one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
     (["run", "--param", "m=0.5"], "control_period_s", "wheel inertia"),
     (["run", "--period", "100"], "control_period_s", "wheel servos"),
     (["run", "--period", "0.1"], "control_period_s", "K_pw h / J"),
-    (["run", "--stop-radius", "1000"], "stop_radius_m", "converged where it stands"),
+    (["run", "--stop-radius", "1000"], "--stop-radius", "converged where it stands"),
     (["batch", "fig9", "--run-timeout", "-1"], "--run-timeout", ">= 0"),
     (["batch", "fig9", "--workers", "0"], "--workers", ">= 1"),
     (["batch", "fig9", "--scheduler", "garbage://x:1"], "--scheduler", "unknown scheme"),
@@ -183,3 +183,16 @@ def test_an_error_line_names_a_long_path_whole_and_cuts_a_hostile_field() -> Non
     assert error_line(ConfigError(path, "is a named pipe (FIFO)")).startswith(f"{path}: is a")
     line = error_line(ConfigError("k" * 5000, "unknown field"))
     assert "characters) ..." in line and len(line) <= MAX_LINE_CHARS
+
+
+def test_a_scenarios_own_value_is_named_by_its_key_an_options_by_the_option(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The same stop radius from a scenario file is the file's key ``stop_radius_m``; given
+    with ``--stop-radius`` it is that option (the command line names what the user typed).
+    Seen failing with every request field named by its option."""
+    far = tmp_path / "far.toml"
+    far.write_text('name = "far"\nstart = [0, 0, 0]\ngoal = [20, 10, 0]\nstop_radius_m = 1000\n')
+    assert main(["run", str(far), "--out", str(tmp_path / "o.mcap")]) == 1
+    assert _one_error_line(capsys).startswith("wmr: error: stop_radius_m: 1000 m reaches")
+    assert main(["run", "--stop-radius", "1000", "--out", str(tmp_path / "o.mcap")]) == 1
+    assert _one_error_line(capsys).startswith("wmr: error: --stop-radius: 1000 m reaches")

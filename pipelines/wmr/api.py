@@ -329,15 +329,17 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
         ``--view``: show the run live in Rerun and save it as ``NAME.rrd`` next to the log.
     """
     _not_in_a_worker_import("run")
+    from wmr.apps.request import Overrides, RunRequest
     from wmr.apps.run import run_scenario
 
-    record, _ = run_scenario(scenario, run=run, start=start, goal=goal, params=params,
-                             gains=gains, limits=limits, period_s=period_s,
-                             stop_radius_m=stop_radius_m, max_time_s=max_time_s,
-                             controller=controller, controller_gains=controller_gains,
-                             sensors=sensors, sensor=sensor, controller_fmu=controller_fmu,
-                             fmi=fmi, fmu=fmu, fmu_map=fmu_map, out=out, log=log,
-                             log_every=log_every, view=view)
+    overrides = Overrides(start=start, goal=goal, params=params, gains=gains, limits=limits,
+                          period_s=period_s, stop_radius_m=stop_radius_m,
+                          max_time_s=max_time_s, controller=controller,
+                          controller_gains=controller_gains, sensors=sensors, sensor=sensor)
+    record, _ = run_scenario(RunRequest(scenario, run=run, overrides=overrides,
+                                        controller_fmu=controller_fmu, fmi=fmi, fmu=fmu,
+                                        fmu_map=fmu_map, out=out, log=log,
+                                        log_every=log_every, view=view))
     return RunResult(record)
 
 

@@ -13,7 +13,7 @@ import math
 import os
 import sys
 import zipfile
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -27,6 +27,7 @@ from wmr import __version__
 from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import RunLogWriter
+from wmr.apps.request import RunRequest
 from wmr.config.scenario_file import run_spec_toml
 from wmr.core.closedloop import BlockSink, Controller, Progress, run_closed_loop
 from wmr.core.record import result_record
@@ -395,36 +396,98 @@ def select_run(scenario: Scenario, name: str | None, command_line: bool = True) 
 ProgressBar = Callable[[str], tuple[Progress, Callable[[], None]]]
 
 
-def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
-                 start: Sequence[float] | None = None, goal: Sequence[float] | None = None,
-                 params: Mapping[str, float] | None = None,
-                 gains: Mapping[str, float] | None = None,
-                 limits: Mapping[str, float] | None = None, period_s: float | None = None,
-                 stop_radius_m: float | None = None, max_time_s: float | None = None,
-                 controller: str | None = None,
-                 controller_gains: Mapping[str, float] | None = None,
-                 sensors: str | None = None, sensor: Mapping[str, float | str] | None = None,
-                 controller_fmu: bool | str | Path | None = None, fmi: int = 3,
-                 fmu: str | Path | None = None, fmu_map: str | Path | None = None,
-                 out: str | Path | None = None, log: str | None = None,
-                 log_every: int | None = None, view: bool = False,
-                 progress_bar: ProgressBar | None = None,
-                 command_line: bool = False,
-                 on_log: Callable[[Path, str], None] | None = None
-                 ) -> tuple[dict[str, Any], RunSpec]:
-    """One run of a scenario, as ``wmr run`` and :func:`wmr.run` make it: load, pick the run,
-    apply the overrides, name it, check the log's place, open the FMUs, run and log.
+def _warn(field: str, message: str) -> None:
+    _notice(f"warning: {field} {message}")
 
-    Every keyword is the option of ``wmr run`` of the same name (``docs/api.md``):
-    ``start``/``goal`` ``(x_m, y_m, heading_deg)``; ``params``, ``gains``, ``limits``,
-    ``controller_gains`` by name; ``sensors`` a preset (``gps``, ``raw``) or ``off``, and
-    ``sensor`` fields of the ``[sensors]`` table over it; ``controller_fmu`` ``True`` (the
-    built controller FMU), a path, ``False`` (the Python law even if the scenario names one),
-    or ``None`` (the scenario's choice); ``fmu``/``fmu_map`` another robot FMU and its map
-    (else the scenario's, else the project's FMI ``fmi`` build); ``log``/``log_every`` the log
-    policy (:class:`LogPolicy`); ``view`` the live Rerun view, saved next to the log.
-    ``command_line`` names inputs in errors as options (``--out``) rather than keywords;
-    ``on_log`` is :func:`run_to_log`'s.
+
+@dataclass(frozen=True)
+class ResolvedRun:
+    """What one run needs, resolved from a :class:`~wmr.apps.request.RunRequest`: every input
+    checked, nothing built or opened yet."""
+
+    spec: RunSpec
+    scenario_file: Path | None
+    log_path: Path
+    policy: LogPolicy
+    fmu_path: Path | None  # None: the project's own build for ``fmi`` (built when opened)
+    fmu_map: Path | None
+    controller_fmu: Path | None  # None: the law in Python (or compiled into the stepper)
+    use_built_controller_fmu: bool
+    fmi: int
+    view_rrd: Path | None
+
+
+def resolve_run(request: RunRequest,
+                warn: Callable[[str, str], None] = _warn) -> ResolvedRun:
+    """Load the request's scenario, pick its run, apply the overrides, name the run and its
+    log, and check every input, before anything is built; ``warn(field, message)`` is told of
+    inputs that run as given but look wrong (a heading in radians)."""
+    from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
+    from wmr.config.scenario import heading_looks_like_radians, load_scenario, with_overrides
+    from wmr.core.sensing.config import command_line_sensors
+    from wmr.infra.outputs import check_output
+
+    o = request.overrides
+    for name, pose in (("start", o.start), ("goal", o.goal)):
+        as_pi = None if pose is None else heading_looks_like_radians(pose[2])
+        if pose is not None and as_pi is not None:  # run as given (it may be meant), said
+            warn(name, f"heading {pose[2]:g} is in degrees but looks like {as_pi} rad: give "
+                       f"{math.degrees(pose[2]):.4g} if you meant {as_pi} rad")
+    sc = load_scenario(request.scenario)
+    base = select_run(sc, request.run, command_line=False)
+    spec = with_overrides(base, start=None if o.start is None else list(o.start),
+                          goal=None if o.goal is None else list(o.goal), gains=o.gains,
+                          limits=o.limits, params=o.params, period_s=o.period_s,
+                          stop_radius_m=o.stop_radius_m, t_max_s=o.max_time_s,
+                          controller=o.controller, controller_gains=o.controller_gains)
+    if o.sensors is not None or o.sensor:
+        spec = replace(spec, sensors=command_line_sensors(
+            spec.sensors, o.sensors, [f"{k}={v}" for k, v in (o.sensor or {}).items()]))
+    choice = request.controller_fmu
+    ctrl_choice = (None if choice is False else "" if choice is True
+                   else spec.controller_fmu if choice is None else str(choice))
+    # a variant is named after what it changes, so that its log never overwrites the
+    # scenario's own run (runs/fig11.mcap) nor passes for it; the plant and controller
+    # implementation (FMI version, another FMU, the controller FMU) name the log file only,
+    # not the run, whose name seeds the sensor noise (the same run on another FMU is the same)
+    extra = fmu_tokens(request.fmi, None if request.fmu is None else str(request.fmu))
+    if request.fmu_map is not None:
+        extra.append(f"map_{Path(request.fmu_map).stem}")
+    if ctrl_choice is not None and base.controller_fmu is None:
+        extra.append("controller_fmu")
+    spec = replace(spec, name=run_name(base, spec))
+    path = check_output(request.out if request.out is not None
+                        else default_log_path(variant_name(spec.name, extra)),
+                        "out", suffix=".mcap")
+    view_rrd = check_output(path.with_suffix(".rrd"), "view") if request.view else None
+    ctrl_path = None
+    if ctrl_choice is not None:
+        if spec.controller != "pi":
+            raise ConfigError("controller_fmu", f"the controller FMU is the PI stabiliser, "
+                              f"but the run uses controller = {spec.controller!r}",
+                              "drop controller_fmu or run the pi controller")
+        ctrl_path = Path(ctrl_choice) if ctrl_choice else None
+        if ctrl_path is not None and not ctrl_path.is_file():
+            raise ConfigError("controller_fmu", f"no such file: {ctrl_path}",
+                              "give a controller .fmu, or none for the built one")
+    return ResolvedRun(
+        spec=spec, scenario_file=sc.path, log_path=path,
+        policy=log_policy(request.log, request.log_every, None, command_line=False)
+        or FULL_LOGS,
+        fmu_path=Path(request.fmu) if request.fmu is not None else sc.fmu,
+        fmu_map=Path(request.fmu_map) if request.fmu_map is not None else sc.fmu_map,
+        controller_fmu=ctrl_path, use_built_controller_fmu=ctrl_choice == "",
+        fmi=request.fmi, view_rrd=view_rrd)
+
+
+def run_scenario(request: RunRequest, *, progress_bar: ProgressBar | None = None,
+                 on_log: Callable[[Path, str], None] | None = None,
+                 warn: Callable[[str, str], None] = _warn) -> tuple[dict[str, Any], RunSpec]:
+    """One run of a scenario, as ``wmr run`` and :func:`wmr.run` make it: resolve the request
+    (:func:`resolve_run`), open the FMUs, run and log.
+
+    ``progress_bar(run_name)`` gives the run's progress callback and what closes it;
+    ``on_log`` is :func:`run_to_log`'s; ``warn`` is :func:`resolve_run`'s.
 
     Returns
     -------
@@ -432,85 +495,18 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
         The result record (``docs/results.md``) and the run's spec.
     """
     from wmr.adapters.fmi.varmap import load_map
-    from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
-    from wmr.config.scenario import heading_looks_like_radians, load_scenario, with_overrides
-    from wmr.core.sensing.config import command_line_sensors
-    from wmr.infra.outputs import check_output
 
-    def pose(value: Sequence[float] | None, field: str) -> tuple[float, float, float] | None:
-        if value is None:
-            return None
-        if len(value) != 3:
-            raise ConfigError(_option(field, command_line),
-                              f"must be (x_m, y_m, heading_deg), got {value!r}")
-        heading_deg = float(value[2])
-        as_pi = heading_looks_like_radians(heading_deg)
-        if as_pi is not None:  # run as given (it may be meant), but never without a word
-            _notice(f"warning: {_option(field, command_line)} heading {heading_deg:g} is in "
-                    f"degrees but looks like {as_pi} rad: give "
-                    f"{math.degrees(heading_deg):.4g} if you meant {as_pi} rad")
-        return (float(value[0]), float(value[1]), heading_deg)
-
-    sc = load_scenario(scenario)
-    base = select_run(sc, run, command_line)
-    try:
-        spec = with_overrides(base, start=pose(start, "start"), goal=pose(goal, "goal"),
-                              gains=gains, limits=limits, params=params, period_s=period_s,
-                              stop_radius_m=stop_radius_m, t_max_s=max_time_s,
-                              controller=controller, controller_gains=controller_gains)
-    except ConfigError as exc:  # an unknown controller is the option's (--controller)
-        if exc.field != "controller":
-            raise
-        raise ConfigError(_option("controller", command_line), exc.problem, exc.fix) from None
-    if sensors is not None or sensor:
-        spec = replace(spec, sensors=command_line_sensors(
-            spec.sensors, sensors, [f"{k}={v}" for k, v in (sensor or {}).items()]))
-    if controller_fmu is False:
-        ctrl_choice: str | None = None
-    elif controller_fmu is True:
-        ctrl_choice = ""
-    elif controller_fmu is not None:
-        ctrl_choice = str(controller_fmu)
-    else:
-        ctrl_choice = spec.controller_fmu
-    # a variant is named after what it changes, so that its log never overwrites the
-    # scenario's own run (runs/fig11.mcap) nor passes for it; the plant and controller
-    # implementation (FMI version, another FMU, the controller FMU) name the log file only,
-    # not the run, whose name seeds the sensor noise (the same run on another FMU is the same)
-    extra = fmu_tokens(fmi, None if fmu is None else str(fmu))
-    if fmu_map is not None:
-        extra.append(f"map_{Path(fmu_map).stem}")
-    if ctrl_choice is not None and base.controller_fmu is None:
-        extra.append("controller_fmu")
-    spec = replace(spec, name=run_name(base, spec))
-    path = check_output(out if out is not None
-                        else default_log_path(variant_name(spec.name, extra)),
-                        _option("out", command_line), suffix=".mcap")
-    if view:
-        check_output(path.with_suffix(".rrd"), _option("view", command_line))
-    # the inputs are checked before the FMUs are built (seconds on a fresh machine)
-    ctrl_path = None
-    if ctrl_choice is not None:
-        option = _option("controller_fmu", command_line)
-        if spec.controller != "pi":
-            raise ConfigError(option, f"the controller FMU is the PI stabiliser, but the run "
-                              f"uses controller = {spec.controller!r}",
-                              f"drop {option} or run the pi controller")
-        ctrl_path = Path(ctrl_choice) if ctrl_choice else default_controller_fmu(fmi)
-        if not ctrl_path.is_file():
-            raise ConfigError(option, f"no such file: {ctrl_path}",
-                              "give a controller .fmu, or no FILE for the built one")
-    map_path = Path(fmu_map) if fmu_map is not None else sc.fmu_map
-    var_map = load_map(map_path) if map_path is not None else None
-    fmu_path = Path(fmu) if fmu is not None else sc.fmu or default_fmu(fmi)
-    policy = log_policy(log, log_every, None, command_line) or FULL_LOGS
-    progress, finish = progress_bar(spec.name) if progress_bar is not None else (None, None)
+    r = resolve_run(request, warn)
+    var_map = load_map(r.fmu_map) if r.fmu_map is not None else None
+    ctrl_path = default_controller_fmu(r.fmi) if r.use_built_controller_fmu else r.controller_fmu
+    fmu_path = r.fmu_path or default_fmu(r.fmi)
+    progress, finish = progress_bar(r.spec.name) if progress_bar is not None else (None, None)
     live = None
-    if view:
+    if r.view_rrd is not None:
         from wmr.adapters.rerun.live_view import live_view_sink
 
-        live = live_view_sink(spec.name, spec.goal, path.with_suffix(".rrd"), start=spec.start,
-                              stop_radius_m=spec.stop_radius_m)
+        live = live_view_sink(r.spec.name, r.spec.goal, r.view_rrd, start=r.spec.start,
+                              stop_radius_m=r.spec.stop_radius_m)
     with FmuPlant(fmu_path, var_map=var_map) as plant, ExitStack() as stack:
         ctrl = None
         if ctrl_path is not None:
@@ -518,15 +514,16 @@ def run_scenario(scenario: str | Path | None = None, *, run: str | None = None,
 
             ctrl = stack.enter_context(FmuController(ctrl_path))
         try:
-            record = run_to_log(spec, path, plant, scenario_file=sc.path, progress=progress,
-                                also=live, controller_fmu=ctrl, log=policy, on_log=on_log)
+            record = run_to_log(r.spec, r.log_path, plant, scenario_file=r.scenario_file,
+                                progress=progress, also=live, controller_fmu=ctrl,
+                                log=r.policy, on_log=on_log)
         finally:
             if finish is not None:
                 finish()
             if live is not None:
                 live.close()
-                print(f"live view recorded in {path.with_suffix('.rrd')}", file=sys.stderr)
-    return record, spec
+                print(f"live view recorded in {r.view_rrd}", file=sys.stderr)
+    return record, r.spec
 
 
 def log_policy(keep: str | None, every_k_steps: int | None, base: LogPolicy | None,

@@ -8,6 +8,7 @@ import sys
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
+from wmr.cli.shared import errors_as_options
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -143,25 +144,65 @@ def list_runs(scenario: str | None, json_line: bool) -> int:
     return 0
 
 
+#: ``wmr run``'s options by the field of the request (and of its errors) they fill.
+RUN_OPTIONS: dict[str, str] = {
+    "run": "--run", "start": "--start", "goal": "--goal",
+    "params": "--param", "gains": "--gain", "limits": "--limit", "period_s": "--period",
+    "stop_radius_m": "--stop-radius", "max_time_s": "--max-time", "controller": "--controller",
+    "sensors": "--sensors", "sensor": "--sensor",
+    "controller_fmu": "--controller-fmu", "fmi": "--fmi", "fmu": "--fmu", "fmu_map": "--map",
+    "out": "--out", "log": "--log", "log_every": "--log-every", "view": "--view",
+}
+
+
+#: Request fields a scenario file gives too.
+_SCENARIO_KEYS = frozenset({"start", "goal", "params", "gains", "limits", "period_s",
+                            "stop_radius_m", "max_time_s", "controller", "sensors", "sensor",
+                            "fmu", "fmu_map"})
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
+    from wmr.apps.request import Overrides, RunRequest
     from wmr.apps.run import run_scenario
 
     if args.list:
         return list_runs(args.scenario, args.json)
 
-    record, spec = run_scenario(
-        args.scenario, run=args.run, start=args.start, goal=args.goal,
-        gains=_key_values(args.gain, "--gain"), limits=_key_values(args.limit, "--limit"),
-        params=_key_values(args.param, "--param"), period_s=args.period,
-        stop_radius_m=args.stop_radius, max_time_s=args.max_time,
-        controller=args.controller, sensors=args.sensors,
-        sensor=_sensor_items(args.sensor),
-        controller_fmu=(None if args.controller_fmu is None
-                        else args.controller_fmu or True),
-        fmi=args.fmi, fmu=args.fmu, fmu_map=args.map, out=args.out, log=args.log,
-        log_every=args.log_every, view=args.view,
-        progress_bar=lambda name: _progress_bar(name, args.json), command_line=True,
-        on_log=getattr(args, "report_log", None))
+    def warn(field: str, message: str) -> None:
+        print(f"wmr: warning: {RUN_OPTIONS.get(field, field)} {message}", file=sys.stderr,
+              flush=True)
+
+    # an input the scenario may give too is named by its option only when the option gave it
+    # (a scenario's stop_radius_m = 1000 is the scenario's key, not --stop-radius)
+    options = {name: option for name, option in RUN_OPTIONS.items()
+               if name not in _SCENARIO_KEYS
+               or getattr(args, option.lstrip("-").replace("-", "_")) not in (None, [])}
+    with errors_as_options(options):
+        try:
+            request = RunRequest(
+                args.scenario, run=args.run,
+                overrides=Overrides(
+                    start=args.start, goal=args.goal, params=_key_values(args.param, "--param"),
+                    gains=_key_values(args.gain, "--gain"),
+                    limits=_key_values(args.limit, "--limit"), period_s=args.period,
+                    stop_radius_m=args.stop_radius, max_time_s=args.max_time,
+                    controller=args.controller, sensors=args.sensors,
+                    sensor=_sensor_items(args.sensor)),
+                controller_fmu=(None if args.controller_fmu is None
+                                else args.controller_fmu or True),
+                fmi=args.fmi, fmu=args.fmu, fmu_map=args.map, out=args.out, log=args.log,
+                log_every=args.log_every, view=args.view)
+            record, spec = run_scenario(
+                request, progress_bar=lambda name: _progress_bar(name, args.json),
+                on_log=getattr(args, "report_log", None), warn=warn)
+        except ConfigError as exc:
+            if exc.field != "run":
+                raise
+            # the command line also offers the listing and the batch of every run
+            scenario = args.scenario or "fig11"
+            raise ConfigError("run", exc.problem,
+                              f"{exc.fix}; all of them: wmr run {scenario} --list, or run them "
+                              "all with 'wmr batch'") from None
     print_result(record, args.json, spec.sensors is not None)
     return exit_status(record)
 

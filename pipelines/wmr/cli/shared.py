@@ -1,14 +1,19 @@
-"""What the commands that drive an FMU share: the ``--fmi``/``--fmu`` options, progress lines
-on standard error, and one-line JSON results."""
+"""What the commands share: the ``--fmi``/``--fmu`` options, progress lines on standard error,
+one-line JSON results, and errors that name the command's options."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import re
 import sys
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
+
+from wmr.infra.errors import ConfigError
 
 
 def add_fmu_options(p: argparse.ArgumentParser) -> None:
@@ -44,3 +49,28 @@ def json_line(obj: Any) -> str:
         return v
 
     return json.dumps(clean(obj), allow_nan=False)
+
+
+def _in_options(text: str, options: Mapping[str, str]) -> str:
+    """``text`` with the request's ``field=VALUE`` written as ``--option VALUE``, and the
+    fields with an underscore (never a plain word) as their options."""
+    for name, option in options.items():
+        text = re.sub(rf"(?<![\w-]){re.escape(name)}=", f"{option} ", text)
+        if "_" in name:
+            text = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w=])", option, text)
+    return text
+
+
+@contextlib.contextmanager
+def errors_as_options(options: Mapping[str, str]) -> Iterator[None]:
+    """Errors raised inside name the fields of ``options`` (a request's field -> this
+    command's option) as the options, in the field and in the problem and fix: the layers
+    below name their inputs by the API's keywords, the command line by its options."""
+    try:
+        yield
+    except ConfigError as exc:
+        option = options.get(exc.field)
+        if option is None:
+            raise
+        raise ConfigError(option, _in_options(exc.problem, options),
+                          _in_options(exc.fix, options)) from None
