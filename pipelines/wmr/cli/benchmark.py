@@ -72,8 +72,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="scenario names or TOML files (default fig9 fig10)")
     b.add_argument("--out", metavar="DIR", help="output folder (default runs/benchmark)")
     b.add_argument("--controllers", metavar="LIST",
-                   help="comma-separated subset of pi,pi-tuned,astolfi,astolfi-tuned,"
-                        "graceful,graceful-tuned (default all)")
+                   help="comma-separated rows: pi,pi-tuned,astolfi,astolfi-tuned,graceful,"
+                        "graceful-tuned (the default), or an installed plug-in's name "
+                        "(docs/plugins.md)")
     b.add_argument("--tuned", metavar="FILE.json",
                    help="tuned gains from 'wmr tune --save' (default: the built-in ones)")
     b.add_argument("--no-optimal", action="store_true", help="skip the optimal solves")
