@@ -251,3 +251,20 @@ def test_a_declaration_that_cannot_work_is_refused(change: dict[str, object],
     fields = {"name": "x", "summary": "", "make": pi.make, **change}
     with pytest.raises(ValueError, match=problem.replace("(", r"\(").replace(")", r"\)")):
         dataclasses.replace(pi, **fields)  # type: ignore[arg-type]
+
+
+def test_the_docs_show_the_example_as_it_is() -> None:
+    """docs/plugins.md shows the example's pyproject.toml and module verbatim (and
+    tests/test_docs_run.py runs the module's block): the page cannot drift from the package
+    the tests install."""
+    import re
+
+    page = (_REPO / "docs" / "plugins.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"^```(\w*)\n(.*?)^```", page, flags=re.S | re.M)
+    for path, lang in ((EXAMPLE / "pyproject.toml", "toml"),
+                       (EXAMPLE / "wmr_example_controller" / "__init__.py", "python")):
+        assert (lang, path.read_text(encoding="utf-8")) in blocks, path
+    # what the page and this test say the example fills is what it declares
+    module: dict[str, object] = {}
+    exec((EXAMPLE / "wmr_example_controller" / "__init__.py").read_text(encoding="utf-8"), module)
+    assert module["SIGNALS"] == EXAMPLE_SIGNALS
