@@ -209,6 +209,18 @@ def test_a_plugin_is_found_by_its_entry_point_and_built_from_a_run(on_path: Path
         registry.check_gains(NAME, {"k_rho": 1.0})
 
 
+def test_the_api_runs_a_plugin_with_its_gains(on_path: Path, tmp_path: Path) -> None:
+    slow = wmr.run(goal=(3.0, 0.0, 0.0), controller=NAME, out=tmp_path / "a.mcap")
+    fast = wmr.run(goal=(3.0, 0.0, 0.0), controller=NAME, controller_gains={"k_v": 1.0},
+                   out=tmp_path / "b.mcap")
+    assert slow.record["status"] == fast.record["status"] == "converged"
+    assert fast.log is not None and fast.log.metadata["run"]["controller_gains"] == {"k_v": 1.0}
+    # straight ahead: no turn, the approach gain alone sets the pace
+    assert fast.record["time_to_goal_s"] < slow.record["time_to_goal_s"]
+    with pytest.raises(ConfigError, match=r"controller_gains.k_rho: not a gain of"):
+        wmr.run(controller=NAME, controller_gains={"k_rho": 1.0}, out=tmp_path / "c.mcap")
+
+
 def test_an_entry_point_that_is_not_a_controller_is_named(on_path: Path,
                                                           tmp_path: Path) -> None:
     (tmp_path / "wmr_odd.py").write_text(

@@ -161,9 +161,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "error; print the gains and the times against the optimal times.")
     t.add_argument("scenarios", nargs="*", metavar="SCENARIO",
                    help="scenario names or TOML files (default: a subset of fig9 + fig10)")
+    from wmr.core.control.registry import BUILTIN_NAMES
+
     t.add_argument("--controller", metavar="NAME", default="pi",
-                   help="controller to tune: pi (default), astolfi, graceful, an installed "
-                        "plug-in's (docs/plugins.md), or all (every one with gains to tune)")
+                   help=f"controller to tune: {', '.join(BUILTIN_NAMES)} (default pi), an "
+                        "installed plug-in's (docs/plugins.md), or all (every one with gains to "
+                        "tune)")
     t.add_argument("--budget", type=int, default=None, metavar="N",
                    help="objective evaluations per controller (default 60)")
     t.add_argument("--spec", metavar="SPEC.toml",

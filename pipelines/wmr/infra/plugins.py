@@ -12,7 +12,10 @@ not use it.
 from __future__ import annotations
 
 from functools import cache
-from importlib import metadata
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # importlib.metadata is imported when a group is first listed, not before
+    from importlib import metadata
 
 
 class PluginError(Exception):
@@ -41,6 +44,8 @@ def entry_points(group: str) -> dict[str, tuple[metadata.EntryPoint, ...]]:
     A name that two installed packages declare maps to both (the caller refuses it when it
     is used).
     """
+    from importlib import metadata
+
     found: dict[str, list[metadata.EntryPoint]] = {}
     for ep in metadata.entry_points(group=group):
         same = found.setdefault(ep.name, [])

@@ -35,13 +35,20 @@ from dataclasses import dataclass, field, fields
 from functools import cache
 from typing import TYPE_CHECKING, Any, Final
 
+from wmr.core.control import ServoedController
+from wmr.core.control.peers import (
+    AstolfiGains,
+    AstolfiStabiliser,
+    GracefulGains,
+    GracefulStabiliser,
+)
+from wmr.core.control.stabiliser import Gains, PointStabiliser
 from wmr.core.signals import LAW_INDEX, LAW_SIGNALS, WHEEL_REFERENCES
 from wmr.infra import plugins
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
-    from wmr.core.control import ServoedController, Stabiliser
-    from wmr.core.control.peers import AstolfiGains
+    from wmr.core.control import Stabiliser
     from wmr.core.runspec import RunSpec
 
 #: The entry-point group of controller plug-ins.
@@ -205,86 +212,63 @@ def _gains_of(cls: type, units: Mapping[str, str],
 
 
 def _make_pi(spec: RunSpec, gains: Mapping[str, float]) -> Stabiliser:
-    from wmr.core.control.stabiliser import PointStabiliser
-
     goal, p = spec.goal, spec.params
     return PointStabiliser(goal.x_m, goal.y_m, goal.heading_rad, spec.gains, spec.limits, p.r,
                            p.L, spec.period_s, spec.stop_radius_m)
 
 
-def _make_astolfi(spec: RunSpec, gains: Mapping[str, float]) -> Stabiliser:
-    from wmr.core.control.peers import AstolfiStabiliser
+def _astolfi_gains(gains: Mapping[str, float]) -> AstolfiGains:
+    # ``reverse`` is a flag, given as 0 or 1 like every gain of a scenario table
+    return AstolfiGains(**gains)  # type: ignore[arg-type]
 
+
+def _make_astolfi(spec: RunSpec, gains: Mapping[str, float]) -> Stabiliser:
     return AstolfiStabiliser(spec.goal, _astolfi_gains(gains), spec.limits, spec.params,
                              spec.period_s, spec.stop_radius_m)
 
 
 def _make_graceful(spec: RunSpec, gains: Mapping[str, float]) -> Stabiliser:
-    from wmr.core.control.peers import GracefulGains, GracefulStabiliser
-
     return GracefulStabiliser(spec.goal, GracefulGains(**gains), spec.limits, spec.params,
                               spec.period_s, spec.stop_radius_m)
 
 
-def _astolfi_gains(gains: Mapping[str, float]) -> AstolfiGains:
-    from wmr.core.control.peers import AstolfiGains
+_PER_S: Final = "1/s"
 
-    # ``reverse`` is a flag, given as 0 or 1 like every gain of a scenario table
-    return AstolfiGains(**gains)  # type: ignore[arg-type]
-
-
-def _check_astolfi(gains: Mapping[str, float]) -> object:
-    return _astolfi_gains(gains)
-
-
-def _check_graceful(gains: Mapping[str, float]) -> object:
-    from wmr.core.control.peers import GracefulGains
-
-    return GracefulGains(**gains)
-
-
-@cache
-def builtins() -> dict[str, ControllerInfo]:
-    """The controllers of ``wmr`` itself, by name, in the order of the help and the benchmark.
-
-    The tuned gains are measured with ``wmr tune --controller C`` (default set, budget 60;
-    ``docs/benchmark.md``); the bounds are the box ``wmr tune`` searches: the PI's four gains of
-    eq. 29 (the servos stay as designed), Astolfi's three, and the graceful law's two curvature
-    gains and the speed-law coefficient beta.
-    """
-    from wmr.core.control.peers import AstolfiGains, GracefulGains
-    from wmr.core.control.stabiliser import Gains
-
-    per_s = "1/s"
-    pi = ControllerInfo(
+#: The controllers of ``wmr`` itself, by name, in the order of the help and the benchmark.
+#: The tuned gains are measured with ``wmr tune --controller C`` (default set, budget 60;
+#: ``docs/benchmark.md``); the bounds are the box ``wmr tune`` searches: the PI's four gains of
+#: eq. 29 (the servos stay as designed), Astolfi's three, and the graceful law's two curvature
+#: gains and the speed-law coefficient beta.
+BUILTINS: Final[Mapping[str, ControllerInfo]] = {c.name: c for c in (
+    ControllerInfo(
         "pi", "the paper's point stabiliser: RPC/ROC errors, two PIs (eq. 29), D^-1 (eq. 28)",
         _make_pi,
-        _gains_of(Gains, {"K_ps": per_s, "K_is": "1/s^2", "K_ptheta": per_s,
+        _gains_of(Gains, {"K_ps": _PER_S, "K_is": "1/s^2", "K_ptheta": _PER_S,
                           "K_itheta": "1/s^2", "K_pw": "N m s/rad", "K_iw": "N m/rad"},
                   {"K_ps": (0.05, 5.0), "K_is": (1e-4, 1.0), "K_ptheta": (0.2, 20.0),
                    "K_itheta": (1e-3, 10.0)}),
         tuned={"K_ps": 0.418, "K_is": 0.282, "K_ptheta": 17.0, "K_itheta": 0.297},
-        gains_table=RUN_GAINS)
-    astolfi = ControllerInfo(
+        gains_table=RUN_GAINS),
+    ControllerInfo(
         "astolfi", "Astolfi's polar law (Siegwart & Nourbakhsh, 3.6.2.4), backward driving",
         _make_astolfi,
-        _gains_of(AstolfiGains, {"k_rho": per_s, "k_alpha": per_s, "k_beta": per_s,
-                                 "reverse": "1", "k_align_theta": per_s, "k_align_s": per_s},
+        _gains_of(AstolfiGains, {"k_rho": _PER_S, "k_alpha": _PER_S, "k_beta": _PER_S,
+                                 "reverse": "1", "k_align_theta": _PER_S, "k_align_s": _PER_S},
                   {"k_rho": (0.1, 30.0), "k_alpha": (0.2, 60.0), "k_beta": (-30.0, -0.01)}),
-        check=_check_astolfi, tuned={"k_rho": 3.88, "k_alpha": 7.57, "k_beta": -1.65})
-    graceful = ControllerInfo(
+        check=_astolfi_gains, tuned={"k_rho": 3.88, "k_alpha": 7.57, "k_beta": -1.65}),
+    ControllerInfo(
         "graceful", "Park & Kuipers' graceful law (nav2_graceful_controller)",
         _make_graceful,
         _gains_of(GracefulGains, {"k_phi": "1", "k_delta": "1", "beta": "m^lam", "lam": "1",
                                   "slowdown_radius_m": "m", "v_min_mps": "m/s",
-                                  "k_align_theta": per_s, "k_align_s": per_s},
+                                  "k_align_theta": _PER_S, "k_align_s": _PER_S},
                   {"k_phi": (0.05, 20.0), "k_delta": (0.05, 20.0), "beta": (1e-3, 5.0)}),
-        check=_check_graceful, tuned={"k_phi": 0.330, "k_delta": 19.7, "beta": 0.0288})
-    return {c.name: c for c in (pi, astolfi, graceful)}
-
-
-#: The built-in controllers' names (the default of ``wmr benchmark``).
-BUILTIN_NAMES: Final = ("pi", "astolfi", "graceful")
+        check=lambda gains: GracefulGains(**gains),
+        tuned={"k_phi": 0.330, "k_delta": 19.7, "beta": 0.0288}),
+)}
+#: Their names (the default rows of ``wmr benchmark``; reserved: a plug-in of one of these
+#: names is never used).
+BUILTIN_NAMES: Final = tuple(BUILTINS)
 
 
 def names() -> tuple[str, ...]:
@@ -328,7 +312,7 @@ def get(name: object, field_name: str = "controller") -> ControllerInfo:
     """
     if not isinstance(name, str):
         raise _unknown(name, field_name)
-    info = builtins().get(name)
+    info = BUILTINS.get(name)
     if info is not None:
         return info
     try:
@@ -376,8 +360,6 @@ class _Scattered:
 
 def make_controller(spec: RunSpec) -> ServoedController:
     """The law ``spec.controller`` names, with the run's gains, on the two wheel servos."""
-    from wmr.core.control import ServoedController
-
     info = get(spec.controller)
     law = info.make(spec, info.checked_gains(dict(spec.controller_gains)))
     if info.signals != LAW_SIGNALS:
@@ -386,13 +368,13 @@ def make_controller(spec: RunSpec) -> ServoedController:
 
 
 __all__ = [
+    "BUILTINS",
     "BUILTIN_NAMES",
     "CONTROLLER_GAINS",
     "ENTRY_POINT_GROUP",
     "RUN_GAINS",
     "ControllerInfo",
     "Gain",
-    "builtins",
     "check_gains",
     "get",
     "make_controller",
