@@ -106,6 +106,8 @@ def controller_row(label: str, tuned: Mapping[str, Mapping[str, float]]) -> tupl
                           f"run 'wmr tune --controller {name} --save FILE.json' and give "
                           "--tuned FILE.json, or ask for the row " + repr(name))
     return name, use_tuned
+
+
 OPTIMAL: Final = "optimal"
 DEFAULT_SCENARIOS: Final = ("fig9", "fig10")
 #: Columns of the CSV/Parquet table and of the ``--json`` objects, in order.
@@ -429,7 +431,6 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
     list of dict
         Rows with the :data:`FIELDS` keys (``None`` for a missing figure).
     """
-
     tuned_gains = load_tuned(None) if tuned is None else tuned
     rows_of = {label: controller_row(label, tuned_gains) for label in controllers}
     logs = None if out_dir is None else out_dir / "logs"
