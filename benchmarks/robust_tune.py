@@ -2,7 +2,8 @@
 
 Tunes the PI on the first ``--runs`` runs of ``--spec`` (``wmr tune --spec``'s objective, the
 same draws for every candidate), then runs the default gains, the built-in tuned gains
-(:data:`wmr.apps.tune.TUNED_GAINS`, tuned on the nominal robot) and the robust gains on the
+(the PI's declared ``tuned`` gains, :mod:`wmr.core.control.registry`, tuned on the
+nominal robot) and the robust gains on the
 next ``--held-out`` runs of the same spec, which the tuning never saw, and prints per gain set
 the converged count, the mean time to goal of the converged runs, the objective and the worst
 time.  docs/batch.md quotes its output.
@@ -20,7 +21,8 @@ from pathlib import Path
 
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.run import default_fmu
-from wmr.apps.tune import TUNABLE, TUNED_GAINS, batch_cases, evaluate, tune
+from wmr.apps.tune import batch_cases, evaluate, tunable_gains, tune
+from wmr.core.control import registry
 
 HERE = Path(__file__).resolve().parent
 
@@ -46,8 +48,9 @@ def main() -> None:
               f"{time.perf_counter() - t0:.0f} s: objective {robust.start_cost_s:.3f} s -> "
               f"{robust.cost_s:.3f} s")
         print("  gains: " + ", ".join(f"{k} = {v:.4g}" for k, v in robust.gains.items()))
-        sets = {"default": {t[0]: t[1] for t in TUNABLE["pi"]},
-                "tuned (nominal robot)": TUNED_GAINS["pi"], "tuned (robust)": robust.gains}
+        sets = {"default": {g.name: g.default for g in tunable_gains("pi")},
+                "tuned (nominal robot)": dict(registry.get("pi").tuned),
+                "tuned (robust)": robust.gains}
         print(f"held-out draws: {len(held_out)}")
         print(f"{'gains':<22} {'converged':>9} {'mean t_goal s':>13} {'max t_goal s':>12} "
               f"{'objective s':>11}")

@@ -158,5 +158,6 @@ def test_wmr_synopses_name_real_commands_and_options(page: str, words: list[str]
             break
         parser = subs[0].choices[word]
     options = {o for a in parser._actions for o in a.option_strings}
-    used = {w.split("=")[0] for w in re.findall(r"--?[a-zA-Z][\w-]*", " ".join(words))}
+    # an option starts a word (not the '-then' of a name such as turn-then-drive)
+    used = {w.split("=")[0] for w in re.findall(r"(?<![\w-])--?[a-zA-Z][\w-]*", " ".join(words))}
     assert used <= options, f"{page}: {' '.join(words)}: unknown {sorted(used - options)}"

@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 
-import wmr.core.control.peers as peers
+import wmr.core.control.registry as registry
 from wmr.adapters.fmi import robot
 from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.controller import FmuController
@@ -137,7 +137,7 @@ def test_run_with_sensors_is_bit_identical(monkeypatch: pytest.MonkeyPatch,
 def test_plant_failure_gives_the_same_status_message_and_rows(
         monkeypatch: pytest.MonkeyPatch, built: BuildResult, tmp_path: Path) -> None:
     """A law that asks for a NaN wheel speed at step 150: the FMU refuses the NaN torque."""
-    make = peers.make_controller
+    make = registry.make_controller
 
     class NanAt151:
         def __init__(self, law: Any) -> None:
@@ -155,7 +155,7 @@ def test_plant_failure_gives_the_same_status_message_and_rows(
         return ctrl
 
     # the run's own law is built by SpecController.configure, at every run
-    monkeypatch.setattr(peers, "make_controller", failing)
+    monkeypatch.setattr(registry, "make_controller", failing)
     fast, slow = _both(monkeypatch, built.fmus[3], _fig11(), tmp_path / "r.mcap",
                        loops=("stepper", "python"))
     assert fast[0]["status"] == "failed"

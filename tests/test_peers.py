@@ -14,16 +14,15 @@ import pytest
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
-from wmr.core.control import Gains, Limits
+from wmr.core.control import Limits, ServoedController
 from wmr.core.control.from_spec import SpecController
 from wmr.core.control.peers import (
     AstolfiGains,
     AstolfiStabiliser,
     GracefulGains,
     GracefulStabiliser,
-    PeerController,
-    make_controller,
 )
+from wmr.core.control.registry import make_controller
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
@@ -136,8 +135,8 @@ def test_graceful_curvature_is_park_and_kuipers() -> None:
 ])
 def test_bad_controller_or_gains_are_config_errors(name: str, gains: dict[str, float]) -> None:
     with pytest.raises(ConfigError):
-        make_controller(name, Pose(1.0, 0.0, 0.0), Gains(), Limits(), RobotParams(), 0.01,
-                        0.05, gains)
+        make_controller(RunSpec(name="bad", start=Pose(0.0, 0.0, 0.0), goal=Pose(1.0, 0.0, 0.0),
+                                controller=name, controller_gains=tuple(gains.items())))
 
 
 def test_scenario_selects_a_peer_and_overrides_switch_it() -> None:
@@ -145,9 +144,8 @@ def test_scenario_selects_a_peer_and_overrides_switch_it() -> None:
                          "controller": "graceful", "controller_gains": {"k_phi": 1.5}})
     spec = sc.runs[0]
     assert spec.controller == "graceful" and dict(spec.controller_gains) == {"k_phi": 1.5}
-    c = make_controller(spec.controller, spec.goal, spec.gains, spec.limits, spec.params,
-                        spec.period_s, spec.stop_radius_m, dict(spec.controller_gains))
-    assert isinstance(c, PeerController) and isinstance(c.stabiliser, GracefulStabiliser)
+    c = make_controller(spec)
+    assert isinstance(c, ServoedController) and isinstance(c.stabiliser, GracefulStabiliser)
     assert c.stabiliser.k_phi == 1.5
     a = with_overrides(spec, controller="astolfi")
     assert a.controller == "astolfi" and a.controller_gains == ()

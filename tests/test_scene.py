@@ -30,9 +30,9 @@ from wmr.adapters.mcap.scene import (
     read_cloud,
     robot_outline,
 )
-from wmr.core.control.peers import CONTROLLER_NAMES, make_controller
-from wmr.core.control.stabiliser import Gains, Limits
-from wmr.core.plant import Pose, RobotParams
+from wmr.core.control.registry import BUILTIN_NAMES, make_controller
+from wmr.core.plant import Pose
+from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.errors import DiskFullError
 
@@ -47,12 +47,12 @@ def _distances() -> np.ndarray:
                                                          0.08, 0.03, 0.0249, 0.0]])
 
 
-@pytest.mark.parametrize("name", CONTROLLER_NAMES)
+@pytest.mark.parametrize("name", BUILTIN_NAMES)
 def test_phases_are_the_stabilisers(name: str) -> None:
     """Replayed on the distance it logged, the hysteresis gives the controller's own phase at
     every step (for the PI and its peers)."""
-    ctrl = make_controller(name, Pose(0.0, 0.0, 0.0), Gains(), Limits(), RobotParams(), 0.01,
-                           EPS_M)
+    ctrl = make_controller(RunSpec(name=name, start=Pose(-1.0, 0.0, 0.0), goal=Pose(0.0, 0.0, 0.0),
+                                   period_s=0.01, stop_radius_m=EPS_M, controller=name))
     stab: Any = ctrl.stabiliser  # the PI's Stabiliser or a peer's: each has .phase
     seen, dr = [], []
     for k, d in enumerate(_distances()):

@@ -143,7 +143,8 @@ def test_wmr_tune_on_a_spec_scores_every_candidate_on_the_same_draws(
     # no worse than its start on those draws, scored again here
     monkeypatch.setattr(tune_mod, "run_closed_loop", real)
     specs = tune_mod.batch_cases(spec, 3)
-    start_cost, _ = evaluate("pi", {t[0]: t[1] for t in tune_mod.TUNABLE["pi"]}, specs, fmu)
+    start_cost, _ = evaluate("pi", {g.name: g.default for g in tune_mod.tunable_gains("pi")},
+                             specs, fmu)
     tuned_cost, results = evaluate("pi", rec["gains"], specs, fmu)
     assert start_cost == pytest.approx(rec["start_objective_s"])
     assert tuned_cost == pytest.approx(rec["objective_s"]) and tuned_cost <= start_cost

@@ -310,7 +310,9 @@ def run(scenario: str | Path | None = None, *, run: str | None = None,
         Overrides by name (``--param``, ``--gain``, ``--limit``).
     period_s, stop_radius_m, max_time_s, controller, controller_gains
         Overrides of the run's settings (``--period``, ``--stop-radius``, ``--max-time``; the
-        scenario keys ``controller`` and ``[controller_gains]``).
+        scenario keys ``controller`` and ``[controller_gains]``): ``controller`` any name of
+        :mod:`wmr.core.control.registry`, an installed plug-in's too (``docs/plugins.md``),
+        ``controller_gains`` the gains it declares.
     sensors, sensor
         ``--sensors``: a preset (``"gps"``, ``"raw"``) or ``"off"``; ``--sensor``: fields of
         the ``[sensors]`` table over it, e.g. ``{"gps_sigma_m": 0.05}`` (``docs/sensing.md``).

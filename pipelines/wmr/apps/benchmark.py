@@ -48,11 +48,11 @@ from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, RunLogWriter
 from wmr.apps.run import run_metadata, scenario_attachment_name
-from wmr.apps.tune import TUNED_GAINS, with_gains
+from wmr.apps.tune import with_gains
 from wmr.config.scenario import load_scenario
 from wmr.config.scenario_file import run_spec_toml
 from wmr.core.closedloop import LoopOutcome, run_closed_loop
-from wmr.core.control import Limits
+from wmr.core.control import Limits, registry
 from wmr.core.control.from_spec import SpecController
 from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
@@ -60,15 +60,54 @@ from wmr.core.record import result_record
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 
-#: Benchmark rows: label -> (controller, use the tuned gains).
-CONTROLLERS: Final[dict[str, tuple[str, bool]]] = {
-    "pi": ("pi", False),
-    "pi-tuned": ("pi", True),
-    "astolfi": ("astolfi", False),
-    "astolfi-tuned": ("astolfi", True),
-    "graceful": ("graceful", False),
-    "graceful-tuned": ("graceful", True),
-}
+#: The suffix of a row with the controller's tuned gains (``pi-tuned``).
+TUNED_SUFFIX: Final = "-tuned"
+
+
+def controller_rows(names: Sequence[str]) -> dict[str, tuple[str, bool]]:
+    """Benchmark rows of the controllers ``names``: label -> (controller, use the tuned gains);
+    each controller, then ``NAME-tuned`` when it declares tuned gains
+    (:mod:`wmr.core.control.registry`)."""
+    rows: dict[str, tuple[str, bool]] = {}
+    for name in names:
+        rows[name] = (name, False)
+        if registry.get(name, "--controllers").tuned:
+            rows[f"{name}{TUNED_SUFFIX}"] = (name, True)
+    return rows
+
+
+#: The default rows: the built-in controllers, default and tuned gains (a plug-in's rows are
+#: asked for by name: ``--controllers pi,NAME``).
+CONTROLLERS: Final[dict[str, tuple[str, bool]]] = controller_rows(registry.BUILTIN_NAMES)
+
+
+def controller_row(label: str, tuned: Mapping[str, Mapping[str, float]]) -> tuple[str, bool]:
+    """``(controller, use the tuned gains)`` of the row ``label``: a controller's name, or
+    ``NAME-tuned`` for one with tuned gains (declared, or in ``tuned``).
+
+    Raises
+    ------
+    ConfigError
+        ``--controllers``: an unknown label (listing the known ones), or ``NAME-tuned`` of a
+        controller without tuned gains.
+    """
+    from wmr.infra.errors import ConfigError
+
+    name, use_tuned = label, False
+    if label.endswith(TUNED_SUFFIX) and label not in registry.names():
+        name, use_tuned = label[:-len(TUNED_SUFFIX)], True
+    if name not in registry.names():
+        known = [*CONTROLLERS, *(n for n in registry.names() if n not in CONTROLLERS)]
+        raise ConfigError("--controllers", f"unknown controller {label!r}",
+                          f"one of: {', '.join(known)}")
+    registry.get(name, "--controllers")  # a plug-in that does not load: its one line
+    if use_tuned and not tuned.get(name):
+        raise ConfigError("--controllers", f"{name} has no tuned gains",
+                          f"run 'wmr tune --controller {name} --save FILE.json' and give "
+                          "--tuned FILE.json, or ask for the row " + repr(name))
+    return name, use_tuned
+
+
 OPTIMAL: Final = "optimal"
 DEFAULT_SCENARIOS: Final = ("fig9", "fig10")
 #: Columns of the CSV/Parquet table and of the ``--json`` objects, in order.
@@ -326,11 +365,14 @@ def _ratio(a: float | None, b: float | None) -> float | None:
 
 
 def load_tuned(path: str | os.PathLike[str] | None) -> dict[str, dict[str, float]]:
-    """Tuned gains: a ``wmr tune --save`` JSON file, else the built-in :data:`TUNED_GAINS`."""
+    """Tuned gains by controller: those the built-in controllers declare
+    (:mod:`wmr.core.control.registry`), with those of a ``wmr tune --save`` JSON file over
+    them (which may name any registered controller)."""
     from wmr.infra.errors import ConfigError
     from wmr.infra.inputs import MAX_JSON_BYTES, read_input
 
-    gains = {k: dict(v) for k, v in TUNED_GAINS.items()}
+    gains = {n: dict(registry.get(n).tuned) for n in registry.BUILTIN_NAMES
+             if registry.get(n).tuned}
     if path is None:
         return gains
     fix = "give a file written by 'wmr tune --save'"
@@ -344,9 +386,9 @@ def load_tuned(path: str | os.PathLike[str] | None) -> dict[str, dict[str, float
     if not isinstance(data, dict):
         raise ConfigError("--tuned", f"{path} is not a JSON object of controller -> gains")
     for name, g in data.items():
-        if name not in gains or not isinstance(g, dict):
+        if name not in registry.names() or not isinstance(g, dict):
             raise ConfigError("--tuned", f"{path}: unexpected entry {name!r}",
-                              f"controllers: {', '.join(gains)}")
+                              f"controllers: {', '.join(registry.names())}")
         gains[name] = {k: float(v) for k, v in g.items()}
     return gains
 
@@ -375,7 +417,8 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
     out_dir
         Logs go to ``out_dir/logs/<controller>/<case>.mcap``; None: no logs.
     controllers
-        Labels of :data:`CONTROLLERS`.
+        Row labels (:func:`controller_row`: a registered controller's name, or
+        ``NAME-tuned``); default :data:`CONTROLLERS`.
     tuned
         Tuned gains per controller (default :func:`load_tuned`).
     optimal
@@ -388,13 +431,8 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
     list of dict
         Rows with the :data:`FIELDS` keys (``None`` for a missing figure).
     """
-    from wmr.infra.errors import ConfigError
-
     tuned_gains = load_tuned(None) if tuned is None else tuned
-    for label in controllers:
-        if label not in CONTROLLERS:
-            raise ConfigError("--controllers", f"unknown controller {label!r}",
-                              f"one of: {', '.join(CONTROLLERS)}")
+    rows_of = {label: controller_row(label, tuned_gains) for label in controllers}
     logs = None if out_dir is None else out_dir / "logs"
     rows: list[dict[str, Any]] = []
     for spec in specs:
@@ -409,7 +447,7 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
         for label in controllers:
             if progress is not None:
                 progress(case, label)
-            name, use_tuned = CONTROLLERS[label]
+            name, use_tuned = rows_of[label]
             gains = tuned_gains.get(name, {}) if use_tuned else {}
             run_spec = with_gains(spec, name, gains)
             mcap = None if logs is None else logs / label / fname
@@ -542,8 +580,11 @@ __all__ = [
     "DEFAULT_SCENARIOS",
     "FIELDS",
     "OPTIMAL",
+    "TUNED_SUFFIX",
     "OptimalRun",
     "benchmark_specs",
+    "controller_row",
+    "controller_rows",
     "format_tables",
     "load_tuned",
     "optimal_metadata",

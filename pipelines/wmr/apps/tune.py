@@ -42,23 +42,11 @@ from scipy.optimize import minimize
 
 from wmr.config.scenario import load_scenario, with_overrides
 from wmr.core.closedloop import LoopOutcome, run_closed_loop
+from wmr.core.control import registry
 from wmr.core.control.from_spec import SpecController
-from wmr.core.control.peers import CONTROLLER_NAMES
 from wmr.core.plant import Plant
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
-
-#: Tuned gains per controller: name -> (gain, initial value, lower bound, upper bound).
-#: The PI's four gains of eq. 29 (the servos stay as designed); Astolfi's three; the graceful
-#: law's two curvature gains and the speed-law coefficient beta.
-TUNABLE: Final[dict[str, tuple[tuple[str, float, float, float], ...]]] = {
-    "pi": (("K_ps", 0.5, 0.05, 5.0), ("K_is", 0.025, 1e-4, 1.0),
-           ("K_ptheta", 2.0, 0.2, 20.0), ("K_itheta", 0.4, 1e-3, 10.0)),
-    "astolfi": (("k_rho", 3.0, 0.1, 30.0), ("k_alpha", 8.0, 0.2, 60.0),
-                ("k_beta", -1.5, -30.0, -0.01)),
-    "graceful": (("k_phi", 2.0, 0.05, 20.0), ("k_delta", 1.0, 0.05, 20.0),
-                 ("beta", 0.4, 1e-3, 5.0)),
-}
 
 #: Default tuning set: Fig. 9 with theta_d = -90, -45, 0, 45, 90 deg and Fig. 10 from 0, 60,
 #: 120, 240 and 270 deg (the set is mirror-symmetric about the x axis otherwise).
@@ -73,16 +61,6 @@ DEFAULT_BUDGET: Final = 60
 W_HEADING_S_PER_RAD: Final = 10.0
 W_DISTANCE_S_PER_M: Final = 10.0
 PENALTY_S: Final = 100.0
-
-#: Tuned gains measured with ``wmr tune --controller C`` (default set, budget 60); see
-#: ``docs/benchmark.md``.  Used by ``wmr benchmark`` for the ``*-tuned`` rows unless a file
-#: from ``wmr tune --save`` is given.
-TUNED_GAINS: Final[dict[str, dict[str, float]]] = {
-    "pi": {"K_ps": 0.418, "K_is": 0.282, "K_ptheta": 17.0, "K_itheta": 0.297},
-    "astolfi": {"k_rho": 3.88, "k_alpha": 7.57, "k_beta": -1.65},
-    "graceful": {"k_phi": 0.330, "k_delta": 19.7, "beta": 0.0288},
-}
-
 
 def default_cases() -> list[RunSpec]:
     """The runs of :data:`DEFAULT_CASES`, loaded from the shipped scenarios."""
@@ -133,6 +111,28 @@ def batch_cases(spec: str | Path, runs: int | None = None) -> list[RunSpec]:
     return chosen
 
 
+def tunable_names() -> list[str]:
+    """Every registered controller with gains to tune (``wmr tune --controller all``); a
+    plug-in that does not load is named in a one-line error."""
+    return [n for n in registry.names() if registry.get(n, "--controller").tunable()]
+
+
+def tunable_gains(controller: str) -> tuple[registry.Gain, ...]:
+    """The gains of ``controller`` that ``wmr tune`` searches, with their bounds.
+
+    Raises
+    ------
+    ConfigError
+        ``--controller``: an unknown controller, a plug-in that does not load, or one without
+        gains to tune.
+    """
+    table = registry.get(controller, "--controller").tunable()
+    if not table:
+        raise ConfigError("--controller", f"{controller} declares no gain with bounds to tune",
+                          f"tune one of: {', '.join(tunable_names())}")
+    return table
+
+
 def with_gains(spec: RunSpec, controller: str, gains: Mapping[str, float]) -> RunSpec:
     """``spec`` run by ``controller`` with ``gains`` (the PI's go to ``[gains]``).
 
@@ -141,8 +141,8 @@ def with_gains(spec: RunSpec, controller: str, gains: Mapping[str, float]) -> Ru
     ConfigError
         Unknown controller or gain, or gains outside their admissible set.
     """
-    if controller == "pi":
-        return with_overrides(replace(spec, controller="pi", controller_gains=()),
+    if registry.get(controller).gains_table == registry.RUN_GAINS:  # the PI's: [gains]
+        return with_overrides(replace(spec, controller=controller, controller_gains=()),
                               gains=dict(gains))
     return with_overrides(spec, controller=controller, controller_gains=dict(gains))
 
@@ -187,7 +187,7 @@ class TuneResult:
     Attributes
     ----------
     controller
-        ``pi``, ``astolfi`` or ``graceful``.
+        Its name (:mod:`wmr.core.control.registry`).
     start_gains, gains
         Initial and tuned gains by name.
     start_cost_s, cost_s
@@ -218,7 +218,7 @@ def tune(controller: str, specs: Sequence[RunSpec], plant: Plant,
     Parameters
     ----------
     controller
-        One of :data:`wmr.core.control.peers.CONTROLLER_NAMES`.
+        A controller of :mod:`wmr.core.control.registry` with gains to tune (bounds).
     specs
         The scenario set (their own ``controller`` fields are overridden).
     plant
@@ -226,7 +226,7 @@ def tune(controller: str, specs: Sequence[RunSpec], plant: Plant,
     budget
         Maximum objective evaluations (>= 1; the first is the starting point).
     start
-        Initial gains (default: the controller's defaults, :data:`TUNABLE`).
+        Initial gains (default: the controller's declared defaults).
     progress
         ``progress(evaluation, cost_s, best_cost_s)`` after each evaluation.
 
@@ -235,16 +235,13 @@ def tune(controller: str, specs: Sequence[RunSpec], plant: Plant,
     TuneResult
         The best gains seen (never worse than ``start``).
     """
-    if controller not in CONTROLLER_NAMES:
-        raise ConfigError("--controller", f"unknown controller {controller!r}",
-                          f"one of: {', '.join(CONTROLLER_NAMES)}")
+    table = tunable_gains(controller)
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise ConfigError("--budget", f"must be an integer >= 1, got {budget!r}")
     if not specs:
         raise ConfigError("scenarios", "the tuning set is empty", "give a scenario with runs")
-    table = TUNABLE[controller]
-    names = [t[0] for t in table]
-    x_start = dict(zip(names, (t[1] for t in table), strict=True))
+    names = [g.name for g in table]
+    x_start = {g.name: float(g.default) for g in table}
     if start:
         unknown = set(start) - set(names)
         if unknown:
@@ -252,8 +249,9 @@ def tune(controller: str, specs: Sequence[RunSpec], plant: Plant,
                               f"tunable: {', '.join(names)}")
         x_start.update({k: float(v) for k, v in start.items()})
     signs = np.array([math.copysign(1.0, x_start[n]) for n in names])
-    lo = np.log(np.array([min(abs(t[2]), abs(t[3])) for t in table]))
-    hi = np.log(np.array([max(abs(t[2]), abs(t[3])) for t in table]))
+    bounds = [g.bounds for g in table if g.bounds is not None]
+    lo = np.log(np.array([min(abs(b[0]), abs(b[1])) for b in bounds]))
+    hi = np.log(np.array([max(abs(b[0]), abs(b[1])) for b in bounds]))
     z0 = np.log(np.array([abs(x_start[n]) for n in names]))
 
     def gains_of(z: np.ndarray) -> dict[str, float]:
@@ -294,13 +292,13 @@ def tune(controller: str, specs: Sequence[RunSpec], plant: Plant,
 __all__ = [
     "DEFAULT_BUDGET",
     "DEFAULT_CASES",
-    "TUNABLE",
-    "TUNED_GAINS",
     "TuneResult",
     "batch_cases",
     "case_cost",
     "default_cases",
     "evaluate",
+    "tunable_gains",
+    "tunable_names",
     "tune",
     "with_gains",
 ]

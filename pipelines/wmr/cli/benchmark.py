@@ -71,9 +71,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     b.add_argument("scenarios", nargs="*", metavar="SCENARIO",
                    help="scenario names or TOML files (default fig9 fig10)")
     b.add_argument("--out", metavar="DIR", help="output folder (default runs/benchmark)")
+    from wmr.core.control.registry import BUILTIN_NAMES
+
     b.add_argument("--controllers", metavar="LIST",
-                   help="comma-separated subset of pi,pi-tuned,astolfi,astolfi-tuned,"
-                        "graceful,graceful-tuned (default all)")
+                   help="comma-separated rows: a controller's name, or NAME-tuned for its tuned "
+                        f"gains (default: {', '.join(BUILTIN_NAMES)} and their -tuned rows), an "
+                        "installed plug-in's name too (docs/plugins.md)")
     b.add_argument("--tuned", metavar="FILE.json",
                    help="tuned gains from 'wmr tune --save' (default: the built-in ones)")
     b.add_argument("--no-optimal", action="store_true", help="skip the optimal solves")

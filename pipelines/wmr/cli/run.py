@@ -300,11 +300,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "Exit status: 0 converged, 3 timeout, 1 failed.")
     add_scenario_choice(p, "simulate")
     add_run_overrides(p)
-    from wmr.core.control.peers import CONTROLLER_NAMES
+    from wmr.core.control.registry import BUILTIN_NAMES, ENTRY_POINT_GROUP
 
+    # the built-in names only: listing the plug-ins would read every installed package's
+    # metadata at each start of wmr, for every command
     p.add_argument("--controller", metavar="NAME",
-                   help=f"the controller to run: {', '.join(CONTROLLER_NAMES)} (scenario key "
-                        "controller, with its default gains; docs/control.md)")
+                   help=f"the controller to run: {', '.join(BUILTIN_NAMES)} or an installed "
+                        f"plug-in's (entry points {ENTRY_POINT_GROUP}; docs/plugins.md) (scenario "
+                        "key controller, with its default gains; docs/control.md)")
     p.add_argument("--controller-fmu", nargs="?", const="", default=None, metavar="FILE.fmu",
                    help="run the stabiliser in the controller FMU (C, FMI --fmi) instead of "
                         "Python: the built one, or FILE.fmu (scenario key controller_fmu)")

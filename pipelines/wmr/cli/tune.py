@@ -55,7 +55,14 @@ def _draw_summary(results: Sequence[LoopOutcome | None]) -> dict[str, Any]:
 def _cmd_tune(args: argparse.Namespace) -> int:
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.apps.benchmark import run_optimal
-    from wmr.apps.tune import DEFAULT_BUDGET, batch_cases, default_cases, tune
+    from wmr.apps.tune import (
+        DEFAULT_BUDGET,
+        batch_cases,
+        default_cases,
+        tunable_gains,
+        tunable_names,
+        tune,
+    )
     from wmr.config.scenario import load_scenario
     from wmr.core.runspec import RunSpec
     from wmr.infra.outputs import check_output
@@ -83,8 +90,9 @@ def _cmd_tune(args: argparse.Namespace) -> int:
             specs.extend(load_scenario(s).runs)
     else:
         specs = default_cases()
-    controllers = (["pi", "astolfi", "graceful"] if args.controller == "all"
-                   else [args.controller])
+    controllers = tunable_names() if args.controller == "all" else [args.controller]
+    for c in controllers:  # before the FMU and the optimal times: an unknown name fails fast
+        tunable_gains(c)
     saved: dict[str, dict[str, float]] = {}
     out: list[dict[str, Any]] = []
     with FmuPlant(fmu_path(args)) as plant:
@@ -153,8 +161,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "error; print the gains and the times against the optimal times.")
     t.add_argument("scenarios", nargs="*", metavar="SCENARIO",
                    help="scenario names or TOML files (default: a subset of fig9 + fig10)")
-    t.add_argument("--controller", choices=("pi", "astolfi", "graceful", "all"), default="pi",
-                   help="controller to tune (default pi)")
+    from wmr.core.control.registry import BUILTIN_NAMES
+
+    t.add_argument("--controller", metavar="NAME", default="pi",
+                   help=f"controller to tune: {', '.join(BUILTIN_NAMES)} (default pi), an "
+                        "installed plug-in's (docs/plugins.md), or all (every one with gains to "
+                        "tune)")
     t.add_argument("--budget", type=int, default=None, metavar="N",
                    help="objective evaluations per controller (default 60)")
     t.add_argument("--spec", metavar="SPEC.toml",

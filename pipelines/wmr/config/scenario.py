@@ -10,12 +10,12 @@ A scenario file::
     stop_radius_m = 0.05             # epsilon of Section 4, default 0.05
     heading_tolerance_deg = 0.5      # final alignment tolerance, default 0.5
     max_time_s = 120.0               # default 120
-    controller = "pi"                # pi (default), astolfi or graceful (wmr.core.control.peers)
+    controller = "pi"                # pi (default), astolfi, graceful, a plug-in (docs/plugins.md)
     fmu = "other_robot.fmu"          # optional: drive this robot FMU (path relative to here)
     fmu_map = "other_robot.toml"     # optional: its variable map (docs/fmu_map.md)
     controller_fmu = true            # run the PI law in the controller FMU (or a path to one)
 
-    [controller_gains]               # a peer's own gains (astolfi: k_rho, k_alpha, ...)
+    [controller_gains]               # the controller's own gains (astolfi: k_rho, k_alpha, ...)
     k_rho = 3.0
 
     [gains]                          # any of wmr.core.control.Gains
@@ -46,7 +46,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-from wmr.core.control.peers import controller_gains
+from wmr.core.control.registry import check_gains
 from wmr.core.control.stabiliser import Gains, Limits
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.runspec import (
@@ -170,7 +170,7 @@ def _peer_gains(controller: str, values: Mapping[str, Any]) -> tuple[tuple[str, 
     for k, v in values.items():
         out.append((k, float(v) if isinstance(v, bool)
                     else check_finite(f"controller_gains.{k}", v)))
-    controller_gains(controller, dict(out))
+    check_gains(controller, dict(out))
     return tuple(out)
 
 

@@ -40,7 +40,7 @@ from wmr.core.energy import step_work
 from wmr.core.plant import Plant, Pose
 from wmr.core.runspec import RunSpec
 from wmr.core.sensing import Sensing, SensingRecord
-from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
+from wmr.core.signals import COLUMN, LAW_INDEX, PLANT_SIGNALS, SIGNALS
 
 if TYPE_CHECKING:
     from wmr.core.control import Stabiliser
@@ -52,6 +52,9 @@ _N_PLANT = len(PLANT_SIGNALS)
 _N_SIG = len(SIGNALS)
 _C_TAU_R = COLUMN["tau_r_nm"]
 _C_TAU_L = COLUMN["tau_l_nm"]
+#: The torques in a controller's signals, and the wheel references in its law's (by name).
+_S_TAU_R, _S_TAU_L = _C_TAU_R - _N_PLANT, _C_TAU_L - _N_PLANT
+_L_W_R, _L_W_L = LAW_INDEX["omega_r_ref_radps"], LAW_INDEX["omega_l_ref_radps"]
 
 
 class BlockSink(Protocol):
@@ -360,7 +363,7 @@ def _python_loop(spec: RunSpec, plant: Plant, controller: Controller,
             if converged:
                 # the last row shows the robot at rest with zero torque
                 sig: tuple[float, ...] = controller.step(kx, ky, ktheta, w_r, w_l)
-                sig = (*sig[:14], 0.0, 0.0, *sig[16:])
+                sig = (*sig[:_S_TAU_R], 0.0, 0.0, *sig[_S_TAU_L + 1:])
             else:
                 sig = controller.step(kx, ky, ktheta, w_r, w_l)
             rows[row, :_N_PLANT] = out
@@ -375,7 +378,7 @@ def _python_loop(spec: RunSpec, plant: Plant, controller: Controller,
                     progress(n * h, spec.t_max_s)
             if converged or n >= n_max:
                 break
-            tau_r, tau_l = sig[_C_TAU_R - _N_PLANT], sig[_C_TAU_L - _N_PLANT]
+            tau_r, tau_l = sig[_S_TAU_R], sig[_S_TAU_L]
             a_r, a_l = abs(tau_r), abs(tau_l)
             if a_r > peak:
                 peak = a_r
@@ -454,7 +457,7 @@ def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
                 converged = converged_test(kx, ky, ktheta, kv, komega, tol)
             law = update(kx, ky, ktheta)
             keep(law)
-            code = step(law[12], law[13], 1 if converged else (2 if n >= n_max else 0))
+            code = step(law[_L_W_R], law[_L_W_L], 1 if converged else (2 if n >= n_max else 0))
             if st.row == BLOCK_ROWS:
                 fill(BLOCK_ROWS)
                 st.row = 0

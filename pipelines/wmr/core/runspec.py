@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 
-from wmr.core.control.peers import controller_gains
+from wmr.core.control.registry import check_gains
 from wmr.core.control.stabiliser import Gains, Limits
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.sensing.config import SensorConfig
@@ -39,9 +39,10 @@ class RunSpec:
     t_max_s: float = DEFAULT_MAX_TIME_S
     heading_tolerance_rad: float = math.radians(DEFAULT_HEADING_TOLERANCE_DEG)
     scenario: str = ""
-    #: ``pi`` (the paper's), ``astolfi`` or ``graceful`` (:mod:`wmr.core.control.peers`).
+    #: A name of :mod:`wmr.core.control.registry`: ``pi`` (the paper's), ``astolfi``,
+    #: ``graceful`` or an installed plug-in's.
     controller: str = "pi"
-    #: A peer's own gains as ``(name, value)`` pairs; empty: its published defaults.
+    #: The controller's own gains as ``(name, value)`` pairs; empty: its defaults.
     controller_gains: tuple[tuple[str, float], ...] = ()
     #: ``None``: the Python controller; ``""``: the built controller FMU; else its path.
     controller_fmu: str | None = None
@@ -49,7 +50,7 @@ class RunSpec:
     sensors: SensorConfig | None = None
 
     def __post_init__(self) -> None:
-        controller_gains(self.controller, dict(self.controller_gains))
+        check_gains(self.controller, dict(self.controller_gains))
         if self.sensors is not None:
             self.sensors.check(self.period_s)
         check_positive("control_period_s", self.period_s)

@@ -50,5 +50,14 @@ CONTROL_SIGNALS: Final = (
     "R_y_m",
 )
 
+#: What a point stabiliser fills (:meth:`wmr.core.control.Stabiliser.update`): the
+#: :data:`CONTROL_SIGNALS` but the two torques, which the wheel servos add.  A controller of
+#: :mod:`wmr.core.control.registry` names the ones it fills; the rest are logged as NaN.
+LAW_SIGNALS: Final = tuple(s for s in CONTROL_SIGNALS if s not in ("tau_r_nm", "tau_l_nm"))
+#: Index of each of :data:`LAW_SIGNALS` in the stabiliser's tuple.
+LAW_INDEX: Final = {name: i for i, name in enumerate(LAW_SIGNALS)}
+#: The two a stabiliser must fill: the wheel speed references of eq. 28, the servos' inputs.
+WHEEL_REFERENCES: Final = ("omega_r_ref_radps", "omega_l_ref_radps")
+
 SIGNALS: Final = PLANT_SIGNALS + CONTROL_SIGNALS
 COLUMN: Final = {name: i for i, name in enumerate(SIGNALS)}

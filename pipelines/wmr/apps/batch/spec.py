@@ -89,7 +89,7 @@ from wmr.config.scenario import (
     unknown_field,
     with_overrides,
 )
-from wmr.core.control.peers import CONTROLLER_NAMES, controller_gains
+from wmr.core.control import registry
 from wmr.core.control.stabiliser import Gains, Limits
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.runspec import RunSpec
@@ -269,9 +269,11 @@ def _value(field: str, value: object, where: str) -> Value:
     """A variant's value: a name for :data:`NAME_COLUMNS` and ``controller``, a number
     otherwise."""
     if field == CONTROLLER:
-        if value not in CONTROLLER_NAMES:
+        known = registry.names()
+        if value not in known:
             raise ConfigError(where, f"unknown controller {_cut(value)}",
-                              f"use one of: {', '.join(CONTROLLER_NAMES)}")
+                              f"use one of: {', '.join(known)}")
+        registry.get(value, where)  # a plug-in is loaded here, its failure named at its field
         return str(value)
     if field in NAME_COLUMNS:
         if not isinstance(value, str):
@@ -326,18 +328,20 @@ def _peer_gain_leaves(value: object, where: str) -> list[tuple[str, str, object]
     gains, each gain checked against the controller's declared ones (field
     ``controller_gains.<controller>.<gain>``)."""
     out: list[tuple[str, str, object]] = []
-    peers = tuple(n for n in CONTROLLER_NAMES if n != "pi")
+    # the controllers with gains of their own (a plug-in's always: only the PI's are [gains])
+    own = tuple(n for n in registry.names() if n not in registry.BUILTIN_NAMES
+                or registry.get(n).gains_table == CONTROLLER_GAINS)
     for name, gains in _table(value, where, f"[{where}.astolfi] with k_rho = ...").items():
         src = f"{where}.{name}"
-        if name == "pi":
-            raise ConfigError(src, "the PI takes its gains from [gains]",
-                              f"vary them as gains.K_ps, ...; {where} is for {', '.join(peers)}")
-        if name not in CONTROLLER_NAMES:
+        if name in registry.BUILTIN_NAMES and name not in own:
+            raise ConfigError(src, f"the {name.upper()} takes its gains from [gains]",
+                              f"vary them as gains.K_ps, ...; {where} is for {', '.join(own)}")
+        if name not in registry.names():
             raise ConfigError(src, f"unknown controller {_cut(name)}",
-                              f"give the gains of one of: {', '.join(peers)}")
-        defaults = controller_gains(name)  # a peer's: never None
-        known = tuple(defaults.as_dict()) if defaults is not None else ()
-        for gain, raw in _table(gains, src, f"[{src}] with {known[0]} = ...").items():
+                              f"give the gains of one of: {', '.join(own)}")
+        known = tuple(g.name for g in registry.get(name, src).gains)
+        example = f"[{src}] with {known[0]} = ..." if known else f"no [{src}]: it has no gains"
+        for gain, raw in _table(gains, src, example).items():
             if gain not in known:
                 raise ConfigError(f"{src}.{gain}", f"not a gain of {name}",
                                   f"{name}'s gains: {', '.join(known)}")
@@ -616,10 +620,9 @@ def _inputs(spec: RunSpec, values: Mapping[str, Value], columns: Sequence[str]
     if spec.sensors is not None:
         actual.update({f"sensors.{k}": v for k, v in spec.sensors.as_dict().items()
                        if k in _GROUPS["sensors"]})
-    peer = controller_gains(spec.controller, dict(spec.controller_gains))
-    if peer is not None:  # every gain the run's controller uses, its defaults included
-        actual.update({f"{CONTROLLER_GAINS}.{spec.controller}.{k}": v
-                       for k, v in peer.as_dict().items()})
+    # every gain the run's controller uses, its defaults included (none of its own: the PI)
+    actual.update({f"{CONTROLLER_GAINS}.{spec.controller}.{k}": v for k, v in
+                   registry.check_gains(spec.controller, dict(spec.controller_gains)).items()})
     for col in columns:
         if col in row:
             continue

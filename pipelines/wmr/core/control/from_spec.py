@@ -2,8 +2,9 @@
 
 :class:`SpecController` is what a caller of :func:`wmr.core.closedloop.run_closed_loop` hands
 the loop when the run has no controller FMU: at :meth:`SpecController.configure` it builds the
-spec's law afresh (``spec.controller``: the paper's PI stabiliser or a peer, with the spec's
-goal, gains, limits, robot, period and peer gains; :func:`wmr.core.control.peers.make_controller`)
+spec's law afresh (``spec.controller``: any controller of :mod:`wmr.core.control.registry`, the
+paper's PI stabiliser, a peer or a plug-in, with the spec's goal, gains, limits, robot, period
+and the controller's own gains; :func:`wmr.core.control.registry.make_controller`)
 and takes on its ``step``, ``stabiliser`` and wheel servos, so that the loop calls the law's
 own methods, without a forwarding call per step.
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from wmr.core.control import peers
+from wmr.core.control import registry
 
 if TYPE_CHECKING:
     from wmr.core.control import ServoedController, Stabiliser, WheelServo
@@ -35,9 +36,7 @@ class SpecController:
 
     def configure(self, spec: RunSpec) -> None:
         """Build the law of ``spec`` (``spec.controller`` with its gains), fresh."""
-        law = peers.make_controller(spec.controller, spec.goal, spec.gains, spec.limits,
-                                    spec.params, spec.period_s, spec.stop_radius_m,
-                                    dict(spec.controller_gains))
+        law = registry.make_controller(spec)
         self.law = law
         # the law's own bound method: the loop's per-step call reaches it directly
         self.step = law.step  # type: ignore[method-assign]

@@ -107,17 +107,14 @@ In the alignment phase all three log ``e_s`` = distance along the heading line a
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
-from typing import Any, Final
+from typing import Final
 
-from wmr.core.control import PIController, ServoedController
 from wmr.core.control.stabiliser import (
     ALIGN,
     APPROACH,
     OMEGA_REST_RADPS,
     V_REST_MPS,
-    Gains,
     Limits,
     unwrap_near,
     wrap_angle,
@@ -125,8 +122,6 @@ from wmr.core.control.stabiliser import (
 from wmr.core.plant import Pose, RobotParams
 from wmr.infra.errors import ConfigError
 
-#: The controllers a run can use (``RunSpec.controller``).
-CONTROLLER_NAMES: Final = ("pi", "astolfi", "graceful")
 NAN: Final = math.nan
 #: PI default alignment gains, shared by the peers' final alignment (1/s).
 ALIGN_K_THETA: Final = 2.0
@@ -233,37 +228,6 @@ class GracefulGains:
 
     def as_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in asdict(self).items()}
-
-
-def controller_gains(name: str, values: Mapping[str, Any] | None = None
-                     ) -> AstolfiGains | GracefulGains | None:
-    """The validated gains object of controller ``name`` (None for ``"pi"``).
-
-    Raises
-    ------
-    ConfigError
-        Unknown controller, unknown gain name, or gains out of range.
-    """
-    values = dict(values or {})
-    if name == "pi":
-        if values:
-            raise ConfigError("controller_gains", "the PI takes its gains from [gains]",
-                              "move them to the [gains] table")
-        return None
-    cls: type[AstolfiGains] | type[GracefulGains]
-    if name == "astolfi":
-        cls = AstolfiGains
-    elif name == "graceful":
-        cls = GracefulGains
-    else:
-        raise ConfigError("controller", f"unknown controller {name!r}",
-                          f"one of: {', '.join(CONTROLLER_NAMES)}")
-    allowed = tuple(f.name for f in fields(cls))
-    for key in values:
-        if key not in allowed:
-            raise ConfigError(f"controller_gains.{key}", f"not a gain of {name}",
-                              f"allowed: {', '.join(allowed)}")
-    return cls(**values)
 
 
 class PolarStabiliser:
@@ -453,60 +417,10 @@ class GracefulStabiliser(PolarStabiliser):
         return v, kappa * v, dr, delta, bearing, phi, err, v, kappa * v
 
 
-class PeerController(ServoedController):
-    """A peer stabiliser plus the PI's wheel servos: the same Fig. 7 structure.
-
-    Parameters
-    ----------
-    stabiliser
-        The peer law (:class:`AstolfiStabiliser` or :class:`GracefulStabiliser`).
-    gains, limits, params, period_s
-        The servo gains ``K_pw, K_iw`` come from ``gains`` (the PI's), the torque limit from
-        ``limits``, friction feed-forward from ``params``: the servos are the PI's.
-    """
-
-    __slots__ = ()
-
-    def __init__(self, stabiliser: PolarStabiliser, gains: Gains, limits: Limits,
-                 params: RobotParams, period_s: float) -> None:
-        super().__init__(stabiliser, gains, limits, params, period_s)
-
-
-def make_controller(name: str, goal: Pose, gains: Gains, limits: Limits, params: RobotParams,
-                    period_s: float, stop_radius_m: float,
-                    controller_gains_: Mapping[str, Any] | None = None
-                    ) -> ServoedController:
-    """The registry: build controller ``name`` (``pi``, ``astolfi`` or ``graceful``).
-
-    Parameters
-    ----------
-    name
-        One of :data:`CONTROLLER_NAMES`.
-    goal, gains, limits, params, period_s, stop_radius_m
-        As for :class:`wmr.core.control.PIController`; a peer uses ``gains`` only for its wheel
-        servos and ``limits`` for its command and torque limits.
-    controller_gains_
-        The peer's own gains by name (defaults: the published ones); empty for the PI.
-    """
-    peer = controller_gains(name, controller_gains_)
-    if isinstance(peer, AstolfiGains):
-        return PeerController(AstolfiStabiliser(goal, peer, limits, params, period_s,
-                                                stop_radius_m), gains, limits, params, period_s)
-    if isinstance(peer, GracefulGains):
-        return PeerController(GracefulStabiliser(goal, peer, limits, params, period_s,
-                                                 stop_radius_m), gains, limits, params,
-                              period_s)
-    return PIController(goal, gains, limits, params, period_s, stop_radius_m)
-
-
 __all__ = [
-    "CONTROLLER_NAMES",
     "AstolfiGains",
     "AstolfiStabiliser",
     "GracefulGains",
     "GracefulStabiliser",
-    "PeerController",
     "PolarStabiliser",
-    "controller_gains",
-    "make_controller",
 ]
