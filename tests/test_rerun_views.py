@@ -18,6 +18,7 @@ import rerun_cli
 
 from wmr.adapters.mcap import read_run
 from wmr.adapters.mcap.scene import ROBOT_PERIOD_NS
+from wmr.adapters.mcap.sensing import read_sensing
 from wmr.adapters.rerun.blueprint import APPLICATION_ID, LOG_TIMELINE
 from wmr.adapters.rerun.replay import PANELS, TIMELINE
 from wmr.cli import main
@@ -89,7 +90,8 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 def test_raw_log_draws_itself_on_a_duration_timeline(logs: dict[str, Path],
                                                      tmp_path: Path) -> None:
     """``rerun mcap convert``: the robot (points placed by a pose per 50 ms), its path and the
-    goal are Points3D; the fixes and the estimate too for a run with sensors; the phase is a
+    goal are Points3D; the fixes (all at t = 0, and each at its time) and the estimate too for
+    a run with sensors; the phase is a
     plottable message; the log time is a duration."""
     run = read_run(logs["fig11"])
     rrd = tmp_path / "raw.rrd"
@@ -112,6 +114,10 @@ def test_raw_log_draws_itself_on_a_duration_timeline(logs: dict[str, Path],
     ents = rrd_print(gps)
     for topic in ("/scene/gps", "/scene/estimate"):
         assert points <= ents[topic][1], topic
+    # each fix a point of its own at its arrival (issue 33, item 11; it was a pose, not drawn)
+    fixes = read_sensing(logs["gps"])
+    assert fixes is not None
+    assert points <= ents["/sensors/gps"][1] and ents["/sensors/gps"][0] == len(fixes.gps_t_ns)
 
 
 def test_raw_blueprint_views_name_what_the_loader_makes(logs: dict[str, Path],

@@ -286,3 +286,32 @@ def test_a_full_disk_is_the_log_s_failure_a_drawing_s_only_warns(error: Exceptio
     else:
         with pytest.warns(RuntimeWarning, match="scene topics were not written: ValueError"):
             rec.write(Log())
+
+
+@pytest.mark.parametrize("name", ["layout.json", "layout-gps-zoom.json"])
+def test_the_lichtblick_layouts_name_only_what_our_logs_write(name: str) -> None:
+    """The layouts of docs/replay.md's Lichtblick check (``tools/lichtblick/``) show topics,
+    frames and plotted fields our logs hold: a topic or field renamed in the code would leave
+    a panel silently empty in the viewer. Seen failing with ``/robot/state.x_m`` misspelt in a
+    plot path."""
+    import json
+
+    from wmr.adapters.mcap.schemas import BASE_FRAME, GOAL_TOPIC, STEP_TOPICS, WORLD_FRAME
+    from wmr.adapters.mcap.sensing import ESTIMATE_TOPIC, GPS_TOPIC
+    from wmr.infra.paths import _REPO_ROOT
+
+    layout = json.loads((_REPO_ROOT / "tools" / "lichtblick" / name).read_text(encoding="utf-8"))
+    panels = layout["configById"]
+    scene_topics = {ROBOT_TOPIC, PATH_TOPIC, GOAL_TOPIC, scene_mod.GOAL_TOPIC,
+                    scene_mod.GPS_SCENE_TOPIC, scene_mod.ESTIMATE_SCENE_TOPIC, GPS_TOPIC,
+                    ESTIMATE_TOPIC}
+    three_d = panels["3D!wmr"]
+    assert three_d["followTf"] == WORLD_FRAME
+    assert set(three_d["topics"]) <= scene_topics
+    assert {k.removeprefix("frame:") for k in three_d["transforms"]} <= {WORLD_FRAME, BASE_FRAME}
+    fields = {f"{t.topic}.{s}" for t in STEP_TOPICS for s in t.signals}
+    paths = [p["value"] for p in panels["Plot!wmr"]["paths"]]
+    assert paths and set(paths) <= fields, set(paths) - fields
+    # the layout tree names exactly the panels configured
+    tree = layout["layout"]
+    assert {tree["first"], tree["second"]} == set(panels)

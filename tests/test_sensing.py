@@ -613,3 +613,112 @@ def test_read_sensing_of_a_cut_log_keeps_what_was_whole(tmp_path: Path) -> None:
     assert np.array_equal(part.est_t_ns, whole.est_t_ns)
     assert np.array_equal(part.est_pose, whole.est_pose)
     assert np.array_equal(part.gps_xy_m, whole.gps_xy_m)
+
+
+# -- how the fixes are logged (issue 33, item 11) --------------------------------------------
+
+def _fixes_record() -> Any:
+    """A hand-made record: three fixes (full float64 digits, arriving 50 ms after they were
+    measured) and two estimates."""
+    from wmr.core.sensing.estimator import SensingRecord
+
+    return SensingRecord(
+        gps_t_ns=np.array([0, 100_000_000, 200_000_000], np.int64),
+        gps_arrival_ns=np.array([50_000_000, 150_000_000, 250_000_000], np.int64),
+        gps_xy_m=np.array([[0.1234567890123, -2.0], [10.000000001, 3.3], [-7.5, 1e-9]]),
+        est_t_ns=np.array([0, 10_000_000], np.int64),
+        est_pose=np.array([[0.0, 0.0, 0.5], [0.01, 0.0, 0.5]]),
+        est_cov=np.full((2, 4), np.nan))
+
+
+def _write_fixes(path: Path) -> Any:
+    from wmr.adapters.mcap import RunLogWriter
+    from wmr.adapters.mcap.sensing import write_sensing
+
+    rec = _fixes_record()
+    log = RunLogWriter(path, run={"scenario": "fixes"}, goal=(1.0, 0.0, 0.0))
+    write_sensing(log, rec)
+    log.close({"status": "converged"})
+    return rec
+
+
+def test_a_fix_is_logged_as_a_point_without_a_heading(tmp_path: Path) -> None:
+    """A GPS fix is a position: decoded with the Foxglove schema embedded in the log (by
+    ``mcap-protobuf-support``, as Foxglove's and Lichtblick's readers do), each message on
+    ``/sensors/gps`` is a ``foxglove.PointCloud`` of one point at the fix, with no pose and
+    no orientation anywhere, so that a 3-D panel draws a point. Seen failing on the fixes as
+    ``foxglove.PoseInFrame`` with an identity orientation (an arrow along +x)."""
+    from google.protobuf.message import Message
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    path = tmp_path / "fixes.mcap"
+    rec = _write_fixes(path)
+    with open(path, "rb") as f:
+        decoded = list(make_reader(f, decoder_factories=[DecoderFactory()])
+                       .iter_decoded_messages(topics=["/sensors/gps"]))
+    assert len(decoded) == 3
+    assert {schema.name for schema, _, _, _ in decoded} == {"foxglove.PointCloud"}
+
+    def set_fields(msg: Message) -> list[str]:
+        """The names of every field set in ``msg``, nested ones included."""
+        names = []
+        for fd, value in msg.ListFields():
+            names.append(fd.name)
+            if fd.message_type is not None:  # a message, or a repeated one
+                subs = [value] if isinstance(value, Message) else list(value)
+                names += [n for v in subs for n in set_fields(v)]
+        return names
+
+    for i, (_, _, message, cloud) in enumerate(decoded):
+        assert "pose" not in set_fields(cloud) and "orientation" not in set_fields(cloud)
+        assert cloud.frame_id == "world"
+        assert message.log_time == rec.gps_arrival_ns[i]
+        assert cloud.timestamp.ToNanoseconds() == rec.gps_t_ns[i]
+        # the point, read through the message's own field table (8: FLOAT64, 1: UINT8)
+        fields = {fd.name: (fd.offset, fd.type) for fd in cloud.fields}
+        assert len(cloud.data) == cloud.point_stride
+        xyz = [np.frombuffer(cloud.data, "<f8", 1, fields[n][0])[0] for n in "xyz"]
+        assert [fields[n][1] for n in "xyz"] == [8, 8, 8]
+        assert xyz == [rec.gps_xy_m[i, 0], rec.gps_xy_m[i, 1], 0.0]  # float64: exact
+        assert {n for n, (_, t) in fields.items() if t == 1} == {"red", "green", "blue", "alpha"}
+    from wmr.infra.paths import _REPO_ROOT
+
+    documented = [line for line in (_REPO_ROOT / "docs" / "sensing.md").read_text(
+        encoding="utf-8").splitlines() if line.startswith("| `/sensors/gps` |")]
+    assert len(documented) == 1 and "| `foxglove.PointCloud` |" in documented[0]
+
+
+def test_read_sensing_reads_the_fixes_of_new_and_old_logs(tmp_path: Path) -> None:
+    """``read_sensing`` (``wmr replay``) gives the fixes back exactly from a new log, and from
+    a log written before the fixes were point clouds (``foxglove.PoseInFrame`` each)."""
+    from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+    from mcap.writer import Writer
+
+    from wmr.adapters.mcap.schemas import descriptor_set
+    from wmr.adapters.mcap.sensing import read_sensing
+
+    new = tmp_path / "new.mcap"
+    rec = _write_fixes(new)
+    old = tmp_path / "old.mcap"
+    with open(old, "wb") as f:  # the old form, written by the mcap library itself
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("foxglove.PoseInFrame", "protobuf",
+                                descriptor_set(PoseInFrame.DESCRIPTOR.file))
+        cid = w.register_channel("/sensors/gps", "protobuf", sid)
+        for t, arrival, (x, y) in zip(rec.gps_t_ns.tolist(), rec.gps_arrival_ns.tolist(),
+                                      rec.gps_xy_m.tolist(), strict=True):
+            pose = PoseInFrame(frame_id="world")
+            pose.timestamp.FromNanoseconds(t)
+            pose.pose.position.x, pose.pose.position.y = x, y
+            pose.pose.orientation.w = 1.0
+            w.add_message(cid, arrival, pose.SerializeToString(), arrival)
+        w.finish()
+    for path in (new, old):
+        trace = read_sensing(path)
+        assert trace is not None, path
+        assert np.array_equal(trace.gps_t_ns, rec.gps_t_ns), path
+        assert np.array_equal(trace.gps_xy_m, rec.gps_xy_m), path
+    new_trace = read_sensing(new)
+    assert new_trace is not None and np.array_equal(new_trace.est_t_ns, rec.est_t_ns)

@@ -19,7 +19,8 @@ topic                       content
                             by phase, once at t = 0
 ``/scene/goal``             the goal: a 1 m arrow along theta_d and a ring of the stop
                             radius, once at t = 0
-``/scene/gps``              the position fixes (runs with sensors), once at t = 0
+``/scene/gps``              all the position fixes (runs with sensors), once at t = 0
+                            (``/sensors/gps`` has each at its time, also a point cloud)
 ``/scene/estimate``         the estimated path (runs with sensors), once at t = 0
 ``/controller/phase``       ``wmr.ControlPhase``: ``phase`` 0 = approach, 1 = align (the
                             stabiliser's final alignment inside the stop radius), a
@@ -367,13 +368,13 @@ _FRAME: Final = PointCloud(frame_id=WORLD_FRAME).SerializeToString(deterministic
 
 
 #: The ``FileDescriptorSet`` of ``foxglove.PointCloud``, dependencies first.
-_CLOUD_SCHEMA_DATA: Final = descriptor_set(PointCloud.DESCRIPTOR.file)
+CLOUD_SCHEMA_DATA: Final = descriptor_set(PointCloud.DESCRIPTOR.file)
 
 
 def _write_cloud(log: MessageLog, topic: str, points: npt.NDArray[np.void]) -> None:
     """One unplaced cloud of ``points`` on ``topic`` at t = 0 (the goal, the path, the fixes,
     the estimate; the robot's outlines, one per period, are :meth:`SceneRecorder._write`'s)."""
-    log.write_messages(topic, CLOUD_SCHEMA, _CLOUD_SCHEMA_DATA, [0], [cloud_message(0, points)])
+    log.write_messages(topic, CLOUD_SCHEMA, CLOUD_SCHEMA_DATA, [0], [cloud_message(0, points)])
 
 
 def write_sensing_scene(log: MessageLog, gps_xy_m: npt.ArrayLike,
@@ -538,7 +539,7 @@ class SceneRecorder:
         slot = t // robot_period_ns(int(t[-1]))
         first = np.flatnonzero(np.concatenate([[True], slot[1:] != slot[:-1]]))
         first = first[np.isfinite(rows[first, :3]).all(axis=1)]
-        log.write_messages(ROBOT_TOPIC, CLOUD_SCHEMA, _CLOUD_SCHEMA_DATA, t[first], PlacedClouds(
+        log.write_messages(ROBOT_TOPIC, CLOUD_SCHEMA, CLOUD_SCHEMA_DATA, t[first], PlacedClouds(
             t[first], rows[first, :3], phase[first],
             _robot_clouds(self._half_track, self._wheel_radius)))
         if self._controlled and self._stop_radius is not None:
@@ -551,27 +552,51 @@ class SceneRecorder:
             log.write_messages(PHASE_TOPIC, PHASE_SCHEMA, _PHASE_SCHEMA_DATA, pt, msgs)
 
 
+#: The numpy type of each packed field type the clouds here use (``foxglove.PackedElementField``).
+_PACKED_TYPES: Final = {PackedElementField.UINT8: "u1", PackedElementField.FLOAT32: "<f4",
+                        PackedElementField.FLOAT64: "<f8"}
+
+
+def cloud_field(msg: PointCloud, name: str) -> npt.NDArray[Any] | None:
+    """The field ``name`` of every point of the cloud ``msg``, read through its ``fields``
+    and ``point_stride`` as Foxglove's reader does.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        One value per point, of the field's own type; ``None`` when the cloud has no such
+        field, a type other than ``UINT8``, ``FLOAT32`` or ``FLOAT64``, or a layout that does
+        not fit its data (a damaged or foreign message: the caller leaves it out).
+    """
+    field = next((f for f in msg.fields if f.name == name), None)
+    if field is None or field.type not in _PACKED_TYPES:
+        return None
+    dt = np.dtype(_PACKED_TYPES[field.type])
+    stride = msg.point_stride
+    if stride <= 0 or len(msg.data) % stride or field.offset + dt.itemsize > stride:
+        return None
+    raw = np.frombuffer(msg.data, np.uint8).reshape(-1, stride)
+    return raw[:, field.offset:field.offset + dt.itemsize].copy().view(dt).ravel()
+
+
 def read_cloud(data: bytes) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
     """Positions ``(m, 3)`` and colours ``(m, 4)`` of a ``foxglove.PointCloud`` message, read
     through its own ``fields`` and ``point_stride`` as Foxglove's reader does (for tests)."""
     msg = PointCloud.FromString(data)
-    fields = {f.name: f for f in msg.fields}
-    raw = np.frombuffer(msg.data, np.uint8).reshape(-1, msg.point_stride)
-    types = {PackedElementField.FLOAT32: "<f4", PackedElementField.UINT8: "u1"}
 
     def col(name: str) -> npt.NDArray[Any]:
-        f = fields[name]
-        dt = np.dtype(types[f.type])
-        return raw[:, f.offset:f.offset + dt.itemsize].copy().view(dt).ravel()
+        values = cloud_field(msg, name)
+        if values is None:
+            raise ValueError(f"the cloud has no readable field {name!r}")
+        return values
 
     pos = np.column_stack([col(n) for n in "xyz"]).astype(np.float32)
     rgba = np.column_stack([col(n) for n in ("red", "green", "blue", "alpha")])
     return pos, rgba.astype(np.uint8)
 
 
-__all__ = ["ALIGN", "APPROACH", "CLOUD_SCHEMA", "ESTIMATE_SCENE_TOPIC", "GOAL_TOPIC",
-           "GPS_SCENE_TOPIC", "PATH_TOPIC", "PHASE_COLORS", "PHASE_NAMES", "PHASE_TOPIC",
-           "ROBOT_TOPIC", "ControlPhase", "PlacedClouds", "SceneRecorder", "cloud_message",
-           "cloud_points",
-           "control_phases", "phase_changes", "read_cloud", "resample_path", "robot_geometry",
-           "robot_outline", "write_sensing_scene"]
+__all__ = ["ALIGN", "APPROACH", "CLOUD_SCHEMA", "CLOUD_SCHEMA_DATA", "ESTIMATE_SCENE_TOPIC",
+           "GOAL_TOPIC", "GPS_SCENE_TOPIC", "PATH_TOPIC", "PHASE_COLORS", "PHASE_NAMES",
+           "PHASE_TOPIC", "ROBOT_TOPIC", "ControlPhase", "PlacedClouds", "SceneRecorder",
+           "cloud_field", "cloud_message", "cloud_points", "control_phases", "phase_changes",
+           "read_cloud", "resample_path", "robot_geometry", "robot_outline", "write_sensing_scene"]
