@@ -39,11 +39,18 @@ from wmr.adapters.ssp.agreement import (
 from wmr.adapters.ssp.cosim import simulate_libcosim
 from wmr.adapters.ssp.ecos import simulate_ecos
 from wmr.adapters.ssp.export import MAP_NAME
+from wmr.adapters.ssp.omsimulator import (
+    FMI3_REFUSAL,
+    converged_at_s,
+    omsimulator,
+    omsimulator_version,
+    simulate_omsimulator,
+)
 from wmr.adapters.ssp.package import ROBOT, SspPackage, unpacked_package
 from wmr.config.scenario import parse_scenario
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
-from wmr.infra.errors import ConfigError
+from wmr.infra.errors import ConfigError, FmuError
 
 _POSE: Final = [COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]]
 #: A master's path is compared at up to this many steps of lag (fmpy: 1, docs/ssp.md).
@@ -114,15 +121,20 @@ def _run_fmpy(ssp: Path, package: SspPackage) -> MasterRun:
 
 
 def _run_omsimulator(ssp: Path, package: SspPackage) -> MasterRun:
-    for module in ("OMSimulator", "OMSimPy"):
-        try:
-            __import__(module)
-        except ImportError:
-            continue
-        raise NotLoaded(f"installed ({module}), but wmr ssp check does not drive it yet: run "
-                        "it as docs/ssp.md says")
-    raise NotLoaded("not installed (its PyPI package downloads binaries at install time: "
-                    "docs/ssp.md)")
+    try:
+        omsimulator()
+    except ConfigError as exc:
+        raise NotLoaded(f"OMSimulator {exc.problem} (docs/ssp.md, 'OMSimulator')") from None
+    try:
+        run = simulate_omsimulator(ssp)
+    except FmuError as exc:
+        if _fmi(package).startswith("3") and FMI3_REFUSAL in str(exc):
+            # its Python layer at 3.0.0-103 reads FMI 2.0 model descriptions only
+            raise NotLoaded(f"cannot load it: {omsimulator_version()} reads no FMI 3.0 "
+                            f"model description ('{FMI3_REFUSAL}'; docs/ssp.md, "
+                            "'OMSimulator')") from None
+        raise
+    return MasterRun(run.master, converged_at_s(run), run.block[:, _POSE])
 
 
 #: The masters, in the order of the table.  Tests replace one to make it fail.
