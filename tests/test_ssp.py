@@ -479,6 +479,12 @@ def test_omsimulator_reads_a_weakly_coupled_system_stepped_at_the_control_period
     (master,) = children(info, "oms:FixedStepMaster")
     assert master.getAttribute("description") == "oms-ma"
     assert float(master.getAttribute("stepSize")) == spec.period_s
+    # passed to every FMI 2.0 FMU as a defined tolerance (0 without it, which the robot
+    # refused): the robot FMU's own default, as wmr run leaves it
+    from fmpy import read_model_description
+
+    tolerance = read_model_description(str(built.fmus[fmi])).defaultExperiment.tolerance
+    assert float(master.getAttribute("relativeTolerance")) == float(tolerance) == 1e-9
 
 
 def test_every_master_run_to_the_stop_time_ends_where_wmr_run_stopped(

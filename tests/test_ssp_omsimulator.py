@@ -40,8 +40,11 @@ def _omsimulator_or_skip() -> str:
         pytest.skip(f"OMSimulator {exc.problem}")
 
 
-def _spec(start: Pose | None = None, goal: Pose = Pose(1.0, 0.5, math.radians(30.0)),
-          t_max_s: float = 12.0) -> RunSpec:
+_NEAR_GOAL = Pose(1.0, 0.5, math.radians(30.0))
+
+
+def _spec(start: Pose | None = None, goal: Pose = _NEAR_GOAL, t_max_s: float = 12.0
+          ) -> RunSpec:
     """Fig. 11's robot and gains to a near goal (about 6 s), stopped at ``t_max_s``."""
     spec = next(iter(load_scenario("fig11").runs))
     return replace(with_overrides(spec, start=start, goal=goal, t_max_s=t_max_s), name="oms")
@@ -53,20 +56,24 @@ def _package(built: BuildResult, spec: RunSpec, folder: Path, fmi: int = 2) -> P
     return out
 
 
+@pytest.mark.parametrize("fmi", [2, 3])
 @pytest.mark.parametrize("start", [None, Pose(0.5, -0.3, math.radians(170.0))],
                          ids=["origin", "variant"])
 def test_omsimulator_runs_the_package_as_wmr_run_does(built: BuildResult, tmp_path: Path,
-                                                      start: Pose | None) -> None:
+                                                      start: Pose | None, fmi: int) -> None:
     """The robot's path in OMSimulator is ``wmr run``'s within the CSV's 12 digits (x, y and
     theta in their own columns), it converges at ``wmr run``'s sample, runs to the package's
     stop time (it ignores the controller's stop request) and ends held by the brake; the
-    variant's start and goal reach it (parameter sets and the FMUs' start values)."""
+    variant's start and goal reach it (parameter sets and the FMUs' start values), under a
+    name that is not an OMSimulator identifier; FMI 2.0 and 3.0 alike."""
     from wmr.adapters.ssp.omsimulator import converged_at_s, simulate_omsimulator
 
     version = _omsimulator_or_skip()
     spec = _spec(start=start, goal=Pose(-1.0, 0.5, math.radians(-60.0)) if start else
-                 Pose(1.0, 0.5, math.radians(30.0)))
-    package = _package(built, spec, tmp_path)
+                 _NEAR_GOAL)
+    if start is not None:
+        spec = replace(spec, name="oms-variant_0.5")  # as wmr names a variant: '-' and '.'
+    package = _package(built, spec, tmp_path, fmi)
     with unpacked_package(package) as (pkg, folder):
         result, ref = wmr_run(spec, folder / pkg.component(ROBOT).source)
     assert result.status == "converged"
@@ -83,17 +90,19 @@ def test_omsimulator_runs_the_package_as_wmr_run_does(built: BuildResult, tmp_pa
     # braked after converging: within the bars of where wmr run stopped
     assert math.hypot(*(end[:2] - ref[-1, :2])) < 5e-3
     assert abs(end[2] - ref[-1, 2]) < math.radians(0.2)
+    assert run.extra["model_name"] == ("oms" if start is None else "oms_variant_0_5")
 
 
 def test_wmr_ssp_check_has_omsimulator_s_row(built: BuildResult, tmp_path: Path,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
     """The row's figures are those of the agreement helpers on OMSimulator's own run."""
     from wmr.adapters.ssp.omsimulator import simulate_omsimulator
+    from wmr.apps import ssp_check
     from wmr.apps.ssp_check import MASTERS, check_package
 
     version = _omsimulator_or_skip()
-    for key in [k for k in MASTERS if k != "omsimulator"]:
-        monkeypatch.delitem(MASTERS, key)  # the other masters are tested in test_ssp.py
+    # the other masters are tested in test_ssp.py
+    monkeypatch.setattr(ssp_check, "MASTERS", {"omsimulator": MASTERS["omsimulator"]})
     spec = _spec()
     package = _package(built, spec, tmp_path)
     report = check_package(package)
@@ -109,35 +118,32 @@ def test_wmr_ssp_check_has_omsimulator_s_row(built: BuildResult, tmp_path: Path,
     assert row.worst_distance_mm is not None and row.worst_distance_mm < 1e-6
 
 
-def test_omsimulator_s_row_for_an_fmi3_package_says_why_it_is_not_run(
-        built: BuildResult, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """OMSimulator 3.0.0-103's Python layer parses only FMI 2.0's ``ScalarVariable``s
-    (docs/ssp.md): the row says so and is not counted.  A later OMSimulator that loads the
-    package must agree with ``wmr run`` as the FMI 2.0 one does."""
-    from wmr.adapters.ssp.omsimulator import FMI3_REFUSAL
-    from wmr.apps.ssp_check import MASTERS, check_package
+def test_omsimulator_model_names_are_its_identifiers() -> None:
+    """OMSimulator takes ``^[a-zA-Z][a-zA-Z0-9_]*$`` as a model name (ComRef.cpp): a
+    package's name is kept when it is one, else every other character becomes ``_``."""
+    from wmr.adapters.ssp.omsimulator import model_name
+    from wmr.adapters.ssp.package import SspPackage
 
-    _omsimulator_or_skip()
-    for key in [k for k in MASTERS if k != "omsimulator"]:
-        monkeypatch.delitem(MASTERS, key)  # the other masters are tested in test_ssp.py
-    report = check_package(_package(built, _spec(), tmp_path, fmi=3))
-    (row,) = [r for r in report.rows if r.master.startswith("omsimulator")]
-    if row.ran:
-        assert row.agrees and row.worst_distance_mm is not None \
-            and row.worst_distance_mm < 1e-6, row
-    else:
-        assert row.agrees is None and row.said.startswith("cannot load it: ")
-        assert FMI3_REFUSAL in row.said and "FMI 3.0" in row.said
+    def name(n: str) -> str:
+        return model_name(SspPackage(path=Path("p.ssp"), name=n, components={},
+                                     start_time_s=0.0, stop_time_s=1.0, step_size_s=0.01))
+
+    assert name("fig11") == "fig11"
+    assert name("fig11-from_3_-2_170deg-to_-4_5_-60deg") == \
+        "fig11_from_3__2_170deg_to__4_5__60deg"
+    assert name("9lives.x") == "p_9lives_x"
+    assert name("élan") == "p__lan"
 
 
 def test_omsimulator_s_row_says_why_it_is_not_importable(
         built: BuildResult, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Where OMSimulator is absent (here: hidden), its row says why and is not counted."""
+    from wmr.apps import ssp_check
     from wmr.apps.ssp_check import MASTERS, check_package
 
     monkeypatch.setitem(sys.modules, "OMSimulator", None)  # import raises ImportError
-    for key in [k for k in MASTERS if k != "omsimulator"]:
-        monkeypatch.delitem(MASTERS, key)  # the other masters are tested in test_ssp.py
+    # the other masters are tested in test_ssp.py
+    monkeypatch.setattr(ssp_check, "MASTERS", {"omsimulator": MASTERS["omsimulator"]})
     report = check_package(_package(built, _spec(), tmp_path))
     (row,) = report.rows
     assert row.master == "omsimulator" and not row.ran and row.agrees is None

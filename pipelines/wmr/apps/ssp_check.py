@@ -39,18 +39,12 @@ from wmr.adapters.ssp.agreement import (
 from wmr.adapters.ssp.cosim import simulate_libcosim
 from wmr.adapters.ssp.ecos import simulate_ecos
 from wmr.adapters.ssp.export import MAP_NAME
-from wmr.adapters.ssp.omsimulator import (
-    FMI3_REFUSAL,
-    converged_at_s,
-    omsimulator,
-    omsimulator_version,
-    simulate_omsimulator,
-)
+from wmr.adapters.ssp.omsimulator import converged_at_s, omsimulator, simulate_omsimulator
 from wmr.adapters.ssp.package import ROBOT, SspPackage, unpacked_package
 from wmr.config.scenario import parse_scenario
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
-from wmr.infra.errors import ConfigError, FmuError
+from wmr.infra.errors import ConfigError
 
 _POSE: Final = [COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]]
 #: A master's path is compared at up to this many steps of lag (fmpy: 1, docs/ssp.md).
@@ -70,6 +64,8 @@ class MasterRun:
     master: str
     converged_at_s: float | None
     path: npt.NDArray[np.float64]
+    #: What the master's row says after "ok" (how the package was given to it), or nothing.
+    note: str = ""
 
 
 #: A master's runner: the package file and the package read back -> its run.
@@ -125,16 +121,11 @@ def _run_omsimulator(ssp: Path, package: SspPackage) -> MasterRun:
         omsimulator()
     except ConfigError as exc:
         raise NotLoaded(f"OMSimulator {exc.problem} (docs/ssp.md, 'OMSimulator')") from None
-    try:
-        run = simulate_omsimulator(ssp)
-    except FmuError as exc:
-        if _fmi(package).startswith("3") and FMI3_REFUSAL in str(exc):
-            # its Python layer at 3.0.0-103 reads FMI 2.0 model descriptions only
-            raise NotLoaded(f"cannot load it: {omsimulator_version()} reads no FMI 3.0 "
-                            f"model description ('{FMI3_REFUSAL}'; docs/ssp.md, "
-                            "'OMSimulator')") from None
-        raise
-    return MasterRun(run.master, converged_at_s(run), run.block[:, _POSE])
+    run = simulate_omsimulator(ssp)
+    name = run.extra["model_name"]
+    note = "" if name == package.name else \
+        f"its model named {name}: it takes identifiers only (docs/ssp.md, 'OMSimulator')"
+    return MasterRun(run.master, converged_at_s(run), run.block[:, _POSE], note)
 
 
 #: The masters, in the order of the table.  Tests replace one to make it fail.
@@ -261,6 +252,8 @@ def _compare(master: str, fmi: str, run: MasterRun, ref: npt.NDArray[np.float64]
     converged = run.converged_at_s is not None
     within = worst_m <= POSITION_BAR_M and worst_rad <= HEADING_BAR_RAD
     said = "ok" if converged else "ok, but its controller never reported converged"
+    if run.note:
+        said = f"{said}; {run.note}"
     return CheckRow(master=master, fmi_version=fmi, ran=True,
                     converged_at_s=run.converged_at_s, final_distance_mm=final_m * 1e3,
                     final_heading_deg=math.degrees(final_rad), worst_distance_mm=worst_m * 1e3,

@@ -5,14 +5,21 @@ download binaries at install time): a machine that has it built it from source a
 Python package (which loads ``libOMSimulator.so``) on ``PYTHONPATH`` (docs/ssp.md,
 "OMSimulator").  Nothing of it is imported before :func:`simulate_omsimulator` is called.
 
-The run is the one a user of its Python API makes: ``SSP(package)``, ``instantiate()`` (it
-applies the SSD's parameter bindings), a result file, the package's step and stop time,
-``initialize()``, ``simulate()`` to the stop time, ``terminate()``, ``delete()``.  Its Python
-layer reads no SSD annotation (``utils.parseDefaultExperiment``: "TODO parse ssd:annotation"),
-so the package's step is given as the API gives it (``setStepSize``, the maximum step of its
-fixed-step master ``oms-ma``).  It runs to the stop time: at this version it stops a run only
-when an FMU's ``doStep`` returns Discard, not on ``fmi2Terminated`` or FMI 3's
-``terminateSimulation`` (``ComponentFMUCS::stepUntil``, ``ComponentFMU3CS::stepUntil``).
+The run is OMSimulator's own import of an SSP package, ``oms_importFile`` (what its command
+line ``OMSimulator PKG.ssp`` does), called through the library its Python package loaded
+(``OMSimulator.Capi``), then ``oms_setResultFile`` (CSV), ``oms_setStopTime`` (the package's),
+``oms_instantiate``, ``oms_initialize``, ``oms_simulate``, ``oms_terminate``, ``oms_delete``.
+That import reads the package's ``oms:FixedStepMaster`` annotation (the system's type, the
+step, the relative tolerance) and its parameter bindings, and loads FMI 2.0 and FMI 3.0
+co-simulation FMUs.  The Python package's own SSP reader (``OMSimulator.SSP``) at this version
+(3.0.0.post103) reads no SSD annotation and no FMI 3.0 model description ("ModelVariables
+section not found in modelDescription.xml", ``src/OMSimulatorPython/fmu.py``), so it is not
+used.  Two limits of OMSimulator are worked around and said in docs/ssp.md: it names its
+model after the SSD and takes identifiers only (:func:`model_name`), and it sees an algebraic
+loop in an FMI 3.0 package (:data:`ALG_LOOP_SOLVER`).  It runs to the stop time: at this
+version it stops a run only when an FMU's ``doStep`` returns Discard, not on
+``fmi2Terminated`` or FMI 3's ``terminateSimulation`` (``ComponentFMUCS::stepUntil``,
+``ComponentFMU3CS::stepUntil``).
 
 Timing.  Its master steps the FMUs side by side to ``t_(k+1)``, writes a result row, passes
 the outputs on to the inputs in the order of its dependency graph, and writes a second row at
@@ -27,11 +34,13 @@ stranger's zip, and writes its result file, log and temporary files in our priva
 from __future__ import annotations
 
 import csv
+import ctypes
 import io
 import os
 import re
+import xml.etree.ElementTree as ET
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Final
@@ -39,8 +48,10 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from wmr.adapters.fmi.archive import parse_xml
 from wmr.adapters.ssp.cosim import SspRunData, c_stdout_to_stderr, log_rows, step_size
 from wmr.adapters.ssp.ecos import recorded_names
+from wmr.adapters.ssp.export import SSD_NAME
 from wmr.adapters.ssp.package import CONTROLLER, SspPackage, unpacked_package
 from wmr.infra.errors import ConfigError, FmuError
 
@@ -48,10 +59,11 @@ from wmr.infra.errors import ConfigError, FmuError
 MODULE: Final = "OMSimulator"
 #: OMSimulator's result file of a 120 s run at 10 ms holds about 2 MB; a bigger one is refused.
 MAX_RESULT_BYTES: Final = 256 * (1 << 20)
-#: What OMSimulator's Python layer says of an FMI 3.0 FMU up to v3.0.0-108
-#: (``src/OMSimulatorPython/fmu.py``, ``FMU._parse_variables``: it reads
-#: ``//ModelVariables/ScalarVariable``, FMI 2.0's layout; FMI 3.0's from v3.0.0-109, c8a95f54).
-FMI3_REFUSAL: Final = "ModelVariables section not found in modelDescription.xml"
+#: OMSimulator's solver of algebraic loops between components, set for every run.
+ALG_LOOP_SOLVER: Final = "fixedpoint"
+_IDENT: Final = re.compile(r"[a-zA-Z][a-zA-Z0-9_]*")
+#: ``oms_status_warning``: a status above it is an error.
+_WARNING: Final = 1
 #: The last lines of OMSimulator's log kept to say why it failed.
 _LOG_TAIL_BYTES: Final = 64 * 1024
 
@@ -96,7 +108,8 @@ def simulate_omsimulator(ssp_path: str | os.PathLike[str], *,
     -------
     SspRunData
         Every communication point ``0 .. steps`` of the run (``time_to_goal_s`` is ``None``:
-        it ran to the stop time; the controller's ``converged`` output is in ``variables``).
+        it ran to the stop time; the controller's ``converged`` output is in ``variables``);
+        ``extra["model_name"]``: the name OMSimulator's model had (:func:`model_name`).
 
     Raises
     ------
@@ -117,25 +130,28 @@ def simulate_omsimulator(ssp_path: str | os.PathLike[str], *,
         work.mkdir()
         result = work / "result.csv"
         names = recorded_names(package)
-        with _oms_run(oms, package, folder, work) as model:
-            model.setResultFile(str(result))
+        with _imported(oms, package, folder, work) as (model, call):
+            call("setResultFile", model, str(result))
             # the signals compared, not the 50 of both FMUs (18 MB for Fig. 11's 120 s)
-            model.removeSignalsFromResults(".*")
-            model.addSignalsToResults(_signals_regex(names))
-            model.setStartTime(package.start_time_s)
-            model.setStopTime(stop)
-            model.setStepSize(h)
-            _call(model.initialize, "initialize", package, work)
-            _call(model.simulate, "simulate", package, work)
+            call("removeSignalsFromResults", model, ".*")
+            call("addSignalsToResults", model, _signals_regex(names))
+            call("setStopTime", model, stop)
+            for step in ("instantiate", "initialize", "simulate", "terminate"):
+                call(step, model)
         times, variables = read_result(result, names, package)
         steps = len(times) - 1
         expected = max(1, round((stop - package.start_time_s) / h))
         grid = package.start_time_s + h * np.arange(steps + 1)
         if steps != expected or not np.allclose(times, grid, rtol=0.0, atol=h * 1e-6):
+            # its step is the package's oms:FixedStepMaster stepSize: a package without it is
+            # stepped at OMSimulator's default, 1 ms
             raise FmuError(f"{package.path}: OMSimulator's result has {steps} steps to t = "
-                           f"{times[-1]:g} s, not {expected} steps of {h:g} s to {stop:g} s")
-        return log_rows(package, variables, steps, h, False, str(oms.version),
-                        after_transfer=True)
+                           f"{times[-1]:g} s, not {expected} steps of {h:g} s to {stop:g} s "
+                           "(export it again with 'wmr ssp export')")
+        run = log_rows(package, variables, steps, h, False, str(oms.version),
+                       after_transfer=True)
+        run.extra["model_name"] = model_name(package)
+        return run
 
 
 def _signals_regex(names: dict[str, list[str]]) -> str:
@@ -145,52 +161,95 @@ def _signals_regex(names: dict[str, list[str]]) -> str:
     return f".*\\.({'|'.join(alternatives)})"
 
 
+#: Calls one of OMSimulator's C functions through its Python package's ``Capi`` by name;
+#: raises :class:`FmuError` on an error status.
+Call = Callable[..., None]
+
+
 @contextmanager
-def _oms_run(oms: Any, package: SspPackage, folder: Path, work: Path) -> Iterator[Any]:
-    """OMSimulator's instantiated model of the checked package (deleted on exit), its log in
-    ``work/omsimulator.log`` and what its C code prints on standard error."""
+def _imported(oms: Any, package: SspPackage, folder: Path, work: Path
+              ) -> Iterator[tuple[str, Call]]:
+    """The package imported by ``oms_importFile`` (deleted on exit): the model's name and the
+    caller of OMSimulator's functions; its log in ``work/omsimulator.log``, its temporary
+    files in ``work/tmp``, and what its C code prints on standard error."""
     archive = work / "package.ssp"
     with zipfile.ZipFile(archive, "w", zipfile.ZIP_STORED) as zf:
         for p in sorted(folder.rglob("*")):
             if p.is_file():
-                zf.write(p, p.relative_to(folder).as_posix())
+                member = p.relative_to(folder).as_posix()
+                if member == SSD_NAME:
+                    zf.writestr(member, _with_model_name(p.read_bytes(), package))
+                else:
+                    zf.write(p, member)
+    capi = oms.Capi
+
+    def call(name: str, *args: Any) -> None:
+        status = getattr(capi, name)(*args)
+        if getattr(status, "value", status) > _WARNING:
+            raise FmuError(f"{package.path}: OMSimulator's oms_{name} failed"
+                           f"{_logged_error(work)}")
+
     with c_stdout_to_stderr():
-        oms.Capi.setLogFile(str(work / "omsimulator.log"))
+        call("setLogFile", str(work / "omsimulator.log"))
         try:
-            ssp = oms.SSP(str(archive), temp_dir=str(work / "ssp"))
-            model = ssp.instantiate()
-        except Exception as exc:  # its Python layer raises bare Exceptions and RuntimeErrors
-            raise FmuError(f"{package.path}: OMSimulator cannot load the package: "
-                           f"{_why(exc, work)}") from None
-        try:
-            yield model
-            _call(model.terminate, "terminate", package, work)
+            call("setTempDirectory", str(work / "tmp"))
+            # an FMI 3.0 package is an algebraic loop to OMSimulator at this version (it reads
+            # no FMI 3.0 InitialUnknown: every initial output depends on every input, docs/
+            # ssp.md); its default loop solver, KINSOL, needs directional derivatives, which
+            # our FMUs do not provide.  No loop in an FMI 2.0 package: the option is inert
+            call("setCommandLineOption", f"--algLoopSolver={ALG_LOOP_SOLVER}")
+            # the Python package wraps no oms_importFile: the library's own SSP import
+            lib = capi.obj
+            lib.oms_importFile.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_char_p)]
+            lib.oms_importFile.restype = ctypes.c_int
+            cref = ctypes.c_char_p()
+            if lib.oms_importFile(str(archive).encode(), ctypes.byref(cref)) > _WARNING \
+                    or not cref.value:
+                raise FmuError(f"{package.path}: OMSimulator cannot import the package"
+                               f"{_logged_error(work)}")
+            model = cref.value.decode()
+            try:
+                yield model, call
+            finally:
+                capi.delete(model)
         finally:
-            model.delete()
-            oms.Capi.setLogFile("")
+            capi.setLogFile("")
 
 
-def _call(step: Any, what: str, package: SspPackage, work: Path) -> None:
-    try:
-        step()
-    except RuntimeError as exc:
-        raise FmuError(f"{package.path}: OMSimulator failed to {what} the package: "
-                       f"{_why(exc, work)}") from None
+def model_name(package: SspPackage) -> str:
+    """The name OMSimulator's model gets: the package's (its SSD's ``name``) if it is an
+    identifier OMSimulator takes (``^[a-zA-Z][a-zA-Z0-9_]*$``, ``src/OMSimulatorLib/
+    ComRef.cpp``), else that name with every other character made ``_`` (and ``p_`` before
+    it if it does not begin with a letter): OMSimulator refuses a package named as a variant
+    run (``fig11-to_5_5_30deg``) with ``[NewModel] "..." is not a valid ident``."""
+    if _IDENT.fullmatch(package.name):
+        return package.name
+    name = re.sub(r"[^A-Za-z0-9_]", "_", package.name)
+    return name if name[:1].isascii() and name[:1].isalpha() else f"p_{name}"
 
 
-def _why(exc: Exception, work: Path) -> str:
-    """The exception's first line, with the last error OMSimulator logged (its Python layer
-    reports only a status)."""
-    line = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+def _with_model_name(ssd: bytes, package: SspPackage) -> bytes:
+    """The SSD with its ``name`` made :func:`model_name` (nothing else changes what runs)."""
+    name = model_name(package)
+    if name == package.name:
+        return ssd
+    root = parse_xml(ssd, f"{package.path}: {SSD_NAME}")
+    root.set("name", name)
+    return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+def _logged_error(work: Path) -> str:
+    """``": <the last error OMSimulator logged>"``, or nothing (its functions return only a
+    status)."""
     log = work / "omsimulator.log"
-    if log.is_file():
-        with log.open("rb") as f:
-            f.seek(max(0, log.stat().st_size - _LOG_TAIL_BYTES))
-            tail = f.read().decode("utf-8", "replace").splitlines()
-        errors = [x.strip() for x in tail if x.lstrip().startswith("error:")]
-        if errors:
-            return f"{line} ({errors[-1]})"
-    return line
+    if not log.is_file():
+        return ""
+    with log.open("rb") as f:
+        f.seek(max(0, log.stat().st_size - _LOG_TAIL_BYTES))
+        tail = f.read().decode("utf-8", "replace").splitlines()
+    # lines "<date> | error:   [where] what"
+    errors = [x.split("error:", 1)[1].strip() for x in tail if "error:" in x]
+    return f": {errors[-1]}" if errors else ""
 
 
 def read_result(path: Path, names: dict[str, list[str]], package: SspPackage
@@ -245,5 +304,5 @@ def converged_at_s(run: SspRunData) -> float | None:
     return float(hit[0] * run.step_size_s) if hit.size else None
 
 
-__all__ = ["FMI3_REFUSAL", "MODULE", "converged_at_s", "omsimulator", "omsimulator_version", "read_result",
-           "simulate_omsimulator"]
+__all__ = ["ALG_LOOP_SOLVER", "MODULE", "converged_at_s", "model_name", "omsimulator",
+           "omsimulator_version", "read_result", "simulate_omsimulator"]
