@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import csv
 import ctypes
+import importlib
 import io
 import os
 import re
@@ -77,7 +78,7 @@ def omsimulator() -> Any:
         It is not importable here, or its library does not load: the message says which.
     """
     try:
-        import OMSimulator
+        return importlib.import_module(MODULE)
     except ImportError as exc:
         raise ConfigError("OMSimulator", f"not importable: {exc}",
                           "build it from source and put its lib folder on PYTHONPATH "
@@ -85,7 +86,6 @@ def omsimulator() -> Any:
     except OSError as exc:  # libOMSimulator.so or a library it needs is missing
         raise ConfigError("OMSimulator", f"not importable: its library does not load ({exc})",
                           "build it again (docs/ssp.md, 'OMSimulator')") from None
-    return OMSimulator
 
 
 def omsimulator_version() -> str:
