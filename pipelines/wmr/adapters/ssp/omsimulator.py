@@ -58,7 +58,7 @@ from wmr.infra.errors import ConfigError, FmuError
 
 #: The Python package OMSimulator's build installs (``lib/OMSimulator`` of its prefix).
 MODULE: Final = "OMSimulator"
-#: OMSimulator's result file of a 120 s run at 10 ms holds about 2 MB; a bigger one is refused.
+#: OMSimulator's result file (a few MB for a 120 s run at 10 ms): a bigger one is refused.
 MAX_RESULT_BYTES: Final = 256 * (1 << 20)
 #: OMSimulator's solver of algebraic loops between components, set for every run.
 ALG_LOOP_SOLVER: Final = "fixedpoint"
