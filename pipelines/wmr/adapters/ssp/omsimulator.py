@@ -213,7 +213,8 @@ def _imported(oms: Any, package: SspPackage, folder: Path, work: Path
             finally:
                 capi.delete(model)
         finally:
-            capi.setLogFile("")
+            with _fd1_to_devnull():  # "Logging information has been saved to" a removed file
+                capi.setLogFile("")
 
 
 def model_name(package: SspPackage) -> str:
@@ -236,6 +237,22 @@ def _with_model_name(ssd: bytes, package: SspPackage) -> bytes:
     root = parse_xml(ssd, f"{package.path}: {SSD_NAME}")
     root.set("name", name)
     return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+@contextmanager
+def _fd1_to_devnull() -> Iterator[None]:
+    """Drop what C code prints on the process's standard output (fd 1) meanwhile."""
+    libc = ctypes.CDLL(None)
+    libc.fflush(None)
+    saved, devnull = os.dup(1), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        libc.fflush(None)
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
 
 
 def _logged_error(work: Path) -> str:
