@@ -273,7 +273,8 @@ def test_wmr_ssp_check_of_a_package_of_another_tool_s_robot_uses_only_its_map(
         tmp_path: Path, unicycle_fmu: Path, built: BuildResult) -> None:
     """``wmr ssp check`` of a ``--map`` package: ``wmr run`` of the package's scenario on the
     package's robot FMU through the package's map (the unicycle's names and units, none of
-    ours), libcosim within the bars of it, fmpy a row saying it ignores the transformations."""
+    ours), libcosim within the bars of it, fmpy and OMSimulator rows saying they ignore the
+    transformations."""
     from dataclasses import replace
 
     from wmr.adapters.ssp.agreement import deviation, libcosim_path, wmr_run_path
@@ -299,3 +300,7 @@ def test_wmr_ssp_check_of_a_package_of_another_tool_s_robot_uses_only_its_map(
     assert lib.worst_distance_mm == pytest.approx(pos * 1e3, rel=1e-12)
     assert not rows["fmpy"].ran and "unit transformations" in rows["fmpy"].said
     assert rows["ecos"].agrees, rows["ecos"]  # Ecos applies the transformations too
+    # OMSimulator ignores them (1.1 m off where it ran them): not run, or not importable
+    oms = rows["omsimulator"]
+    assert not oms.ran and oms.agrees is None, oms
+    assert "unit transformations" in oms.said or "not importable" in oms.said, oms

@@ -63,7 +63,7 @@ def ecos_version() -> str:
     return f"ecospy {version('ecospy')}"
 
 
-def _recorded_names(package: SspPackage) -> dict[str, list[str]]:
+def recorded_names(package: SspPackage) -> dict[str, list[str]]:
     """Each component's variables (its own names) that the log and the energies need."""
     vm = package.robot_map
     robot = []
@@ -128,7 +128,7 @@ def _simulate(ecospy: Any, package: SspPackage, folder: Path, stop_time_s: float
               stop_at_convergence: bool) -> SspRunData:
     h = step_size(package)
     n_max = n_steps(package, h, stop_time_s)
-    names = _recorded_names(package)
+    names = recorded_names(package)
     values: dict[str, dict[str, list[float]]] = {c: {n: [] for n in names[c]} for c in names}
     ecospy.EcosLib.set_log_level("warn")
     steps = 0
@@ -171,4 +171,4 @@ def _simulate(ecospy: Any, package: SspPackage, folder: Path, stop_time_s: float
     return log_rows(package, variables, steps, h, stop_at_convergence, ecos_version(),
                     after_transfer=True)
 
-__all__ = ["ecos_version", "simulate_ecos"]
+__all__ = ["ecos_version", "recorded_names", "simulate_ecos"]

@@ -28,6 +28,7 @@ step ``control_period_s``, the only step the controller FMU accepts.
 from __future__ import annotations
 
 import io
+import math
 import os
 import re
 import struct
@@ -63,6 +64,9 @@ NS: Final = {
 }
 #: OMSimulator's fixed-step master of a weakly coupled system (its solver ``oms_solver_wc_ma``).
 OMS_FIXED_STEP_MASTER: Final = "oms-ma"
+#: The relative tolerance given to OMSimulator for a robot FMU that declares none: its own
+#: default (``OMSimulator --help``: ``--tolerance`` 1e-4).
+OMS_DEFAULT_TOLERANCE: Final = 1e-4
 for _prefix, _uri in NS.items():
     # libcosim and OMSimulator read the SSD with literal "ssd:", "ssc:", "ssv:", "osp:" and
     # "oms:" prefixes
@@ -245,8 +249,13 @@ def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tupl
                         type="org.openmodelica")
     info = ET.SubElement(ET.SubElement(oms, _q("oms:Annotations")),
                          _q("oms:SimulationInformation"))
+    # ... and its relativeTolerance is passed to every FMI 2.0 FMU as a defined tolerance
+    # (fmi2SetupExperiment(toleranceDefined = true), ComponentFMUCS::instantiate): without it
+    # 0, which our robot FMU refuses; the robot FMU's own default keeps its solver as wmr run
+    # (which defines no tolerance) has it
     ET.SubElement(info, _q("oms:FixedStepMaster"), description=OMS_FIXED_STEP_MASTER,
-                  stepSize=_num(spec.period_s))
+                  stepSize=_num(spec.period_s),
+                  relativeTolerance=_num(_default_tolerance(robot_md)))
     experiment = ET.SubElement(root, _q("ssd:DefaultExperiment"), startTime="0.0",
                                stopTime=_num(spec.t_max_s))
     annotations = ET.SubElement(experiment, _q("ssd:Annotations"))
@@ -255,6 +264,18 @@ def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tupl
     ET.SubElement(algorithm, _q("osp:FixedStepAlgorithm"), baseStepSize=_num(spec.period_s))
     ET.indent(root)
     return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+def _default_tolerance(md: Any) -> float:
+    """The FMU's own relative tolerance (its ``DefaultExperiment``'s; ours: the solver's
+    1e-9), else :data:`OMS_DEFAULT_TOLERANCE`."""
+    experiment = getattr(md, "defaultExperiment", None)
+    tolerance = getattr(experiment, "tolerance", None)
+    try:
+        value = float(tolerance) if tolerance is not None else math.nan
+    except ValueError:
+        value = math.nan
+    return value if math.isfinite(value) and value > 0 else OMS_DEFAULT_TOLERANCE
 
 
 def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.PathLike[str],
