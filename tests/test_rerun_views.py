@@ -221,7 +221,7 @@ def test_replay_is_a_dashboard(logs: dict[str, Path], tmp_path: Path) -> None:
     assert x0 < 0.0 < 20.0 < x1 and y0 < -10.0 < 0.0 < y1
     assert any("/grid/**" in q for q in world["ViewContents:query"])
     names = {v["name"] for v in vs if v["class"] == "TimeSeries"}
-    assert {p.title for p in PANELS} <= names and any("phase" in n for n in names)
+    assert {p.title for p in PANELS} <= names and any("phase" in n.lower() for n in names)
     [doc] = [v for v in vs if v["class"] == "TextDocument"]
     assert doc["origin"] == "/summary"
     for panel in ("/blueprint_panel", "/selection_panel"):
@@ -251,11 +251,11 @@ def _plots(rrd: Path) -> list[dict[str, Any]]:
 
 
 def _labelled(lo: float, hi: float) -> int:
-    """How many values Rerun labels on a y axis ``[lo, hi]`` of Y_INTERVALS steps or fewer:
-    the multiples of the smallest power of ten at most Y_INTERVALS apart (egui_plot labels
-    powers of ten only)."""
+    """How many values Rerun labels on a y axis ``[lo, hi]``: the multiples of the smallest
+    power of ten of which the range holds at most Y_INTERVALS + 1.5 (egui_plot labels powers
+    of ten only, each at least 29 points apart in a 250-point plot)."""
     step = 10.0 ** math.floor(math.log10((hi - lo) / Y_INTERVALS))
-    while (hi - lo) / step > Y_INTERVALS + 1:
+    while (hi - lo) / step > Y_INTERVALS + 1.5:
         step *= 10.0
     return math.floor(hi / step) - math.ceil(lo / step) + 1
 

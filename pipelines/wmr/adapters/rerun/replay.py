@@ -120,8 +120,9 @@ RULER_FRAC: Final = 0.07
 #: grid) label multiples of powers of ten only (1 and 10 apart, never 2 or 5) and fade a
 #: label out below 30 points between values (none below 20): a y range of 0.95 shows only
 #: "0", of 9 in 150 points none but "0".  A panel is ~250 points high in a 1600 x 1000
-#: window (three rows); 8 intervals keep 30 points between labels (:func:`y_range`).
-Y_INTERVALS: Final = 8
+#: window (three rows); 7 intervals, and at most 1.5 more of room at the ends, keep 29
+#: points or more between labels (:func:`y_range`).
+Y_INTERVALS: Final = 7
 _DEG: Final = 180.0 / math.pi
 
 
@@ -142,7 +143,8 @@ def y_range(lo: float, hi: float, intervals: int = Y_INTERVALS) -> tuple[float, 
 
     Its ends are multiples of the smallest power of ten ``s`` that spans ``[lo, hi]`` in at
     most ``intervals`` steps (Rerun labels multiples of powers of ten only:
-    :data:`Y_INTERVALS`), widened by 3 % so that a line at an end is not on the frame.
+    :data:`Y_INTERVALS`), widened by 3 % so that a line at an end is not on the frame (a
+    value less than 10 % of the span past a multiple is in that room, not a step further).
     A constant or empty series gets ``value ± 1`` (or ``± |value|/10``).
     """
     if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -152,15 +154,16 @@ def y_range(lo: float, hi: float, intervals: int = Y_INTERVALS) -> tuple[float, 
         lo, hi = lo - pad, hi + pad
     step = 10.0 ** math.floor(math.log10((hi - lo) / intervals))
     while True:
-        # a value past a multiple by under 5 % of the span goes in the room, not a step more
-        # (v peaks at 1.0004 m/s: [0, 1], not [0, 2])
-        tol = 0.05 * (hi - lo) / step
+        # a value past a multiple by under 10 % of the span goes in the room, not a step
+        # more (v peaks at 1.0004 m/s: [0, 1.03], not [0, 2])
+        tol = 0.1 * (hi - lo) / step
         a, b = math.floor(lo / step + tol), math.ceil(hi / step - tol)
-        if b - a <= intervals and b > a:
-            break
+        room = 0.03 * (hi - lo)
+        lo_out, hi_out = min(a * step, lo) - room, max(b * step, hi) + room
+        # the room and the values past the ends add at most 1.5 steps to the span
+        if b - a <= intervals and b > a and hi_out - lo_out <= (intervals + 1.5) * step:
+            return lo_out, hi_out
         step *= 10.0
-    room = 0.03 * (hi - lo)
-    return min(a * step, lo) - room, max(b * step, hi) + room
 
 
 @dataclass(frozen=True)
@@ -180,8 +183,9 @@ class Panel:
 
     ``overlay`` series (the first ones) are drawn per run when several runs share the plots,
     under ``overlay_title``; ``command``: they are the controller's output (an open-loop run
-    has none), this their short name for a title that says so; ``limit`` names the run's ``limits`` entry that bounds a symmetric axis range
-    (so a saturated start-up does not flatten the rest).
+    has none), this their short name for a title that says so; ``limit`` names the run's
+    ``limits`` entry that bounds a symmetric axis range (so a saturated start-up does not
+    flatten the rest).
     """
 
     entity: str
@@ -868,7 +872,8 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
                     rr.Points2D([start_label_point(path_xy)],
                                 colors=[start_label_color or _shade(color, LABEL_SHADE)],
                                 radii=[-3.0], labels=[start_label],
-                                show_labels=bool(start_label), draw_order=30.0),
+                                # above the robots' bodies and arrows: never hidden by them
+                                show_labels=bool(start_label), draw_order=45.0),
                     static=True)
     if goal is not None:
         gx, gy, gth = goal
@@ -1349,16 +1354,53 @@ def _world_points(runs: Sequence[RunData]) -> NDArray[np.float64]:
     return np.concatenate(pts)
 
 
+@dataclass(frozen=True)
+class RawView:
+    """What the blueprint of a raw log needs of its runs (:func:`raw_view`)."""
+
+    #: ``(x_min, x_max, y_min, y_max)`` of the top view, m.
+    frame: tuple[float, float, float, float]
+    #: Whether a run has sensors (the covariance panel).
+    sensing: bool
+    #: Per raw panel title (:data:`wmr.adapters.rerun.blueprint.RAW_PANELS`): its y range.
+    y_ranges: dict[str, tuple[float, float]]
+
+
+def raw_view(inputs: Sequence[str | os.PathLike[str]]) -> RawView:
+    """The top view's frame (as :func:`framing`), whether a run has sensors, and the y range
+    of each panel of the raw-log blueprint over these logs' values (:func:`y_range`: values
+    Rerun labels; the torques within :func:`torque_range`)."""
+    from wmr.adapters.rerun.blueprint import PHASE_PANEL, RAW_PANELS
+
+    runs, _ = read_logs(find_logs(inputs))
+    datas = [d for _, d in runs]
+    b = Bounds.around(_world_points(datas))
+    sensing = any("sensors" in d.metadata.get("run", {}) for d in datas)
+    limits = [_float((_json(d.metadata.get("run", {}), "limits") or {}).get("torque_max_nm"))
+              for d in datas]
+    tau = torque_range(datas, max((v for v in limits if v is not None), default=None))
+    ranges: dict[str, tuple[float, float]] = {}
+    for panel in RAW_PANELS:
+        fields = [line.field for line in panel.lines if line.field in COLUMN]
+        if panel.title == PHASE_PANEL or not fields:
+            continue
+        values = np.concatenate([d.signals[f] for d in datas for f in fields])
+        values = values[np.isfinite(values)]
+        if any(f.startswith("tau_") for f in fields) and tau:
+            values = np.concatenate([np.clip(values, -tau, tau), [-tau, tau]])
+        if values.size:
+            ranges[panel.title] = y_range(float(values.min()), float(values.max()))
+    return RawView((b.x_min, b.x_max, b.y_min, b.y_max), sensing, ranges)
+
+
 def framing(inputs: Sequence[str | os.PathLike[str]]
             ) -> tuple[tuple[float, float, float, float], bool]:
     """``(x_min, x_max, y_min, y_max)`` [m] of the world view of these logs (every path,
     start and goal, with a margin: the bounds ``wmr replay`` fixes, and the top view of the
     raw-log blueprint, :func:`wmr.adapters.rerun.blueprint.raw_blueprint`), and whether any
     of them is a run with sensors."""
-    runs, _ = read_logs(find_logs(inputs))
-    b = Bounds.around(_world_points([d for _, d in runs]))
-    sensing = any("sensors" in d.metadata.get("run", {}) for _, d in runs)
-    return (b.x_min, b.x_max, b.y_min, b.y_max), sensing
+    view = raw_view(inputs)
+    return view.frame, view.sensing
 
 
 #: The phase plot of one run shows its last this many seconds (the alignment in place).
@@ -1585,6 +1627,7 @@ __all__ = [
     "TIMELINE",
     "Bounds",
     "Panel",
+    "RawView",
     "ReplayResult",
     "RunLog",
     "Series",
@@ -1598,6 +1641,7 @@ __all__ = [
     "log_run_static",
     "log_sensing",
     "phase_strips",
+    "raw_view",
     "read_logs",
     "replay",
     "replay_blueprint",
