@@ -182,7 +182,7 @@ def raw_blueprint(frame: tuple[float, float, float, float] | None = None, *,
                                  color=(200, 200, 200)),
         eye_controls=eye,
         # the robot dark and its points larger than the path's: it reads on its path
-        overrides={"/scene/robot": rr.Points3D.from_fields(  # type: ignore[dict-item]
+        overrides={"/scene/robot": rr.Points3D.from_fields(
             colors=[ROBOT_COLOR], radii=[-1.2])},
     )
     ranges = y_ranges or {}
