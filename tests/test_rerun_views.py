@@ -392,3 +392,34 @@ def test_the_optimal_run_is_in_every_panel_or_the_panel_says_why(logs: dict[str,
     titles = [v["name"] for v in _plots(rrd)]
     said = [t for t in titles if "#1 open loop" in t]
     assert len(said) == 3 and any(t.startswith("Phase") for t in said), titles
+
+
+def test_raw_blueprint_plots_are_labelled_in_three_columns(logs: dict[str, Path],
+                                                           tmp_path: Path) -> None:
+    """Items 1, 4, 9, 10 for the raw log: the blueprint of ``--blueprint-for`` fixes each
+    plot's y range to labelled values around the log's own values (before: e_θ and the
+    torques showed only "0"), lays six cells in three columns with the phase in a tab
+    behind the torques (before: two columns and an empty cell), and draws the robot dark
+    (the path under it is blue)."""
+    log = tmp_path / "fig11.mcap"
+    log.write_bytes(logs["fig11"].read_bytes())
+    assert main(["replay", "--blueprint-for", str(log)]) == 0
+    _, ents = blueprint(log.with_suffix(".rbl"))
+    plots = [v for v in views(ents) if v["class"] == "TimeSeries"]
+    assert len(plots) == 7
+    run = read_run(log)
+    for v in plots:
+        lo, hi = v["ScalarAxis:range"][0]
+        assert _labelled(lo, hi) >= 2, (v["name"], lo, hi)
+    [heading] = [v for v in plots if "e_θ" in v["name"]]
+    lo, hi = heading["ScalarAxis:range"][0]
+    assert lo <= float(run.signals["e_theta_rad"].min()) <= float(
+        run.signals["e_theta_rad"].max()) <= hi
+    [grid] = [c for c in ents.values() if c.get("ContainerBlueprint:container_kind") == [4]]
+    assert grid["ContainerBlueprint:grid_columns"] == [3]
+    assert len(grid["ContainerBlueprint:contents"]) == 6
+    tabs = [c for c in ents.values() if c.get("ContainerBlueprint:container_kind") == [2]]
+    assert len(tabs) == 1 and len(tabs[0]["ContainerBlueprint:contents"]) == 2
+    [rgba] = [c["Points3D:colors"][0] for p, c in ents.items()
+              if "/overrides/scene/robot/" in p and "Points3D:colors" in c]
+    assert relative_luminance((rgba >> 24 & 255, rgba >> 16 & 255, rgba >> 8 & 255)) < 0.05
