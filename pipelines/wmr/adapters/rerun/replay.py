@@ -4,16 +4,20 @@
 to Rerun as whole columns (``send_columns``): one recording, one ``sim_time`` timeline (simulation
 seconds from the log's ``t_ns``), and a default blueprint with
 
-* a 2-D world view with a metre grid and fixed bounds (every start, goal and path in frame): the
-  path of each run (coloured by the control phase for one run, by run for several), the robot
-  (body and heading arrow, moved by a transform per control step, its arrow coloured by phase),
+* a 2-D world view with a metre grid and fixed bounds (every start, goal and path in frame, and
+  D and R for one run): the path of each run (coloured by the control phase for one run, by run
+  for several), the robot (body and a dark heading arrow, moved by a transform per control step),
   the goal (arrow along theta_d, ring of the stop radius), the point D on the heading line
   (Fig. 4) and the ROC reference point R (Fig. 6) with their construction lines from B; for runs
   with sensors the GPS fixes and the estimated path on top of the true one;
-* one time-series panel per quantity (:data:`PANELS`: one unit per axis, angles in degrees),
-  the control phase, and for runs with sensors the estimation error;
-* a run summary: status, times, final errors, start, goal, gains and limits (angles in degrees),
-  and, for several runs, one row per run with its start, goal and the inputs that vary.
+* one time-series panel per quantity (:data:`PANELS`: one unit per axis, angles in degrees, a
+  fixed y range Rerun labels: :func:`y_range`), the control phase, and for runs with sensors
+  the estimation error, three to a row;
+* a run summary: status, times, final errors, start, goal, robot, gains and limits (angles in
+  degrees), and, for several runs, one row per run with the inputs that vary, its start and goal.
+
+An open-loop log (an optimal manoeuvre's) gets the stabiliser's errors along its path
+(:func:`complete_open_loop`), so that it is compared with a closed-loop run in the same panels.
 
 Entity layout, one subtree per run (``<run>`` is the log's file name without ``.mcap``)::
 
@@ -26,6 +30,7 @@ Entity layout, one subtree per run (``<run>`` is the log's file name without ``.
     runs/<run>/world/robot        Transform3D per step (+ its arrow's phase colour);
                                   static Boxes2D body
     runs/<run>/world/D, .../R     Points2D per step (Figs. 4 and 6)
+    .../D_label, .../R_label      Points2D per step: their labels, above D and below R
     runs/<run>/world/construction LineStrips2D per step: B -> D and B -> R
     runs/<run>/world/gps          static Points2D: the position fixes (runs with sensors)
     runs/<run>/world/estimate     static LineStrips2D: the estimated path (runs with sensors)
@@ -1436,7 +1441,8 @@ def complete_open_loop(run: RunData, stop_radius_m: float = 0.05) -> RunData:
     terms) stay NaN: it has no controller."""
     from wmr.core.control.stabiliser import Gains, Limits, PointStabiliser
 
-    assert run.goal is not None
+    if run.goal is None:
+        raise ValueError(f"{run.path}: an open-loop log without a goal has no errors")
     stab = PointStabiliser(run.goal.x_m, run.goal.y_m, run.goal.theta_rad, Gains(), Limits(),
                            0.15, 0.3, 0.01, stop_radius_m)
     rows = np.array([stab.update(float(x), float(y), float(th)) for x, y, th in zip(
