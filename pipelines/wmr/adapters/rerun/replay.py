@@ -893,13 +893,12 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
                             radii=[0.04], draw_order=20.0),
                 rr.LineStrips2D(ring, colors=[GOAL_COLOR], radii=[0.01], draw_order=20.0),
                 static=True)
-        # the label apart from the arrow, in a neutral colour (red on red did not read), above
-        # the robots (a robot's arrow passing the goal hid it)
+        # the label apart from the arrow, in a neutral colour (red on red did not read)
         rec.log(f"{world}/goal/label",
                 rr.Points2D([[gx, gy - 0.45]], radii=[0.0], colors=[LABEL_COLOR],
                             labels=[goal_label or f"goal ({gx:g}, {gy:g}, "
                                                   f"{math.degrees(gth):.0f}°)"],
-                            show_labels=goal_label is not None, draw_order=46.0), static=True)
+                            show_labels=goal_label is not None, draw_order=21.0), static=True)
     # the robot in its own frame (B at the origin, x forward): chassis, two wheels, heading;
     # the heading arrow's colour is sent per step (the phase), so it is not static here
     chassis_len = 2.0 * half_track_m + 0.2
