@@ -4,6 +4,7 @@ archetypes on a duration timeline, the blueprints' views, and the replay's dashb
 
 from __future__ import annotations
 
+import math
 import re
 import socket
 import subprocess
@@ -11,16 +12,25 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pytest
 import rerun.chunk as rrc
 import rerun_cli
 
 from wmr.adapters.mcap import read_run
-from wmr.adapters.mcap.scene import ROBOT_PERIOD_NS
+from wmr.adapters.mcap.scene import PHASE_COLORS, ROBOT_PERIOD_NS
 from wmr.adapters.mcap.sensing import read_sensing
 from wmr.adapters.rerun.blueprint import APPLICATION_ID, LOG_TIMELINE
-from wmr.adapters.rerun.replay import PANELS, TIMELINE
+from wmr.adapters.rerun.replay import (
+    HEADING_COLORS,
+    MIN_SERIES_LUMINANCE,
+    PANELS,
+    TIMELINE,
+    Y_INTERVALS,
+    relative_luminance,
+    run_color,
+)
 from wmr.cli import main
 
 RERUN = str(Path(rerun_cli.__file__).parent / "rerun")
@@ -217,7 +227,7 @@ def test_replay_is_a_dashboard(logs: dict[str, Path], tmp_path: Path) -> None:
     assert x0 < 0.0 < 20.0 < x1 and y0 < -10.0 < 0.0 < y1
     assert any("/grid/**" in q for q in world["ViewContents:query"])
     names = {v["name"] for v in vs if v["class"] == "TimeSeries"}
-    assert {p.title for p in PANELS} <= names and any("phase" in n for n in names)
+    assert {p.title for p in PANELS} <= names and any("phase" in n.lower() for n in names)
     [doc] = [v for v in vs if v["class"] == "TextDocument"]
     assert doc["origin"] == "/summary"
     for panel in ("/blueprint_panel", "/selection_panel"):
@@ -236,3 +246,186 @@ def test_replay_is_a_dashboard(logs: dict[str, Path], tmp_path: Path) -> None:
     assert {p.overlay_title for p in PANELS} <= {v["name"] for v in plots}
     docs = [e for e, (_, c) in rrd_print(both).items() if "TextDocument:text" in c]
     assert docs == ["/summary"]
+
+
+# -- issue 33: every plot readable ------------------------------------------------------------
+
+
+def _plots(rrd: Path) -> list[dict[str, Any]]:
+    _, ents = blueprint(rrd)
+    return [v for v in views(ents) if v["class"] == "TimeSeries"]
+
+
+def _labelled(lo: float, hi: float) -> int:
+    """How many values Rerun labels on a y axis ``[lo, hi]``: the multiples of the smallest
+    power of ten of which the range holds at most Y_INTERVALS + 1.5 (egui_plot labels powers
+    of ten only, each at least 29 points apart in a 250-point plot)."""
+    step = 10.0 ** math.floor(math.log10((hi - lo) / Y_INTERVALS))
+    while (hi - lo) / step > Y_INTERVALS + 1.5:
+        step *= 10.0
+    return math.floor(hi / step) - math.ceil(lo / step) + 1
+
+
+def test_every_plot_has_a_labelled_y_range(logs: dict[str, Path], tmp_path: Path) -> None:
+    """Item 1: each plot of the replay (one run, one with sensors, several runs) has a fixed
+    y range holding its lines and at least two values Rerun labels (before: the batch's u_s,
+    u_theta and tau_r showed only "0", the estimate error nothing but "0"); and the layout
+    is three plots to a row, none left empty (the sensing panel has the phase behind it)."""
+    for name, inputs in (("one", [logs["fig11"]]), ("gps", [logs["gps"]]),
+                         ("two", [logs["fig11"], logs["near"]])):
+        rrd = tmp_path / f"{name}.rrd"
+        assert main(["replay", *map(str, inputs), "--rrd", str(rrd)]) == 0
+        plots = _plots(rrd)
+        assert len(plots) == 9 + (name == "gps")
+        for v in plots:
+            lo, hi = v["ScalarAxis:range"][0]
+            assert _labelled(lo, hi) >= 2, (name, v["name"], lo, hi)
+        _, ents = blueprint(rrd)
+        grids = [c for c in ents.values() if c.get("ContainerBlueprint:container_kind") == [4]]
+        [grid] = grids
+        assert grid["ContainerBlueprint:grid_columns"] == [3]
+        assert len(grid["ContainerBlueprint:contents"]) == 9
+    # the lines are inside: Δr of the fig11 run from 22.4 m to 0
+    one = {v["name"]: v["ScalarAxis:range"][0] for v in _plots(tmp_path / "one.rrd")}
+    lo, hi = one[PANELS[0].title]
+    run = read_run(logs["fig11"])
+    assert lo <= 0.0 and hi >= float(run.signals["dr_m"].max())
+
+
+def test_plot_lines_read_on_the_dark_theme(logs: dict[str, Path], tmp_path: Path) -> None:
+    """Item 8: every line colour of every plot (per signal, per run up to 60 runs) has a
+    relative luminance of at least 0.1 (before: u_s navy 0.03, u_theta maroon 0.03)."""
+    rrd = tmp_path / "one.rrd"
+    assert main(["replay", str(logs["gps"]), "--rrd", str(rrd)]) == 0
+    colors = []
+    for chunk in rrc.RrdReader(rrd).stream():
+        batch = chunk.to_record_batch()
+        for name in ("SeriesLines:colors", "SeriesPoints:colors"):
+            if name in batch.schema.names:
+                colors += [c for row in batch.column(name).to_pylist() for c in row]
+    assert len(colors) >= sum(len(p.series) for p in PANELS)
+    for rgba in colors:
+        rgb = ((rgba >> 24) & 255, (rgba >> 16) & 255, (rgba >> 8) & 255)
+        assert relative_luminance(rgb) >= MIN_SERIES_LUMINANCE, rgb
+    for n in (5, 60):
+        assert min(relative_luminance(run_color(k, n)) for k in range(n)) >= 0.1
+
+
+def test_world_frames_d_and_r_and_the_heading_stands_out(logs: dict[str, Path],
+                                                         tmp_path: Path) -> None:
+    """Items 4, 5, 6: the fixed world frame holds D and R at every step (before: their lines
+    ran off the view); the heading arrow is dark on either phase's path colour, longer than
+    the body, wider than the path; D's and R's labels are apart from each other."""
+    rrd = tmp_path / "one.rrd"
+    assert main(["replay", str(logs["fig11"]), "--rrd", str(rrd)]) == 0
+    _, ents = blueprint(rrd)
+    [world] = [v for v in views(ents) if v["class"] == "2D"]
+    b = world["VisualBounds2D:range"][0]
+    (x0, x1), (y0, y1) = b["x_range"], b["y_range"]
+    run = read_run(logs["fig11"])
+    for px, py in (("D_x_m", "D_y_m"), ("R_x_m", "R_y_m")):
+        x, y = run.signals[px], -run.signals[py]  # the view's y points down
+        assert (x0 <= x.min()) and (x.max() <= x1) and (y0 <= y.min()) and (y.max() <= y1)
+    for path_rgb in PHASE_COLORS:
+        for arrow_rgb in HEADING_COLORS:  # WCAG contrast ratio of the arrow on the path
+            hi, lo = sorted((relative_luminance(path_rgb), relative_luminance(arrow_rgb)))[::-1]
+            assert (hi + 0.05) / (lo + 0.05) >= 3.0
+    text = rrd_print(rrd)
+    assert {"Points2D:positions", "Points2D:labels"} <= text["/runs/fig11/world/D_label"][1]
+    reader = rrc.RrdReader(rrd)
+    got: dict[str, Any] = {}
+    for chunk in reader.stream():
+        if chunk.entity_path in ("/runs/fig11/world/D_label", "/runs/fig11/world/R_label"):
+            batch = chunk.to_record_batch()
+            if "Points2D:positions" in batch.schema.names:
+                got[chunk.entity_path] = np.array(
+                    [r[0] for r in batch.column("Points2D:positions").to_pylist()])
+    d_lab, r_lab = got["/runs/fig11/world/D_label"], got["/runs/fig11/world/R_label"]
+    gap = np.hypot(*(d_lab - r_lab).T)
+    assert gap.min() > 0.02 * (x1 - x0)  # at least one label height apart, even where D = R
+
+
+def test_summaries_show_the_robot_and_the_varied_inputs_first(logs: dict[str, Path],
+                                                              tmp_path: Path) -> None:
+    """Items 7, 10: the one-run summary shows the robot's parameters and its log's path as
+    wrapping text near the top; the several-run table has the inputs that vary right after
+    the run's number (before: after seven columns, cut off), the log last."""
+    rrd = tmp_path / "one.rrd"
+    assert main(["replay", str(logs["fig11"]), "--rrd", str(rrd)]) == 0
+    [text] = _summary(rrd)
+    assert "| robot | m 25 kg" in text and "log **fig11.mcap** in" in text.split("|")[0]
+    both = tmp_path / "two.rrd"
+    assert main(["replay", str(logs["fig11"]), str(logs["near"]), "--rrd", str(both)]) == 0
+    [text] = _summary(both)
+    head = next(line for line in text.splitlines() if line.startswith("| run"))
+    cells = [c.strip() for c in head.strip("|").split("|")]
+    assert cells[:3] == ["run", "K_ps", "status"] and cells[-1] == "log"
+
+
+def _summary(rrd: Path) -> list[str]:
+    for chunk in rrc.RrdReader(rrd).stream():
+        if chunk.entity_path == "/summary":
+            batch = chunk.to_record_batch()
+            if "TextDocument:text" in batch.schema.names:
+                return [str(t) for t in batch.column("TextDocument:text").to_pylist()[0]]
+    return []
+
+
+@pytest.mark.slow
+def test_the_optimal_run_is_in_every_panel_or_the_panel_says_why(logs: dict[str, Path],
+                                                                 tmp_path: Path) -> None:
+    """Item 3: ``wmr replay PI.mcap OPTIMAL.mcap``: the open-loop run has finite lines in the
+    distance and heading-error panels (the stabiliser's errors along its path: its Δr is its
+    distance to the goal), and the panels it has no line in (the commands, the phase) say
+    in their titles that it is open loop (before: absent without a word)."""
+    opt = tmp_path / "opt.mcap"
+    assert main(["optimal", "--goal", "4", "2", "0", "--out", str(opt)]) == 0
+    rrd = tmp_path / "both.rrd"
+    assert main(["replay", str(logs["near"]), str(opt), "--rrd", str(rrd)]) == 0
+    run = read_run(opt)
+    values: dict[str, Any] = {}
+    for chunk in rrc.RrdReader(rrd).stream():
+        batch = chunk.to_record_batch()
+        if chunk.entity_path.startswith("/runs/opt/") and "Scalars:scalars" in batch.schema.names:
+            rows = batch.column("Scalars:scalars").to_pylist()
+            values.setdefault(chunk.entity_path, []).extend(r[0] for r in rows)
+    for panel in ("distance", "heading", "speed", "turn_rate", "wheels", "torques"):
+        assert np.isfinite(values[f"/runs/opt/{panel}"]).any(), panel
+    dr = np.array(values["/runs/opt/distance"])
+    assert run.goal is not None
+    np.testing.assert_allclose(dr, np.hypot(run.goal.x_m - run.signals["x_m"],
+                                            run.goal.y_m - run.signals["y_m"]), atol=1e-6)
+    titles = [v["name"] for v in _plots(rrd)]
+    said = [t for t in titles if "#1 open loop" in t]
+    assert len(said) == 3 and any(t.startswith("Phase") for t in said), titles
+
+
+def test_raw_blueprint_plots_are_labelled_in_three_columns(logs: dict[str, Path],
+                                                           tmp_path: Path) -> None:
+    """Items 1, 4, 9, 10 for the raw log: the blueprint of ``--blueprint-for`` fixes each
+    plot's y range to labelled values around the log's own values (before: e_θ and the
+    torques showed only "0"), lays six cells in three columns with the phase in a tab
+    behind the torques (before: two columns and an empty cell), and draws the robot dark
+    (the path under it is blue)."""
+    log = tmp_path / "fig11.mcap"
+    log.write_bytes(logs["fig11"].read_bytes())
+    assert main(["replay", "--blueprint-for", str(log)]) == 0
+    _, ents = blueprint(log.with_suffix(".rbl"))
+    plots = [v for v in views(ents) if v["class"] == "TimeSeries"]
+    assert len(plots) == 7
+    run = read_run(log)
+    for v in plots:
+        lo, hi = v["ScalarAxis:range"][0]
+        assert _labelled(lo, hi) >= 2, (v["name"], lo, hi)
+    [heading] = [v for v in plots if "e_θ" in v["name"]]
+    lo, hi = heading["ScalarAxis:range"][0]
+    assert lo <= float(run.signals["e_theta_rad"].min()) <= float(
+        run.signals["e_theta_rad"].max()) <= hi
+    [grid] = [c for c in ents.values() if c.get("ContainerBlueprint:container_kind") == [4]]
+    assert grid["ContainerBlueprint:grid_columns"] == [3]
+    assert len(grid["ContainerBlueprint:contents"]) == 6
+    tabs = [c for c in ents.values() if c.get("ContainerBlueprint:container_kind") == [2]]
+    assert len(tabs) == 1 and len(tabs[0]["ContainerBlueprint:contents"]) == 2
+    [rgba] = [c["Points3D:colors"][0] for p, c in ents.items()
+              if "/overrides/scene/robot/" in p and "Points3D:colors" in c]
+    assert relative_luminance((rgba >> 24 & 255, rgba >> 16 & 255, rgba >> 8 & 255)) < 0.05

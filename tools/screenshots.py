@@ -28,6 +28,8 @@ Shots (``NAME.png``):
 ``recovered`` the log of a Fig. 11 run killed after 15 s of simulation, recovered by ``wmr
              log recover`` and opened as it is (``rerun X.recovered.mcap``, Rerun's own
              layout);
+``optimal``  ``wmr replay fig11.mcap optimal-time.mcap``: the PI's Fig. 11 run against the
+             minimum-time manoeuvre of ``wmr optimal fig11`` (an open-loop log);
 ``worst``    ``wmr replay DIR --worst 5 --by final_position_error_m`` of the Monte Carlo
              ``scenarios/mc_failures.toml`` (800 runs, about a tenth time out; ``--log
              failed``): the five runs that ended furthest from the goal
@@ -54,7 +56,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-SHOTS = ("single", "sensors", "overlay", "raw", "direct", "live", "recovered", "worst")
+SHOTS = ("single", "sensors", "overlay", "raw", "direct", "live", "recovered", "worst",
+         "optimal")
 #: The viewer settings of the ``direct`` shot (a partial ``app.ron`` of the native viewer's
 #: persisted state): a blueprint given next to a file applies only when the file is not
 #: loaded via the Viewer catalog (Rerun 0.41's release notes), and the log time (ns from the
@@ -133,6 +136,7 @@ def make_logs(folder: Path) -> dict[str, Path]:
         _run([*_wmr(), "batch", folder / "mc20.toml", "--out", folder / "mc20", "--no-progress",
               "--workers", "1"], quiet=True)
     logs["raw"] = logs["direct"] = logs["single"]
+    logs["optimal"] = folder / "optimal-time.mcap"
     return logs
 
 
@@ -168,6 +172,12 @@ def make_recordings(logs: dict[str, Path], folder: Path,
             _run([*_wmr(), "replay", batch, "--worst", str(WORST_RUNS), "--by",
                   "final_position_error_m", "--no-viewer",
                   "--rrd", rrd], quiet=True)
+            out[shot] = [rrd]
+        elif shot == "optimal":
+            if not logs["optimal"].exists():
+                _run([*_wmr(), "optimal", "fig11", "--out", logs["optimal"]], quiet=True)
+            _run([*_wmr(), "replay", logs["single"], logs["optimal"], "--rrd", rrd],
+                 quiet=True)
             out[shot] = [rrd]
         elif shot == "raw":
             rbl = folder / "wmr.rbl"

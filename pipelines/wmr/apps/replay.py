@@ -83,7 +83,7 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
 
     if blueprint_for:
         from wmr.adapters.rerun.blueprint import log_blueprint_path, write_log_blueprint
-        from wmr.adapters.rerun.replay import find_logs, framing
+        from wmr.adapters.rerun.replay import find_logs, raw_view
 
         if not logs:
             raise ConfigError(option("blueprint_for"), "no log given",
@@ -94,20 +94,23 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
             check_output(log_blueprint_path(log.path), option("blueprint_for"), suffix=".rbl")
         written = []
         for log in found:
-            own_frame, own_sensing = framing([log.path])  # each looks down on its own run
-            written.append(write_log_blueprint(log.path, own_frame, sensing=own_sensing))
+            own = raw_view([log.path])  # each looks down on its own run, plots its range
+            written.append(write_log_blueprint(log.path, own.frame, sensing=own.sensing,
+                                               y_ranges=own.y_ranges))
         return written
     if blueprint is not None:
         from wmr.adapters.rerun.blueprint import write_blueprint
 
-        frame, sensing = None, False
-        if logs:  # look straight down on these runs (and plot their covariance)
-            from wmr.adapters.rerun.replay import framing
+        view = None
+        if logs:  # look straight down on these runs (and plot their covariance, their ranges)
+            from wmr.adapters.rerun.replay import raw_view
 
-            frame, sensing = framing(logs)
+            view = raw_view(logs)
         out = check_output(blueprint, option("blueprint"), suffix=".rbl")
         out.parent.mkdir(parents=True, exist_ok=True)  # as rrd does
-        return write_blueprint(out, frame=frame, sensing=sensing)
+        return write_blueprint(out, frame=view.frame if view else None,
+                               sensing=view.sensing if view else False,
+                               y_ranges=view.y_ranges if view else None)
     if not logs:
         raise ConfigError(option("logs"), "no log given", "give run logs or folders of them")
     if notebook:  # before --worst makes runs again, only to find no viewer to show them in

@@ -66,32 +66,39 @@ class RawPanel:
     lines: tuple[RawLine, ...]
 
 
+#: The panel folded into a tab behind the torques: over a whole run the phase is a line at 0
+#: with a sliver at the end (the alignment), not worth a cell of its own.
+PHASE_PANEL: Final = "Phase: 0 approach, 1 align"
+TORQUE_PANEL: Final = "Torques τ_r, τ_l [N m]"
+COVARIANCE_PANEL: Final = "Estimate covariance [m²]"
+
 _S, _E, _C = "/robot/state", "/controller/errors", "/controller/commands"
-#: The time series views, one unit per axis (angles stay in radians: a selector cannot scale).
+#: The time series views, one unit per axis (angles stay in radians: a selector cannot scale);
+#: titles under ~30 characters (a plot of the three-column grid cuts a longer one).
 RAW_PANELS: Final[tuple[RawPanel, ...]] = (
-    RawPanel("Distance to goal Δr and error e_s [m]", (
+    RawPanel("Distance Δr, e_s [m]", (
         RawLine(_E, "dr_m", "Δr", (110, 110, 110)), RawLine(_E, "e_s_m", "e_s", (31, 119, 180)))),
     RawPanel("Heading error e_θ [rad]", (RawLine(_E, "e_theta_rad", "e_θ", (214, 39, 40)),)),
-    RawPanel("Speed v and command u_s [m/s]", (
+    RawPanel("Speed v, u_s [m/s]", (
         RawLine(_S, "v_mps", "v", (31, 119, 180)),
         RawLine(_C, "u_s_mps", "u_s", (255, 187, 120)))),
-    RawPanel("Turn rate ω and command u_θ [rad/s]", (
+    RawPanel("Turn rate ω, u_θ [rad/s]", (
         RawLine(_S, "omega_radps", "ω", (44, 160, 44)),
         RawLine(_C, "u_theta_radps", "u_θ", (255, 187, 120)))),
-    RawPanel("Wheel speeds and references [rad/s]", (
+    RawPanel("Wheels ω_r, ω_l [rad/s]", (
         RawLine(_S, "omega_r_radps", "ω_r", (255, 127, 14)),
         RawLine(_S, "omega_l_radps", "ω_l", (148, 103, 189)),
         RawLine(_C, "omega_r_ref_radps", "ω_r ref", (255, 187, 120)),
         RawLine(_C, "omega_l_ref_radps", "ω_l ref", (197, 176, 213)))),
-    RawPanel("Motor torques [N m]", (
+    RawPanel(TORQUE_PANEL, (
         RawLine(_C, "tau_r_nm", "τ_r", (255, 127, 14)),
         RawLine(_C, "tau_l_nm", "τ_l", (148, 103, 189)),
         # an open-loop log (no controller) carries its torques on a topic of their own
         RawLine(TORQUE_TOPIC.topic, "tau_r_nm", "τ_r", (255, 127, 14)),
         RawLine(TORQUE_TOPIC.topic, "tau_l_nm", "τ_l", (148, 103, 189)))),
-    RawPanel("Control phase: 0 approach, 1 align", (
+    RawPanel(PHASE_PANEL, (
         RawLine(PHASE_TOPIC, "phase", "phase", (110, 110, 110)),)),
-    RawPanel("Estimate covariance [m²] (runs with sensors)", (
+    RawPanel(COVARIANCE_PANEL, (
         RawLine(COVARIANCE_TOPIC, "xx_m2", "σ_x²", (204, 0, 153)),
         RawLine(COVARIANCE_TOPIC, "yy_m2", "σ_y²", (140, 86, 75)))),
 )
@@ -109,7 +116,10 @@ def signal_mappings() -> dict[str, list[tuple[str, str]]]:
     return out
 
 
-def _view(panel: RawPanel) -> Any:
+#: The robot's outline in the scene view: dark, so that the robot and its 1 m heading arrow
+#: read on the path it drives along (the log draws it in the phase's colour, the path's).
+ROBOT_COLOR: Final[Rgb] = (25, 25, 25)
+def _view(panel: RawPanel, y_range: tuple[float, float] | None = None) -> Any:
     import rerun as rr
     import rerun.blueprint as rrb
     from rerun.blueprint.encodings import ComponentSourceKind, VisualizerComponentMapping
@@ -125,15 +135,21 @@ def _view(panel: RawPanel) -> Any:
             rr.SeriesLines(names=line.label, colors=[line.color],
                            aggregation_policy="minmax").visualizer(
                 mappings=[mapping]))
+    if panel.title == PHASE_PANEL:
+        y_range = (-0.1, 1.1)
     return rrb.TimeSeriesView(name=panel.title, origin="/",
                               contents=[f"+ {t}" for t in overrides],
                               overrides=overrides,  # type: ignore[arg-type]
-                              plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightTop))
+                              plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightTop),
+                              axis_y=rrb.ScalarAxis(range=y_range) if y_range else None)
 
 
 def raw_blueprint(frame: tuple[float, float, float, float] | None = None, *,
-                  sensing: bool = False) -> Any:
-    """The blueprint: the scene's top view beside a two-column grid of the signal panels.
+                  sensing: bool = False,
+                  y_ranges: dict[str, tuple[float, float]] | None = None) -> Any:
+    """The blueprint: the scene's top view beside a three-column grid of the signal panels
+    (the phase, and with sensors the covariance, in tabs behind the torques: six cells, none
+    empty, each tall enough for its y axis' values).
 
     Parameters
     ----------
@@ -143,6 +159,9 @@ def raw_blueprint(frame: tuple[float, float, float, float] | None = None, *,
     sensing
         Add the estimate covariance panel (a run with sensors): without sensors it would
         stay empty.
+    y_ranges
+        Per panel title: its fixed y range (:func:`wmr.adapters.rerun.replay.raw_view`: the
+        runs' values widened to values Rerun labels); a panel not given scales itself.
     """
     import rerun as rr
     import rerun.blueprint as rrb
@@ -162,11 +181,18 @@ def raw_blueprint(frame: tuple[float, float, float, float] | None = None, *,
         line_grid=rrb.LineGrid3D(visible=True, spacing=1.0, plane=rr.components.Plane3D.XY,
                                  color=(200, 200, 200)),
         eye_controls=eye,
+        # the robot dark and its points larger than the path's: it reads on its path
+        overrides={"/scene/robot": rr.Points3D.from_fields(
+            colors=[ROBOT_COLOR], radii=[-1.2])},
     )
-    views = [_view(p) for p in RAW_PANELS
+    ranges = y_ranges or {}
+    views = [_view(p, ranges.get(p.title)) for p in RAW_PANELS
              if sensing or all(line.topic != COVARIANCE_TOPIC for line in p.lines)]
+    folded = [v for v in views if v.name in (PHASE_PANEL, COVARIANCE_PANEL)]
+    cells = [rrb.Tabs(v, *folded, active_tab=0) if v.name == TORQUE_PANEL else v
+             for v in views if v not in folded]
     return rrb.Blueprint(
-        rrb.Horizontal(scene, rrb.Grid(*views, grid_columns=2), column_shares=[5, 6]),
+        rrb.Horizontal(scene, rrb.Grid(*cells, grid_columns=3), column_shares=[9, 11]),
         rrb.TimePanel(timeline=LOG_TIMELINE, state="collapsed"),
         collapse_panels=True,
     )
@@ -191,25 +217,27 @@ def log_blueprint_path(log: str | Path) -> Path:
 
 
 def write_log_blueprint(log: str | Path, frame: tuple[float, float, float, float] | None = None,
-                        *, sensing: bool = False) -> Path:
+                        *, sensing: bool = False,
+                        y_ranges: dict[str, tuple[float, float]] | None = None) -> Path:
     """Write the blueprint for ``log`` opened directly in Rerun (``rerun X.mcap X.rbl``):
-    ``X.rbl`` beside it, saved under :func:`log_application_id` (``frame``, ``sensing``: see
-    :func:`raw_blueprint`; the caller gives this log's)."""
+    ``X.rbl`` beside it, saved under :func:`log_application_id` (``frame``, ``sensing``,
+    ``y_ranges``: see :func:`raw_blueprint`; the caller gives this log's)."""
     return write_blueprint(log_blueprint_path(log), log_application_id(log), frame,
-                           sensing=sensing)
+                           sensing=sensing, y_ranges=y_ranges)
 
 
 def write_blueprint(path: str | Path, application_id: str = APPLICATION_ID,
                     frame: tuple[float, float, float, float] | None = None, *,
-                    sensing: bool = False) -> Path:
-    """Write the blueprint to ``path`` (``.rbl``) and return it (``frame``, ``sensing``: see
-    :func:`raw_blueprint`)."""
+                    sensing: bool = False,
+                    y_ranges: dict[str, tuple[float, float]] | None = None) -> Path:
+    """Write the blueprint to ``path`` (``.rbl``) and return it (``frame``, ``sensing``,
+    ``y_ranges``: see :func:`raw_blueprint`)."""
     from wmr.infra.durable import replacing_path
 
     out = Path(path)
     # Rerun writes a pipe, we write out (replacing_path): a full disk keeps the previous whole
     with replacing_path(out) as pipe:
-        raw_blueprint(frame, sensing=sensing).save(application_id, pipe)
+        raw_blueprint(frame, sensing=sensing, y_ranges=y_ranges).save(application_id, pipe)
     return out
 
 

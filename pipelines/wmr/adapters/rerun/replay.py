@@ -4,16 +4,20 @@
 to Rerun as whole columns (``send_columns``): one recording, one ``sim_time`` timeline (simulation
 seconds from the log's ``t_ns``), and a default blueprint with
 
-* a 2-D world view with a metre grid and fixed bounds (every start, goal and path in frame): the
-  path of each run (coloured by the control phase for one run, by run for several), the robot
-  (body and heading arrow, moved by a transform per control step, its arrow coloured by phase),
+* a 2-D world view with a metre grid and fixed bounds (every start, goal and path in frame, and
+  D and R for one run): the path of each run (coloured by the control phase for one run, by run
+  for several), the robot (body and a dark heading arrow, moved by a transform per control step),
   the goal (arrow along theta_d, ring of the stop radius), the point D on the heading line
   (Fig. 4) and the ROC reference point R (Fig. 6) with their construction lines from B; for runs
   with sensors the GPS fixes and the estimated path on top of the true one;
-* one time-series panel per quantity (:data:`PANELS`: one unit per axis, angles in degrees),
-  the control phase, and for runs with sensors the estimation error;
-* a run summary: status, times, final errors, start, goal, gains and limits (angles in degrees),
-  and, for several runs, one row per run with its start, goal and the inputs that vary.
+* one time-series panel per quantity (:data:`PANELS`: one unit per axis, angles in degrees, a
+  fixed y range Rerun labels: :func:`y_range`), the control phase, and for runs with sensors
+  the estimation error, three to a row;
+* a run summary: status, times, final errors, start, goal, robot, gains and limits (angles in
+  degrees), and, for several runs, one row per run with the inputs that vary, its start and goal.
+
+An open-loop log (an optimal manoeuvre's) gets the stabiliser's errors along its path
+(:func:`complete_open_loop`), so that it is compared with a closed-loop run in the same panels.
 
 Entity layout, one subtree per run (``<run>`` is the log's file name without ``.mcap``)::
 
@@ -26,6 +30,7 @@ Entity layout, one subtree per run (``<run>`` is the log's file name without ``.
     runs/<run>/world/robot        Transform3D per step (+ its arrow's phase colour);
                                   static Boxes2D body
     runs/<run>/world/D, .../R     Points2D per step (Figs. 4 and 6)
+    .../D_label, .../R_label      Points2D per step: their labels, above D and below R
     runs/<run>/world/construction LineStrips2D per step: B -> D and B -> R
     runs/<run>/world/gps          static Points2D: the position fixes (runs with sensors)
     runs/<run>/world/estimate     static LineStrips2D: the estimated path (runs with sensors)
@@ -53,7 +58,7 @@ import sys
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -68,7 +73,6 @@ from wmr.adapters.mcap.reader import metadata_json
 from wmr.adapters.mcap.scene import (
     ESTIMATE_COLOR,
     GOAL_COLOR,
-    GPS_COLOR,
     PHASE_COLORS,
     control_phases,
     robot_geometry,
@@ -104,7 +108,67 @@ AXIS_COLOR: Final[Rgb] = (150, 150, 150)
 GRID_LABEL_COLOR: Final[Rgb] = (70, 70, 70)
 #: The GPS fixes in the world view: lighter than the log's scene colour, under the paths.
 GPS_DOT_COLOR: Final[Rgb] = (150, 150, 150)
+#: The robot's heading arrow, per control phase (approach, align): dark, to stand out on the
+#: path under it (blue, orange, or the run's colour) and on the light world background.
+HEADING_COLORS: Final[tuple[Rgb, Rgb]] = ((25, 25, 25), (70, 0, 55))
+#: Least relative luminance (WCAG 2) of a plotted line: the plots' background in Rerun's dark
+#: theme is near black, and 0.1 is a contrast ratio of 3 against black (navy, (8, 48, 107),
+#: is 0.03).
+MIN_SERIES_LUMINANCE: Final = 0.1
+#: Label text takes its point's colour, on a grey box: a run's colour darkened by this
+#: factor reads on it (the colour itself did not, for a mid green or purple).
+LABEL_SHADE: Final = 0.4
+#: Width of the rulers (the grid's values) outside the runs, as a fraction of the world
+#: view's larger side: no path, start or label of a run under a grid value.
+RULER_FRAC: Final = 0.07
+#: Most intervals between labelled values of a plot's y axis.  Rerun's plots (egui_plot's
+#: grid) label multiples of powers of ten only (1 and 10 apart, never 2 or 5) and fade a
+#: label out below 30 points between values (none below 20): a y range of 0.95 shows only
+#: "0", of 9 in 150 points none but "0".  A panel is ~250 points high in a 1600 x 1000
+#: window (three rows); 7 intervals, and at most 1.5 more of room at the ends, keep 29
+#: points or more between labels (:func:`y_range`).
+Y_INTERVALS: Final = 7
 _DEG: Final = 180.0 / math.pi
+
+
+def relative_luminance(rgb: Sequence[int]) -> float:
+    """WCAG 2 relative luminance of an sRGB colour (0 black, 1 white)."""
+    c = np.asarray(rgb[:3], np.float64) / 255.0
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    return float(lin @ np.array([0.2126, 0.7152, 0.0722]))
+
+
+def _shade(rgb: Rgb, factor: float) -> Rgb:
+    r, g, b = (round(c * factor) for c in rgb)
+    return r, g, b
+
+
+def y_range(lo: float, hi: float, intervals: int = Y_INTERVALS) -> tuple[float, float]:
+    """A plot's y range around ``[lo, hi]`` that Rerun labels with at least two values.
+
+    Its ends are multiples of the smallest power of ten ``s`` that spans ``[lo, hi]`` in at
+    most ``intervals`` steps (Rerun labels multiples of powers of ten only:
+    :data:`Y_INTERVALS`), widened by 3 % so that a line at an end is not on the frame (a
+    value less than 10 % of the span past a multiple is in that room, not a step further).
+    A constant or empty series gets ``value ± 1`` (or ``± |value|/10``).
+    """
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return -1.0, 1.0
+    if hi - lo <= 1e-12 * max(1.0, abs(lo), abs(hi)):
+        pad = max(1.0, 0.1 * abs(lo)) if abs(lo) < 10 else 0.1 * abs(lo)
+        lo, hi = lo - pad, hi + pad
+    step = 10.0 ** math.floor(math.log10((hi - lo) / intervals))
+    while True:
+        # a value past a multiple by under 10 % of the span goes in the room, not a step
+        # more (v peaks at 1.0004 m/s: [0, 1.03], not [0, 2])
+        tol = 0.1 * (hi - lo) / step
+        a, b = math.floor(lo / step + tol), math.ceil(hi / step - tol)
+        room = 0.03 * (hi - lo)
+        lo_out, hi_out = min(a * step, lo) - room, max(b * step, hi) + room
+        # the room and the values past the ends add at most 1.5 steps to the span
+        if b - a <= intervals and b > a and hi_out - lo_out <= (intervals + 1.5) * step:
+            return lo_out, hi_out
+        step *= 10.0
 
 
 @dataclass(frozen=True)
@@ -123,8 +187,10 @@ class Panel:
     """A time-series view: one multi-instance ``Scalars`` entity per run, one line per series.
 
     ``overlay`` series (the first ones) are drawn per run when several runs share the plots,
-    under ``overlay_title``; ``limit`` names the run's ``limits`` entry that fixes a symmetric
-    axis range (so a saturated start-up does not flatten the rest).
+    under ``overlay_title``; ``command``: they are the controller's output (an open-loop run
+    has none), this their short name for a title that says so; ``limit`` names the run's
+    ``limits`` entry that bounds a symmetric axis range (so a saturated start-up does not
+    flatten the rest).
     """
 
     entity: str
@@ -133,49 +199,55 @@ class Panel:
     overlay: int = 1
     overlay_title: str = ""
     limit: str | None = None
+    command: str = ""
 
 
 _BLUE, _ORANGE, _GREEN = (31, 119, 180), (255, 127, 14), (44, 160, 44)
-_RED, _PURPLE, _GREY = (214, 39, 40), (148, 103, 189), (110, 110, 110)
+_RED, _PURPLE, _GREY = (214, 39, 40), (148, 103, 189), (150, 150, 150)
 _LIGHT_ORANGE, _LIGHT_PURPLE = (255, 187, 120), (197, 176, 213)
+_LIGHT_BLUE, _LIGHT_RED = (158, 202, 225), (252, 146, 114)
 
-#: The time-series panels, in reading order (two columns); one unit per axis.
+#: The time-series panels, in reading order (three columns); one unit per axis.  Titles stay
+#: under ~30 characters: a plot is ~320 points wide, and a longer title is cut.  Every line
+#: is drawn on the viewer's dark plot background: each colour's relative luminance is at least
+#: :data:`MIN_SERIES_LUMINANCE` (a command is light orange wherever it is drawn).
 PANELS: Final[tuple[Panel, ...]] = (
-    Panel("distance", "Distance to goal Δr and error e_s [m] (Fig. 11)", (
+    Panel("distance", "Distance Δr, e_s [m]", (
         Series("dr_m", "Δr", _GREY),
         Series("e_s_m", "e_s", _BLUE),
     ), overlay_title="Distance to goal Δr [m]"),
-    Panel("heading", "Heading error e_θ [°] (Fig. 11)", (
+    Panel("heading", "Heading error e_θ [°]", (
         Series("e_theta_rad", "e_θ", _RED, _DEG),
     ), overlay_title="Heading error e_θ [°]"),
-    Panel("speed", "Speed v and command u_s [m/s]", (
+    Panel("speed", "Speed v, u_s [m/s]", (
         Series("v_mps", "v", _BLUE),
         Series("u_s_mps", "u_s", _LIGHT_ORANGE),
     ), overlay_title="Speed v [m/s]"),
-    Panel("turn_rate", "Turn rate ω and command u_θ [rad/s] (Fig. 12)", (
+    Panel("turn_rate", "Turn rate ω, u_θ [rad/s]", (
         Series("omega_radps", "ω", _GREEN),
         Series("u_theta_radps", "u_θ", _LIGHT_ORANGE),
     ), overlay_title="Turn rate ω [rad/s]"),
-    Panel("wheels", "Wheel speeds and references [rad/s] (Fig. 12)", (
+    Panel("wheels", "Wheels ω_r, ω_l [rad/s]", (
         Series("omega_r_radps", "ω_r", _ORANGE),
         Series("omega_l_radps", "ω_l", _PURPLE),
         Series("omega_r_ref_radps", "ω_r ref", _LIGHT_ORANGE),
         Series("omega_l_ref_radps", "ω_l ref", _LIGHT_PURPLE),
-    ), overlay_title="Right wheel speed ω_r [rad/s]"),
-    Panel("torques", "Motor torques [N m]", (
+    ), overlay_title="Wheel ω_r [rad/s]"),
+    Panel("torques", "Torques τ_r, τ_l [N m]", (
         Series("tau_r_nm", "τ_r", _ORANGE),
         Series("tau_l_nm", "τ_l", _PURPLE),
-    ), overlay_title="Right motor torque τ_r [N m]", limit="torque_max_nm"),
-    Panel("pi_distance", "Distance PI, eq. 29 [m/s]", (
+    ), overlay_title="Torque τ_r [N m]", limit="torque_max_nm"),
+    # the PI's output first: several runs overlay it (the first series), not the P term
+    Panel("pi_distance", "Distance PI u_s [m/s]", (
+        Series("u_s_mps", "u_s", _LIGHT_ORANGE),
         Series("p_s_mps", "P_s", _BLUE),
-        Series("i_s_mps", "I_s", (158, 202, 225)),
-        Series("u_s_mps", "u_s", (8, 48, 107)),
-    ), overlay_title="Distance PI output u_s [m/s]"),
-    Panel("pi_heading", "Heading PI, eq. 29 [rad/s]", (
+        Series("i_s_mps", "I_s", _LIGHT_BLUE),
+    ), overlay_title="Distance PI u_s [m/s]", command="u_s [m/s]"),
+    Panel("pi_heading", "Heading PI u_θ [rad/s]", (
+        Series("u_theta_radps", "u_θ", _LIGHT_ORANGE),
         Series("p_theta_radps", "P_θ", _RED),
-        Series("i_theta_radps", "I_θ", (252, 146, 114)),
-        Series("u_theta_radps", "u_θ", (103, 0, 13)),
-    ), overlay_title="Heading PI output u_θ [rad/s]"),
+        Series("i_theta_radps", "I_θ", _LIGHT_RED),
+    ), overlay_title="Heading PI u_θ [rad/s]", command="u_θ [rad/s]"),
 )
 #: The control phase panel (0 approach, 1 align) and the estimation error (runs with sensors).
 PHASE_ENTITY: Final = "phase"
@@ -433,12 +505,18 @@ def run_entity(name: str) -> str:
 
 def run_color(k: int, n_runs: int) -> Rgb:
     """Colour of the ``k``-th of ``n_runs`` runs: tab10 up to ten runs, else golden-angle hues
-    (distinct for any number of runs, alternating two lightnesses)."""
+    (distinct for any number of runs, alternating two lightnesses, each raised until the
+    colour reads on the plots' dark background: :data:`MIN_SERIES_LUMINANCE`)."""
     if n_runs <= len(RUN_COLORS):
         return RUN_COLORS[k % len(RUN_COLORS)]
     hue = (0.6 + 0.381966 * k) % 1.0
-    r, g, b = colorsys.hls_to_rgb(hue, 0.42 if k % 2 else 0.55, 0.75)
-    return round(255 * r), round(255 * g), round(255 * b)
+    lightness = 0.42 if k % 2 else 0.55
+    while True:  # a blue or a purple at 0.42 is too dark for the plots' black background
+        r, g, b = colorsys.hls_to_rgb(hue, lightness, 0.75)
+        rgb = round(255 * r), round(255 * g), round(255 * b)
+        if relative_luminance(rgb) >= MIN_SERIES_LUMINANCE + 0.02 or lightness > 0.8:
+            return rgb
+        lightness += 0.02
 
 
 def _series_style(panel: Panel, label: str | None, run_color: Rgb | None) -> rr.SeriesLines:
@@ -469,7 +547,8 @@ class Bounds:
     @classmethod
     def around(cls, points: NDArray[np.float64], margin_frac: float = 0.08,
                min_size_m: float = 4.0) -> Bounds:
-        """The finite ``points`` (shape ``(n, 2)``) with a margin on every side."""
+        """The finite ``points`` (shape ``(n, 2)``) with a margin on every side, and a band
+        for the rulers (:data:`RULER_FRAC`) on the left and at the bottom."""
         p = points[np.isfinite(points).all(axis=1)]
         if p.size == 0:
             p = np.zeros((1, 2))
@@ -477,8 +556,10 @@ class Bounds:
         size = np.maximum(hi - lo, min_size_m)
         mid = 0.5 * (lo + hi)
         half = 0.5 * size * (1.0 + 2.0 * margin_frac) + 0.5  # + room for labels and arrows
-        return cls(float(mid[0] - half[0]), float(mid[0] + half[0]),
-                   float(mid[1] - half[1]), float(mid[1] + half[1]))
+        # the rulers (the grid's values) left and below, outside what is drawn
+        ruler = RULER_FRAC * 2.0 * float(half.max())
+        return cls(float(mid[0] - half[0] - ruler), float(mid[0] + half[0]),
+                   float(mid[1] - half[1] - ruler), float(mid[1] + half[1]))
 
     def contains(self, points: NDArray[np.float64]) -> bool:
         """Whether every finite point of ``points`` (shape ``(n, 2)``) is inside."""
@@ -511,12 +592,16 @@ def log_grid(rec: rr.RecordingStream, bounds: Bounds) -> None:
     rec.log(GRID_ENTITY, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
     rec.log(f"{GRID_ENTITY}/lines", rr.LineStrips2D(lines, colors=colors, radii=[-0.6],
                                                     draw_order=-10.0), static=True)
-    # the line values along the bottom and the left edge (a ruler: the view has no axes),
-    # far enough inside for the label, centred on its point, not to be cut by the edge
-    inset = 0.035 * max(bounds.x_max - bounds.x_min, bounds.y_max - bounds.y_min)
-    marks = ([[x, bounds.y_min + inset] for x in xs]
-             + [[bounds.x_min + inset, y] for y in ys])
-    texts = [f"{v:g} m" for v in (*xs, *ys)]
+    # the line values along the bottom and the left edge (a ruler: the view has no axes), in
+    # the band Bounds.around leaves for them, centred in it; none where a label, centred on
+    # its line, would be cut by an edge or meet the other ruler in the corner
+    span = max(bounds.x_max - bounds.x_min, bounds.y_max - bounds.y_min)
+    inset = 0.5 * RULER_FRAC / (1.0 + RULER_FRAC) * span
+    keep_x = [x for x in xs if bounds.x_min + 3.0 * inset < x < bounds.x_max - 1.5 * inset]
+    keep_y = [y for y in ys if bounds.y_min + 2.0 * inset < y < bounds.y_max - inset]
+    marks = ([[x, bounds.y_min + inset] for x in keep_x]
+             + [[bounds.x_min + inset, y] for y in keep_y])
+    texts = [f"{v:g} m" for v in (*keep_x, *keep_y)]
     rec.log(f"{GRID_ENTITY}/labels",
             rr.Points2D(marks, radii=[0.0], colors=[GRID_LABEL_COLOR], labels=texts,
                         show_labels=True,
@@ -528,9 +613,13 @@ def log_grid(rec: rr.RecordingStream, bounds: Bounds) -> None:
 
 def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
                      bounds: Bounds | None = None, sensing: bool = False,
-                     torque_range_nm: float | None = None) -> rrb.Blueprint:
+                     torque_range_nm: float | None = None,
+                     y_ranges: Mapping[str, tuple[float, float]] | None = None,
+                     open_loop: Sequence[str] = (),
+                     phase_window_s: tuple[float, float] | None = None) -> rrb.Blueprint:
     """The dashboard: world view and run summary on the left, the time-series panels on the
-    right (two columns), the phase strip below them; side panels collapsed.
+    right in a three-column grid (the phase in its last cell; with sensors, the estimation
+    error there and the phase in a tab behind it); side panels collapsed.
 
     Parameters
     ----------
@@ -546,10 +635,26 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
         Add the estimation-error panel (runs with sensors).
     torque_range_nm
         The torque axis spans ``[-range, range]`` (:func:`torque_range`: the saturated
-        start-up runs off the top instead of flattening the rest).
+        start-up runs off the top instead of flattening the rest), widened to labelled values
+        (:func:`y_range`); ``y_ranges`` wins.
+    y_ranges
+        Per panel entity (:data:`PANELS`, ``estimation``): the plot's fixed y range
+        (:func:`panel_ranges`); a panel not given scales itself (the live view).
+    open_loop
+        The runs without a controller (open-loop logs, an optimal manoeuvre's): the titles
+        of the panels of the controller's commands and of the phase say they have none.
+    phase_window_s
+        The phase plot shows this window of ``sim_time``, s (one run: its last seconds,
+        where the alignment is; over the whole run it is a line at 0 and a sliver at the
+        end); None: the whole run.
     """
     roots = [f"/{run_entity(n)}" for n in run_names]
     many = len(run_names) > 1
+    ranges = dict(y_ranges or {})
+    if torque_range_nm:
+        for p in PANELS:
+            if p.limit:
+                ranges.setdefault(p.entity, y_range(-torque_range_nm, torque_range_nm))
     world = rrb.Spatial2DView(
         name="World: x right, y up [m]", origin="/",
         contents=[f"/{GRID_ENTITY}/**", *(f"{r}/world/**" for r in roots)],
@@ -563,36 +668,72 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
     )
     # several runs: the run's colour names it (world view labels, summary): no legend
     legend = rrb.PlotLegend(visible=not many, corner=rrb.Corner2D.RightTop)
+    # short: a longer title is cut, and this is the note that must show
+    absent = f": {', '.join(open_loop) if many else ''} open loop".replace(":  ", ": ")
 
     def plot(entity: str, title: str, axis: rrb.ScalarAxis | None = None) -> rrb.TimeSeriesView:
+        if axis is None and entity in ranges:
+            axis = rrb.ScalarAxis(range=ranges[entity])
         return rrb.TimeSeriesView(name=title, origin="/",
                                   contents=[f"{r}/{entity}/**" for r in roots],
                                   plot_legend=legend, time_ranges=time_range, axis_y=axis)
 
-    plots = []
-    for p in PANELS:
-        axis = (rrb.ScalarAxis(range=(-torque_range_nm, torque_range_nm))
-                if p.limit and torque_range_nm else None)
-        plots.append(plot(p.entity, p.overlay_title if many else p.title, axis))
+    cells: list[Any] = [plot(p.entity, p.command + absent if p.command and open_loop
+                             else p.overlay_title if many else p.title) for p in PANELS]
+    phase = rrb.TimeSeriesView(
+        name=(("Phase" + absent if open_loop else "Phase, 0 approach 1 align")
+              if phase_window_s is None
+              else f"Phase, last {phase_window_s[1] - phase_window_s[0]:g} s: 1 align"),
+        origin="/", contents=[f"{r}/{PHASE_ENTITY}/**" for r in roots], plot_legend=legend,
+        axis_y=rrb.ScalarAxis(range=(-0.1, 1.1)),
+        time_ranges=time_range if phase_window_s is None else rrb.VisibleTimeRange(
+            TIMELINE, start=rrb.TimeRangeBoundary.absolute(seconds=phase_window_s[0]),
+            end=rrb.TimeRangeBoundary.absolute(seconds=phase_window_s[1])))
     if sensing:
-        plots.append(plot(ESTIMATION_ENTITY, "Position error of the estimate and the GPS "
-                                             "fixes [m]"))
-    phase = plot(PHASE_ENTITY, "Control phase: 0 approach, 1 align",
-                 rrb.ScalarAxis(range=(-0.2, 1.2)))
+        estimation = plot(ESTIMATION_ENTITY, "Position error: estimate, GPS fixes [m]")
+        cells.append(rrb.Tabs(estimation, phase, active_tab=0))
+    else:
+        cells.append(phase)
     summary = rrb.TextDocumentView(name="Run summary" if not many else
                                    f"{len(run_names)} runs", origin=f"/{SUMMARY_ENTITY}")
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(world, summary, row_shares=[3, 2]),
-            rrb.Vertical(rrb.Grid(*plots, grid_columns=2), phase, row_shares=[9, 1]),
-            column_shares=[5, 6],
+            # three rows of three: each plot tall enough for its y axis' values at a
+            # 1600 x 1000 window (Y_INTERVALS), and no empty cell
+            rrb.Grid(*cells, grid_columns=3),
+            column_shares=[9, 11],
         ),
         # live: the time cursor follows the newest rows (a live .rrd opens at its end); the
-        # collapsed time panel keeps its play bar and leaves the phase strip its height
+        # collapsed time panel keeps its play bar
         rrb.TimePanel(timeline=TIMELINE, state="collapsed",
                       play_state="following" if live else None),
         collapse_panels=True,
     )
+
+
+def panel_ranges(runs: Sequence[RunData], *, many: bool, torque_range_nm: float | None,
+                 estimation: Sequence[NDArray[np.float64]] = ()
+                 ) -> dict[str, tuple[float, float]]:
+    """The fixed y range of each plot (:func:`y_range`) over what it draws of ``runs``: every
+    series of a panel for one run, the overlaid ones for several; the torques within
+    ``± torque_range_nm``; ``estimation``: the estimation panel's values."""
+    out: dict[str, tuple[float, float]] = {}
+    for p in PANELS:
+        shown = p.series[:p.overlay] if many else p.series
+        parts = [r.signals[s.signal] * s.scale for r in runs for s in shown]
+        values = np.concatenate(parts) if parts else np.zeros(0)
+        values = values[np.isfinite(values)]
+        if p.limit and torque_range_nm:
+            values = np.clip(values, -torque_range_nm, torque_range_nm)
+            values = np.concatenate([values, [-torque_range_nm, torque_range_nm]])
+        if values.size:
+            out[p.entity] = y_range(float(values.min()), float(values.max()))
+    est = np.concatenate([np.ravel(e) for e in estimation]) if estimation else np.zeros(0)
+    est = est[np.isfinite(est)]
+    if est.size:
+        out[ESTIMATION_ENTITY] = y_range(0.0, float(est.max()))
+    return out
 
 
 # --------------------------------------------------------------------------- logging
@@ -639,12 +780,46 @@ def phase_strips(path_xy: NDArray[np.float64], phase: NDArray[np.int8] | None
             [PHASE_COLORS[int(phase[a])] for a in starts])
 
 
+def start_label_point(path_xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Where a run's start label goes: 0.6 m behind the start, against the direction of the
+    first 50 rows of the path."""
+    ahead = path_xy[min(len(path_xy) - 1, 50)] - path_xy[0]
+    return np.asarray(path_xy[0] - 0.6 * ahead / max(1e-9, float(np.linalg.norm(ahead))))
+
+
+def heading_arrow_m(bounds: Bounds) -> float:
+    """Length of the robot's heading arrow in a world view of ``bounds``: 7 % of its larger
+    side, at least the goal's 1 m (longer than the body, which is under 1 m)."""
+    return max(_ARROW_M, 0.07 * max(bounds.x_max - bounds.x_min, bounds.y_max - bounds.y_min))
+
+
+def label_groups(points: Sequence[NDArray[np.float64] | None], min_gap_m: float
+                 ) -> list[list[int]]:
+    """The start labels, grouped: each label joins the first group whose first point is
+    closer than ``min_gap_m`` (runs from one start share a label, ``#0 #1``); None: no
+    label."""
+    groups: list[list[int]] = []
+    for k, pt in enumerate(points):
+        if pt is None:
+            continue
+        for g in groups:
+            first = points[g[0]]
+            if first is not None and float(np.hypot(*(pt - first))) < min_gap_m:
+                g.append(k)
+                break
+        else:
+            groups.append([k])
+    return groups
+
+
 def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
                    path_xy: NDArray[np.float64] | None, color: Rgb,
                    run_color: Rgb | None = None, half_track_m: float = 0.3,
                    wheel_radius_m: float = 0.15, info: str | None = None,
                    phase: NDArray[np.int8] | None = None, start_label: str | None = None,
-                   stop_radius_m: float | None = None, goal_label: str | None = "") -> None:
+                   stop_radius_m: float | None = None, goal_label: str | None = "",
+                   arrow_m: float = _ARROW_M, start_label_color: Rgb | None = None,
+                   run_label: str | None = None) -> None:
     """Log the timeless part of a run once: frame flip, path, goal, robot shape, plot styles.
 
     Parameters
@@ -675,6 +850,12 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
     goal_label
         The goal's label: ``""`` its pose ``goal (x, y, θ_d°)``, None none (a goal another
         run already labelled), else this text.
+    arrow_m
+        Length of the robot's heading arrow, m (:func:`heading_arrow_m` of the view).
+    start_label_color
+        Colour of the start label's text; None: the run's colour darkened.
+    run_label
+        The run's name in its plot lines (``#3``); None: ``start_label``, else ``name``.
     """
     root = run_entity(name)
     world = f"{root}/world"
@@ -690,13 +871,14 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
                                                  radii=[-1.5 if run_color is None else -1.0],
                                                  draw_order=10.0), static=True)
         if start_label is not None:
-            # the number behind the start (the robot stands on the start at t = 0)
-            back = path_xy[0] - 0.6 * (path_xy[min(len(path_xy) - 1, 50)] - path_xy[0]) / max(
-                1e-9, float(np.linalg.norm(path_xy[min(len(path_xy) - 1, 50)] - path_xy[0])))
+            # the number behind the start (the robot stands on the start at t = 0), its text
+            # dark enough to read on the label's grey box
             rec.log(f"{world}/start",
-                    rr.Points2D([back], colors=[color], radii=[0.06],
-                                labels=[start_label], show_labels=bool(start_label),
-                                draw_order=30.0),
+                    rr.Points2D([start_label_point(path_xy)],
+                                colors=[start_label_color or _shade(color, LABEL_SHADE)],
+                                radii=[-3.0], labels=[start_label],
+                                # above the robots' bodies and arrows: never hidden by them
+                                show_labels=bool(start_label), draw_order=45.0),
                     static=True)
     if goal is not None:
         gx, gy, gth = goal
@@ -727,19 +909,26 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
                                    [wheel_radius_m, 0.05], [wheel_radius_m, 0.05]],
                        colors=[color, (40, 40, 40), (40, 40, 40)], radii=[0.025],
                        draw_order=40.0),
-            rr.Arrows2D.from_fields(origins=[[0.0, 0.0]], vectors=[[_ARROW_M, 0.0]],
-                                    radii=[0.04], draw_order=41.0),
+            # the heading: dark (HEADING_COLORS, per step), wider than the path (UI points)
+            # and ahead of the body, so that it reads on the path it lies along
+            rr.Arrows2D.from_fields(origins=[[0.0, 0.0]], vectors=[[arrow_m, 0.0]],
+                                    radii=[-2.0], draw_order=41.0),
             static=True)
-    rec.log(f"{world}/D", rr.Points2D.from_fields(colors=[D_COLOR], radii=[0.1], labels=["D"],
-                                                   show_labels=True, draw_order=35.0),
-            static=True)
-    rec.log(f"{world}/R", rr.Points2D.from_fields(colors=[R_COLOR], radii=[0.1], labels=["R"],
-                                                   show_labels=True, draw_order=35.0),
-            static=True)
+    # D and R unlabelled: their labels are entities of their own, D's above and R's below
+    # (send_run_columns), so that they do not cover each other where D and R meet
+    rec.log(f"{world}/D", rr.Points2D.from_fields(colors=[D_COLOR], radii=[0.1],
+                                                   draw_order=35.0), static=True)
+    rec.log(f"{world}/R", rr.Points2D.from_fields(colors=[R_COLOR], radii=[0.1],
+                                                   draw_order=35.0), static=True)
+    for point, point_color in (("D", D_COLOR), ("R", R_COLOR)):
+        rec.log(f"{world}/{point}_label",
+                rr.Points2D.from_fields(colors=[_shade(point_color, 0.55)], radii=[0.0],
+                                        labels=[point], show_labels=True, draw_order=36.0),
+                static=True)
     rec.log(f"{world}/construction",
             rr.LineStrips2D.from_fields(colors=[D_COLOR, R_COLOR], radii=[0.012],
                                         draw_order=34.0), static=True)
-    label = start_label if start_label is not None else name
+    label = run_label or (start_label if start_label is not None else name)
     for panel in PANELS:
         rec.log(f"{root}/{panel.entity}", _series_style(panel, label, run_color), static=True)
     rec.log(f"{root}/{PHASE_ENTITY}",
@@ -768,7 +957,7 @@ def log_optimal_path(rec: rr.RecordingStream, name: str, path_xy: NDArray[np.flo
 
 def send_run_columns(rec: rr.RecordingStream, name: str, t_ns: NDArray[np.int64],
                      block: NDArray[np.float64], phase: NDArray[np.int8] | None = None, *,
-                     construction: bool = True) -> None:
+                     construction: bool = True, label_offset_m: float = 0.5) -> None:
     """Send rows of a run as whole columns: the pose, D, R and every time-series panel.
 
     Parameters
@@ -783,10 +972,13 @@ def send_run_columns(rec: rr.RecordingStream, name: str, t_ns: NDArray[np.int64]
         The rows, shape ``(n, len(SIGNALS))``, columns as :data:`wmr.core.signals.SIGNALS`.
     phase
         The control phase of each row (:func:`wmr.adapters.mcap.scene.control_phases`): the
-        phase panel and the colour of the robot's heading arrow; None: not known (live view).
+        phase panel and the colour of the robot's heading arrow (:data:`HEADING_COLORS`);
+        None: not known (live view).
     construction
         Send the points D and R and their construction lines (off for several runs: one pair
         per run hides the paths).
+    label_offset_m
+        How far D's label is above D, and R's below R, m.
     """
     n = int(t_ns.shape[0])
     if n == 0:
@@ -796,8 +988,8 @@ def send_run_columns(rec: rr.RecordingStream, name: str, t_ns: NDArray[np.int64]
     times = [_time_column(t_ns)]
     x, y, theta = block[:, _X], block[:, _Y], block[:, _TH]
     translation = np.column_stack([x, y, np.zeros(n)])
-    colors = np.asarray(PHASE_COLORS, np.uint8)[phase if phase is not None
-                                                 else np.zeros(n, np.int8)]
+    colors = np.asarray(HEADING_COLORS, np.uint8)[phase if phase is not None
+                                                   else np.zeros(n, np.int8)]
     rec.send_columns(f"{world}/robot", indexes=times, columns=[
         *rr.Transform3D.columns(translation=translation, quaternion=_yaw_quaternions(theta)),
         *rr.Arrows2D.columns(colors=colors)])
@@ -808,6 +1000,10 @@ def send_run_columns(rec: rr.RecordingStream, name: str, t_ns: NDArray[np.int64]
                          columns=rr.Points2D.columns(positions=d_xy))
         rec.send_columns(f"{world}/R", indexes=times,
                          columns=rr.Points2D.columns(positions=r_xy))
+        # the labels apart: D's above D, R's below R (the view's y is mirrored: world y up)
+        for label, xy, sign in (("D_label", d_xy, 1.0), ("R_label", r_xy, -1.0)):
+            rec.send_columns(f"{world}/{label}", indexes=times, columns=rr.Points2D.columns(
+                positions=xy + np.array([0.0, sign * label_offset_m])))
         b_xy = np.column_stack([x, y])
         strips = np.stack([np.stack([b_xy, d_xy], axis=1), np.stack([b_xy, r_xy], axis=1)],
                           axis=1).reshape(2 * n, 2, 2)
@@ -868,6 +1064,10 @@ def _final_errors(result: Mapping[str, str]) -> str:
     return f"{1000 * pos:.1f} mm, {math.degrees(head):.2f}°"
 
 
+#: Units of the robot parameters (the ``run`` record's ``params``) in the summary.
+_PARAM_UNITS: Final = {"m": "kg", "Ig": "kg m²", "Iwm": "kg m²", "l": "m", "L": "m",
+                       "r": "m", "b_f": "N m s/rad", "tau_c": "N m", "w_c": "rad/s"}
+
 _LIMIT_TEXT: Final = {"v_max_mps": ("v_max", "m/s", 1.0),
                       "omega_max_radps": ("ω_max", "°/s", _DEG),
                       "wheel_speed_max_radps": ("wheel_max", "rad/s", 1.0),
@@ -881,7 +1081,10 @@ def _summary_single(name: str, run: RunData, sensing: bool) -> str:
     limits = _json(meta, "limits") or {}
     eps = _float(meta.get("stop_radius_m"))
     h = _float(meta.get("control_period_s"))
+    log = Path(run.path)
+    # the log's path first, as text that wraps (a code span at the end was cut off)
     rows = [f"### {name}: {_status_text(result, run)}", "",
+            f"log **{log.name}** in {log.parent}", "",
             "| | |", "|---|---|",
             f"| start → goal (x, y [m], θ) | {_pose_text(_json(meta, 'start'))} → "
             f"{_pose_text(_json(meta, 'goal'))} |",
@@ -894,6 +1097,19 @@ def _summary_single(name: str, run: RunData, sensing: bool) -> str:
     length = _float(result.get("path_length_m"))
     energy = _float(result.get("energy_positive_j"))
     rows.append(f"| path, energy | {length or 0:.2f} m, {energy or 0:.1f} J |")
+    params = _json(meta, "params") or {}
+    if isinstance(params, dict) and params:
+        # the robot: a failure looked at was the robot's (a heavy load, a weak motor); two
+        # rows, as a longer one is cut at the panel's edge
+        for title, keys in (("robot", ("m", "Ig", "l", "r", "L")),
+                            ("motors", ("Iwm", "b_f", "tau_c", "w_c"))):
+            shown = [k for k in keys if _float(params.get(k)) is not None]
+            shown += [k for k in params if title == "motors" and k not in _PARAM_UNITS
+                      and _float(params.get(k)) is not None]
+            if shown:
+                rows.append(f"| {title} | " + ", ".join(
+                    f"{k} {_cell(params[k])}" + (f" {_PARAM_UNITS[k]}" if k in _PARAM_UNITS
+                                                 else "") for k in shown) + " |")
     rows.append("| gains | " + ", ".join(f"{k} {v:g}" for k, v in gains.items()
                                          if isinstance(v, int | float)) + " |")
     rows.append("| limits | " + ", ".join(
@@ -901,11 +1117,12 @@ def _summary_single(name: str, run: RunData, sensing: bool) -> str:
         in _LIMIT_TEXT.items() if k in limits) + " |")
     rows.append(f"| steps, h, ε | {run.n_steps}, {1000 * (h or 0):g} ms, "
                 f"{100 * (eps or 0):g} cm |")
-    legend = ("**World:** path blue = approach, orange = align (turn in place), red = goal "
-              "(arrow along θ_d, ring = stop radius ε); D cyan (Fig. 4), R amber (Fig. 6)")
+    legend = ("**World:** path blue = approach, orange = align (turn in place), robot's "
+              "heading = black arrow (purple when aligning), red = goal (arrow along θ_d, "
+              "ring = stop radius ε); D cyan (Fig. 4), R amber (Fig. 6)")
     if sensing:
         legend += "; magenta = estimated path, grey dots = GPS fixes"
-    return "\n".join([*rows, "", legend, "", f"`{run.path}`"])
+    return "\n".join([*rows, "", legend])
 
 
 def _flat(prefix: str, value: object) -> dict[str, object]:
@@ -949,8 +1166,10 @@ def _summary_many(labels: Sequence[str], names: Sequence[str], runs: Sequence[Ru
     counts = ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses))
     short = [k.split(".", 1)[1] if k.startswith(("params.", "gains.", "limits.")) else k
              for k in varied]
-    head = ["run", "log", "status", "t [s]", "start (x, y, θ)", "goal (x, y, θ)",
-            "final error", *short]
+    # the inputs that vary first (the point of a Monte Carlo: a narrow panel cut them off),
+    # the log's name last
+    head = ["run", *short, "status", "t [s]", "final error", "start (x, y, θ)",
+            "goal (x, y, θ)", "log"]
     lines = [f"### {len(runs)} runs: {counts}", "",
              "Each run's number labels its start in the world view; its lines share its "
              "colour.", "", "| " + " | ".join(head) + " |",
@@ -959,9 +1178,9 @@ def _summary_many(labels: Sequence[str], names: Sequence[str], runs: Sequence[Ru
         meta, result = run.metadata.get("run", {}), run.metadata.get("result", {})
         t_goal = _float(result.get("time_to_goal_s"))
         t = f"{t_goal:.2f}" if t_goal is not None else f"{run.t_s[-1]:.1f}+"
-        cells = [label, f"`{name}`", result.get("status", "cut"), t,
-                 _pose_text(_json(meta, "start")), _pose_text(_json(meta, "goal")),
-                 _final_errors(result), *(_cell(flat.get(k)) for k in varied)]
+        cells = [label, *(_cell(flat.get(k)) for k in varied), result.get("status", "cut"),
+                 t, _final_errors(result), _pose_text(_json(meta, "start")),
+                 _pose_text(_json(meta, "goal")), f"`{name}`"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -978,10 +1197,31 @@ def _flat_meta(run: RunData) -> dict[str, object]:
 # --------------------------------------------------------------------------- sensing
 
 
+def sensing_errors(trace: Any, run: RunData
+                   ) -> dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]]:
+    """Distance from the true path of each estimate (``estimate``) and each fix (``gps``) of a
+    :class:`~wmr.adapters.mcap.sensing.SensingTrace`, at its time within the run: times (ns)
+    and errors (m)."""
+    t_true = run.t_ns.astype(np.float64)
+    x_true, y_true = run.signals["x_m"], run.signals["y_m"]
+    out: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]] = {}
+    for key, t_ns, xy in (("gps", trace.gps_t_ns, trace.gps_xy_m),
+                          ("estimate", trace.est_t_ns, trace.est_pose[:, :2])):
+        if not len(t_ns):
+            continue
+        inside = t_ns <= run.t_ns[-1]
+        t_in = t_ns[inside].astype(np.float64)
+        tx, ty = np.interp(t_in, t_true, x_true), np.interp(t_in, t_true, y_true)
+        out[key] = (t_ns[inside], np.asarray(np.hypot(xy[inside, 0] - tx, xy[inside, 1] - ty)))
+    return out
+
+
 def log_sensing(rec: rr.RecordingStream, name: str, path: str | os.PathLike[str],
-                run: RunData) -> bool:
+                run: RunData, trace: Any = None) -> bool:
     """Draw a log's fixes and estimated path over the true one, and plot the position error
     of the estimate (per step) and of each fix (at its measurement time) against the truth.
+
+    ``trace``: the log's :func:`~wmr.adapters.mcap.sensing.read_sensing` when already read.
 
     Returns
     -------
@@ -990,44 +1230,36 @@ def log_sensing(rec: rr.RecordingStream, name: str, path: str | os.PathLike[str]
     """
     from wmr.adapters.mcap.sensing import read_sensing
 
-    trace = read_sensing(path)
+    if trace is None:
+        trace = read_sensing(path)
     if trace is None:
         return False
     root = run_entity(name)
     world = f"{root}/world"
-    t_true = run.t_ns.astype(np.float64)
-    x_true, y_true = run.signals["x_m"], run.signals["y_m"]
+    errors = sensing_errors(trace, run)
 
-    def error(t_ns: NDArray[np.int64], xy: NDArray[np.float64]) -> NDArray[np.float64]:
-        tx = np.interp(t_ns.astype(np.float64), t_true, x_true)
-        ty = np.interp(t_ns.astype(np.float64), t_true, y_true)
-        return np.asarray(np.hypot(xy[:, 0] - tx, xy[:, 1] - ty))
-
-    def send_error(name: str, style: Any, t_ns: NDArray[np.int64],
-                   xy: NDArray[np.float64]) -> None:
-        """The distance of ``xy`` from the true path over the run's time, as series ``name``."""
-        inside = t_ns <= run.t_ns[-1]
-        entity = f"{root}/{ESTIMATION_ENTITY}/{name}"
+    def send_error(key: str, style: Any) -> None:
+        entity = f"{root}/{ESTIMATION_ENTITY}/{key}"
+        t_ns, err = errors[key]
         rec.log(entity, style, static=True)
-        rec.send_columns(entity, indexes=[_time_column(t_ns[inside])],
-                         columns=rr.Scalars.columns(scalars=error(t_ns[inside], xy[inside])))
+        rec.send_columns(entity, indexes=[_time_column(t_ns)],
+                         columns=rr.Scalars.columns(scalars=err))
 
     if len(trace.gps_xy_m):
         # light dots of 1 UI point (not metres: a fix's noise is a few cm, the view tens of
         # m), drawn under the true path and the estimate
         rec.log(f"{world}/gps", rr.Points2D(trace.gps_xy_m, colors=[GPS_DOT_COLOR],
                                             radii=[-1.0], draw_order=5.0), static=True)
-        send_error("gps", rr.SeriesPoints(names=["GPS fix"], colors=[GPS_COLOR],
-                                          marker_sizes=[1.5]),
-                   trace.gps_t_ns, trace.gps_xy_m)
+        # the plot's dots light grey: the log's scene grey is too dark on the plots' black
+        send_error("gps", rr.SeriesPoints(names=["GPS fix"], colors=[GPS_DOT_COLOR],
+                                          marker_sizes=[1.5]))
     if len(trace.est_pose):
         # half the true path's width and above it: both stay visible where they overlap
         rec.log(f"{world}/estimate",
                 rr.LineStrips2D([trace.est_pose[:, :2]], colors=[ESTIMATE_COLOR],
                                 radii=[-0.75], draw_order=12.0), static=True)
         send_error("estimate", rr.SeriesLines(names=["estimate"], colors=[ESTIMATE_COLOR],
-                                              widths=[1.5]),
-                   trace.est_t_ns, trace.est_pose[:, :2])
+                                              widths=[1.5]))
     return True
 
 
@@ -1112,8 +1344,13 @@ def torque_range(runs: Sequence[RunData], limit_nm: float | None) -> float | Non
 
 
 def _world_points(runs: Sequence[RunData]) -> NDArray[np.float64]:
-    """Every point the world view must show: paths, and goals with their arrow tips."""
+    """Every point the world view must show: paths, goals with their arrow tips, and for one
+    run the points D and R (drawn with their construction lines: the view holds them)."""
     pts = [np.column_stack([r.signals["x_m"], r.signals["y_m"]]) for r in runs]
+    if len(runs) == 1:
+        sig = runs[0].signals
+        pts += [np.column_stack([sig["D_x_m"], sig["D_y_m"]]),
+                np.column_stack([sig["R_x_m"], sig["R_y_m"]])]
     for r in runs:
         if r.goal is not None:
             gx, gy, gth = r.goal
@@ -1122,16 +1359,101 @@ def _world_points(runs: Sequence[RunData]) -> NDArray[np.float64]:
     return np.concatenate(pts)
 
 
+@dataclass(frozen=True)
+class RawView:
+    """What the blueprint of a raw log needs of its runs (:func:`raw_view`)."""
+
+    #: ``(x_min, x_max, y_min, y_max)`` of the top view, m.
+    frame: tuple[float, float, float, float]
+    #: Whether a run has sensors (the covariance panel).
+    sensing: bool
+    #: Per raw panel title (:data:`wmr.adapters.rerun.blueprint.RAW_PANELS`): its y range.
+    y_ranges: dict[str, tuple[float, float]]
+
+
+def raw_view(inputs: Sequence[str | os.PathLike[str]]) -> RawView:
+    """The top view's frame (as :func:`framing`), whether a run has sensors, and the y range
+    of each panel of the raw-log blueprint over these logs' values (:func:`y_range`: values
+    Rerun labels; the torques within :func:`torque_range`)."""
+    from wmr.adapters.rerun.blueprint import PHASE_PANEL, RAW_PANELS
+
+    runs, _ = read_logs(find_logs(inputs))
+    datas = [d for _, d in runs]
+    b = Bounds.around(_world_points(datas))
+    sensing = any("sensors" in d.metadata.get("run", {}) for d in datas)
+    limits = [_float((_json(d.metadata.get("run", {}), "limits") or {}).get("torque_max_nm"))
+              for d in datas]
+    tau = torque_range(datas, max((v for v in limits if v is not None), default=None))
+    ranges: dict[str, tuple[float, float]] = {}
+    for panel in RAW_PANELS:
+        fields = [line.field for line in panel.lines if line.field in COLUMN]
+        if panel.title == PHASE_PANEL or not fields:
+            continue
+        values = np.concatenate([d.signals[f] for d in datas for f in fields])
+        values = values[np.isfinite(values)]
+        if any(f.startswith("tau_") for f in fields) and tau:
+            values = np.concatenate([np.clip(values, -tau, tau), [-tau, tau]])
+        if values.size:
+            ranges[panel.title] = y_range(float(values.min()), float(values.max()))
+    return RawView((b.x_min, b.x_max, b.y_min, b.y_max), sensing, ranges)
+
+
 def framing(inputs: Sequence[str | os.PathLike[str]]
             ) -> tuple[tuple[float, float, float, float], bool]:
     """``(x_min, x_max, y_min, y_max)`` [m] of the world view of these logs (every path,
     start and goal, with a margin: the bounds ``wmr replay`` fixes, and the top view of the
     raw-log blueprint, :func:`wmr.adapters.rerun.blueprint.raw_blueprint`), and whether any
     of them is a run with sensors."""
-    runs, _ = read_logs(find_logs(inputs))
-    b = Bounds.around(_world_points([d for _, d in runs]))
-    sensing = any("sensors" in d.metadata.get("run", {}) for _, d in runs)
-    return (b.x_min, b.x_max, b.y_min, b.y_max), sensing
+    view = raw_view(inputs)
+    return view.frame, view.sensing
+
+
+#: The phase plot of one run shows its last this many seconds (the alignment in place).
+PHASE_WINDOW_S: Final = 4.0
+
+
+def _phase_window(run: RunData) -> tuple[float, float] | None:
+    """The last :data:`PHASE_WINDOW_S` of a run longer than twice that, s; else None."""
+    t_end = float(run.t_s[-1]) if run.n_steps else 0.0
+    return (t_end - PHASE_WINDOW_S, t_end) if t_end > 2 * PHASE_WINDOW_S else None
+
+
+#: The signals of an open-loop log (no controller) that the replay computes from its poses
+#: and goal, as the stabiliser would see them (:func:`complete_open_loop`).
+OPEN_LOOP_DERIVED: Final = ("dr_m", "e_s_m", "e_theta_rad", "alpha_rad", "beta_rad",
+                            "gamma_rad", "D_x_m", "D_y_m", "R_x_m", "R_y_m")
+
+
+def is_open_loop(run: RunData) -> bool:
+    """Whether ``run`` is an open-loop log (an optimal manoeuvre's: poses and torques, no
+    controller topics): it has a goal and a path but no distance to the goal."""
+    x, dr = run.signals.get("x_m"), run.signals.get("dr_m")
+    return (run.goal is not None and x is not None and dr is not None and run.n_steps > 0
+            and bool(np.isfinite(x).any()) and not bool(np.isfinite(dr).any()))
+
+
+def complete_open_loop(run: RunData, stop_radius_m: float = 0.05) -> RunData:
+    """An open-loop log with the stabiliser's errors along its path: the distance to the
+    goal, e_s, e_theta (and alpha, beta, gamma, D, R) of
+    :class:`~wmr.core.control.stabiliser.PointStabiliser` fed its poses row by row (they
+    depend on the goal and the stop radius only, not on gains or limits), so that it is
+    compared with a closed-loop run in the same panels; its commands (u_s, u_theta, the PI
+    terms) stay NaN: it has no controller."""
+    from wmr.core.control.stabiliser import Gains, Limits, PointStabiliser
+
+    if run.goal is None:
+        raise ValueError(f"{run.path}: an open-loop log without a goal has no errors")
+    stab = PointStabiliser(run.goal.x_m, run.goal.y_m, run.goal.theta_rad, Gains(), Limits(),
+                           0.15, 0.3, 0.01, stop_radius_m)
+    rows = np.array([stab.update(float(x), float(y), float(th)) for x, y, th in zip(
+        run.signals["x_m"], run.signals["y_m"], run.signals["theta_rad"], strict=True)])
+    from wmr.core.signals import CONTROL_SIGNALS
+
+    order = [s for s in CONTROL_SIGNALS if s not in ("tau_r_nm", "tau_l_nm")]
+    signals = dict(run.signals)
+    for name in OPEN_LOOP_DERIVED:
+        signals[name] = np.ascontiguousarray(rows[:, order.index(name)])
+    return replace(run, signals=signals)
 
 
 def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[str] | None = None,
@@ -1177,15 +1499,32 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     runs, warnings = read_logs(find_logs(inputs, skipped), skipped)
     optimal_by_log = {Path(k).resolve(): v for k, v in (optimal_paths or {}).items()}
     names = [log.name for log, _ in runs]
+    eps_all = [_float(d.metadata.get("run", {}).get("stop_radius_m")) for _, d in runs]
+    eps_known = [e for e in eps_all if e]
+    open_loop = [log.name for log, d in runs if is_open_loop(d)]
+    # an open-loop run gets the stabiliser's errors along its path (the others' stop radius)
+    runs = [(log, complete_open_loop(d, *eps_known[:1]) if log.name in open_loop else d)
+            for log, d in runs]
     datas = [d for _, d in runs]
     many = len(runs) > 1
     sensing = [("sensors" in d.metadata.get("run", {})) for d in datas]
+    from wmr.adapters.mcap.sensing import read_sensing
+
+    traces = [read_sensing(log.path) if sensing[k] else None for k, (log, _) in enumerate(runs)]
     limits = [_float((_json(d.metadata.get("run", {}), "limits") or {}).get("torque_max_nm"))
               for d in datas]
     torque_limit = max((v for v in limits if v is not None), default=None)
+    tau_range = torque_range(datas, torque_limit)
     bounds = Bounds.around(_world_points(datas))
-    blueprint = replay_blueprint(names, bounds=bounds, sensing=any(sensing),
-                                 torque_range_nm=torque_range(datas, torque_limit))
+    span_m = max(bounds.x_max - bounds.x_min, bounds.y_max - bounds.y_min)
+    estimation = [e for tr, d in zip(traces, datas, strict=True) if tr is not None
+                  for _, e in sensing_errors(tr, d).values()]
+    blueprint = replay_blueprint(
+        names, bounds=bounds, sensing=any(sensing), torque_range_nm=tau_range,
+        y_ranges=panel_ranges(datas, many=many, torque_range_nm=tau_range,
+                              estimation=estimation),
+        open_loop=[f"#{names.index(n)}" if many else n for n in open_loop],
+        phase_window_s=_phase_window(datas[0]) if not many and not open_loop else None)
     rec = rr.RecordingStream(APPLICATION_ID)
     rec.send_recording_name(names[0] if len(names) == 1 else f"{len(names)} runs")
 
@@ -1221,35 +1560,55 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
         log_grid(rec, bounds)
         labels = [f"#{k}" for k in range(len(runs))]
         label_every = len(runs) // _MAX_LABELS + 1
+        paths = [np.column_stack([d.signals["x_m"], d.signals["y_m"]]) for d in datas]
+        paths = [xy[np.isfinite(xy).all(axis=1)] for xy in paths]
+        # the start labels: runs whose labels would cover each other share one ("#0 #1")
+        points = [start_label_point(xy) if many and len(xy) and k % label_every == 0 else None
+                  for k, xy in enumerate(paths)]
+        start_text = ["" for _ in runs]
+        start_color: list[Rgb | None] = [None for _ in runs]
+        for group in label_groups(points, 0.05 * span_m):
+            start_text[group[0]] = " ".join(labels[k] for k in group)
+            if len(group) > 1:
+                start_color[group[0]] = LABEL_COLOR
+        # one label per goal position, with the goal headings of the runs to it
+        headings: dict[tuple[float, float], list[str]] = {}
+        for d in datas:
+            if d.goal is not None:
+                key = (round(d.goal.x_m, 2), round(d.goal.y_m, 2))
+                deg = f"{math.degrees(d.goal.theta_rad):.0f}°"
+                if deg not in headings.setdefault(key, []):
+                    headings[key].append(deg)
         goals_labelled: set[tuple[float, float]] = set()
         for k, (log, data) in enumerate(runs):
             color = run_color(k, len(runs))
             half_track, radius = robot_geometry(data.metadata.get("run", {}))
-            path_xy = np.column_stack([data.signals["x_m"], data.signals["y_m"]])
-            phase = _run_phase(data)
-            finite = np.isfinite(path_xy).all(axis=1)
-            # one label per goal position (runs to one goal with several headings: one label;
-            # the summary has each run's heading)
+            phase = _run_phase(data) if log.name not in open_loop else None
+            finite = np.isfinite(np.column_stack([data.signals["x_m"],
+                                                  data.signals["y_m"]])).all(axis=1)
             goal_label: str | None = None
             if data.goal is not None:
                 key = (round(data.goal.x_m, 2), round(data.goal.y_m, 2))
                 if key not in goals_labelled:
                     goals_labelled.add(key)
-                    goal_label = f"goal ({key[0]:g}, {key[1]:g})" if many else ""
-            log_run_static(rec, log.name, goal=data.goal, path_xy=path_xy[finite], color=color,
+                    goal_label = (f"goal ({key[0]:g}, {key[1]:g}, θ_d "
+                                  f"{' or '.join(headings[key])})" if many else "")
+            log_run_static(rec, log.name, goal=data.goal, path_xy=paths[k], color=color,
                            run_color=color if many else None, half_track_m=half_track,
                            wheel_radius_m=radius,
                            phase=phase[finite] if phase is not None else None,
-                           start_label=(labels[k] if k % label_every == 0 else "")
-                           if many else None,
-                           stop_radius_m=_float(data.metadata.get("run", {}).get("stop_radius_m")),
-                           goal_label=goal_label)
+                           start_label=start_text[k] if many else None,
+                           start_label_color=start_color[k],
+                           run_label=labels[k] if many else None,
+                           stop_radius_m=eps_all[k], goal_label=goal_label,
+                           arrow_m=heading_arrow_m(bounds))
             optimum = optimal_by_log.get(log.path.resolve())
             if optimum is not None:
                 log_optimal_path(rec, log.name, optimum, color)
-            send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many)
-            if sensing[k]:
-                log_sensing(rec, log.name, log.path, data)
+            send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many,
+                             label_offset_m=0.025 * span_m)
+            if traces[k] is not None:
+                log_sensing(rec, log.name, log.path, data, traces[k])
         summary = (_summary_many(labels, names, datas) if many
                    else _summary_single(names[0], datas[0], sensing[0]))
         rec.log(SUMMARY_ENTITY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN),
@@ -1274,6 +1633,7 @@ __all__ = [
     "TIMELINE",
     "Bounds",
     "Panel",
+    "RawView",
     "ReplayResult",
     "RunLog",
     "Series",
@@ -1287,6 +1647,7 @@ __all__ = [
     "log_run_static",
     "log_sensing",
     "phase_strips",
+    "raw_view",
     "read_logs",
     "replay",
     "replay_blueprint",
