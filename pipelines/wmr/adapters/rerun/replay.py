@@ -73,6 +73,12 @@ from wmr.adapters.mcap.scene import (
     control_phases,
     robot_geometry,
 )
+from wmr.adapters.rerun.overlay import (
+    align_runs,
+    alignment_lines,
+    deviation_view,
+    log_deviation,
+)
 from wmr.core.signals import COLUMN
 from wmr.infra.durable import replacing_path
 from wmr.infra.errors import ConfigError, LogError, WmrError
@@ -528,7 +534,8 @@ def log_grid(rec: rr.RecordingStream, bounds: Bounds) -> None:
 
 def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
                      bounds: Bounds | None = None, sensing: bool = False,
-                     torque_range_nm: float | None = None) -> rrb.Blueprint:
+                     torque_range_nm: float | None = None,
+                     extra_plots: Sequence[rrb.TimeSeriesView] = ()) -> rrb.Blueprint:
     """The dashboard: world view and run summary on the left, the time-series panels on the
     right (two columns), the phase strip below them; side panels collapsed.
 
@@ -547,6 +554,9 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
     torque_range_nm
         The torque axis spans ``[-range, range]`` (:func:`torque_range`: the saturated
         start-up runs off the top instead of flattening the rest).
+    extra_plots
+        More panels after the others (the deviation of a real robot's path,
+        :func:`wmr.adapters.rerun.overlay.deviation_view`).
     """
     roots = [f"/{run_entity(n)}" for n in run_names]
     many = len(run_names) > 1
@@ -577,6 +587,7 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
     if sensing:
         plots.append(plot(ESTIMATION_ENTITY, "Position error of the estimate and the GPS "
                                              "fixes [m]"))
+    plots += extra_plots
     phase = plot(PHASE_ENTITY, "Control phase: 0 approach, 1 align",
                  rrb.ScalarAxis(range=(-0.2, 1.2)))
     summary = rrb.TextDocumentView(name="Run summary" if not many else
@@ -941,11 +952,18 @@ def _cell(value: object) -> str:
     return "?" if value is None else str(value)
 
 
+def _status(run: RunData) -> str:
+    """A run's status: its ``result`` record's; else a real robot's log is "poses only" and
+    a log of ours without one is "cut"."""
+    default = "poses only" if run.pose_topic is not None else "cut"
+    return run.metadata.get("result", {}).get("status", default)
+
+
 def _summary_many(labels: Sequence[str], names: Sequence[str], runs: Sequence[RunData]) -> str:
     """The summary of a multi-run replay: one row per run, with the inputs that vary."""
     varied = varied_inputs(runs)
     flats = [dict(_flat_meta(r)) for r in runs]
-    statuses = [r.metadata.get("result", {}).get("status", "cut") for r in runs]
+    statuses = [_status(r) for r in runs]
     counts = ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses))
     short = [k.split(".", 1)[1] if k.startswith(("params.", "gains.", "limits.")) else k
              for k in varied]
@@ -959,7 +977,7 @@ def _summary_many(labels: Sequence[str], names: Sequence[str], runs: Sequence[Ru
         meta, result = run.metadata.get("run", {}), run.metadata.get("result", {})
         t_goal = _float(result.get("time_to_goal_s"))
         t = f"{t_goal:.2f}" if t_goal is not None else f"{run.t_s[-1]:.1f}+"
-        cells = [label, f"`{name}`", result.get("status", "cut"), t,
+        cells = [label, f"`{name}`", _status(run), t,
                  _pose_text(_json(meta, "start")), _pose_text(_json(meta, "goal")),
                  _final_errors(result), *(_cell(flat.get(k)) for k in varied)]
         lines.append("| " + " | ".join(cells) + " |")
@@ -1045,16 +1063,21 @@ class ReplayResult:
     warnings: list[str] = field(default_factory=list)
     #: One line per log left out (unreadable, damaged past reading, a link outside a folder).
     skipped: list[str] = field(default_factory=list)
+    #: One line per real robot's log aligned to a simulation's (:mod:`.overlay`): its time
+    #: shift and the distance between the two paths.
+    aligned: list[str] = field(default_factory=list)
     #: The notebook's inline viewer that got it (``notebook=True``; a
     #: ``rerun.notebook.Viewer``: show it again in a later cell, or drive it with its
     #: ``update_panels`` and ``set_time_ctrl``), else None.
     viewer: Any = None
 
 
-def read_logs(logs: Sequence[RunLog], skipped: list[str] | None = None
+def read_logs(logs: Sequence[RunLog], skipped: list[str] | None = None, *,
+              pose_topic: str | None = None
               ) -> tuple[list[tuple[RunLog, RunData]], list[str]]:
     """Read every log; warn about truncated ones; raise on unreadable ones, or, given
-    ``skipped``, put one line there for each and read the others.
+    ``skipped``, put one line there for each and read the others.  ``pose_topic``: the
+    topic of the poses of a log that is not ours (:func:`wmr.adapters.mcap.read_run`).
 
     Raises
     ------
@@ -1067,7 +1090,7 @@ def read_logs(logs: Sequence[RunLog], skipped: list[str] | None = None
     first: LogError | None = None
     for log in logs:
         try:
-            data = read_run(log.path)
+            data = read_run(log.path, pose_topic=pose_topic)
             if data.n_steps == 0:
                 why = f" ({data.warnings[0]})" if data.warnings else ""
                 raise LogError(f"{log.path}: no readable control step in this log{why}")
@@ -1136,7 +1159,8 @@ def framing(inputs: Sequence[str | os.PathLike[str]]
 
 def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[str] | None = None,
            spawn: bool | None = None, notebook: bool = False,
-           optimal_paths: Mapping[Path, NDArray[np.float64]] | None = None) -> ReplayResult:
+           optimal_paths: Mapping[Path, NDArray[np.float64]] | None = None,
+           pose_topic: str | None = None) -> ReplayResult:
     """Replay run logs in one Rerun recording: a viewer, an ``.rrd`` file, or a notebook.
 
     Parameters
@@ -1155,6 +1179,11 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     optimal_paths
         By log file: the optimal path (x, y, m; shape ``(n, 2)``) of that log's run, drawn
         beside it (:func:`log_optimal_path`).
+    pose_topic
+        The topic of the poses of a log that is not ours (a real robot's), when it cannot be
+        found (:func:`wmr.adapters.mcap.read_run`).  A real robot's log replayed with one of
+        ours is aligned to it at the start of motion, with the distance between the two
+        paths plotted (:mod:`wmr.adapters.rerun.overlay`).
 
     Returns
     -------
@@ -1174,7 +1203,13 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     if notebook:
         check_notebook(rrd, spawn)
     skipped: list[str] = []
-    runs, warnings = read_logs(find_logs(inputs, skipped), skipped)
+    runs, warnings = read_logs(find_logs(inputs, skipped), skipped, pose_topic=pose_topic)
+    # a real robot's log beside a simulation: on the simulation's time axis
+    datas_aligned, alignments, align_warnings = align_runs([log.name for log, _ in runs],
+                                                           [d for _, d in runs])
+    runs = [(log, d) for (log, _), d in zip(runs, datas_aligned, strict=True)]
+    warnings += align_warnings
+    aligned = {a.run: a for a in alignments}
     optimal_by_log = {Path(k).resolve(): v for k, v in (optimal_paths or {}).items()}
     names = [log.name for log, _ in runs]
     datas = [d for _, d in runs]
@@ -1184,8 +1219,11 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
               for d in datas]
     torque_limit = max((v for v in limits if v is not None), default=None)
     bounds = Bounds.around(_world_points(datas))
+    extra = ([deviation_view([run_entity(names[a.run]) for a in alignments],
+                             names[alignments[0].reference])] if alignments else [])
     blueprint = replay_blueprint(names, bounds=bounds, sensing=any(sensing),
-                                 torque_range_nm=torque_range(datas, torque_limit))
+                                 torque_range_nm=torque_range(datas, torque_limit),
+                                 extra_plots=extra)
     rec = rr.RecordingStream(APPLICATION_ID)
     rec.send_recording_name(names[0] if len(names) == 1 else f"{len(names)} runs")
 
@@ -1248,15 +1286,23 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
             if optimum is not None:
                 log_optimal_path(rec, log.name, optimum, color)
             send_run_columns(rec, log.name, data.t_ns, data.block(), phase, construction=not many)
+            if k in aligned:
+                log_deviation(rec, run_entity(log.name), TIMELINE,
+                              f"{labels[k]} {log.name} - {names[aligned[k].reference]}", color,
+                              aligned[k])
             if sensing[k]:
                 log_sensing(rec, log.name, log.path, data)
         summary = (_summary_many(labels, names, datas) if many
                    else _summary_single(names[0], datas[0], sensing[0]))
+        notes = alignment_lines(names, alignments)
+        if notes:
+            summary += "\n\n" + "\n\n".join(notes)
         rec.log(SUMMARY_ENTITY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN),
                 static=True)
         rec.flush()
     return ReplayResult(runs=names, steps={log.name: d.n_steps for log, d in runs}, rrd=out,
-                        spawned=spawned, warnings=warnings, skipped=skipped, viewer=inline)
+                        spawned=spawned, warnings=warnings, skipped=skipped, viewer=inline,
+                        aligned=notes)
 
 
 def iter_signal_names() -> Iterable[str]:
