@@ -165,3 +165,28 @@ def test_pose_topic_names_the_robots_topic_in_the_overlay(fig11_log: Path,  # no
     assert not isinstance(result, Path | list)
     [line] = result.aligned
     assert line.startswith("robot aligned to fig11 at the start of motion")
+
+
+def test_a_strangers_times_at_the_int64_edge_are_not_wrapped_around() -> None:
+    """A hostile log whose last pose is a few ms short of 2^63 ns: shifted by the alignment
+    it would wrap around to negative times; it is replayed unaligned, with one line."""
+    from wmr.adapters.mcap import RunData
+    from wmr.adapters.rerun.overlay import align_runs
+
+    def run(t_ns: np.ndarray, pose_topic: str | None) -> RunData:
+        t = t_ns.astype(np.float64) * 1e-9
+        x = np.clip(t - 1.0, 0.0, 1.0)  # moves from 1 s on (0.02 m at 1.02 s)
+        zeros = np.zeros_like(t)
+        return RunData(path="x", t_ns=t_ns, signals={"x_m": x, "y_m": zeros,
+                                                     "theta_rad": zeros},
+                       pose_topic=pose_topic)
+
+    sim = run(np.arange(0, 3_000_000_000, 10_000_000, dtype=np.int64), None)
+    # the robot moves at once: it is shifted later by about a second
+    edge = np.array([0, 100_000_000, 200_000_000, 2**63 - 1_000_000], np.int64)
+    robot = run(edge, "/robot/pose")
+    robot.signals["x_m"][:] = [0.0, 0.5, 1.0, 1.0]
+    runs, alignments, warnings = align_runs(["sim", "robot"], [sim, robot])
+    assert alignments == [] and runs[1] is robot
+    [line] = warnings
+    assert "robot is not aligned to sim" in line and "int64" in line

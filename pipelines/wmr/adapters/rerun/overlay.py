@@ -32,6 +32,7 @@ from wmr.core.compare import (
 DEVIATION_ENTITY: Final = "deviation"
 
 Rgb = tuple[int, int, int]
+_INT64_MAX: Final = 2**63 - 1
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,14 @@ def align_runs(names: Sequence[str], datas: Sequence[RunData]
                             f"{moved}; replayed from its first pose")
             continue
         shift_ns = round((ref_start - start) * 1e9)
-        shifted = dataclasses.replace(datas[k], t_ns=datas[k].t_ns + np.int64(shift_ns))
+        t_ns = datas[k].t_ns
+        # a stranger's times may reach 2^63 ns: shifted past it they would wrap around
+        if int(t_ns[-1]) + shift_ns > _INT64_MAX or int(t_ns[0]) + shift_ns < -_INT64_MAX:
+            warnings.append(f"{names[k]} is not aligned to {names[ref]}: its times shifted "
+                            f"by {shift_ns * 1e-9:+.3f} s would leave the int64 range of ns; "
+                            "replayed from its first pose")
+            continue
+        shifted = dataclasses.replace(datas[k], t_ns=t_ns + np.int64(shift_ns))
         out[k] = shifted
         t, dev = path_deviation_m(
             ref_data.t_s, np.column_stack([ref_data.signals["x_m"], ref_data.signals["y_m"]]),
