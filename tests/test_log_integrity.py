@@ -285,7 +285,7 @@ def test_recover_draws_the_rows_of_a_killed_run(tmp_path: Path) -> None:
         w.write_block(t[:held], x[:held])
         w.close({"status": "failed"})
     rec = recover_log(partial, tmp_path / "recovered.mcap")
-    scene = ["/scene/goal", "/scene/path", "/scene/robot", "/controller/phase"]
+    scene = ["/scene/goal", "/scene/path", "/scene/robot", "/controller/phase", "/wmr/readme"]
     assert sorted(rec.scene_added) == sorted(scene)
     got, want = _topic_messages(rec.output), _topic_messages(reference)
     scan = scan_file(str(partial))  # no footer: mcap's own reader stops at the cut

@@ -24,12 +24,19 @@ Shots (``NAME.png``):
              of docs/replay.md (:data:`DIRECT_SETTINGS`: files not loaded via the Viewer
              catalog, times as seconds since the Unix epoch); a ``wmr`` without that option:
              the log alone in a viewer as installed (Rerun's own layout);
+``bare``     ``rerun fig11.mcap``, nothing else, in a viewer of Rerun's default settings: its
+             own layout and the log's note (``/wmr/readme``) saying what to run;
 ``live``     the ``.rrd`` of ``wmr run fig11 --view`` without a screen (the live view);
 ``recovered`` the log of a Fig. 11 run killed after 15 s of simulation, recovered by ``wmr
              log recover`` and opened as it is (``rerun X.recovered.mcap``, Rerun's own
              layout);
 ``optimal``  ``wmr replay fig11.mcap optimal-time.mcap``: the PI's Fig. 11 run against the
              minimum-time manoeuvre of ``wmr optimal fig11`` (an open-loop log);
+``robot``    ``wmr replay fig11.mcap robot.mcap``: the Fig. 11 run against a real robot's
+             log of the same manoeuvre (:func:`robot_log`: a heavier robot with motor
+             friction, simulated, logged as a robot's localisation would: poses only, 20 Hz,
+             5 mm of noise, wall-clock times, standing 2 s before it moves), aligned at the
+             start of motion, the distance between the paths plotted (docs/replay.md);
 ``worst``    ``wmr replay DIR --worst 5 --by final_position_error_m`` of the Monte Carlo
              ``scenarios/mc_failures.toml`` (800 runs, about a tenth time out; ``--log
              failed``): the five runs that ended furthest from the goal
@@ -57,7 +64,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 SHOTS = ("single", "sensors", "overlay", "raw", "direct", "live", "recovered", "worst",
-         "optimal")
+         "optimal", "robot", "bare")
 #: The viewer settings of the ``direct`` shot (a partial ``app.ron`` of the native viewer's
 #: persisted state): a blueprint given next to a file applies only when the file is not
 #: loaded via the Viewer catalog (Rerun 0.41's release notes), and the log time (ns from the
@@ -66,7 +73,7 @@ DIRECT_SETTINGS = (
     '{"app": "(app_options:(use_viewer_catalog:false,timestamp_format:'
     '(format_kind:SecondsSinceUnixEpoch,date_visibility:HideDateToday,short:false)))"}\n')
 #: Longer waits before the grab (times ``--wait``).
-WAIT_FACTOR = {"direct": 2.0, "recovered": 2.0, "live": 2.5}
+WAIT_FACTOR = {"direct": 2.0, "recovered": 2.0, "live": 2.5, "bare": 2.0}
 #: The killed run of the ``recovered`` shot dies after this many rows (15 s of the Fig. 11 run).
 KILL_AFTER_ROWS = 1500
 #: Runs the Fig. 11 run into ``argv[1]`` and dies like a SIGKILL after ``argv[2]`` rows.
@@ -140,6 +147,45 @@ def make_logs(folder: Path) -> dict[str, Path]:
     return logs
 
 
+#: The "real robot" of the ``robot`` shot: the paper's robot 15 kg heavier, with motor friction.
+ROBOT_PARAMS = ("m=40", "b_f=0.5")
+
+
+def robot_log(sim: Path, out: Path, *, still_s: float = 2.0, hz: float = 20.0,
+              noise_m: float = 0.005, t0_ns: int = 1_764_000_000_000_000_000) -> Path:
+    """The run of ``sim`` as a real robot logs it: ``foxglove.PoseInFrame`` on
+    ``/robot/pose`` only (``mcap-protobuf-support``'s own Writer), at ``hz``, with uniform
+    position noise of ``noise_m``, log times on the wall clock from ``t0_ns``, and ``still_s``
+    of standing before it moves."""
+    import math
+
+    import numpy as np
+    from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+    from mcap_protobuf.writer import Writer
+
+    from wmr.adapters.mcap import read_run
+
+    run = read_run(sim)
+    t = run.t_s
+    tau = np.arange(0.0, still_s + t[-1] + 1.0, 1.0 / hz)
+    at = np.clip(tau - still_s, 0.0, t[-1])
+    rng = np.random.default_rng(12)
+    xy = np.column_stack([np.interp(at, t, run.signals[k]) for k in ("x_m", "y_m")])
+    xy += rng.uniform(-noise_m, noise_m, xy.shape)
+    yaw = np.interp(at, t, run.signals["theta_rad"])
+    with out.open("wb") as f:
+        w = Writer(f)
+        for ti, (x, y), th in zip(tau, xy, yaw, strict=True):
+            ns = t0_ns + round(ti * 1e9)
+            m = PoseInFrame(frame_id="odom")
+            m.timestamp.FromNanoseconds(ns)
+            m.pose.position.x, m.pose.position.y = x, y
+            m.pose.orientation.z, m.pose.orientation.w = math.sin(th / 2), math.cos(th / 2)
+            w.write_message("/robot/pose", m, log_time=ns, publish_time=ns)
+        w.finish()
+    return out
+
+
 def make_recordings(logs: dict[str, Path], folder: Path,
                     only: Sequence[str]) -> dict[str, list[Path]]:
     """What the viewer opens for each shot: an ``.rrd`` (and, for ``raw``, the ``.rbl``)."""
@@ -178,6 +224,14 @@ def make_recordings(logs: dict[str, Path], folder: Path,
                 _run([*_wmr(), "optimal", "fig11", "--out", logs["optimal"]], quiet=True)
             _run([*_wmr(), "replay", logs["single"], logs["optimal"], "--rrd", rrd],
                  quiet=True)
+        elif shot == "bare":
+            out[shot] = [logs["single"]]
+        elif shot == "robot":
+            heavy = folder / "robot_sim.mcap"
+            _run([*_wmr(), "run", "fig11", *(a for p in ROBOT_PARAMS for a in ("--param", p)),
+                  "--out", heavy], quiet=True)
+            robot = robot_log(heavy, folder / "robot.mcap")
+            _run([*_wmr(), "replay", logs["single"], robot, "--rrd", rrd], quiet=True)
             out[shot] = [rrd]
         elif shot == "raw":
             rbl = folder / "wmr.rbl"

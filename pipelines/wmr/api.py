@@ -161,7 +161,8 @@ def read_log(path: str | Path, pose_topic: str | None = None) -> Log:
     A log of poses only (a real robot's: ``foxglove.PoseInFrame`` or
     ``foxglove.FrameTransform`` messages, found by schema name, or on ``pose_topic``) gives
     ``x_m``, ``y_m`` and ``theta_rad`` (the yaw of its quaternions), from its first pose,
-    every other signal NaN, and a warning saying it is a pose-only log.
+    every other signal NaN, and a warning saying it is a pose-only log.  A log of ours is
+    read as ours whatever ``pose_topic`` says.
 
     Raises
     ------
@@ -454,7 +455,8 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
            viewer: bool | None = None, worst: int | None = None,
            by: str = "time_to_goal_s", status: str | None = None,
            read_limit_mib: float | None = None,
-           notebook: bool = False) -> ReplayResult | Path | list[Path]:
+           notebook: bool = False,
+           pose_topic: str | None = None) -> ReplayResult | Path | list[Path]:
     """Replay run logs in Rerun, as ``wmr replay`` does: ``logs`` (a file or folder, or a list
     of them) in one recording, shown in a viewer or written to ``rrd``.
 
@@ -467,7 +469,10 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
     and ``status`` (``--worst N --by COLUMN``, ``--status failed|timeout``: runs of one batch
     folder, those whose logs were not kept made again into ``DIR/rerun/``, a warning saying
     so), ``read_limit_mib`` (``--read-limit``: the memory a log's read may take, MiB; default
-    ``WMR_READ_LIMIT_MIB``, else 1536).  Both check their inputs in
+    ``WMR_READ_LIMIT_MIB``, else 1536), ``pose_topic`` (``--pose-topic``: the topic of a
+    real robot's poses in a log that is not ours, when it has several; such a log replayed
+    with one of ours is aligned to it at the start of motion, the distance between the two
+    paths plotted: ``.aligned`` of the result says how).  Both check their inputs in
     :func:`wmr.apps.replay.replay_logs`: the same one-line errors.
 
     ``notebook=True`` (no option of the command: a notebook's own) shows the same recording
@@ -493,7 +498,7 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
     with _read_limit(read_limit_mib):
         return replay_logs(inputs, rrd=rrd, blueprint=blueprint, blueprint_for=blueprint_for,
                            viewer=viewer, worst=worst, by=by, status=status, say=say,
-                           notebook=notebook)
+                           notebook=notebook, pose_topic=pose_topic)
 
 
 @contextmanager

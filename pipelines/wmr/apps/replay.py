@@ -20,7 +20,8 @@ if TYPE_CHECKING:
 
 #: The API's keywords -> the options of ``wmr replay`` that give them.
 _FLAGS = {"logs": "FILE.mcap|DIR", "rrd": "--rrd", "blueprint": "--blueprint",
-          "blueprint_for": "--blueprint-for", "worst": "--worst", "status": "--status"}
+          "blueprint_for": "--blueprint-for", "worst": "--worst", "status": "--status",
+          "pose_topic": "--pose-topic"}
 
 
 def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
@@ -29,7 +30,8 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
                 viewer: bool | None = None, worst: int | None = None,
                 by: str = "time_to_goal_s", status: str | None = None,
                 say: Callable[[str], None] | None = None,
-                command_line: bool = False, notebook: bool = False
+                command_line: bool = False, notebook: bool = False,
+                pose_topic: str | None = None
                 ) -> ReplayResult | Path | list[Path]:
     """Replay ``logs`` (files and folders of them) in one Rerun recording, or, with
     ``blueprint``, write that blueprint file (looking straight down on ``logs``, if given)
@@ -63,6 +65,10 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         Show the recording in the notebook's inline viewer (rerun-notebook) instead of a
         viewer or an ``.rrd``; refused before any run is read or made again where it cannot
         be shown (:func:`wmr.adapters.rerun.replay.check_notebook`).
+    pose_topic
+        The topic of a real robot's poses in a log that is not ours, when it holds several
+        (:func:`wmr.adapters.mcap.read_run`); such a log replayed with one of ours is
+        aligned to it at the start of motion (:mod:`wmr.adapters.rerun.overlay`).
 
     Returns
     -------
@@ -128,7 +134,8 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         check_output(rrd, option("rrd"), suffix=".rrd")
     from wmr.adapters.rerun.replay import replay
 
-    return replay(logs, rrd=rrd, spawn=viewer, notebook=notebook, optimal_paths=optimal_paths)
+    return replay(logs, rrd=rrd, spawn=viewer, notebook=notebook, optimal_paths=optimal_paths,
+                  pose_topic=pose_topic)
 
 
 def _optimal_paths(out: Path, chosen: Sequence[tuple[str, Path]],

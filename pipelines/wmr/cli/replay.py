@@ -19,7 +19,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     result = replay_logs(args.logs, rrd=args.rrd, blueprint=args.blueprint,
                          blueprint_for=args.blueprint_for,
                          viewer=False if args.no_viewer else None, worst=args.worst,
-                         by=args.by, status=args.status,
+                         by=args.by, status=args.status, pose_topic=args.pose_topic,
                          say=lambda line: print(f"wmr: {line}", file=sys.stderr, flush=True),
                          command_line=True)
     if isinstance(result, list):  # --blueprint-for: X.rbl beside each X.mcap
@@ -40,6 +40,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     for line in result.warnings:
         _warn(line)
     for line in result.skipped:
+        print(f"wmr: {line}", file=sys.stderr, flush=True)
+    for line in result.aligned:
         print(f"wmr: {line}", file=sys.stderr, flush=True)
     steps = sum(result.steps.values())
     runs = f"{len(result.runs)} run{'s' if len(result.runs) != 1 else ''}, {steps} steps"
@@ -90,6 +92,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--status", choices=("failed", "timeout"),
                    help="of one batch folder DIR: every run of this status (made again as "
                         "--worst does when its log was not kept)")
+    p.add_argument("--pose-topic", metavar="TOPIC",
+                   help="the topic of a real robot's poses (foxglove.PoseInFrame or "
+                        "FrameTransform) in a log that is not wmr's, when it has several; "
+                        "such a log given with a wmr log is aligned to it at the start of "
+                        "motion, the distance between the two paths plotted "
+                        "(docs/replay.md)")
     p.add_argument("--no-viewer", action="store_true",
                    help="do not open a viewer even if there is a screen (write the .rrd)")
     add_read_limit(p)

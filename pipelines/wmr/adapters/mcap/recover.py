@@ -43,6 +43,14 @@ from wmr.adapters.mcap.reader import (
     read_chunk_at,
     scan_log,
 )
+from wmr.adapters.mcap.readme import (
+    README_MESSAGE_ENCODING,
+    README_SCHEMA,
+    README_SCHEMA_DATA,
+    README_SCHEMA_ENCODING,
+    README_TOPIC,
+    readme_message,
+)
 from wmr.adapters.mcap.scene import (
     GOAL_TOPIC,
     PATH_TOPIC,
@@ -62,8 +70,10 @@ _HEAD = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQ")
 #: A Message record's opcode, length, channel id, sequence, log time and publish time.
 _MSG_RECORD = struct.Struct("<BQHIQQ")
-#: The topics of :class:`wmr.adapters.mcap.scene.SceneRecorder` (made by recovery if missing).
-SCENE_TOPICS: Final = (GOAL_TOPIC, PATH_TOPIC, ROBOT_TOPIC, PHASE_TOPIC)
+#: The topics of :class:`wmr.adapters.mcap.scene.SceneRecorder` and the log's note
+#: (:mod:`wmr.adapters.mcap.readme`), all written when a log is closed (made by recovery if
+#: missing).
+SCENE_TOPICS: Final = (GOAL_TOPIC, PATH_TOPIC, ROBOT_TOPIC, PHASE_TOPIC, README_TOPIC)
 #: Smallest chunk recovery writes when the source's chunks are smaller (mcap's default size).
 _CHUNK_BYTES: Final = 1 << 20
 
@@ -198,13 +208,16 @@ class _SceneSink:
         self._schemas: dict[tuple[str, bytes], int] = {}  # the clouds share one schema
 
     def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
-                       t_ns: npt.ArrayLike, messages: Sequence[bytes]) -> None:
+                       t_ns: npt.ArrayLike, messages: Sequence[bytes], *,
+                       schema_encoding: str = "protobuf",
+                       message_encoding: str = "protobuf") -> None:
         if topic not in self._missing or not messages:
             return
         key = (schema_name, schema_data)
         if key not in self._schemas:
-            self._schemas[key] = self._file.add_schema(schema_name, schema_data)
-        cid = self._file.add_channel(topic, self._schemas[key])
+            self._schemas[key] = self._file.add_schema(schema_name, schema_data,
+                                                       schema_encoding)
+        cid = self._file.add_channel(topic, self._schemas[key], message_encoding)
         records = [(cid, t, _MSG_RECORD.pack(_MESSAGE, _MSG_RECORD.size - 9 + len(data), cid,
                                              seq, t, t) + data)
                    for seq, (t, data) in enumerate(zip(np.asarray(t_ns, np.int64).tolist(),
@@ -238,7 +251,11 @@ def _add_scene(file: McapFile, src: Path, scan: LogScan, limits: ReadLimits,
     recorder = SceneRecorder(run.metadata["run"], (goal[0], goal[1], goal[2]),
                              controlled=TORQUE_TOPIC.topic not in topics)
     recorder.add(run.t_ns, run.block())
-    recorder.write(_SceneSink(file, missing, rec))
+    sink = _SceneSink(file, missing, rec)
+    recorder.write(sink)
+    sink.write_messages(README_TOPIC, README_SCHEMA, README_SCHEMA_DATA, [0],
+                        [readme_message()], schema_encoding=README_SCHEMA_ENCODING,
+                        message_encoding=README_MESSAGE_ENCODING)
 
 
 def _write(scan: LogScan, log: _LogFile, src: Path, rec: Recovery,

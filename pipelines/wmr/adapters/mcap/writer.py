@@ -55,6 +55,14 @@ from mcap.records import (
 from numpy.typing import ArrayLike, NDArray
 
 import wmr
+from wmr.adapters.mcap.readme import (
+    README_MESSAGE_ENCODING,
+    README_SCHEMA,
+    README_SCHEMA_DATA,
+    README_SCHEMA_ENCODING,
+    README_TOPIC,
+    readme_message,
+)
 from wmr.adapters.mcap.scene import SceneRecorder
 from wmr.adapters.mcap.schemas import (
     GOAL_SCHEMA,
@@ -766,7 +774,9 @@ class RunLogWriter:
             self._flush_chunks(final=False)
 
     def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
-                       t_ns: ArrayLike, messages: Sequence[bytes]) -> None:
+                       t_ns: ArrayLike, messages: Sequence[bytes], *,
+                       schema_encoding: str = "protobuf",
+                       message_encoding: str = "protobuf") -> None:
         """Log serialised protobuf ``messages`` on a topic of their own, as one chunk.
 
         For topics that are not one message per control step (sensor fixes, estimates: see
@@ -782,14 +792,17 @@ class RunLogWriter:
             Log time of each message, ns, non-decreasing, shape ``(len(messages),)``.
         messages
             The message bodies.
+        schema_encoding, message_encoding
+            The MCAP encodings of the schema and the messages (protobuf; the log's note to
+            a viewer, :mod:`wmr.adapters.mcap.readme`, is ROS 2's ``ros2msg`` and ``cdr``).
         """
         if self._closed:
             raise LogError(f"{self.path}: write_messages after close")
         t = np.asarray(t_ns, dtype=np.int64)
         if t.shape != (len(messages),) or (len(t) > 1 and bool(np.any(t[1:] < t[:-1]))):
             raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
-        schema_id = self._file.add_schema(schema_name, schema_data)
-        cid = self._file.add_channel(topic, schema_id)
+        schema_id = self._file.add_schema(schema_name, schema_data, schema_encoding)
+        cid = self._file.add_channel(topic, schema_id, message_encoding)
         records_of = getattr(messages, "records", None)  # scene.PlacedClouds: all at once
         built = records_of(cid) if records_of is not None else None
         if built is not None:
@@ -863,6 +876,10 @@ class RunLogWriter:
             raise LogError(f"{self.path}: closed twice")
         if self._scene is not None:
             self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
+            # what to run to see the log as wmr's dashboard: Rerun shows it as a document
+            self.write_messages(README_TOPIC, README_SCHEMA, README_SCHEMA_DATA, [0],
+                                [readme_message()], schema_encoding=README_SCHEMA_ENCODING,
+                                message_encoding=README_MESSAGE_ENCODING)
         self._closed = True
         try:
             self._flush_chunks(final=True)

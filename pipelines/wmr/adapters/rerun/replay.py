@@ -77,6 +77,12 @@ from wmr.adapters.mcap.scene import (
     control_phases,
     robot_geometry,
 )
+from wmr.adapters.rerun.overlay import (
+    align_runs,
+    alignment_lines,
+    deviation_view,
+    log_deviation,
+)
 from wmr.core.signals import COLUMN
 from wmr.infra.durable import replacing_path
 from wmr.infra.errors import ConfigError, LogError, WmrError
@@ -616,7 +622,8 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
                      torque_range_nm: float | None = None,
                      y_ranges: Mapping[str, tuple[float, float]] | None = None,
                      open_loop: Sequence[str] = (),
-                     phase_window_s: tuple[float, float] | None = None) -> rrb.Blueprint:
+                     phase_window_s: tuple[float, float] | None = None,
+                     extra_plots: Sequence[rrb.TimeSeriesView] = ()) -> rrb.Blueprint:
     """The dashboard: world view and run summary on the left, the time-series panels on the
     right in a three-column grid (the phase in its last cell; with sensors, the estimation
     error there and the phase in a tab behind it); side panels collapsed.
@@ -647,6 +654,9 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
         The phase plot shows this window of ``sim_time``, s (one run: its last seconds,
         where the alignment is; over the whole run it is a line at 0 and a sliver at the
         end); None: the whole run.
+    extra_plots
+        More panels after the others (the deviation of a real robot's path,
+        :func:`wmr.adapters.rerun.overlay.deviation_view`).
     """
     roots = [f"/{run_entity(n)}" for n in run_names]
     many = len(run_names) > 1
@@ -689,6 +699,7 @@ def replay_blueprint(run_names: Sequence[str], *, live: bool = False,
         time_ranges=time_range if phase_window_s is None else rrb.VisibleTimeRange(
             TIMELINE, start=rrb.TimeRangeBoundary.absolute(seconds=phase_window_s[0]),
             end=rrb.TimeRangeBoundary.absolute(seconds=phase_window_s[1])))
+    cells += list(extra_plots)
     if sensing:
         estimation = plot(ESTIMATION_ENTITY, "Position error: estimate, GPS fixes [m]")
         cells.append(rrb.Tabs(estimation, phase, active_tab=0))
@@ -1158,11 +1169,18 @@ def _cell(value: object) -> str:
     return "?" if value is None else str(value)
 
 
+def _status(run: RunData) -> str:
+    """A run's status: its ``result`` record's; else a real robot's log is "poses only" and
+    a log of ours without one is "cut"."""
+    default = "poses only" if run.pose_topic is not None else "cut"
+    return run.metadata.get("result", {}).get("status", default)
+
+
 def _summary_many(labels: Sequence[str], names: Sequence[str], runs: Sequence[RunData]) -> str:
     """The summary of a multi-run replay: one row per run, with the inputs that vary."""
     varied = varied_inputs(runs)
     flats = [dict(_flat_meta(r)) for r in runs]
-    statuses = [r.metadata.get("result", {}).get("status", "cut") for r in runs]
+    statuses = [_status(r) for r in runs]
     counts = ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses))
     short = [k.split(".", 1)[1] if k.startswith(("params.", "gains.", "limits.")) else k
              for k in varied]
@@ -1178,7 +1196,7 @@ def _summary_many(labels: Sequence[str], names: Sequence[str], runs: Sequence[Ru
         meta, result = run.metadata.get("run", {}), run.metadata.get("result", {})
         t_goal = _float(result.get("time_to_goal_s"))
         t = f"{t_goal:.2f}" if t_goal is not None else f"{run.t_s[-1]:.1f}+"
-        cells = [label, *(_cell(flat.get(k)) for k in varied), result.get("status", "cut"),
+        cells = [label, *(_cell(flat.get(k)) for k in varied), _status(run),
                  t, _final_errors(result), _pose_text(_json(meta, "start")),
                  _pose_text(_json(meta, "goal")), f"`{name}`"]
         lines.append("| " + " | ".join(cells) + " |")
@@ -1277,16 +1295,21 @@ class ReplayResult:
     warnings: list[str] = field(default_factory=list)
     #: One line per log left out (unreadable, damaged past reading, a link outside a folder).
     skipped: list[str] = field(default_factory=list)
+    #: One line per real robot's log aligned to a simulation's (:mod:`.overlay`): its time
+    #: shift and the distance between the two paths.
+    aligned: list[str] = field(default_factory=list)
     #: The notebook's inline viewer that got it (``notebook=True``; a
     #: ``rerun.notebook.Viewer``: show it again in a later cell, or drive it with its
     #: ``update_panels`` and ``set_time_ctrl``), else None.
     viewer: Any = None
 
 
-def read_logs(logs: Sequence[RunLog], skipped: list[str] | None = None
+def read_logs(logs: Sequence[RunLog], skipped: list[str] | None = None, *,
+              pose_topic: str | None = None
               ) -> tuple[list[tuple[RunLog, RunData]], list[str]]:
     """Read every log; warn about truncated ones; raise on unreadable ones, or, given
-    ``skipped``, put one line there for each and read the others.
+    ``skipped``, put one line there for each and read the others.  ``pose_topic``: the
+    topic of the poses of a log that is not ours (:func:`wmr.adapters.mcap.read_run`).
 
     Raises
     ------
@@ -1299,7 +1322,7 @@ def read_logs(logs: Sequence[RunLog], skipped: list[str] | None = None
     first: LogError | None = None
     for log in logs:
         try:
-            data = read_run(log.path)
+            data = read_run(log.path, pose_topic=pose_topic)
             if data.n_steps == 0:
                 why = f" ({data.warnings[0]})" if data.warnings else ""
                 raise LogError(f"{log.path}: no readable control step in this log{why}")
@@ -1458,7 +1481,8 @@ def complete_open_loop(run: RunData, stop_radius_m: float = 0.05) -> RunData:
 
 def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[str] | None = None,
            spawn: bool | None = None, notebook: bool = False,
-           optimal_paths: Mapping[Path, NDArray[np.float64]] | None = None) -> ReplayResult:
+           optimal_paths: Mapping[Path, NDArray[np.float64]] | None = None,
+           pose_topic: str | None = None) -> ReplayResult:
     """Replay run logs in one Rerun recording: a viewer, an ``.rrd`` file, or a notebook.
 
     Parameters
@@ -1477,6 +1501,11 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     optimal_paths
         By log file: the optimal path (x, y, m; shape ``(n, 2)``) of that log's run, drawn
         beside it (:func:`log_optimal_path`).
+    pose_topic
+        The topic of the poses of a log that is not ours (a real robot's), when it cannot be
+        found (:func:`wmr.adapters.mcap.read_run`).  A real robot's log replayed with one of
+        ours is aligned to it at the start of motion, with the distance between the two
+        paths plotted (:mod:`wmr.adapters.rerun.overlay`).
 
     Returns
     -------
@@ -1496,7 +1525,13 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     if notebook:
         check_notebook(rrd, spawn)
     skipped: list[str] = []
-    runs, warnings = read_logs(find_logs(inputs, skipped), skipped)
+    runs, warnings = read_logs(find_logs(inputs, skipped), skipped, pose_topic=pose_topic)
+    # a real robot's log beside a simulation: on the simulation's time axis
+    datas_aligned, alignments, align_warnings = align_runs([log.name for log, _ in runs],
+                                                           [d for _, d in runs])
+    runs = [(log, d) for (log, _), d in zip(runs, datas_aligned, strict=True)]
+    warnings += align_warnings
+    aligned = {a.run: a for a in alignments}
     optimal_by_log = {Path(k).resolve(): v for k, v in (optimal_paths or {}).items()}
     names = [log.name for log, _ in runs]
     eps_all = [_float(d.metadata.get("run", {}).get("stop_radius_m")) for _, d in runs]
@@ -1516,6 +1551,8 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
     torque_limit = max((v for v in limits if v is not None), default=None)
     tau_range = torque_range(datas, torque_limit)
     bounds = Bounds.around(_world_points(datas))
+    extra = ([deviation_view([run_entity(names[a.run]) for a in alignments],
+                             names[alignments[0].reference])] if alignments else [])
     span_m = max(bounds.x_max - bounds.x_min, bounds.y_max - bounds.y_min)
     estimation = [e for tr, d in zip(traces, datas, strict=True) if tr is not None
                   for _, e in sensing_errors(tr, d).values()]
@@ -1524,7 +1561,8 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
         y_ranges=panel_ranges(datas, many=many, torque_range_nm=tau_range,
                               estimation=estimation),
         open_loop=[f"#{names.index(n)}" if many else n for n in open_loop],
-        phase_window_s=_phase_window(datas[0]) if not many and not open_loop else None)
+        phase_window_s=_phase_window(datas[0]) if not many and not open_loop else None,
+        extra_plots=extra)
     rec = rr.RecordingStream(APPLICATION_ID)
     rec.send_recording_name(names[0] if len(names) == 1 else f"{len(names)} runs")
 
@@ -1609,13 +1647,21 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                              label_offset_m=0.025 * span_m)
             if traces[k] is not None:
                 log_sensing(rec, log.name, log.path, data, traces[k])
+            if k in aligned:
+                log_deviation(rec, run_entity(log.name), TIMELINE,
+                              f"{labels[k]} {log.name} - {names[aligned[k].reference]}", color,
+                              aligned[k])
         summary = (_summary_many(labels, names, datas) if many
                    else _summary_single(names[0], datas[0], sensing[0]))
+        notes = alignment_lines(names, alignments)
+        if notes:
+            summary += "\n\n" + "\n\n".join(notes)
         rec.log(SUMMARY_ENTITY, rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN),
                 static=True)
         rec.flush()
     return ReplayResult(runs=names, steps={log.name: d.n_steps for log, d in runs}, rrd=out,
-                        spawned=spawned, warnings=warnings, skipped=skipped, viewer=inline)
+                        spawned=spawned, warnings=warnings, skipped=skipped, viewer=inline,
+                        aligned=notes)
 
 
 def iter_signal_names() -> Iterable[str]:
