@@ -559,6 +559,16 @@ def test_libcosim_logs_the_converged_sample_when_it_falls_on_a_check_of_the_flag
     assert math.isclose(run.time_to_goal_s or 0.0, rows * spec.period_s, rel_tol=1e-12)
 
 
+def test_docs_name_the_default_master_step() -> None:
+    """docs/ssp.md says which step a package gives its masters, and its measured table has
+    a row for it in both lagging masters."""
+    doc = " ".join((Path(__file__).parents[1] / "docs" / "ssp.md").read_text().split())
+    n = DEFAULT_STEPS_PER_PERIOD
+    assert f"the **master step**, `N` = {n} unless `--steps-per-period N`" in doc
+    for master in ("libcosim", "Ecos"):
+        assert f"| {master} | h/{n} (default) |" in doc, master
+
+
 def test_wmr_ssp_export_steps_per_period_sets_the_masters_step(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``--steps-per-period N``: libcosim's (OSP) and OMSimulator's step is the control period
@@ -598,10 +608,13 @@ def test_every_master_run_to_the_stop_time_ends_where_wmr_run_stopped(
     spec = _spec("fig11", None)
     end = _wmr_run(spec, built.fmus[2])[-1]
     finals: dict[str, npt.NDArray[np.float64]] = {}
-    package2 = _export(built, spec, ssp_dir, fmi=2)
+    # stepped at the control period: the brake is the controller's, whatever the step, and
+    # 120 s at the default step are four times the steps
+    package2 = _export(built, spec, ssp_dir, fmi=2, steps_per_period=1)
     finals["libcosim"] = simulate_libcosim(package2, stop_at_convergence=False).block[-1, :3]
     for fmi in (2, 3):
-        run = simulate_ecos(_export(built, spec, ssp_dir, fmi=fmi), stop_at_convergence=False)
+        run = simulate_ecos(_export(built, spec, ssp_dir, fmi=fmi, steps_per_period=1),
+                            stop_at_convergence=False)
         finals[f"ecos-fmi{fmi}"] = run.block[-1, :3]
     package = read_package(package2)
     out = simulate_ssp(str(package2), stop_time=package.stop_time_s,
@@ -664,11 +677,14 @@ def test_the_controller_fmu_asks_the_master_to_stop_after_its_converged_sample(
 
 
 def _short_spec() -> RunSpec:
-    """Fig. 11's robot and gains to a near goal (1, 0.5, 30 deg): about 6 s, 585 steps."""
+    """Fig. 11's robot and gains to a near goal (1, 0.5, 30 deg): about 6 s, 585 steps; a stop
+    time of 12 s (fmpy runs a package to its stop time: at a quarter of the period, 120 s
+    were 48000 steps)."""
     from wmr.config.scenario import with_overrides
     from wmr.core.plant import Pose
 
-    spec = with_overrides(_spec("fig11", None), goal=Pose(1.0, 0.5, math.radians(30.0)))
+    spec = with_overrides(_spec("fig11", None), goal=Pose(1.0, 0.5, math.radians(30.0)),
+                          t_max_s=12.0)
     return replace(spec, name="short")
 
 
