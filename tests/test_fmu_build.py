@@ -441,3 +441,26 @@ def test_a_host_only_build_says_nothing_of_platforms_it_was_not_asked_for(
     fmi2 = [line for line in err.splitlines() if ": FMI 2.0, " in line]
     assert len(fmi2) == 2 and all(f"binaries for {host.fmi2}" in line for line in fmi2), err
     assert "names no platform" not in err and "aarch64" not in err, err
+
+
+@pytest.mark.parametrize(("requested", "said"), [
+    (None, " (no aarch64-linux, aarch64-darwin binaries: FMI 2.0 has no standard platform name "
+           "for them; the FMI 3.0 FMU carries them)"),
+    (("x86_64-linux", "aarch64-linux"), " (no aarch64-linux binaries: FMI 2.0 has no standard "
+                                        "platform name for it; the FMI 3.0 FMU carries it)"),
+    (("x86_64-linux",), ""),
+])
+def test_the_fmi2_line_says_what_is_done_with_the_platforms_fmi2_cannot_name(
+        requested: tuple[str, ...] | None, said: str) -> None:
+    """The FMI 2.0 line said "(FMI 2.0 names no platform for aarch64-linux, ...)": as if the
+    standard forbade the platform, and not what the build did.  FMI 2.0 has no standard name
+    for aarch64: its binaries are left out of the FMI 2.0 FMU and are in the FMI 3.0 one."""
+    from wmr.build.fmus import FmuSummary
+    from wmr.build.platforms import PLATFORMS
+
+    summary = FmuSummary(Path("wmr_robot-fmi2.fmu"), "2.0", ("co-simulation",),
+                         tuple(p.fmi2 for p in PLATFORMS if p.fmi2 is not None
+                               and (requested is None or p.name in requested)))
+    binaries = " ".join(summary.platforms)
+    assert summary.line(requested) == \
+        f"wmr_robot-fmi2.fmu: FMI 2.0, co-simulation, binaries for {binaries}{said}"

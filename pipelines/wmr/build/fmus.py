@@ -492,14 +492,18 @@ class FmuSummary:
     def line(self, requested: Sequence[str] | None = None) -> str:
         """``<file name>: FMI 3.0, co-simulation, x86_64-linux aarch64-linux ...``; for FMI 2
         also which of the ``requested`` platforms (FMI 3 names; every platform by default) it
-        cannot carry: a host-only build asked for no aarch64 and is told of none."""
+        leaves out, and why: FMI 2.0 has no standard platform name for aarch64, so those
+        binaries are in the FMI 3.0 FMU only.  A host-only build asked for no aarch64 and is
+        told of none."""
         text = (f"{self.path.name}: FMI {self.fmi_version}, {' + '.join(self.interfaces)}, "
                 f"binaries for {' '.join(self.platforms) or 'no platform'}")
         if self.fmi_version.startswith("2"):
             missing = [p.name for p in PLATFORMS if p.fmi2 is None
                        and (requested is None or p.name in requested)]
             if missing:
-                text += f" (FMI 2.0 names no platform for {', '.join(missing)})"
+                them = "it" if len(missing) == 1 else "them"
+                text += (f" (no {', '.join(missing)} binaries: FMI 2.0 has no standard platform "
+                         f"name for {them}; the FMI 3.0 FMU carries {them})")
         return text
 
 

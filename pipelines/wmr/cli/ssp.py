@@ -43,7 +43,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
     ctrl = (Path(args.controller_fmu) if args.controller_fmu
             else built.controllers[args.fmi])  # type: ignore[union-attr]
     print(export_ssp(spec, out, robot, ctrl, scenario_file=scenario_file,
-                     var_map=load_map(map_path) if map_path is not None else None))
+                     var_map=load_map(map_path) if map_path is not None else None,
+                     steps_per_period=args.steps_per_period))
     return 0
 
 
@@ -96,6 +97,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from wmr.adapters.ssp.export import DEFAULT_STEPS_PER_PERIOD
     from wmr.cli.run import add_scenario_choice
 
     p = sub.add_parser("ssp", help="the closed loop as an SSP package, run in libcosim or Ecos",
@@ -120,6 +122,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     ex.add_argument("--map", metavar="FILE.toml",
                     help="variable map of a robot FMU made by another tool (docs/fmu_map.md; "
                          "default: the scenario's fmu_map)")
+    ex.add_argument("--steps-per-period", type=int, default=DEFAULT_STEPS_PER_PERIOD,
+                    metavar="N",
+                    help="the masters' fixed step in the package is the control period / N "
+                         f"(default {DEFAULT_STEPS_PER_PERIOD}: within 5 mm and 0.2 deg of "
+                         "'wmr run' in libcosim and Ecos; 1 lags a whole period, docs/ssp.md)")
     ex.add_argument("--out", metavar="FILE.ssp",
                     help="package file (default ssp/NAME.ssp, NAME the run's name as 'wmr "
                          "run' gives it: fig11, fig11-to_5_5_30deg, fig11-fmi3)")

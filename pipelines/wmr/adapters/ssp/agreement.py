@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
-from wmr.adapters.ssp.cosim import c_stdout_to_stderr, simulate_libcosim
+from wmr.adapters.ssp.cosim import c_stdout_to_stderr, simulate_libcosim, steps_per_row
 from wmr.adapters.ssp.package import fmpy_parameter_set, read_package
 from wmr.core.closedloop import LoopOutcome, run_closed_loop
 from wmr.core.control.from_spec import SpecController
@@ -68,19 +68,22 @@ def libcosim_path(ssp: str | os.PathLike[str]) -> tuple[str, npt.NDArray[np.floa
     return run.status, run.block[:, _POSE]
 
 
-def fmpy_path(ssp: str | os.PathLike[str], stop_time_s: float
+def fmpy_path(ssp: str | os.PathLike[str], stop_time_s: float, step_size_s: float | None = None
               ) -> tuple[bool, npt.NDArray[np.float64]]:
-    """fmpy's ``simulate_ssp`` on the package with its own parameter sets.
+    """fmpy's ``simulate_ssp`` on the package with its own parameter sets, stepped at
+    ``step_size_s`` (default: the package's step; fmpy reads no step from a package).
 
     Returns whether the controller's ``converged`` flag rose, and ``(x, y, theta)`` at
-    ``t_0, t_1, ...``: fmpy's row ``k`` holds the values after its step from ``t_k`` (the
-    robot at ``t_{k+1}``), so row 0 here is the start pose of the package.
+    ``t_0, t_1, ...``, a row per control period when it is a whole number of steps
+    (:func:`~wmr.adapters.ssp.cosim.steps_per_row`), else per step: fmpy's row ``k`` holds the
+    values after its step from ``t_k`` (the robot at ``t_{k+1}``), so row 0 here is the start
+    pose of the package.
     """
-    converged_at_s, path = fmpy_run(ssp, stop_time_s)
+    converged_at_s, path = fmpy_run(ssp, stop_time_s, step_size_s)
     return converged_at_s is not None, path
 
 
-def fmpy_run(ssp: str | os.PathLike[str], stop_time_s: float
+def fmpy_run(ssp: str | os.PathLike[str], stop_time_s: float, step_size_s: float | None = None
              ) -> tuple[float | None, npt.NDArray[np.float64]]:
     """fmpy's ``simulate_ssp`` on the package with its own parameter sets, as
     :func:`fmpy_path`, but with the time of the first sample whose ``converged`` output is 1
@@ -89,7 +92,7 @@ def fmpy_run(ssp: str | os.PathLike[str], stop_time_s: float
 
     package = read_package(Path(ssp))
     robot = package.components["robot"].parameters
-    h = package.step_size_s
+    h = step_size_s if step_size_s is not None else package.step_size_s
     with c_stdout_to_stderr():  # what the FMUs' C prints is not our standard output
         out = simulate_ssp(str(ssp), stop_time=stop_time_s, step_size=h,
                            parameter_set=fmpy_parameter_set(package))
@@ -97,7 +100,8 @@ def fmpy_run(ssp: str | os.PathLike[str], stop_time_s: float
     path = np.vstack([start, np.column_stack([out["robot.x"], out["robot.y"],
                                               out["robot.theta"]])])
     hit = np.flatnonzero(out["controller.converged"] >= 0.5)
-    return (float(out["time"][hit[0]]) if hit.size else None), path
+    stride = steps_per_row(package, h) if h else 1
+    return (float(out["time"][hit[0]]) if hit.size else None), path[::stride]
 
 
 def deviation(path: npt.NDArray[np.float64], ref: npt.NDArray[np.float64], lag: int = 0

@@ -4,7 +4,8 @@ Two masters: libcosim (DNV's Open Simulation Platform, through ``libcosimpy``; F
 and Ecos (``ecospy``; FMI 2.0 and 3.0) in :mod:`wmr.adapters.ssp.ecos`.  Each loads the
 package, applies its parameter sets and steps both FMUs with its fixed-step algorithm at the
 package's ``baseStepSize``; every step is recorded, and the run stops at the controller's
-``converged`` flag (as ``wmr run`` does) or at the default experiment's stop time.
+``converged`` flag (as ``wmr run`` does) or at the default experiment's stop time.  The log
+has a row per control period (:func:`steps_per_row`), as ``wmr run``'s, whatever the step.
 
 Timing.  Both masters step their components side by side (Jacobi): before the step from
 ``t_k`` they set every input from the outputs read after the step before, and read the outputs
@@ -15,6 +16,13 @@ on the measurement it holds, ``g(z_{k+1}, y_k)`` (fmu/src/README.md); the robot 
 torques over ``[t_{k+1}, t_{k+2})``.  A log row ``k`` is the robot's outputs at ``t_k`` and
 the controller's outputs observed after its step from ``t_k`` (the torques the robot holds
 next).
+
+A step of ``h / n`` (``n > 1`` master steps per control period ``h``, the package's default):
+the controller's step from the grid point ``t_k`` takes its sample there on the measurement
+set at ``t_k``, on time (``y_k = g(z_k, y(t_k))``, ``z_{k+1} = f(z_k, y(t_k))``, as ``wmr
+run``), and holds it; only the robot's first master step from ``t_k`` holds what the
+controller showed before that, ``g(z_k, y(t_k - h / n))``.  A log row ``k`` is then the robot
+at ``t_k`` and the controller's sample ``y_k``: ``wmr run``'s layout, in either master.
 
 Standard output.  The masters' C libraries print to the process's standard output (fd 1);
 :func:`c_stdout_to_stderr` sends it to standard error around their calls, so that ``wmr ssp
@@ -55,9 +63,12 @@ class SspRunData:
     """One SSP run: the rows in :data:`wmr.core.signals.SIGNALS` layout and every variable.
 
     ``variables[component][name]`` holds the variable at every communication point
-    ``0 .. steps`` (index ``s`` is ``t_s``); ``block`` row ``k`` pairs the robot at ``t_k``
-    with the controller's outputs after its step from ``t_k``.  ``held_torque_nm[k]`` is the
-    (right, left) torque the robot held over the step from ``t_k`` (for the energies).
+    ``0 .. steps`` (index ``s`` is ``s * step_size_s``); ``block`` has a row every
+    ``steps_per_row`` communication points (the control period, :func:`steps_per_row`): row
+    ``k`` pairs the robot at ``t_k = k * steps_per_row * step_size_s`` with the controller's
+    outputs after its step from there.  ``held_torque_nm[s]`` is the (right, left) torque the
+    robot held over the master step from point ``s``, and ``wheel_speeds_radps[s]`` its
+    (right, left) wheel speeds at point ``s`` (for the energies).
     """
 
     package: SspPackage
@@ -72,6 +83,9 @@ class SspRunData:
     held_torque_nm: npt.NDArray[np.float64] = field(
         default_factory=lambda: np.empty((0, 2), dtype=np.float64))
     step_size_s: float = math.nan
+    steps_per_row: int = 1
+    wheel_speeds_radps: npt.NDArray[np.float64] = field(
+        default_factory=lambda: np.empty((0, 2), dtype=np.float64))
 
 
 @contextmanager
@@ -97,6 +111,22 @@ def step_size(package: SspPackage) -> float:
         raise FmuError(f"{package.path}: no step size (no OSP FixedStepAlgorithm and no "
                        "control_period_s): export it again with 'wmr ssp export'")
     return h
+
+
+#: How close to a whole number of master steps the control period must be to log a row per
+#: period (relative): the step is written as ``repr`` of ``period / n``.
+_WHOLE_REL = 1e-9
+
+
+def steps_per_row(package: SspPackage, h: float) -> int:
+    """Master steps (of ``h``) per log row: the number ``n`` of them in the controller's
+    ``control_period_s`` when it is a whole one (the log then has ``wmr run``'s row per
+    period), else 1 (a row per master step)."""
+    period = package.component(CONTROLLER).parameters.get("control_period_s")
+    if period is None or not h > 0:
+        return 1
+    n = round(period / h)
+    return n if n >= 1 and abs(n * h - period) <= _WHOLE_REL * period else 1
 
 
 def n_steps(package: SspPackage, h: float, stop_time_s: float | None) -> int:
@@ -196,14 +226,25 @@ def _libcosim_loop(package: SspPackage, folder: Path, h: float, n_max: int,
     converged_ref = refs[CONTROLLER]["converged"]
     steps = 0
     converged = False
-    while steps < n_max and not converged:
-        n = min(_STEPS_PER_CHECK, n_max - steps)
+
+    def step(n: int) -> None:
+        nonlocal steps
         if not execution.step(n):
             raise FmuError(f"{package.path}: libcosim failed to step at t = {steps * h:g} s "
                            "(an FMU returned an error)")
         steps += n
-        if stop_at_convergence:
-            converged = last.last_real_values(index[CONTROLLER], [converged_ref])[0] >= 0.5
+
+    def flag() -> bool:
+        return bool(last.last_real_values(index[CONTROLLER], [converged_ref])[0] >= 0.5)
+
+    while steps < n_max and not converged:
+        step(min(_STEPS_PER_CHECK, n_max - steps))
+        if stop_at_convergence and flag():
+            # observed at a grid point, the flag is of the sample on the measurement of one
+            # master step before; the log's row shows the sample the controller takes there
+            # on the measurement passed on, which it holds at the next point (log_rows)
+            step(1)
+            converged = flag()
     variables = {comp: {name: _samples(series, index[comp], ref, steps)
                         for name, ref in refs[comp].items()} for comp in (ROBOT, CONTROLLER)}
     return variables, steps
@@ -243,13 +284,16 @@ def _in_our_names(package: SspPackage, values: dict[str, Any],
 def log_rows(package: SspPackage, variables: dict[str, dict[str, npt.NDArray[np.float64]]],
              steps: int, h: float, stop_at_convergence: bool, master: str, *,
              after_transfer: bool) -> SspRunData:
-    """The log rows of a run recorded at communication points ``0 .. steps``.
+    """The log rows of a run recorded at communication points ``0 .. steps`` (of ``h``): a row
+    every :func:`steps_per_row` points, the control grid when the period is a whole number
+    of steps.
 
     ``after_transfer``: the master recorded after passing the outputs on to the inputs (Ecos),
-    so that index ``k`` holds the controller's sample at ``t_k`` (its inputs are ``y_k``) and
-    the robot's torque inputs for the step from ``t_k``; otherwise before (libcosim): the
-    controller's outputs after its step from ``t_k`` are at index ``k + 1``, and so are the
-    robot's inputs of the step from ``t_k``.
+    so that index ``s`` holds the controller's outputs at ``t_s`` on the inputs set there and
+    the robot's torque inputs for the step from ``t_s``; otherwise before (libcosim): the
+    controller's outputs after its step from ``t_s`` are at index ``s + 1``, and so are the
+    robot's inputs of the step from ``t_s``.  A row shows the controller at the index of its
+    robot plus that offset; a run ends at the first row whose ``converged`` output is 1.
     """
     robot = _in_our_names(package, variables[ROBOT], (*OUTPUT_NAMES, "tau_r", "tau_l"))
     ctrl = variables[CONTROLLER]
@@ -258,31 +302,39 @@ def log_rows(package: SspPackage, variables: dict[str, dict[str, npt.NDArray[np.
     if missing:
         raise FmuError(f"{package.path}: the components lack the outputs {', '.join(missing)}")
     off = 0 if after_transfer else 1  # index of the controller's values of row 0
-    n_rows = steps + 1 - off  # rows whose controller values were recorded
-    flags = ctrl["converged"][off:n_rows + off]
+    stride = steps_per_row(package, h)
+    n_rows = (steps - off) // stride + 1  # rows whose controller values were recorded
+    robot_at = np.arange(n_rows) * stride  # index of each row's robot values
+    flags = ctrl["converged"][robot_at + off]
     hit = np.flatnonzero(flags >= 0.5)
     status, message, time_to_goal = "timeout", f"not converged within {steps * h:g} s", None
     if stop_at_convergence and hit.size:
         n_rows = int(hit[0]) + 1
-        time_to_goal = hit[0] * h
+        robot_at = robot_at[:n_rows]
+        time_to_goal = hit[0] * stride * h
         status, message = "converged", f"converged at t = {time_to_goal:.2f} s"
     held = np.full((steps, 2), np.nan)
     for j, name in enumerate(("tau_r", "tau_l")):
         if np.ndim(robot.get(name, math.nan)):
             held[:, j] = robot[name][off:steps + off]
+    wheels = np.full((steps + 1, 2), np.nan)
+    for j, name in enumerate(("omega_r", "omega_l")):
+        if np.ndim(robot[name]):
+            wheels[:, j] = robot[name][:steps + 1]
     block = np.empty((n_rows, len(SIGNALS)), dtype=np.float64)
     for i, name in enumerate(OUTPUT_NAMES):
         values = robot[name]  # NaN (a float) where the map leaves the output unmapped
-        block[:, COLUMN[PLANT_SIGNALS[i]]] = values[:n_rows] if np.ndim(values) else values
+        block[:, COLUMN[PLANT_SIGNALS[i]]] = values[robot_at] if np.ndim(values) else values
     for col, name in zip(CONTROL_SIGNALS, CONTROL_OUTPUTS, strict=True):
-        block[:, COLUMN[col]] = ctrl[name][off:n_rows + off]
+        block[:, COLUMN[col]] = ctrl[name][robot_at + off]
     if status == "converged":
         # as in wmr run: the last row shows the robot at rest with zero torque
         block[-1, COLUMN["tau_r_nm"]] = block[-1, COLUMN["tau_l_nm"]] = 0.0
-    t_ns = np.round(np.arange(n_rows) * h * 1e9).astype(np.int64)
+    t_ns = np.round(robot_at * h * 1e9).astype(np.int64)
     return SspRunData(package=package, t_ns=t_ns, block=block, variables=variables,
                       status=status, message=message, master=master,
-                      time_to_goal_s=time_to_goal, step_size_s=h, held_torque_nm=held)
+                      time_to_goal_s=time_to_goal, step_size_s=h, held_torque_nm=held,
+                      steps_per_row=stride, wheel_speeds_radps=wheels)
 
 
 def _goal(package: SspPackage) -> tuple[float, float, float]:
@@ -335,7 +387,7 @@ def result_record(run: SspRunData, mcap: Path) -> dict[str, object]:
     gx, gy, gth = _goal(run.package)
     position_error_m = math.hypot(gx - float(x[-1]), gy - float(y[-1]))
     heading_error_rad = abs(math.remainder(float(theta[-1]) - gth, 2 * math.pi))
-    held = run.held_torque_nm[:b.shape[0] - 1]
+    held = run.held_torque_nm[:(b.shape[0] - 1) * run.steps_per_row]
     work = energies(run)
     return {
         **record(name=run.package.name, status=run.status, message=run.message,
@@ -357,14 +409,12 @@ def result_record(run: SspRunData, mcap: Path) -> dict[str, object]:
 
 def energies(run: SspRunData) -> dict[str, float]:
     """The :data:`~wmr.core.energy.ENERGY_KEYS` of the run (as ``wmr run``'s): the torques the
-    robot held over each step between the logged rows, times its wheel speeds at both ends
-    (trapezoid).  NaN where the robot's map leaves a wheel speed unmapped."""
-    b = run.block
-    n = b.shape[0] - 1
-    if n < 1 or run.held_torque_nm.shape[0] < n:
+    robot held over each master step to the last logged row, times its wheel speeds at both
+    ends (trapezoid).  NaN where the robot's map leaves a wheel speed unmapped."""
+    n = (run.block.shape[0] - 1) * run.steps_per_row  # master steps to the last row
+    if n < 1 or run.held_torque_nm.shape[0] < n or run.wheel_speeds_radps.shape[0] <= n:
         return dict.fromkeys(ENERGY_KEYS, math.nan if n >= 1 else 0.0)
-    omega = b[:, [COLUMN["omega_r_radps"], COLUMN["omega_l_radps"]]]
-    return wheel_work(run.held_torque_nm[:n], omega, run.step_size_s)
+    return wheel_work(run.held_torque_nm[:n], run.wheel_speeds_radps[:n + 1], run.step_size_s)
 
 
 def log_ssp_run(run: SspRunData, mcap_path: str | os.PathLike[str]) -> dict[str, object]:
@@ -382,4 +432,4 @@ def log_ssp_run(run: SspRunData, mcap_path: str | os.PathLike[str]) -> dict[str,
 
 
 __all__ = ["CONTROL_OUTPUTS", "SspRunData", "c_stdout_to_stderr", "energies", "log_rows",
-           "log_ssp_run", "n_steps", "simulate_libcosim", "step_size"]
+           "log_ssp_run", "n_steps", "simulate_libcosim", "step_size", "steps_per_row"]

@@ -21,8 +21,14 @@ Connections: every robot output the controller has an input of the same name for
 measured pose, speeds and wheel speeds), and the controller's ``tau_r``, ``tau_l`` to the
 robot's.  The parameter sets are bound to their component (``ParameterBinding source=``),
 named with the FMU's own variable names, because libcosim ignores a binding's ``prefix``.
-The default experiment runs ``[0, max_time_s]``; an OSP annotation gives libcosim the fixed
-step ``control_period_s``, the only step the controller FMU accepts.
+The default experiment runs ``[0, max_time_s]``; an OSP annotation gives libcosim its fixed
+step, and OpenModelica's gives OMSimulator the same: ``control_period_s`` divided by
+:data:`DEFAULT_STEPS_PER_PERIOD` unless the export asks for another divisor.  Why a divisor:
+the masters are Jacobi, so at step ``h`` the robot holds over each master step the torque
+computed on the measurement of one master step before; at ``h = control_period_s`` that lag
+is a whole period (14.6 mm and 0.82 deg off ``wmr run``'s path on a run that begins with a
+turn), at a divisor the controller's sample takes its measurement on time and only the first
+master step of each period holds the late torque (docs/ssp.md, "Measured agreement").
 """
 
 from __future__ import annotations
@@ -62,6 +68,14 @@ NS: Final = {
     # the URI OMSimulator's own SSP export declares for its annotations
     "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
 }
+#: Master steps per control period in a package: the fixed step the SSD's annotations give the
+#: masters is ``control_period_s / DEFAULT_STEPS_PER_PERIOD``.  The smallest divisor whose
+#: default run of every case measured (``benchmarks/ssp_agreement.py --steps``) is within
+#: the agreement docs/ssp.md claims in libcosim and Ecos (the lagging masters).
+DEFAULT_STEPS_PER_PERIOD: Final = 4
+#: The most master steps per control period ``wmr ssp export`` writes.
+MAX_STEPS_PER_PERIOD: Final = 100
+
 #: OMSimulator's fixed-step master of a weakly coupled system (its solver ``oms_solver_wc_ma``).
 OMS_FIXED_STEP_MASTER: Final = "oms-ma"
 #: The relative tolerance given to OMSimulator for a robot FMU that declares none: its own
@@ -224,9 +238,12 @@ def closed_loop_links(ctrl_md: Any, robot_map: ResolvedMap) -> list[Link]:
 
 
 def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tuple[str, Any],
-                         ssv: Mapping[str, str], links: list[Link]) -> bytes:
+                         ssv: Mapping[str, str], links: list[Link],
+                         steps_per_period: int = DEFAULT_STEPS_PER_PERIOD) -> bytes:
     """The SSD of the closed loop: ``robot`` and ``controller`` are ``(source, model
-    description)``; ``ssv`` names each component's parameter set file."""
+    description)``; ``ssv`` names each component's parameter set file; the masters' fixed
+    step is ``spec.period_s / steps_per_period``."""
+    step_s = master_step_s(spec.period_s, steps_per_period)
     robot_md, ctrl_md = robot[1], controller[1]
     root = ET.Element(_q("ssd:SystemStructureDescription"), version="1.0", name=spec.name)
     system = ET.SubElement(root, _q("ssd:System"), name="closed_loop",
@@ -244,7 +261,7 @@ def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tupl
     # OMSimulator takes the system's type from its vendor annotation alone: without it the
     # system is oms_system_none and oms_importFile fails ("[NewSystem] internal error"); a
     # fixed-step master makes it a weakly coupled system of co-simulation FMUs, stepped at
-    # the controller's period as the OSP annotation below steps libcosim
+    # the package's master step as the OSP annotation below steps libcosim
     oms = ET.SubElement(ET.SubElement(system, _q("ssd:Annotations")), _q("ssc:Annotation"),
                         type="org.openmodelica")
     info = ET.SubElement(ET.SubElement(oms, _q("oms:Annotations")),
@@ -254,14 +271,14 @@ def system_structure_xml(spec: RunSpec, robot: tuple[str, Any], controller: tupl
     # 0, which our robot FMU refuses; the robot FMU's own default keeps its solver as wmr run
     # (which defines no tolerance) has it
     ET.SubElement(info, _q("oms:FixedStepMaster"), description=OMS_FIXED_STEP_MASTER,
-                  stepSize=_num(spec.period_s),
+                  stepSize=_num(step_s),
                   relativeTolerance=_num(_default_tolerance(robot_md)))
     experiment = ET.SubElement(root, _q("ssd:DefaultExperiment"), startTime="0.0",
                                stopTime=_num(spec.t_max_s))
     annotations = ET.SubElement(experiment, _q("ssd:Annotations"))
     osp = ET.SubElement(annotations, _q("ssc:Annotation"), type="com.opensimulationplatform")
     algorithm = ET.SubElement(osp, _q("osp:Algorithm"))
-    ET.SubElement(algorithm, _q("osp:FixedStepAlgorithm"), baseStepSize=_num(spec.period_s))
+    ET.SubElement(algorithm, _q("osp:FixedStepAlgorithm"), baseStepSize=_num(step_s))
     ET.indent(root)
     return ET.tostring(root, encoding="utf-8", xml_declaration=True)
 
@@ -278,9 +295,26 @@ def _default_tolerance(md: Any) -> float:
     return value if math.isfinite(value) and value > 0 else OMS_DEFAULT_TOLERANCE
 
 
+def master_step_s(period_s: float, steps_per_period: int) -> float:
+    """The masters' fixed step of a package, s: ``period_s / steps_per_period``.
+
+    Raises
+    ------
+    ConfigError
+        ``steps_per_period`` is not a whole number from 1 to :data:`MAX_STEPS_PER_PERIOD`.
+    """
+    if isinstance(steps_per_period, bool) or not isinstance(steps_per_period, int) or \
+            not 1 <= steps_per_period <= MAX_STEPS_PER_PERIOD:
+        raise ConfigError("--steps-per-period", f"must be a whole number from 1 to "
+                          f"{MAX_STEPS_PER_PERIOD}, got {steps_per_period!r}",
+                          f"give e.g. --steps-per-period {DEFAULT_STEPS_PER_PERIOD}")
+    return period_s / steps_per_period
+
+
 def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.PathLike[str],
                controller_fmu: str | os.PathLike[str], *,
-               scenario_file: Path | None = None, var_map: VariableMap | None = None) -> Path:
+               scenario_file: Path | None = None, var_map: VariableMap | None = None,
+               steps_per_period: int = DEFAULT_STEPS_PER_PERIOD) -> Path:
     """Write the SSP package of run ``spec`` to ``out``; return its path.
 
     ``scenario_file`` is the provenance of a scenario's own run, unchanged; without it the
@@ -292,16 +326,22 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     transformations, and its parameter set holds the mapped parameters in its units (the
     others keep the FMU's values).
 
+    ``steps_per_period``: the masters' fixed step (the SSD's OSP and OpenModelica annotations)
+    is ``spec.period_s / steps_per_period``; the controller samples at ``spec.period_s``
+    whatever the step.
+
     The file is written beside ``out`` and renamed into place, so an interrupted export
     never leaves a half-written package.
 
     Raises
     ------
     ConfigError
-        ``out`` does not end in ``.ssp``, or the run uses a controller the FMU does not have.
+        ``out`` does not end in ``.ssp``, the run uses a controller the FMU does not have, or
+        ``steps_per_period`` is not a whole number from 1 to :data:`MAX_STEPS_PER_PERIOD`.
     FmuError
         An FMU is missing, unreadable, or does not fit the other.
     """
+    master_step_s(spec.period_s, steps_per_period)  # refused before any work
     target = Path(out)
     if target.suffix != ".ssp":
         raise ConfigError("--out", f"{target} does not end in .ssp", "give FILE.ssp")
@@ -331,7 +371,7 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     ctrl_values = _bound(ctrl_md, controller_parameters(spec), ctrl_path)
     members: dict[str, bytes] = {
         SSD_NAME: system_structure_xml(spec, (robot_src, robot_md), (ctrl_src, ctrl_md), ssv,
-                                       links),
+                                       links, steps_per_period),
         ssv[ROBOT]: parameter_set_xml(spec.name, robot_values),
         ssv[CONTROLLER]: parameter_set_xml(spec.name, ctrl_values),
     }
@@ -364,4 +404,5 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     return target
 
 
-__all__ = ["CONTROLLER", "ROBOT", "controller_parameters", "export_ssp", "robot_parameters"]
+__all__ = ["CONTROLLER", "DEFAULT_STEPS_PER_PERIOD", "MAX_STEPS_PER_PERIOD", "ROBOT",
+           "controller_parameters", "export_ssp", "master_step_s", "robot_parameters"]
