@@ -192,3 +192,21 @@ def test_a_strangers_times_at_the_int64_edge_are_not_wrapped_around() -> None:
     assert alignments == [] and runs[1] is robot
     [line] = warnings
     assert "robot is not aligned to sim" in line and "int64" in line
+
+
+def test_a_pose_only_log_varies_no_input_of_the_runs_beside_it() -> None:
+    """The multi-run table lists the inputs that differ between runs; a real robot's log has
+    no run record, so beside one simulation it makes no column (before: every input of the
+    simulation was a column, '?' for the robot)."""
+    from wmr.adapters.rerun.replay import varied_inputs
+
+    sim = _FakeRun({"run": {"params": '{"m": 25.0}', "controller": "pi"}})
+    other = _FakeRun({"run": {"params": '{"m": 30.0}', "controller": "pi"}})
+    robot = _FakeRun({})
+    assert varied_inputs([sim, robot]) == []  # type: ignore[list-item]
+    assert varied_inputs([sim, other, robot]) == ["params.m"]  # type: ignore[list-item]
+
+
+class _FakeRun:
+    def __init__(self, metadata: dict[str, dict[str, str]]) -> None:
+        self.metadata = metadata

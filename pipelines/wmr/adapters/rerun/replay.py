@@ -1147,12 +1147,15 @@ def _flat(prefix: str, value: object) -> dict[str, object]:
 
 def varied_inputs(runs: Sequence[RunData]) -> list[str]:
     """The ``run`` record's inputs (``params.m``, ``gains.K_ps``, ...) whose values differ
-    between the runs, start and goal left out (every row shows them)."""
+    between the runs that have one (a real robot's log of poses only has none: it varies
+    nothing), start and goal left out (every row shows them)."""
     keys = ("params", "gains", "limits", "controller", "controller_gains", "stop_radius_m",
             "control_period_s", "sensors", "fmu_file")
     flats = []
     for r in runs:
         meta = r.metadata.get("run", {})
+        if not meta:
+            continue
         flat: dict[str, object] = {}
         for k in keys:
             parsed = _json(meta, k) if k in meta else None
