@@ -57,8 +57,7 @@ def _say(line: str) -> None:
 def load_stepper() -> Any:
     """The C stepper library (ctypes), built on first use; None when it cannot be had.
 
-    It also holds the MCAP row encoder of :class:`wmr.adapters.mcap.RunLogWriter` and the
-    record writer of the robot's outlines (:class:`wmr.adapters.mcap.scene.PlacedClouds`).
+    It also holds the MCAP row encoder of :class:`wmr.adapters.mcap.RunLogWriter`.
 
     Only a library :func:`wmr.build.fmus.build_stepper` built or checked is loaded (a cache
     folder others can write is refused there).  A refused folder, a library that does not
@@ -103,11 +102,6 @@ def _bind_stepper(lib: Any) -> Any:
     lib.wmr_encode_rows.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 2,
                                     *[ctypes.c_int] * 2, *[ctypes.c_void_p] * 8]
     lib.wmr_encode_rows.restype = ctypes.c_longlong
-    lib.wmr_cloud_records.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 3,
-                                      ctypes.c_int, ctypes.c_void_p, ctypes.c_int,
-                                      *[ctypes.c_void_p] * 2, ctypes.c_int,
-                                      *[ctypes.c_void_p] * 3]
-    lib.wmr_cloud_records.restype = ctypes.c_longlong
     lib.wmr_encode_chunk.argtypes = [ctypes.c_void_p, ctypes.c_int, *[ctypes.c_void_p] * 5]
     lib.wmr_encode_chunk.restype = ctypes.c_longlong
     return lib

@@ -91,6 +91,15 @@ _CHUNK_INDEX_TAIL: Final = struct.Struct("<QI")
 _CHUNK_INDEX_SIZES: Final = struct.Struct("<QQ")
 _CHUNK_INDEX_FIXED: Final = 8 * 4 + 4 + 8 + 4 + 8 * 2  # the length minus the map and string
 Compression = Literal["zstd", "lz4", ""]
+#: The chunks' compression by default: lz4, the fastest that both Rerun's and Foxglove's
+#: readers take; on these records it takes half the CPU time of zstd level 1 (which was the
+#: logs' compression before, and is still written on request) for about a quarter more bytes
+#: (``benchmarks/log_cost.py``, docs/formats.md).
+DEFAULT_COMPRESSION: Final[Compression] = "lz4"
+#: lz4's level: -1 (its fast mode, acceleration 1) compresses these records in 80 % of the
+#: time of level 0 for 1 % more bytes.
+LZ4_LEVEL: Final = -1
+ZSTD_LEVEL: Final = 1
 
 try:
     _MCAP_VERSION = version("mcap")
@@ -100,18 +109,36 @@ except PackageNotFoundError:  # pragma: no cover - installed from source
 LIBRARY: Final = f"wmr-cosim/{wmr.__version__} mcap-python/{_MCAP_VERSION}"
 
 
-def _compressor(kind: Compression) -> Any:
+def _compressor(kind: Compression, level: int | None = None) -> Any:
+    """The chunk compressor of ``kind`` at ``level`` (default :data:`LZ4_LEVEL` or
+    :data:`ZSTD_LEVEL`); None for ``""``."""
     if kind == "zstd":
-        import zstandard
-
-        return zstandard.ZstdCompressor(level=1).compress
+        return _zstd(ZSTD_LEVEL if level is None else level)
     if kind == "lz4":
         import lz4.frame
 
-        return lz4.frame.compress
+        return functools.partial(lz4.frame.compress,
+                                 compression_level=LZ4_LEVEL if level is None else level)
     if kind == "":
         return None
     raise LogError(f"unknown MCAP chunk compression {kind!r} (use 'zstd', 'lz4' or '')")
+
+
+@functools.lru_cache(maxsize=8)
+def _zstd(level: int) -> Any:
+    """zstd's one-shot compression at ``level``, a compressor per thread (one is not to be
+    used by two threads at once, and a Dask worker may write logs in several)."""
+    import zstandard
+
+    local = threading.local()
+
+    def compress(data: bytes | memoryview) -> bytes:
+        c = getattr(local, "c", None)
+        if c is None:
+            c = local.c = zstandard.ZstdCompressor(level=level)
+        return bytes(c.compress(data))
+
+    return compress
 
 
 class Sink(Protocol):
@@ -138,19 +165,22 @@ class McapFile:
     stream
         Binary stream opened for writing, positioned at 0; closed by :meth:`finish`.
     compression
-        Chunk compression: ``"zstd"`` (default, level 1), ``"lz4"`` or ``""``.  On the Fig. 11
-        log zstd-1 takes 393 bytes per control step against lz4's 468 (16 % smaller) for
-        1.6 us of compression per step against 0.8 us; level 3 saves 1.5 % more for 10 us.
+        Chunk compression: ``"lz4"`` (default, :data:`DEFAULT_COMPRESSION`), ``"zstd"`` or
+        ``""``.
     library
         Header ``library`` field.
+    level
+        The compressor's level (default :data:`LZ4_LEVEL`, :data:`ZSTD_LEVEL`).
     """
 
     def __init__(
-        self, stream: Sink, compression: Compression = "zstd", library: str = LIBRARY
+        self, stream: Sink, compression: Compression = DEFAULT_COMPRESSION,
+        library: str = LIBRARY,
+        level: int | None = None,
     ) -> None:
         self._stream = stream
         self._compression = compression
-        self._compress = _compressor(compression)
+        self._compress = _compressor(compression, level)
         self._compression_bytes = compression.encode()
         self._rb = RecordBuilder()
         self._pos = 0
@@ -620,8 +650,8 @@ class RunLogWriter:
         Name -> ``(media_type, data)``, e.g. ``{"scenario.toml": ("application/toml", b"...")}``
         and ``{"modelDescription.xml": ("application/xml", b"...")}``.
     compression
-        Chunk compression, ``"zstd"`` (default: 16 % smaller than ``"lz4"``), ``"lz4"``
-        (fastest) or ``""``.
+        Chunk compression, ``"lz4"`` (default: half the CPU time of zstd), ``"zstd"`` (level
+        1: a fifth fewer bytes; the logs' compression before) or ``""``.
     chunk_period_ns
         Simulation time per chunk, ns (default 1 s).
     topics
@@ -649,7 +679,7 @@ class RunLogWriter:
         run: Mapping[str, object],
         goal: tuple[float, float, float],
         attachments: Mapping[str, tuple[str, bytes]] | None = None,
-        compression: Compression = "zstd",
+        compression: Compression = DEFAULT_COMPRESSION,
         chunk_period_ns: int = 1_000_000_000,
         topics: tuple[TopicLayout, ...] = STEP_TOPICS,
         durable: bool = True,
@@ -744,16 +774,16 @@ class RunLogWriter:
         """
         if self._closed:
             raise LogError(f"{self.path}: write_block after close")
-        t = np.array(t_ns, dtype=None, copy=True)
-        x = np.array(block, dtype=np.float64, copy=True)
+        t = np.asarray(t_ns)
         if t.ndim != 1 or t.dtype.kind not in "iu":
             raise LogError(f"t_ns must be a 1-D integer array of ns, got {t.dtype} {t.shape}")
         n = t.shape[0]
+        x = np.array(block, dtype=np.float64, copy=True)
         if x.shape != (n, len(SIGNALS)):
             raise LogError(f"block must have shape ({n}, {len(SIGNALS)}), got {x.shape}")
         if n == 0:
             return
-        t = t.astype(np.int64)
+        t = t.astype(np.int64, copy=True)  # one copy, whatever the caller's integer type
         if t[0] < self._last_t or t[0] < 0 or (n > 1 and bool(np.any(t[1:] < t[:-1]))):
             raise LogError(
                 f"t_ns must be non-negative and non-decreasing (got {t[0]} after {self._last_t})"
@@ -790,11 +820,6 @@ class RunLogWriter:
             raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
         schema_id = self._file.add_schema(schema_name, schema_data)
         cid = self._file.add_channel(topic, schema_id)
-        records_of = getattr(messages, "records", None)  # scene.PlacedClouds: all at once
-        built = records_of(cid) if records_of is not None else None
-        if built is not None:
-            self._file.add_chunk(built[0], {cid: (t, built[1])}, uncompressed_crc=built[2])
-            return
         head = struct.Struct("<BQHIQQ")
         parts: list[bytes] = []
         offsets = np.zeros(len(messages), np.int64)
@@ -806,20 +831,34 @@ class RunLogWriter:
         self._file.add_chunk(b"".join(parts), {cid: (t, offsets)})
 
     def _flush_chunks(self, final: bool) -> None:
-        if not self._pending:
-            return
-        pending = self._pending
-        t = np.concatenate([p[0] for p in pending]) if len(pending) > 1 else pending[0][0]
-        x = np.concatenate([p[1] for p in pending]) if len(pending) > 1 else pending[0][1]
-        while len(t):
-            cut = int(np.searchsorted(t, self._boundary, side="left"))
-            if cut == len(t) and not final:
+        """Write the pending rows before the chunk boundary as chunks (and, ``final``, the
+        last rows too).  The pending blocks are cut where the boundary falls, as views: a
+        chunk that is whole blocks (the loop's 100-row blocks fill a 1 s chunk exactly) is
+        written from them without a copy."""
+        while self._pending:
+            boundary = self._boundary
+            head: list[tuple[NDArray[np.int64], NDArray[np.float64]]] = []
+            rest = list(self._pending)
+            while rest:
+                t, x = rest[0]
+                cut = (len(t) if int(t[-1]) < boundary
+                       else int(np.searchsorted(t, boundary, side="left")))
+                if cut == len(t):
+                    head.append(rest.pop(0))
+                    continue
+                if cut:
+                    head.append((t[:cut], x[:cut]))
+                    rest[0] = (t[cut:], x[cut:])
                 break
-            if cut:
-                self._write_chunk(t[:cut], x[:cut], [(t[cut:], x[cut:])] if cut < len(t) else [])
-                t, x = t[cut:], x[cut:]
-            if len(t):
-                self._boundary = (int(t[0]) // self._period + 1) * self._period
+            if not rest and not final:
+                return  # the rows before the boundary may not all be here yet
+            if head:
+                self._write_chunk(head[0][0] if len(head) == 1
+                                  else np.concatenate([h[0] for h in head]),
+                                  head[0][1] if len(head) == 1
+                                  else np.concatenate([h[1] for h in head]), rest)
+            if rest:
+                self._boundary = (int(rest[0][0][0]) // self._period + 1) * self._period
 
     def _write_chunk(self, t: NDArray[np.int64], x: NDArray[np.float64],
                      rest: list[tuple[NDArray[np.int64], NDArray[np.float64]]]) -> None:
