@@ -42,7 +42,7 @@ from wmr.build.platforms import CFLAGS
 from wmr.cli import main
 from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
-from wmr.core.control import ALIGN, PIController, Gains, Limits
+from wmr.core.control import ALIGN, Gains, Limits, PIController
 from wmr.core.control.from_spec import SpecController
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.runspec import RunSpec

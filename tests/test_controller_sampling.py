@@ -24,7 +24,7 @@ from fmpy import extract, instantiate_fmu, read_model_description
 
 from wmr.build.controller_interface import INPUTS, SIGNAL_OUTPUTS, controller_model
 from wmr.build.fmus import BuildResult
-from wmr.core.control import PIController, Gains, Limits
+from wmr.core.control import Gains, Limits, PIController
 from wmr.core.plant import Pose, RobotParams
 
 H = 0.01  # the default control period

@@ -25,7 +25,7 @@ from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
-from wmr.adapters.fmi.robot import load_stepper
+from wmr.adapters.stepper import load_stepper
 from wmr.adapters.mcap import RunLogWriter, read_run
 from wmr.adapters.mcap.schemas import (
     OPEN_LOOP_TOPICS,

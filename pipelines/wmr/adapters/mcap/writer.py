@@ -70,6 +70,7 @@ from wmr.adapters.mcap.schemas import (
     file_descriptor_set,
     message_class,
 )
+from wmr.adapters.stepper import Layout, load_stepper
 from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.durable import AtomicFile
 from wmr.infra.errors import LogError
@@ -479,14 +480,6 @@ def _address(a: NDArray[Any]) -> int:
         return int(a.ctypes.data)
 
 
-class _Layout(ctypes.Structure):
-    """The stepper's ``wmr_layout``: the per-step topics' channels, bodies and slots."""
-
-    _fields_ = [("n_sig", ctypes.c_int), ("n_extra", ctypes.c_int), ("n_topics", ctypes.c_int),
-                *((name, ctypes.c_void_p) for name in (
-                    "channel", "body_len", "bodies", "n_slots", "slot_off", "slot_src"))]
-
-
 class _CRowEncoder:
     """:class:`RowEncoder`'s bytes, written by the C stepper (``wmr_encode_rows``) one row
     after another instead of by numpy gathers of whole columns.
@@ -511,7 +504,7 @@ class _CRowEncoder:
         self._args = [a.ctypes.data for a in (self._channel, self._body_len, self._bodies,
                                               self._n_slots, self._slot_off, self._slot_src)]
         self._chunk_fun = lib.wmr_encode_chunk
-        self._layout = _Layout(len(SIGNALS), 2, self._n_topics, *self._args)
+        self._layout = Layout(len(SIGNALS), 2, self._n_topics, *self._args)
         self._layout_ref = ctypes.byref(self._layout)
         # a chunk's output buffer, kept per thread (the encoder is shared by every log of a
         # process, and a Dask worker may run logs in several threads): a new 70 kB buffer per
@@ -571,9 +564,7 @@ def _row_encoder(channel_ids: tuple[int, ...],
     """The C row encoder when the stepper is there (and doubles are little-endian, as
     protobuf writes them), else numpy's: the same bytes."""
     if sys.byteorder == "little":
-        from wmr.adapters.fmi.robot import load_stepper
-
-        lib = load_stepper()
+        lib = load_stepper(build=False)
         if lib is not None:
             return _CRowEncoder(lib, channel_ids, layouts)
     return RowEncoder(channel_ids, layouts)
