@@ -25,7 +25,6 @@ from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
-from wmr.adapters.stepper import load_stepper
 from wmr.adapters.mcap import RunLogWriter, read_run
 from wmr.adapters.mcap.schemas import (
     OPEN_LOOP_TOPICS,
@@ -38,6 +37,7 @@ from wmr.adapters.mcap.schemas import (
     message_class,
 )
 from wmr.adapters.mcap.writer import LIBRARY, _CRowEncoder
+from wmr.adapters.stepper import load_stepper
 from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.durable import partial_path
 from wmr.infra.errors import LogError
