@@ -684,3 +684,19 @@ def test_a_log_of_the_old_layout_is_read_replayed_and_recovered(tmp_path: Path) 
     np.testing.assert_array_equal(bits(rows.block()), bits(read_run(OLD_LOG).block()[
         : rows.n_steps]))
     assert [frame for _, frame in _robot_clouds(recovered)] == ["base_link"]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(max_size=20), st.dictionaries(st.text(max_size=30), st.text(max_size=60),
+                                             max_size=12))
+def test_metadata_records_are_mcap_s_own_bytes(name: str, data: dict[str, str]) -> None:
+    """The writer's packed Metadata record against ``mcap``'s record class: the same bytes
+    for any names, keys and values (non-ASCII, empty, in any order)."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Metadata
+
+    from wmr.adapters.mcap.writer import metadata_record
+
+    rb = RecordBuilder()
+    Metadata(name=name, metadata=data).write(rb)
+    assert metadata_record(name, data) == rb.end()
