@@ -17,7 +17,7 @@ with the default controller, :mod:`wmr.adapters.fmi.compiled_law`: the Python la
 logged and unlogged; the Python stabiliser (``SpecController``: what the default ran before,
 and what every peer controller and every run with sensors runs) logged and unlogged; the
 controller FMU (``--controller-fmu``) logged and unlogged; the last four with the C stepper
-(:func:`wmr.adapters.fmi.robot.load_stepper`) and without it (``WMR_STEPPER=0``, the
+(:func:`wmr.adapters.stepper.load_stepper`) and without it (``WMR_STEPPER=0``, the
 pure-Python path, which was the only one before the stepper).
 
 Run: ``python benchmarks/loop_vs_c_floor.py``.

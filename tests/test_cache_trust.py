@@ -79,9 +79,9 @@ def test_the_stale_folder_cleaner_follows_no_link_and_removes_only_our_folders(
 @pytest.fixture
 def fresh_stepper(monkeypatch: pytest.MonkeyPatch) -> None:
     """``load_stepper`` builds and loads again in this test (its library is kept per process)."""
-    from wmr.adapters.fmi import robot
+    from wmr.adapters import stepper
 
-    monkeypatch.setattr(robot, "_STEPPER", [])
+    monkeypatch.setattr(stepper, "_STEPPER", [])
     monkeypatch.delenv("WMR_STEPPER", raising=False)
 
 
@@ -118,7 +118,7 @@ def test_a_stepper_planted_in_a_cache_others_can_write_is_never_loaded(
     owns) was dlopened by the next run (its constructor ran, the missing symbol's
     AttributeError was swallowed, the run went on): now refused in one line, never loaded,
     and the run takes the pure-Python path (the same bits)."""
-    from wmr.adapters.fmi import robot
+    from wmr.adapters import stepper
 
     lib = _umask_000_cache(tmp_path, monkeypatch)
     marker = tmp_path / "marker.txt"
@@ -132,7 +132,7 @@ def test_a_stepper_planted_in_a_cache_others_can_write_is_never_loaded(
     else:
         os.chown(tmp_path / "cache", OTHER_UID, OTHER_UID)
         bad = tmp_path / "cache"
-    assert robot.load_stepper() is None
+    assert stepper.load_stepper() is None
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{bad}: is " in err[0] and "WMR_CACHE_DIR" in err[0], err
     assert err[0].startswith("wmr: warning: the C stepper is not used"), err
@@ -146,7 +146,7 @@ def test_a_planted_stepper_in_our_own_folder_is_built_again_not_loaded(
         capsys: pytest.CaptureFixture[str]) -> None:
     """In a folder only we can write, a library others could have written (another owner,
     mode 0666, a link) is compiled again over, said in one line, and the new one is loaded."""
-    from wmr.adapters.fmi import robot
+    from wmr.adapters import stepper
 
     lib = _umask_000_cache(tmp_path, monkeypatch)
     marker = tmp_path / "marker.txt"
@@ -160,7 +160,7 @@ def test_a_planted_stepper_in_our_own_folder_is_built_again_not_loaded(
             os.chown(lib, OTHER_UID, OTHER_UID)
         else:
             lib.chmod(0o666)
-    loaded = robot.load_stepper()
+    loaded = stepper.load_stepper()
     assert loaded is not None and loaded.wmr_exchange is not None
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{lib}: is " in err[0] and "compiling the C stepper again" \
@@ -176,12 +176,12 @@ def test_a_stepper_without_its_functions_is_said_not_silently_skipped(
     """A (trusted) library that lacks a function was dropped silently (the AttributeError
     swallowed): now one warning line naming it."""
     import wmr.build.fmus
-    from wmr.adapters.fmi import robot
+    from wmr.adapters import stepper
 
     empty = tmp_path / "empty.so"
     _planted_library(empty, tmp_path / "marker.txt")
     monkeypatch.setattr(wmr.build.fmus, "build_stepper", lambda *a, **k: empty)
-    assert robot.load_stepper() is None
+    assert stepper.load_stepper() is None
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(empty) in err[0] and "wmr_exchange" in err[0], err
 

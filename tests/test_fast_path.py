@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 
 import wmr.core.control.registry as registry
-from wmr.adapters.fmi import robot
+from wmr.adapters import stepper
 from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.controller import FmuController
 from wmr.adapters.fmi.robot import FmuPlant
@@ -33,9 +33,9 @@ from wmr.core.runspec import RunSpec
 @pytest.fixture(autouse=True)
 def fresh_stepper(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """Each test loads the stepper anew (the library is cached per process)."""
-    robot._STEPPER.clear()
+    stepper._STEPPER.clear()
     yield
-    robot._STEPPER.clear()
+    stepper._STEPPER.clear()
 
 
 def _fig11(**overrides: Any) -> RunSpec:
@@ -168,7 +168,7 @@ def test_without_a_compiler_the_python_path_runs(monkeypatch: pytest.MonkeyPatch
     import wmr.build.fmus
 
     monkeypatch.setattr(wmr.build.fmus, "build_stepper", lambda *a, **k: None)
-    assert robot.load_stepper() is None
+    assert stepper.load_stepper() is None
     with FmuPlant(built.fmus[3]) as plant:
         result = run_closed_loop(_fig11(t_max_s=1.0), plant, controller=SpecController())
         assert plant.stepper() is None
@@ -177,20 +177,25 @@ def test_without_a_compiler_the_python_path_runs(monkeypatch: pytest.MonkeyPatch
 
 def test_the_stepper_is_rebuilt_when_its_source_changes(tmp_path: Path,
                                                         monkeypatch: pytest.MonkeyPatch) -> None:
-    first = build_stepper(tmp_path)
-    assert first is not None and first.exists()
-    assert build_stepper(tmp_path) == first  # reused
-    src = tmp_path / "wmr_stepper.c"
-    src.write_text(wmr_source() + "\n/* changed */\n")
-    monkeypatch.setattr("wmr.build.fmus.stepper_source", lambda: src)
-    second = build_stepper(tmp_path)
-    assert second is not None and second != first
+    """A change in any file of the stepper (here a part that wmr_stepper.c includes, not the
+    file the compiler is given) is a new library."""
+    import shutil
 
-
-def wmr_source() -> str:
     from wmr.build.fmus import stepper_source
 
-    return stepper_source().read_text()
+    out = tmp_path / "out"
+    out.mkdir()
+    first = build_stepper(out)
+    assert first is not None and first.exists()
+    assert build_stepper(out) == first  # reused
+    src = tmp_path / "stepper"
+    shutil.copytree(stepper_source().parent, src)
+    monkeypatch.setattr("wmr.build.fmus.stepper_source", lambda: src / "wmr_stepper.c")
+    assert build_stepper(out) == first  # the same sources elsewhere: the same library
+    part = src / "encode.c"
+    part.write_text(part.read_text() + "\n/* changed */\n")
+    second = build_stepper(out)
+    assert second is not None and second != first
 
 
 def test_fmu_plant_step_through_the_stepper_matches_the_three_calls(
@@ -258,7 +263,7 @@ def test_compiled_law_agrees_with_the_python_law_on_many_states() -> None:
     friction): every output and next state of the compiled law is the Python law's."""
     from wmr.adapters.fmi.compiled_law import compiled_law_agrees
 
-    lib = robot.load_stepper()
+    lib = stepper.load_stepper()
     assert lib is not None
     assert compiled_law_agrees(lib, n_states=20_000, seed=7)
 
@@ -271,7 +276,7 @@ def test_a_compiled_law_that_disagrees_in_one_bit_is_not_used(
 
     from wmr.adapters.fmi import compiled_law
 
-    real = robot.load_stepper()
+    real = stepper.load_stepper()
     assert real is not None
 
     class OneUlpOff:
@@ -293,7 +298,7 @@ def test_a_compiled_law_that_disagrees_in_one_bit_is_not_used(
 
     fake = OneUlpOff()
     assert not compiled_law.compiled_law_agrees(fake)
-    monkeypatch.setattr(compiled_law, "load_stepper", lambda: OneUlpOff())
+    monkeypatch.setattr(compiled_law, "load_stepper", lambda build=True: OneUlpOff())
     ctrl = CompiledLawController()
     ctrl.configure(_fig11())
     assert ctrl.stepper_kind == "servo"
@@ -304,7 +309,7 @@ def test_a_compiled_law_that_disagrees_in_one_bit_is_not_used(
 def test_the_compiled_law_is_only_the_paper_s_law_without_sensors(change: dict[str, Any]
                                                                    ) -> None:
     spec = _fig11()
-    assert robot.load_stepper() is not None
+    assert stepper.load_stepper() is not None
     ctrl = CompiledLawController()
     ctrl.configure(spec)
     assert ctrl.stepper_kind == "blocks"

@@ -25,7 +25,6 @@ from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
 
-from wmr.adapters.fmi.robot import load_stepper
 from wmr.adapters.mcap import RunLogWriter, read_run
 from wmr.adapters.mcap.schemas import (
     OPEN_LOOP_TOPICS,
@@ -38,6 +37,7 @@ from wmr.adapters.mcap.schemas import (
     message_class,
 )
 from wmr.adapters.mcap.writer import LIBRARY, _CRowEncoder
+from wmr.adapters.stepper import load_stepper
 from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.durable import partial_path
 from wmr.infra.errors import LogError
@@ -247,8 +247,8 @@ def test_generic_reader_sees_foxglove_poses(tmp_path: Path) -> None:
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
         summary = reader.get_summary()
-        # zstd by default (16 % smaller than lz4), and the plain mcap reader reads it
-        assert summary is not None and {i.compression for i in summary.chunk_indexes} == {"zstd"}
+        # lz4 by default (half zstd's CPU time), and the plain mcap reader reads it
+        assert summary is not None and {i.compression for i in summary.chunk_indexes} == {"lz4"}
         poses = list(reader.iter_decoded_messages(topics=["/robot/pose"]))
         tfs = list(reader.iter_decoded_messages(topics=["/tf"]))
         goals = list(reader.iter_decoded_messages(topics=["/goal"]))
@@ -627,3 +627,76 @@ def test_c_chunk_encoder_keeps_a_buffer_per_thread_and_takes_read_only_blocks() 
     ro = a.copy()
     ro.flags.writeable = False
     assert bytes(c_enc.encode_chunk(t, ro)[0]) == numpy_enc.encode(t, a)[0]
+
+
+#: A log written before the robot was drawn once per phase and before lz4 chunks (commit
+#: d55b873, ``wmr run fig11 --max-time 1``): zstd chunks, the robot's outline as a cloud in
+#: frame ``world`` placed by its pose every 50 ms.  Kept to prove that old logs stay readable.
+OLD_LOG = Path(__file__).parent / "data" / "fig11_1s_log_d55b873.mcap"
+
+
+def _robot_clouds(path: Path) -> list[tuple[int, str]]:
+    """The ``/scene/robot`` messages' log times and frames."""
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
+    with open(path, "rb") as f:
+        return [(m.log_time, PointCloud.FromString(m.data).frame_id)
+                for _, _, m in make_reader(f).iter_messages(topics=["/scene/robot"])]
+
+
+@pytest.mark.slow
+def test_a_log_of_the_old_layout_is_read_replayed_and_recovered(tmp_path: Path) -> None:
+    """The old log reads back as the rows a run of the same case logs now (the loop is
+    unchanged: the same values to the last bits on the machine that wrote it, 1e-12 elsewhere),
+    through ``wmr.read_log``, ``wmr replay`` and ``wmr log recover`` (whole, and cut in the
+    middle as a killed run leaves it: the recovered log draws the robot the new way)."""
+    import wmr
+    from wmr.cli import main
+
+    old = wmr.read_log(OLD_LOG)
+    with open(OLD_LOG, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    assert {i.compression for i in summary.chunk_indexes} == {"zstd"}
+    assert [frame for _, frame in _robot_clouds(OLD_LOG)] == ["world"] * 21  # 50 ms, 1 s
+    new_path = tmp_path / "new.mcap"
+    assert main(["run", "fig11", "--max-time", "1", "--out", str(new_path)]) == 3  # timeout
+    new = wmr.read_log(new_path)
+    assert [frame for _, frame in _robot_clouds(new_path)] == ["base_link"]
+    assert list(old.signals.columns) == list(new.signals.columns)
+    assert old.signals.shape == new.signals.shape == (101, len(SIGNALS))
+    np.testing.assert_array_equal(old.signals.index, new.signals.index)  # the log times
+    np.testing.assert_allclose(old.signals.to_numpy(), new.signals.to_numpy(), rtol=1e-12,
+                               atol=1e-12)
+    assert old.result["status"] == "timeout" and old.result["steps"] == 101
+    rrd = tmp_path / "old.rrd"
+    assert main(["replay", str(OLD_LOG), "--rrd", str(rrd)]) == 0 and rrd.stat().st_size > 0
+    whole = tmp_path / "whole.mcap"
+    assert main(["log", "recover", str(OLD_LOG), "--out", str(whole)]) == 0
+    assert np.array_equal(bits(read_run(whole).block()), bits(read_run(OLD_LOG).block()))
+    data = OLD_LOG.read_bytes()
+    cut = partial_path(tmp_path / "killed.mcap")
+    cut.write_bytes(data[: len(data) * 3 // 4])  # no summary, no result: a killed run's file
+    assert main(["log", "recover", str(cut)]) == 0
+    recovered = tmp_path / "killed.recovered.mcap"
+    rows = read_run(recovered)
+    assert 0 < rows.n_steps <= 101
+    np.testing.assert_array_equal(bits(rows.block()), bits(read_run(OLD_LOG).block()[
+        : rows.n_steps]))
+    assert [frame for _, frame in _robot_clouds(recovered)] == ["base_link"]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(max_size=20), st.dictionaries(st.text(max_size=30), st.text(max_size=60),
+                                             max_size=12))
+def test_metadata_records_are_mcap_s_own_bytes(name: str, data: dict[str, str]) -> None:
+    """The writer's packed Metadata record against ``mcap``'s record class: the same bytes
+    for any names, keys and values (non-ASCII, empty, in any order)."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Metadata
+
+    from wmr.adapters.mcap.writer import metadata_record
+
+    rb = RecordBuilder()
+    Metadata(name=name, metadata=data).write(rb)
+    assert metadata_record(name, data) == rb.end()

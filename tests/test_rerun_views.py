@@ -19,7 +19,7 @@ import rerun.chunk as rrc
 import rerun_cli
 
 from wmr.adapters.mcap import read_run
-from wmr.adapters.mcap.scene import PHASE_COLORS, ROBOT_PERIOD_NS
+from wmr.adapters.mcap.scene import PHASE_COLORS, control_phases
 from wmr.adapters.mcap.sensing import read_sensing
 from wmr.adapters.rerun.blueprint import APPLICATION_ID, LOG_TIMELINE
 from wmr.adapters.rerun.replay import (
@@ -76,6 +76,17 @@ def views(ents: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def column_values(path: Path, entity: str, column: str) -> set[str]:
+    """Every value of ``column`` (a list of strings per row) on ``entity`` in an .rrd."""
+    out: set[str] = set()
+    for chunk in rrc.RrdReader(path).stream():
+        if chunk.entity_path == entity:
+            batch = chunk.to_record_batch()
+            if column in batch.schema.names:
+                out |= {v for row in batch.column(column).to_pylist() if row for v in row}
+    return out
+
+
 def timeline_types(path: Path) -> dict[str, str]:
     types: dict[str, str] = {}
     for chunk in rrc.RrdReader(path).stream():
@@ -99,9 +110,10 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 def test_raw_log_draws_itself_on_a_duration_timeline(logs: dict[str, Path],
                                                      tmp_path: Path) -> None:
-    """``rerun mcap convert``: the robot (points placed by a pose per 50 ms), its path and the
-    goal are Points3D; the fixes (all at t = 0, and each at its time) and the estimate too for
-    a run with sensors; the phase is a
+    """``rerun mcap convert``: the robot (points in frame ``base_link``, once per control phase,
+    placed by the ``/tf`` transforms from ``world`` to ``base_link``), its path and the goal
+    are Points3D; the fixes (all at t = 0, and each at its time) and the
+    estimate too for a run with sensors; the phase is a
     plottable message; the log time is a duration."""
     run = read_run(logs["fig11"])
     rrd = tmp_path / "raw.rrd"
@@ -111,8 +123,17 @@ def test_raw_log_draws_itself_on_a_duration_timeline(logs: dict[str, Path],
     ents = rrd_print(rrd)
     points = {"Points3D:positions", "Points3D:colors"}
     rows, comps = ents["/scene/robot"]
-    assert points | {"InstancePoses3D:translations", "InstancePoses3D:quaternions"} <= comps
-    assert rows == len({int(t) // ROBOT_PERIOD_NS for t in run.t_ns})
+    assert points | {"InstancePoses3D:translations", "CoordinateFrame:frame"} <= comps
+    phase = control_phases(run.signals["dr_m"], float(run.metadata["run"]["stop_radius_m"]))
+    assert rows == 1 + int((phase[1:] != phase[:-1]).sum()) == 2  # approach, then align
+    tf_rows, tf_comps = ents["/tf"]
+    assert {"Transform3D:translation", "Transform3D:quaternion", "Transform3D:parent_frame",
+            "Transform3D:child_frame"} <= tf_comps and tf_rows == len(run.t_ns)
+    # the robot's frame is the one the transforms move: Rerun draws it where /tf puts it
+    assert column_values(rrd, "/scene/robot", "CoordinateFrame:frame") == {"base_link"}
+    assert column_values(rrd, "/tf", "Transform3D:child_frame") == {"base_link"}
+    assert column_values(rrd, "/tf", "Transform3D:parent_frame") == {"world"}
+    assert column_values(rrd, "/scene/path", "CoordinateFrame:frame") == {"world"}
     for topic in ("/scene/path", "/scene/goal"):
         assert points <= ents[topic][1] and ents[topic][0] == 1, topic
     assert "wmr.ControlPhase:message" in ents["/controller/phase"][1]

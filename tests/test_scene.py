@@ -1,11 +1,11 @@
 """The drawable topics of a run log (wmr.adapters.mcap.scene): the phase is the stabiliser's,
-the point clouds decode as Foxglove's schema says, and a failing scene never costs the log."""
+the point clouds decode as Foxglove's schema says, the robot is drawn once per phase in its own
+frame (the log's ``/tf`` moves it), and a failing scene never costs the log."""
 
 from __future__ import annotations
 
 import math
 import warnings
-import zlib
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,6 @@ from wmr.adapters.mcap.scene import (
     PATH_TOPIC,
     PHASE_COLORS,
     PHASE_TOPIC,
-    ROBOT_PERIOD_NS,
     ROBOT_TOPIC,
     ControlPhase,
     control_phases,
@@ -112,27 +111,37 @@ def _messages(path: Path, topic: str) -> list[tuple[int, bytes]]:
 
 def test_scene_clouds_decode_through_their_own_fields(tmp_path: Path) -> None:
     """Read the way Foxglove's reader does (fields, offsets, stride from the message): the
-    robot is its outline placed at the logged pose every 50 ms, coloured by phase; the path
-    passes through the logged positions; the goal arrow starts at the goal."""
+    robot is its outline in frame ``base_link``, the child frame of ``/tf``, at the identity
+    pose, once at the first row and again where the phase changes, in the new phase's colour;
+    ``/tf`` places ``base_link`` at the logged pose of every row; the path passes through
+    the logged positions; the goal arrow starts at the goal."""
+    from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
     path = tmp_path / "run.mcap"
     t, block = _log(path)
     robot = _messages(path, ROBOT_TOPIC)
-    first = np.flatnonzero(np.diff(t // ROBOT_PERIOD_NS, prepend=-1) != 0)
-    assert [lt for lt, _ in robot] == t[first].tolist()
-    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-
-    body = robot_outline(0.3, 0.15)
     phase = control_phases(block[:, COLUMN["dr_m"]], EPS_M)
     assert phase[0] == 0 and phase[-1] == 1
-    for (_, data), row in zip(robot, first, strict=True):
+    changes = [0, *[i for i in range(1, len(phase)) if phase[i] != phase[i - 1]]]
+    assert len(changes) == 2
+    assert [lt for lt, _ in robot] == t[changes].tolist()
+    body = robot_outline(0.3, 0.15)
+    for (_, data), row in zip(robot, changes, strict=True):
         pos, rgba = read_cloud(data)
         np.testing.assert_allclose(pos[:, :2], body, atol=1e-6)  # the body, in its own frame
         msg = PointCloud.FromString(data)
-        assert msg.frame_id == "world"
-        assert msg.pose.position.x == pytest.approx(block[row, COLUMN["x_m"]])
-        theta = 2 * math.atan2(msg.pose.orientation.z, msg.pose.orientation.w)
-        assert theta == pytest.approx(block[row, COLUMN["theta_rad"]])
-        assert tuple(rgba[0, :3]) == PHASE_COLORS[phase[row]]
+        assert msg.frame_id == "base_link"
+        assert (msg.pose.position.x, msg.pose.position.y, msg.pose.orientation.z,
+                msg.pose.orientation.w) == (0.0, 0.0, 0.0, 1.0)
+        assert {tuple(c) for c in rgba[:, :3].tolist()} == {PHASE_COLORS[phase[row]]}
+    tfs = [FrameTransform.FromString(d) for _, d in _messages(path, "/tf")]
+    assert len(tfs) == len(t)
+    for tf, row in zip(tfs, block, strict=True):
+        assert (tf.parent_frame_id, tf.child_frame_id) == ("world", "base_link")
+        assert tf.translation.x == row[COLUMN["x_m"]]
+        assert 2 * math.atan2(tf.rotation.z, tf.rotation.w) == pytest.approx(
+            row[COLUMN["theta_rad"]])
     [(t0, data)] = _messages(path, PATH_TOPIC)
     pos, _ = read_cloud(data)
     assert t0 == 0 and len(pos) > 10
@@ -160,111 +169,31 @@ def test_a_failing_scene_keeps_the_log(tmp_path: Path, monkeypatch: pytest.Monke
     np.testing.assert_array_equal(back.block(), block)
 
 
-def _cloud_cases() -> list[tuple[float, float, float, int]]:
-    """Poses ``(x, y, theta)`` and times: random ones, and every zero, -0.0 and sign case of x,
-    y and the heading."""
-    import random
-
-    rng = random.Random(11)
-    specials = [0.0, -0.0, 1e-300, -7.5, 12.0]
-    cases = [(x, y, th, t) for x in specials for y in specials
-             for th in (0.0, -0.0, math.pi, -math.pi, 2 * math.pi, 1.0)
-             for t in (0, 1, 999_999_999, 1_000_000_000, 12_345_678_901)]
-    cases += [(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(-10, 10),
-               rng.randrange(0, 10**12)) for _ in range(3000)]
-    return cases
-
-
-def _whole_cloud(pts: Any, x: float, y: float, th: float, t: int) -> bytes:
-    """A placed cloud serialised whole by protobuf."""
-    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-
-    from wmr.adapters.mcap.scene import _FIELDS
-
-    whole = PointCloud(frame_id="world", point_stride=16, fields=_FIELDS, data=pts.tobytes())
-    whole.timestamp.FromNanoseconds(t)
-    whole.pose.position.x, whole.pose.position.y = x, y
-    whole.pose.orientation.z = math.sin(0.5 * th)
-    whole.pose.orientation.w = math.cos(0.5 * th)
-    return bytes(whole.SerializeToString(deterministic=True))
-
-
-def test_cloud_messages_are_protobuf_s_own_bytes() -> None:
-    """The concatenated parts (cached timestamps, directly packed poses) against one
-    PointCloud serialised whole by protobuf."""
-    from wmr.adapters.mcap.scene import cloud_message, cloud_points
-
-    pts = cloud_points([[0.0, 0.0], [1.0, -2.5], [3.25, 0.5]], (10, 20, 30))
-    for x, y, th, t in _cloud_cases():
-        assert cloud_message(t, pts, (x, y, th)) == _whole_cloud(pts, x, y, th, t), (x, y, th, t)
-
-
-def test_placed_clouds_records_are_mcap_s_of_protobuf_s_bytes() -> None:
-    """The C stepper's records of the robot's outlines (``PlacedClouds.records``, one call for
-    all) against the ``mcap`` library's Message records of each cloud serialised whole by
-    protobuf, in two variants (the phases' colours), in order, sequence numbers 0, 1, ...;
-    the sequence's own items are the same messages; their CRC is zlib's."""
-    from mcap.data_stream import RecordBuilder
-    from mcap.records import Message
-
-    from wmr.adapters.mcap.scene import PlacedClouds, cloud_points, cloud_tail
-
-    shapes = tuple(cloud_points([[0.0, 0.0], [1.0, -2.5], [3.25, 0.5], [k, 1.0]], (10, 20, k))
-                   for k in (1, 2))
-    cases = _cloud_cases()
-    t = np.array([c[3] for c in cases], np.int64)
-    poses = np.array([c[:3] for c in cases], np.float64)
-    variants = (np.arange(len(cases)) % 3 == 0).astype(np.int8)
-    clouds = PlacedClouds(t, poses, variants, (shapes, tuple(cloud_tail(s) for s in shapes)))
-    built = clouds.records(channel=513)
-    assert built is not None, "the C stepper is not there"
-    records, offsets, crc = built
-    expected = RecordBuilder()
-    starts = []
-    for i, ((x, y, th, ti), v) in enumerate(zip(cases, variants.tolist(), strict=True)):
-        starts.append(expected.count)
-        data = _whole_cloud(shapes[v], x, y, th, ti)
-        assert clouds[i] == data, (x, y, th, ti)
-        Message(channel_id=513, sequence=i, log_time=ti, publish_time=ti, data=data
-                ).write(expected)
-    assert bytes(records) == expected.end()
-    assert offsets.tolist() == starts
-    assert crc == zlib.crc32(records)  # made from the tails' own CRCs
-
-
-def test_a_long_run_has_at_most_max_outlines_robot_clouds(tmp_path: Path) -> None:
-    """Closing the log of a long run stays quick: at most MAX_OUTLINES outlines, evenly spaced
-    at a whole multiple of the period; a run of 200 s or less keeps one per period."""
-    from wmr.adapters.mcap.scene import MAX_OUTLINES, ROBOT_PERIOD_NS, robot_period_ns
-
-    assert robot_period_ns(0) == ROBOT_PERIOD_NS
-    assert robot_period_ns(MAX_OUTLINES * ROBOT_PERIOD_NS - 1) == ROBOT_PERIOD_NS
-    assert robot_period_ns(MAX_OUTLINES * ROBOT_PERIOD_NS) == 2 * ROBOT_PERIOD_NS
-    for last_s in (1.0, 199.99, 200.0, 1234.5, 3000.0):
-        last = round(last_s * 1e9)
-        period = robot_period_ns(last)
-        assert period % ROBOT_PERIOD_NS == 0
-        assert last // period + 1 <= MAX_OUTLINES, last_s
-    n = 300_001  # 3000 s at 100 Hz
+def test_a_long_run_draws_its_robot_once_per_phase(tmp_path: Path) -> None:
+    """The robot's messages do not grow with the run: a 600 s run (the old layout drew 12,000
+    outlines) has one in the approach and one from the row where it turns to the alignment
+    (the log's transforms move it)."""
+    n = 60_001  # 600 s at 100 Hz
     t = np.arange(n, dtype=np.int64) * 10_000_000
-    rows = np.zeros((n, 4))
-    rows[:, 0] = np.linspace(0.0, 1.0, n)
-    rows[:, 3] = 5.0
+    rows = np.zeros((n, len(SIGNALS)))
+    rows[:, COLUMN["x_m"]] = np.linspace(0.0, 1.0, n)
+    rows[:, COLUMN["dr_m"]] = 5.0
+    rows[-1000:, COLUMN["dr_m"]] = 0.01  # aligned for the last 10 s
     rec = scene_mod.SceneRecorder({"stop_radius_m": "0.05"}, (0.0, 0.0, 0.0), controlled=True)
-    rec._t, rec._rows = [t], [rows]
+    rec.add(t, rows)
 
     class Log:
         def __init__(self) -> None:
-            self.topics: dict[str, int] = {}
+            self.topics: dict[str, list[int]] = {}
 
         def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
                            t_ns: Any, messages: list[bytes]) -> None:
-            self.topics[topic] = len(messages)
+            assert len(t_ns) == len(messages)
+            self.topics[topic] = [int(v) for v in t_ns]
 
     log = Log()
     rec._write(log)
-    # every 0.8 s (16 periods: 15 would give 4001), 0 to 3000 s
-    assert log.topics[scene_mod.ROBOT_TOPIC] == 3751 <= MAX_OUTLINES
+    assert log.topics[scene_mod.ROBOT_TOPIC] == [0, int(t[-1000])]
 
 
 @pytest.mark.parametrize("error", [DiskFullError("no space left on /x while writing y"),

@@ -530,12 +530,21 @@ STEPPER_CFLAGS = ("-O2", "-g0", "-fPIC", "-shared", "-std=c99", "-Wall", "-Wextr
 
 
 def stepper_source() -> Path:
-    """The master loop's C stepper (``fmu/src/stepper/wmr_stepper.c``), in no FMU."""
+    """The master loop's C stepper (``fmu/src/stepper/wmr_stepper.c``), in no FMU: one unity
+    file that includes its parts (:func:`stepper_sources`)."""
     return paths.fmu_src_dir() / "stepper" / "wmr_stepper.c"
 
 
+def stepper_sources() -> list[Path]:
+    """Every file of the stepper (its unity file, the parts it includes and its header
+    ``wmr_stepper.h``), in a fixed order: what the library's name is a digest of."""
+    return sorted(p for p in stepper_source().parent.iterdir()
+                  if p.suffix in {".c", ".h"} and p.is_file())
+
+
 def build_stepper(out_dir: str | os.PathLike[str] | None = None,
-                  cc: str | None = None, progress: Progress = _quiet) -> Path | None:
+                  cc: str | None = None, progress: Progress = _quiet,
+                  compile_now: bool = True) -> Path | None:
     """Compile (or reuse) the C stepper for this host beside the FMUs; None without a compiler.
 
     The stepper holds the paper's law too (the controller FMU's core
@@ -560,6 +569,9 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
         Host C compiler; the ``CC`` environment variable, else ``cc``, else ``gcc``.
     progress
         Receives the line saying why an existing library is not used.
+    compile_now
+        Compile it when it is not there (default); False: only a library built before, or
+        None (what a run asks in its middle: a build is for before the run).
 
     Raises
     ------
@@ -586,8 +598,8 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
         return None
     model = controller_model()
     generated = {"model_sizes.h": sizes_header(model), "model_indices.h": indices_header(model)}
-    h = hashlib.sha256(src.read_bytes())
-    for f in law_sources:
+    h = hashlib.sha256()
+    for f in [*stepper_sources(), *law_sources]:
         h.update(f.read_bytes())
     for text in generated.values():
         h.update(text.encode())
@@ -596,6 +608,8 @@ def build_stepper(out_dir: str | os.PathLike[str] | None = None,
     lib = out / f"wmr_stepper-{h.hexdigest()[:16]}.so"
     if lib.exists() and untrusted(lib, trust_root(out)) is None:
         return lib
+    if not compile_now:
+        return None
     with _locked(out), tempfile.TemporaryDirectory(dir=out, prefix=".stepper-") as gen:
         if lib.exists():
             reason = untrusted(lib, trust_root(out))

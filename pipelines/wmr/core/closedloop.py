@@ -25,25 +25,20 @@ The run ends ``converged`` (stop radius, heading aligned, nearly at rest), ``tim
 
 from __future__ import annotations
 
-import ctypes
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from functools import partial
-from typing import TYPE_CHECKING, Any, Protocol, cast
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from wmr.core.control import WheelServo, wrap_angle
+from wmr.core.control import wrap_angle
 from wmr.core.energy import step_work
 from wmr.core.plant import Plant, Pose
 from wmr.core.runspec import RunSpec
 from wmr.core.sensing import Sensing, SensingRecord
 from wmr.core.signals import COLUMN, LAW_INDEX, PLANT_SIGNALS, SIGNALS
-
-if TYPE_CHECKING:
-    from wmr.core.control import Stabiliser
 
 #: Rows per block handed to the sink.
 BLOCK_ROWS = 100
@@ -87,19 +82,9 @@ class Controller(Protocol):
     """What the loop calls of a controller: configure it once per run, then one ``step`` per
     control period.
 
-    ``stepper_kind`` (optional; absent means ``""``) tells the C stepper of an FMU plant what
-    it may take over, bit for bit (``docs/architecture.md``, "The C stepper"):
-
-    * ``"servo"``: a Python law feeding two :class:`~wmr.core.control.WheelServo` s; the
-      controller has ``right`` and ``left`` (the servos, of that very class) and its
-      ``stabiliser`` has ``update(x, y, theta)`` (the 18 law columns, wheel references at 12
-      and 13). The C stepper then runs the servos, the row and the plant step.
-    * ``"blocks"``: the whole closed loop runs in C (the controller FMU, or the paper's law
-      compiled into the stepper): the controller has ``block_loop(lib, plant_call, state)``
-      (the C call that fills the block of ``state`` and steps the plant of ``plant_call``
-      until the block is full or the run ends), ``set_clock(n)`` and
-      ``raise_step_error(code)``.
-    * ``""``: Python only, one ``step`` per period.
+    A plant may run the loop faster for some controllers (:class:`FastLoop`: the FMU plant's
+    C stepper, :mod:`wmr.adapters.stepper.loops`, which reads the controller's optional
+    ``stepper_kind``); the loop itself asks nothing more of a controller than this protocol.
     """
 
     @property
@@ -121,6 +106,17 @@ class Controller(Protocol):
 
 #: ``progress(t_s, t_max_s)``, called once per block.
 Progress = Callable[[float, float], None]
+
+
+class FastLoop(Protocol):
+    """A plant's own loop for one run (``plant.fast_loop(controller, sensing)`` returns it, or
+    None when it cannot take that controller): it runs the run from the outputs ``out`` of the
+    reset, fills and flushes ``block`` as :func:`run_closed_loop`'s Python loop does, keeps
+    ``tally`` up to date however it stops, and ends it with :func:`end_run`; it raises what
+    the plant or the controller raised."""
+
+    def __call__(self, spec: RunSpec, sensing: Sensing | None, out: npt.NDArray[np.float64],
+                 block: LoopBlock, tally: LoopTally, progress: Progress | None) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -159,7 +155,7 @@ class LoopOutcome:
 
 
 @dataclass
-class _Tally:
+class LoopTally:
     """What a run accumulates, whichever loop runs it (the loops keep it in locals while
     they run and write it back here when they stop, however they stop)."""
 
@@ -179,7 +175,7 @@ class _Tally:
     time_to_goal: float | None = None
 
 
-class _Block:
+class LoopBlock:
     """The preallocated block of rows and its delivery to the sink."""
 
     def __init__(self, h_s: float, sink: BlockSink | None) -> None:
@@ -198,47 +194,6 @@ class _Block:
             self.sink.write_block(self.t_ns[:rows], self.rows[:rows])
 
 
-def _stepper(plant: Plant) -> tuple[Any, Any] | None:
-    """The plant's C stepper (:meth:`wmr.adapters.fmi.robot.FmuPlant.stepper`), if it has one
-    and its outputs are the plant outputs in our order."""
-    get = getattr(plant, "stepper", None)
-    found = get() if get is not None else None
-    if found is None or found[1].n_out != _N_PLANT:
-        return None
-    return cast("tuple[Any, Any]", found)
-
-
-class LoopState(ctypes.Structure):
-    """What the C stepper (``fmu/src/stepper/wmr_stepper.c``, ``wmr_loop``) keeps of a run: the
-    wheel servos, the accumulators, the clock and the row of the block being written."""
-
-    _fields_ = [*((name, ctypes.c_double) for name in (
-        "k_p", "k_i", "torque_max", "h_servo", "b_ff", "tau_c_ff", "w_c", "k_t",
-        "integral_r", "integral_l", "energy_net", "energy_pos", "tau_sq", "peak", "h",
-        "path", "x_prev", "y_prev")),
-        ("n", ctypes.c_longlong), ("n_max", ctypes.c_longlong),
-        ("block", ctypes.c_void_p),
-        *((name, ctypes.c_int) for name in (
-            "n_cols", "row", "rows_max", "n_plant", "n_sig", "col_tau_r", "col_tau_l",
-            "i_converged"))]
-
-
-#: Status codes of the stepper besides a failed FMI call's ``16 * (call + 1) + status``.
-STEP_CONTROLLER, STEP_NONFINITE, STEP_DONE, STEP_FULL = 64, 256, 512, 1024
-
-
-def _loop_state(spec: RunSpec, block: _Block, tally: _Tally) -> LoopState:
-    st = LoopState()
-    st.h = spec.period_s
-    st.x_prev, st.y_prev = tally.x, tally.y  # the path starts at the start pose
-    st.n_max = spec.n_steps_max
-    st.block = block.rows.ctypes.data
-    st.n_cols, st.rows_max, st.n_plant = _N_SIG, BLOCK_ROWS, _N_PLANT
-    st.n_sig = _N_SIG - _N_PLANT
-    st.col_tau_r, st.col_tau_l = _C_TAU_R, _C_TAU_L
-    return st
-
-
 def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
                     progress: Progress | None = None, *,
                     controller: Controller) -> LoopOutcome:
@@ -249,34 +204,27 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
     closed (the caller owns them).  The run's own Python law is
     ``controller=SpecController()`` (:mod:`wmr.core.control.from_spec`).
 
-    Three loops give the same bits (``docs/architecture.md``): with the C stepper of an FMU
-    plant (:func:`wmr.adapters.fmi.robot.load_stepper`), a ``"servo"`` controller
-    (:class:`Controller`) drives the wheel servos, the row and the FMU step through one C call
-    per step, and a ``"blocks"`` one (the controller FMU) runs whole blocks of the closed loop
-    in C; any other plant, controller or a run with sensors steps through the plant's and the
-    controller's Python interfaces.
+    A plant with a ``fast_loop(controller, sensing)`` that returns a :class:`FastLoop` runs
+    the run in it (the FMU plant's C stepper: :mod:`wmr.adapters.stepper.loops`, the same
+    bits, ``docs/architecture.md``); any other plant, or a controller it cannot take, steps
+    through the plant's and the controller's Python interfaces here.
     """
     h = spec.period_s
     goal = spec.goal
     xd, yd = goal.x_m, goal.y_m
-    block = _Block(h, sink)
-    tally = _Tally()
+    block = LoopBlock(h, sink)
+    tally = LoopTally()
     sensing: Sensing | None = None
     try:
         controller.configure(spec)
-        kind = getattr(controller, "stepper_kind", "")
         out = plant.reset(spec.params, spec.start)
         if spec.sensors is not None:
             sensing = Sensing(spec.sensors, h, spec.params, spec.start, spec.goal)
         tally.x, tally.y, tally.theta = float(out[0]), float(out[1]), float(out[2])
-        stepper = _stepper(plant)
-        if stepper is not None and kind == "blocks" and sensing is None:
-            _fmu_loop(spec, plant, stepper, controller, block, tally, progress)
-        elif (stepper is not None and kind == "servo"
-              and type(getattr(controller, "right", None)) is WheelServo
-              and type(getattr(controller, "left", None)) is WheelServo):
-            _servo_loop(spec, plant, stepper, controller, sensing, out, block, tally,
-                        progress)
+        fast = getattr(plant, "fast_loop", None)
+        loop: FastLoop | None = fast(controller, sensing) if fast is not None else None
+        if loop is not None:
+            loop(spec, sensing, out, block, tally, progress)
         else:
             _python_loop(spec, plant, controller, sensing, out, block, tally, progress)
         rows_left, tally.row = tally.row, 0
@@ -313,8 +261,8 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
                      sensing=None if sensing is None else sensing.record())
 
 
-def _end(spec: RunSpec, tally: _Tally, converged: bool, heading_error: Callable[[float], float]
-         ) -> None:
+def end_run(spec: RunSpec, tally: LoopTally, converged: bool,
+            heading_error: Callable[[float], float]) -> None:
     """The status and message of a run that stops at step ``tally.n``."""
     n, h = tally.n, spec.period_s
     if converged:
@@ -330,8 +278,8 @@ def _end(spec: RunSpec, tally: _Tally, converged: bool, heading_error: Callable[
 
 
 def _python_loop(spec: RunSpec, plant: Plant, controller: Controller,
-                 sensing: Sensing | None, out: npt.NDArray[np.float64], block: _Block,
-                 tally: _Tally, progress: Progress | None) -> None:
+                 sensing: Sensing | None, out: npt.NDArray[np.float64], block: LoopBlock,
+                 tally: LoopTally, progress: Progress | None) -> None:
     """Any plant, any controller: one call of each interface per step."""
     h = spec.period_s
     n_max = spec.n_steps_max
@@ -396,141 +344,19 @@ def _python_loop(spec: RunSpec, plant: Plant, controller: Controller,
         tally.n, tally.row, tally.x, tally.y, tally.theta = n, row, x, y, theta
         tally.path, tally.energy, tally.energy_pos = path, energy, energy_pos
         tally.tau_sq, tally.peak = tau_sq, peak
-    _end(spec, tally, converged, stab.heading_error)
-
-
-#: Columns of the block a stabiliser fills (all but the plant outputs and the two torques).
-_LAW_COLUMNS = np.array([c for c in range(_N_PLANT, _N_SIG) if c not in (_C_TAU_R, _C_TAU_L)])
-
-
-def _servo_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
-                controller: Any, sensing: Sensing | None,
-                out: npt.NDArray[np.float64], block: _Block, tally: _Tally,
-                progress: Progress | None) -> None:
-    """A Python law, the wheel servos and the FMU step in one C call per step.
-
-    The stabiliser runs in Python as in :func:`_python_loop`; ``wmr_servo_step`` runs the two
-    :class:`~wmr.core.control.WheelServo` updates, writes the row's plant outputs and torques,
-    and takes the FMU step with the bookkeeping, operation for operation as in Python.  The
-    law's 18 columns are gathered per row and written into the block once it is full.
-    """
-    lib, call = stepper
-    h = spec.period_s
-    n_max = spec.n_steps_max
-    tol = spec.heading_tolerance_rad
-    stab: Stabiliser = controller.stabiliser
-    servo: WheelServo = controller.right
-    st = _loop_state(spec, block, tally)
-    st.k_p, st.k_i, st.torque_max, st.h_servo = servo.K_p, servo.K_i, servo.torque_max, servo.h
-    st.b_ff, st.tau_c_ff, st.w_c, st.k_t = servo.b_ff, servo.tau_c_ff, servo.w_c, servo.k_t
-    left = controller.left
-    if (left.K_p, left.K_i, left.torque_max, left.h, left.b_ff, left.tau_c_ff, left.w_c,
-            left.k_t) != (servo.K_p, servo.K_i, servo.torque_max, servo.h, servo.b_ff,
-                          servo.tau_c_ff, servo.w_c, servo.k_t):
-        raise ValueError("the C stepper needs two alike wheel servos")
-    st.integral_r, st.integral_l = servo.integral, left.integral
-    step = partial(lib.wmr_servo_step, ctypes.byref(call), ctypes.byref(st))
-    o = (ctypes.c_double * _N_PLANT).from_address(call.out_val)
-    laws: list[tuple[float, ...]] = []
-    keep = laws.append
-    converged_test, update = stab.converged, stab.update
-    isfinite = math.isfinite
-    n = n_first = 0
-    x, y, theta = tally.x, tally.y, tally.theta
-    converged = False
-
-    def fill(rows: int) -> None:
-        if rows:
-            block.rows[:rows, _LAW_COLUMNS] = laws
-            block.set_times(n_first, rows)
-            laws.clear()
-
-    try:
-        while True:
-            if not (isfinite(x) and isfinite(y) and isfinite(theta)):
-                raise FloatingPointError(f"plant returned a non-finite pose at t={n * h:g} s")
-            if sensing is None:
-                kx, ky, ktheta = x, y, theta
-                converged = converged_test(x, y, theta, o[3], o[4], tol)
-            else:
-                kx, ky, ktheta, kv, komega = sensing.step(n, out)
-                converged = converged_test(kx, ky, ktheta, kv, komega, tol)
-            law = update(kx, ky, ktheta)
-            keep(law)
-            code = step(law[_L_W_R], law[_L_W_L], 1 if converged else (2 if n >= n_max else 0))
-            if st.row == BLOCK_ROWS:
-                fill(BLOCK_ROWS)
-                st.row = 0
-                block.flush(BLOCK_ROWS)
-                n_first = n + 1
-                if progress is not None:
-                    progress(n * h, spec.t_max_s)
-            if code:
-                plant.set_clock(h, n)  # type: ignore[attr-defined]
-                plant.raise_step_error(code)  # type: ignore[attr-defined]
-            if converged or n >= n_max:
-                break
-            n += 1
-            x, y, theta = o[0], o[1], o[2]
-    finally:
-        fill(st.row)
-        plant.set_clock(h, int(st.n))  # type: ignore[attr-defined]
-        servo.integral, left.integral = st.integral_r, st.integral_l
-        tally.n, tally.row, tally.steps = n, st.row, n_first + st.row
-        tally.x, tally.y, tally.theta, tally.path = x, y, theta, st.path
-        tally.energy, tally.energy_pos = st.energy_net, st.energy_pos
-        tally.tau_sq, tally.peak = st.tau_sq, st.peak
-    _end(spec, tally, converged, stab.heading_error)
-
-
-def _fmu_loop(spec: RunSpec, plant: Plant, stepper: tuple[Any, Any],
-              controller: Any, block: _Block, tally: _Tally,
-              progress: Progress | None) -> None:
-    """The whole closed loop in C: one call per block (``wmr_fmu_loop`` with the controller
-    FMU, ``wmr_law_loop`` with the compiled law; the controller's ``block_loop``)."""
-    lib, call = stepper
-    h = spec.period_s
-    st = _loop_state(spec, block, tally)
-    run = controller.block_loop(lib, call, st)
-    o = (ctypes.c_double * _N_PLANT).from_address(call.out_val)
-    logged = 0  # rows of the run delivered or in the block
-    code = 0
-    try:
-        while True:
-            code = run()
-            rows = st.row
-            block.set_times(logged, rows)
-            logged += rows
-            if code != STEP_FULL:
-                break
-            st.row = 0
-            block.flush(BLOCK_ROWS)
-            if progress is not None:
-                progress((logged - 1) * h, spec.t_max_s)
-    finally:
-        plant.set_clock(h, int(st.n))  # type: ignore[attr-defined]
-        controller.set_clock(logged)
-        tally.n, tally.row, tally.steps = int(st.n), st.row, logged
-        tally.x, tally.y, tally.theta, tally.path = o[0], o[1], o[2], st.path
-        tally.energy, tally.energy_pos = st.energy_net, st.energy_pos
-        tally.tau_sq, tally.peak = st.tau_sq, st.peak
-    if code & STEP_DONE:
-        _end(spec, tally, code == STEP_DONE | 1, controller.stabiliser.heading_error)
-    elif code == STEP_NONFINITE:
-        raise FloatingPointError(f"plant returned a non-finite pose at t={tally.n * h:g} s")
-    elif code >= STEP_CONTROLLER:
-        controller.raise_step_error(code - STEP_CONTROLLER)
-    else:
-        plant.raise_step_error(code)  # type: ignore[attr-defined]
+    end_run(spec, tally, converged, stab.heading_error)
 
 
 __all__ = [
     "BLOCK_ROWS",
     "BlockSink",
     "Controller",
+    "FastLoop",
+    "LoopBlock",
     "LoopOutcome",
     "LoopStabiliser",
-    "LoopState",
+    "LoopTally",
     "Progress",
+    "end_run",
     "run_closed_loop",
 ]

@@ -29,20 +29,11 @@ import numpy as np
 import numpy.typing as npt
 
 from wmr.adapters.fmi.controller import controller_parameters
-from wmr.adapters.fmi.robot import FmuCall, load_stepper
+from wmr.adapters.stepper import FmuCall, LawCall, LoopState, load_stepper
 from wmr.build.controller_interface import SIGNAL_OUTPUTS, controller_model
-from wmr.core.closedloop import LoopState
 from wmr.core.control.from_spec import SpecController
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import FmuError
-
-
-class LawCall(ctypes.Structure):
-    """One run of the compiled law as the C stepper sees it (``wmr_law``)."""
-
-    _fields_ = [("p", ctypes.c_void_p), ("z", ctypes.c_void_p),
-                ("theta_d", ctypes.c_double), ("tol", ctypes.c_double)]
-
 
 #: The controller FMU's parameter names, in the order of its parameter vector.
 _PARAMETERS: Final = tuple(v.name for v in controller_model().parameters)
@@ -74,7 +65,7 @@ def _bind(lib: Any) -> tuple[int, int, int, int] | None:
 def _checked() -> tuple[Any, int] | None:
     """The stepper with the compiled law and its number of discrete states, bound and checked
     against the Python law once per library; None when there is none or it disagrees."""
-    lib = load_stepper()
+    lib = load_stepper(build=False)
     if lib is None:
         return None
     key = str(lib._name)

@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 
 from wmr.adapters.fmi.archive import file_sha256
-from wmr.adapters.fmi.robot import FmuCall, fmu_call
+from wmr.adapters.fmi.robot import fmu_call
 from wmr.adapters.fmi.slave import WARNING, FmuSlave
+from wmr.adapters.stepper import FmuCall, LoopState
 from wmr.build.controller_interface import INPUTS, SIGNAL_OUTPUTS
-from wmr.core.closedloop import LoopState
 from wmr.core.control import wrap_angle
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError, FmuError

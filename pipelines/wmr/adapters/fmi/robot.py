@@ -5,8 +5,8 @@ the Fatal rule), as the controller FMU's is: fmpy's wrappers raise
 ``fmpy.fmi1.FMICallException`` on an error status, which becomes an
 :class:`wmr.infra.errors.FmuError` naming the function.  The per-step path holds prebuilt ctypes
 arrays for the value references, the inputs and the outputs, so a step allocates nothing and
-looks nothing up; with the C stepper (:func:`load_stepper`) the three calls of a step are one C
-call.
+looks nothing up; with the C stepper (:func:`wmr.adapters.stepper.load_stepper`) the three
+calls of a step are one C call.
 
 A robot FMU made by another tool is driven through a variable map
 (:mod:`wmr.adapters.fmi.varmap`): the value references are the FMU's, and the inputs, outputs and
@@ -17,8 +17,6 @@ one whose outputs all keep their unit) the outputs are the ctypes array itself.
 from __future__ import annotations
 
 import ctypes
-import os
-import sys
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -29,88 +27,10 @@ import numpy.typing as npt
 from wmr.adapters.fmi.archive import file_sha256
 from wmr.adapters.fmi.slave import WARNING, FmuSlave
 from wmr.adapters.fmi.varmap import VariableMap, resolve
-from wmr.core.closedloop import LoopState
+from wmr.adapters.stepper import FmuCall, load_stepper
+from wmr.adapters.stepper.loops import fast_loop
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
-from wmr.infra.errors import ConfigError, FmuError, WmrError
-
-
-class FmuCall(ctypes.Structure):
-    """One FMU instance and its exchange arrays, as the C stepper sees it (``wmr_fmu``)."""
-
-    _fields_ = [("fmi_version", ctypes.c_int), ("n_in", ctypes.c_int),
-                ("n_out", ctypes.c_int), ("pad", ctypes.c_int),
-                ("instance", ctypes.c_void_p), ("set", ctypes.c_void_p),
-                ("do_step", ctypes.c_void_p), ("get", ctypes.c_void_p),
-                ("in_vr", ctypes.c_void_p), ("out_vr", ctypes.c_void_p),
-                ("in_val", ctypes.c_void_p), ("out_val", ctypes.c_void_p),
-                ("in_gain", ctypes.c_double * 2), ("in_bias", ctypes.c_double * 2)]
-
-
-_STEPPER: list[Any] = []
-
-
-def _say(line: str) -> None:
-    """One warning line on stderr (stdout is for results, ``--json``)."""
-    print(f"wmr: warning: {line}", file=sys.stderr, flush=True)
-
-
-def load_stepper() -> Any:
-    """The C stepper library (ctypes), built on first use; None when it cannot be had.
-
-    It also holds the MCAP row encoder of :class:`wmr.adapters.mcap.RunLogWriter` and the
-    record writer of the robot's outlines (:class:`wmr.adapters.mcap.scene.PlacedClouds`).
-
-    Only a library :func:`wmr.build.fmus.build_stepper` built or checked is loaded (a cache
-    folder others can write is refused there).  A refused folder, a library that does not
-    load or lacks a function: one warning line on stderr, then the pure-Python path (the same
-    results), never silently.
-
-    ``WMR_STEPPER=0`` in the environment turns it off (the pure-Python path, same results).
-    """
-    if os.environ.get("WMR_STEPPER", "1") == "0":
-        return None
-    if not _STEPPER:
-        lib: Any = None
-        path = None
-        try:
-            from wmr.build.fmus import build_stepper
-
-            path = build_stepper(progress=_say)
-            if path is not None:
-                lib = _bind_stepper(ctypes.CDLL(str(path)))
-        except WmrError as exc:
-            _say(f"the C stepper is not used (the pure-Python path runs, same results): {exc}")
-            lib = None
-        except (OSError, AttributeError) as exc:  # a library that does not load, or lacks one
-            _say(f"the C stepper {path} is not used (the pure-Python path runs, same "
-                 f"results): {exc}; remove it to have it built again")
-            lib = None
-        _STEPPER.append(lib)
-    return _STEPPER[0]
-
-
-def _bind_stepper(lib: Any) -> Any:
-    """``lib`` with the prototypes of the stepper's functions (AttributeError if one is
-    missing)."""
-    ptr = ctypes.POINTER
-    lib.wmr_exchange.argtypes = [ptr(FmuCall), ctypes.c_double, ctypes.c_double,
-                                 ctypes.c_double, ctypes.c_double]
-    lib.wmr_servo_step.argtypes = [ptr(FmuCall), ptr(LoopState), ctypes.c_double,
-                                   ctypes.c_double, ctypes.c_int]
-    lib.wmr_fmu_loop.argtypes = [ptr(FmuCall), ptr(FmuCall), ptr(LoopState)]
-    for fun in (lib.wmr_exchange, lib.wmr_servo_step, lib.wmr_fmu_loop):
-        fun.restype = ctypes.c_int
-    lib.wmr_encode_rows.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 2,
-                                    *[ctypes.c_int] * 2, *[ctypes.c_void_p] * 8]
-    lib.wmr_encode_rows.restype = ctypes.c_longlong
-    lib.wmr_cloud_records.argtypes = [ctypes.c_int, *[ctypes.c_void_p] * 3,
-                                      ctypes.c_int, ctypes.c_void_p, ctypes.c_int,
-                                      *[ctypes.c_void_p] * 2, ctypes.c_int,
-                                      *[ctypes.c_void_p] * 3]
-    lib.wmr_cloud_records.restype = ctypes.c_longlong
-    lib.wmr_encode_chunk.argtypes = [ctypes.c_void_p, ctypes.c_int, *[ctypes.c_void_p] * 5]
-    lib.wmr_encode_chunk.restype = ctypes.c_longlong
-    return lib
+from wmr.infra.errors import ConfigError, FmuError
 
 
 def fmu_call(fmi_version: str, dll: Any, component: Any, names: tuple[str, str, str],
@@ -284,7 +204,12 @@ class FmuPlant:
         need no conversion (a mapped FMU with other units steps through :meth:`step`)."""
         if self._fast is None or self._convert:
             return None
-        return load_stepper(), self.fmu_call
+        return load_stepper(build=False), self.fmu_call
+
+    def fast_loop(self, controller: Any, sensing: Any) -> Any:
+        """The C stepper's loop for ``controller`` (:func:`wmr.adapters.stepper.loops.fast_loop`,
+        a :class:`wmr.core.closedloop.FastLoop`), or None: the core's Python loop runs."""
+        return fast_loop(self, self.stepper(), controller, sensing)
 
     def set_clock(self, h_s: float, n: int) -> None:
         """The clock after ``n`` steps of ``h_s`` from t = 0 taken by the stepper, as

@@ -6,15 +6,17 @@ them shows an empty view.  The one primitive both tools draw from a protobuf MCA
 ``foxglove.PointCloud`` (Rerun: ``Points3D`` with the ``red``/``green``/``blue``/``alpha``
 fields as colours; Foxglove: its point-cloud renderer); ``SceneUpdate`` is Foxglove's only,
 ``LocationFix`` is geodetic (a map, not our plane), and a URDF needs a ROS 2 ``std_msgs/String``
-topic.  So every drawable topic here is a point cloud in frame ``world`` (z = 0):
+topic.  So every drawable topic here is a point cloud (z = 0), in frame ``world`` but for the
+robot, which is drawn in its own frame ``base_link`` and moved by the viewers along the
+``/tf`` transforms (``world`` to ``base_link``) that the log holds at every logged step:
 
 ==========================  =============================================================
 topic                       content
 ==========================  =============================================================
-``/scene/robot``            the robot's outline (chassis, wheels, a 1 m heading arrow),
-                            every :data:`ROBOT_PERIOD_NS` of simulation time (at most
-                            :data:`MAX_OUTLINES` a log: :func:`robot_period_ns`); coloured
-                            by the control phase (:data:`PHASE_COLORS`)
+``/scene/robot``            the robot's outline (chassis, wheels, a 1 m heading arrow) in
+                            frame ``base_link``, at the first row and at each change of
+                            the control phase, coloured by the phase
+                            (:data:`PHASE_COLORS`): a few messages a run
 ``/scene/path``             the whole path, a point every :data:`PATH_SPACING_M`, coloured
                             by phase, once at t = 0
 ``/scene/goal``             the goal: a 1 m arrow along theta_d and a ring of the stop
@@ -28,6 +30,10 @@ topic                       content
                             change (a step plot in any plotting tool)
 ==========================  =============================================================
 
+Logs written before this layout drew the outline in frame ``world``, placed by its ``pose``,
+every 50 ms of simulation time (4 kB a message: more bytes than the six per-step topics
+together); the readers take both (only the signal topics are read back).
+
 They are made from the rows the log already holds (no new column in
 :data:`wmr.core.signals.SIGNALS`) by :class:`SceneRecorder`, which the log writer feeds each
 block and asks to write its topics when the log is closed (one chunk per topic): a run killed
@@ -38,13 +44,11 @@ stabiliser's hysteresis (:func:`control_phases`) replayed on the logged distance
 
 from __future__ import annotations
 
-import ctypes
 import functools
 import math
-import struct
 import warnings
 from collections.abc import Mapping, Sequence
-from typing import Any, Final, overload
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -52,6 +56,7 @@ from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 
 from wmr.adapters.mcap.schemas import (
+    BASE_FRAME,
     PHASE_TOPIC,
     WORLD_FRAME,
     MessageLog,
@@ -84,23 +89,6 @@ PHASE_COLORS: Final[tuple[Rgb, Rgb]] = ((31, 119, 180), (255, 127, 14))
 GOAL_COLOR: Final[Rgb] = (214, 39, 40)
 GPS_COLOR: Final[Rgb] = (90, 90, 90)
 ESTIMATE_COLOR: Final[Rgb] = (204, 0, 153)
-
-#: One robot outline per this much simulation time (20 Hz: smooth playback, small log).
-ROBOT_PERIOD_NS: Final = 50_000_000
-#: Most robot outlines in one log: a run longer than ``MAX_OUTLINES`` periods (200 s) gets
-#: them at a longer period (:func:`robot_period_ns`), so that closing the log of a long run
-#: stays quick (a 3000 s run had 60,000 outlines, 240 MB to compress, seconds at its close:
-#: past a run's wall-clock limit the batch kills a worker that takes that long).
-MAX_OUTLINES: Final = 4000
-
-
-def robot_period_ns(last_t_ns: int) -> int:
-    """The period of the robot's outlines in a log whose last row is at ``last_t_ns``:
-    :data:`ROBOT_PERIOD_NS`, or a whole multiple of it that keeps at most
-    :data:`MAX_OUTLINES` outlines."""
-    k = max(1, -(-(max(last_t_ns, 0) + 1) // (ROBOT_PERIOD_NS * MAX_OUTLINES)))
-    return ROBOT_PERIOD_NS * k
-
 
 #: Spacing of the path's points, m.
 PATH_SPACING_M: Final = 0.05
@@ -300,71 +288,24 @@ def cloud_points(xy: npt.ArrayLike, colors: npt.ArrayLike) -> npt.NDArray[np.voi
     return out
 
 
-def cloud_message(t_ns: int, points: npt.NDArray[np.void],
-                  pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                  tail: bytes | None = None) -> bytes:
-    """A ``foxglove.PointCloud`` of ``points`` in frame ``world``, placed at ``pose``.
+def cloud_message(t_ns: int, points: npt.NDArray[np.void], frame: str = WORLD_FRAME) -> bytes:
+    """A ``foxglove.PointCloud`` of ``points`` in ``frame``, at the frame's origin.
 
     Parameters
     ----------
     t_ns
         Its timestamp, ns.
     points
-        From :func:`cloud_points`, in the cloud's own frame.
-    pose
-        ``(x_m, y_m, theta_rad)`` of the cloud's frame in the world (Rerun draws it as the
-        entity's ``InstancePoses3D``, Foxglove as the cloud's origin): the robot's outline is
-        the same bytes at every step, so its topic compresses to almost nothing.
-    tail
-        :func:`cloud_tail` of ``points``, when the caller sends the same points many times.
-
-    Protobuf writes the fields of a message one after another in field-number order
-    (timestamp 1, frame_id 2, pose 3, point_stride 4, fields 5, data 6), so the message is the
-    concatenation of its parts' serialisations: the parts that do not change (the frame, and
-    the points of a cloud sent at every step) are serialised once, the timestamps of a run
-    (multiples of the robot's period, the same in every run) once per process, and a pose
-    whose four numbers are all non-zero is packed directly (:func:`_pose_bytes`).
+        From :func:`cloud_points`, in ``frame``.
+    frame
+        ``world`` (default), or ``base_link``: the robot's own frame, which the viewers place
+        by the ``/tf`` transforms of the log (the robot's outline).
     """
-    return (_stamp_bytes(int(t_ns)) + _FRAME + _pose_bytes(*pose)
-            + (cloud_tail(points) if tail is None else tail))
-
-
-@functools.lru_cache(maxsize=8192)
-def _stamp_bytes(t_ns: int) -> bytes:
-    """The serialised ``timestamp`` field of a cloud at ``t_ns``."""
-    head = PointCloud()
-    head.timestamp.FromNanoseconds(t_ns)
-    return head.SerializeToString(deterministic=True)
-
-
-#: The serialised ``pose`` field when x, y and the quaternion's z and w are all non-zero: tag
-#: 3 and length 40, then ``position`` (tag 1, length 18: x as field 1, y as field 2; z = 0 is
-#: left out) and ``orientation`` (tag 2, length 18: z as field 3, w as field 4; x = y = 0 are
-#: left out), each double after its tag byte, little-endian.
-_POSE: Final = struct.Struct("<BBBBBdBdBBBdBd")
-
-
-def _pose_bytes(x: float, y: float, theta: float) -> bytes:
-    """The serialised ``pose`` field of a cloud placed at ``(x, y, theta)``: the bytes protobuf
-    writes (checked on random and zero poses by ``tests/test_scene.py``)."""
-    qz, qw = math.sin(0.5 * theta), math.cos(0.5 * theta)
-    if x != 0.0 and y != 0.0 and qz != 0.0 and qw != 0.0:
-        return _POSE.pack(0x1A, 40, 0x0A, 18, 0x09, x, 0x11, y, 0x12, 18, 0x19, qz, 0x21, qw)
-    # a zero (or -0.0, which protobuf runtimes treat alike or not) is left to protobuf
-    placed = PointCloud()
-    placed.pose.position.x, placed.pose.position.y = x, y
-    placed.pose.orientation.z = qz
-    placed.pose.orientation.w = qw
-    return placed.SerializeToString(deterministic=True)
-
-
-def cloud_tail(points: npt.NDArray[np.void]) -> bytes:
-    """The serialised ``point_stride``, ``fields`` and ``data`` of a cloud of ``points``."""
-    return bytes(PointCloud(point_stride=_POINT.itemsize, fields=_FIELDS,
-                            data=points.tobytes()).SerializeToString(deterministic=True))
-
-
-_FRAME: Final = PointCloud(frame_id=WORLD_FRAME).SerializeToString(deterministic=True)
+    msg = PointCloud(frame_id=frame, point_stride=_POINT.itemsize, fields=_FIELDS,
+                     data=points.tobytes())
+    msg.timestamp.FromNanoseconds(int(t_ns))
+    msg.pose.orientation.w = 1.0  # the identity: an all-zero quaternion is no rotation
+    return bytes(msg.SerializeToString(deterministic=True))
 
 
 #: The ``FileDescriptorSet`` of ``foxglove.PointCloud``, dependencies first.
@@ -372,8 +313,8 @@ CLOUD_SCHEMA_DATA: Final = descriptor_set(PointCloud.DESCRIPTOR.file)
 
 
 def _write_cloud(log: MessageLog, topic: str, points: npt.NDArray[np.void]) -> None:
-    """One unplaced cloud of ``points`` on ``topic`` at t = 0 (the goal, the path, the fixes,
-    the estimate; the robot's outlines, one per period, are :meth:`SceneRecorder._write`'s)."""
+    """One cloud of ``points`` in the world on ``topic`` at t = 0 (the goal, the path, the
+    fixes, the estimate)."""
     log.write_messages(topic, CLOUD_SCHEMA, CLOUD_SCHEMA_DATA, [0], [cloud_message(0, points)])
 
 
@@ -390,90 +331,47 @@ def write_sensing_scene(log: MessageLog, gps_xy_m: npt.ArrayLike,
 
 
 @functools.lru_cache(maxsize=64)
-def _robot_clouds(half_track_m: float, wheel_radius_m: float
-                  ) -> tuple[tuple[npt.NDArray[np.void], ...], tuple[bytes, ...]]:
-    """The robot's outline as a cloud in each phase's colour, and their :func:`cloud_tail`."""
+def _robot_clouds(half_track_m: float, wheel_radius_m: float) -> tuple[npt.NDArray[np.void], ...]:
+    """The robot's outline as a cloud in each phase's colour (read-only: shared)."""
     body = _robot_outline(half_track_m, wheel_radius_m)
     shapes = tuple(cloud_points(body, c) for c in PHASE_COLORS)
-    return shapes, tuple(cloud_tail(c) for c in shapes)
+    for shape in shapes:
+        shape.flags.writeable = False
+    return shapes
 
 
-class PlacedClouds(Sequence[bytes]):
-    """Serialised clouds, one per row: the robot's outline in the row's variant (the phase's
-    colour) placed at the row's pose; a sequence of :func:`cloud_message` bytes.
-
-    A log writer may instead ask :meth:`records` for all their MCAP Message records at once,
-    written by the C stepper (``wmr_cloud_records``: the same bytes, checked by
-    ``tests/test_scene.py``), which costs a tenth of the messages made one by one.
+def robot_clouds(t_ns: npt.NDArray[np.int64], phase: npt.NDArray[np.int8],
+                 half_track_m: float, wheel_radius_m: float
+                 ) -> tuple[npt.NDArray[np.int64], list[bytes]]:
+    """The ``/scene/robot`` messages of a run: its outline in frame ``base_link`` at the first
+    row and at each change of phase, in the new phase's colour.
 
     Parameters
     ----------
     t_ns
-        Timestamps, ns, shape ``(n,)``.
-    poses
-        ``(x_m, y_m, theta_rad)`` per row, shape ``(n, 3)``.
-    variants
-        Index into ``shapes`` per row, shape ``(n,)``.
-    shapes
-        The clouds' points (:func:`cloud_points`) and their :func:`cloud_tail` bytes.
+        The rows' times, ns, shape ``(n,)``.
+    phase
+        The control phase of each row (:func:`control_phases`), shape ``(n,)``.
+    half_track_m, wheel_radius_m
+        The robot's geometry.
+
+    Returns
+    -------
+    tuple
+        The messages' times, ns, and the serialised clouds.
     """
-
-    def __init__(self, t_ns: npt.NDArray[np.int64], poses: npt.NDArray[np.float64],
-                 variants: npt.NDArray[np.int8],
-                 shapes: tuple[tuple[npt.NDArray[np.void], ...], tuple[bytes, ...]]) -> None:
-        self._t_ns = np.ascontiguousarray(t_ns, np.int64)
-        self._pose = np.ascontiguousarray(poses, np.float64)
-        self._variant = np.ascontiguousarray(variants, np.uint8)
-        self._shapes, self._tails = shapes
-
-    def __len__(self) -> int:
-        return len(self._t_ns)
-
-    @overload
-    def __getitem__(self, i: int) -> bytes: ...
-
-    @overload
-    def __getitem__(self, i: slice) -> list[bytes]: ...
-
-    def __getitem__(self, i: int | slice) -> bytes | list[bytes]:
-        if isinstance(i, slice):
-            return [self[k] for k in range(*i.indices(len(self)))]
-        v = int(self._variant[i])
-        x, y, theta = self._pose[i].tolist()
-        return cloud_message(int(self._t_ns[i]), self._shapes[v], (x, y, theta), self._tails[v])
-
-    def records(self, channel: int) -> tuple[memoryview, npt.NDArray[np.int64], int] | None:
-        """The Message records of every cloud on ``channel`` (sequence numbers 0, 1, ...),
-        their offsets and their CRC-32 (``zlib.crc32`` of the records, made from the tails'
-        own CRCs), or None without the C stepper."""
-        from wmr.adapters.fmi.robot import load_stepper
-
-        lib = load_stepper()
-        n = len(self._t_ns)
-        if lib is None or n == 0:
-            return None
-        tails = [np.frombuffer(tail, np.uint8) for tail in self._tails]
-        tail_ptrs = (ctypes.c_void_p * len(tails))(*(a.ctypes.data for a in tails))
-        tail_len = np.asarray([len(tail) for tail in self._tails], np.int32)
-        frame = np.frombuffer(_FRAME, np.uint8)
-        # a record: head 31, timestamp 14, pose 42, the frame and the tail
-        out = np.empty(n * (31 + 14 + 42 + len(_FRAME) + int(tail_len.max())), np.uint8)
-        offsets = np.empty(n, np.int64)
-        crc = ctypes.c_uint(0)
-        size = lib.wmr_cloud_records(n, self._t_ns.ctypes.data, self._pose.ctypes.data,
-                                     self._variant.ctypes.data,
-                                     channel, frame.ctypes.data, len(_FRAME), tail_ptrs,
-                                     tail_len.ctypes.data, len(tails), out.ctypes.data,
-                                     offsets.ctypes.data, ctypes.byref(crc))
-        if size < 0:  # a variant without a tail, or too many tails: left to the Python path
-            return None
-        return out[:size].data, offsets, crc.value
+    if len(t_ns) == 0:
+        return t_ns[:0], []
+    first = np.flatnonzero(np.concatenate([[True], phase[1:] != phase[:-1]]))
+    shapes = _robot_clouds(half_track_m, wheel_radius_m)
+    return t_ns[first], [cloud_message(int(t_ns[i]), shapes[int(phase[i])], BASE_FRAME)
+                         for i in first.tolist()]
 
 
 # --------------------------------------------------------------------------- the recorder
 
 
-_X, _Y, _TH, _DR = COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"], COLUMN["dr_m"]
+_X, _Y, _DR = COLUMN["x_m"], COLUMN["y_m"], COLUMN["dr_m"]
 
 
 class SceneRecorder:
@@ -505,9 +403,9 @@ class SceneRecorder:
         self._rows: list[npt.NDArray[np.float64]] = []
 
     def add(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
-        """Keep the pose and ``dr_m`` of the rows (the caller's arrays are not kept)."""
+        """Keep the position and ``dr_m`` of the rows (the caller's arrays are not kept)."""
         self._t.append(np.array(t_ns, dtype=np.int64))
-        self._rows.append(block[:, [_X, _Y, _TH, _DR]].copy())
+        self._rows.append(block[:, [_X, _Y, _DR]])  # fancy indexing: a copy
 
     def write(self, log: MessageLog) -> None:
         """Write the scene topics to ``log``; a failure here warns and leaves the log as is,
@@ -529,19 +427,14 @@ class SceneRecorder:
         t = np.concatenate(self._t)
         rows = np.concatenate(self._rows)
         xy = rows[:, :2]
-        phase = (control_phases(rows[:, 3], self._stop_radius)
+        phase = (control_phases(rows[:, 2], self._stop_radius)
                  if self._controlled and self._stop_radius is not None
                  else np.zeros(len(t), np.int8))
         colors = np.asarray(PHASE_COLORS, np.uint8)[phase]
         keep = resample_path(xy)
         _write_cloud(log, PATH_TOPIC, cloud_points(xy[keep], colors[keep]))
-        # one outline per robot_period_ns(t[-1]): the first row of each period
-        slot = t // robot_period_ns(int(t[-1]))
-        first = np.flatnonzero(np.concatenate([[True], slot[1:] != slot[:-1]]))
-        first = first[np.isfinite(rows[first, :3]).all(axis=1)]
-        log.write_messages(ROBOT_TOPIC, CLOUD_SCHEMA, CLOUD_SCHEMA_DATA, t[first], PlacedClouds(
-            t[first], rows[first, :3], phase[first],
-            _robot_clouds(self._half_track, self._wheel_radius)))
+        robot_t, robot = robot_clouds(t, phase, self._half_track, self._wheel_radius)
+        log.write_messages(ROBOT_TOPIC, CLOUD_SCHEMA, CLOUD_SCHEMA_DATA, robot_t, robot)
         if self._controlled and self._stop_radius is not None:
             pt, pv = phase_changes(t, phase)
             msgs = []
@@ -597,6 +490,7 @@ def read_cloud(data: bytes) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uin
 
 __all__ = ["ALIGN", "APPROACH", "CLOUD_SCHEMA", "CLOUD_SCHEMA_DATA", "ESTIMATE_SCENE_TOPIC",
            "GOAL_TOPIC", "GPS_SCENE_TOPIC", "PATH_TOPIC", "PHASE_COLORS", "PHASE_NAMES",
-           "PHASE_TOPIC", "ROBOT_TOPIC", "ControlPhase", "PlacedClouds", "SceneRecorder",
-           "cloud_field", "cloud_message", "cloud_points", "control_phases", "phase_changes",
-           "read_cloud", "resample_path", "robot_geometry", "robot_outline", "write_sensing_scene"]
+           "PHASE_TOPIC", "ROBOT_TOPIC", "ControlPhase", "SceneRecorder", "cloud_field",
+           "cloud_message", "cloud_points", "control_phases", "phase_changes", "read_cloud",
+           "resample_path", "robot_clouds", "robot_geometry", "robot_outline",
+           "write_sensing_scene"]

@@ -46,7 +46,6 @@ from mcap.records import (
     Footer,
     Header,
     Message,
-    Metadata,
     MetadataIndex,
     Schema,
     Statistics,
@@ -78,6 +77,7 @@ from wmr.adapters.mcap.schemas import (
     file_descriptor_set,
     message_class,
 )
+from wmr.adapters.stepper import Layout, load_stepper
 from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.durable import AtomicFile
 from wmr.infra.errors import LogError
@@ -99,6 +99,15 @@ _CHUNK_INDEX_TAIL: Final = struct.Struct("<QI")
 _CHUNK_INDEX_SIZES: Final = struct.Struct("<QQ")
 _CHUNK_INDEX_FIXED: Final = 8 * 4 + 4 + 8 + 4 + 8 * 2  # the length minus the map and string
 Compression = Literal["zstd", "lz4", ""]
+#: The chunks' compression by default: lz4, the fastest that both Rerun's and Foxglove's
+#: readers take; on these records it takes half the CPU time of zstd level 1 (which was the
+#: logs' compression before, and is still written on request) for about a quarter more bytes
+#: (``benchmarks/log_cost.py``, docs/formats.md).
+DEFAULT_COMPRESSION: Final[Compression] = "lz4"
+#: lz4's level: -1 (its fast mode, acceleration 1) compresses these records in 80 % of the
+#: time of level 0 for 1 % more bytes.
+LZ4_LEVEL: Final = -1
+ZSTD_LEVEL: Final = 1
 
 try:
     _MCAP_VERSION = version("mcap")
@@ -108,18 +117,36 @@ except PackageNotFoundError:  # pragma: no cover - installed from source
 LIBRARY: Final = f"wmr-cosim/{wmr.__version__} mcap-python/{_MCAP_VERSION}"
 
 
-def _compressor(kind: Compression) -> Any:
+def _compressor(kind: Compression, level: int | None = None) -> Any:
+    """The chunk compressor of ``kind`` at ``level`` (default :data:`LZ4_LEVEL` or
+    :data:`ZSTD_LEVEL`); None for ``""``."""
     if kind == "zstd":
-        import zstandard
-
-        return zstandard.ZstdCompressor(level=1).compress
+        return _zstd(ZSTD_LEVEL if level is None else level)
     if kind == "lz4":
         import lz4.frame
 
-        return lz4.frame.compress
+        return functools.partial(lz4.frame.compress,
+                                 compression_level=LZ4_LEVEL if level is None else level)
     if kind == "":
         return None
     raise LogError(f"unknown MCAP chunk compression {kind!r} (use 'zstd', 'lz4' or '')")
+
+
+@functools.lru_cache(maxsize=8)
+def _zstd(level: int) -> Any:
+    """zstd's one-shot compression at ``level``, a compressor per thread (one is not to be
+    used by two threads at once, and a Dask worker may write logs in several)."""
+    import zstandard
+
+    local = threading.local()
+
+    def compress(data: bytes | memoryview) -> bytes:
+        c = getattr(local, "c", None)
+        if c is None:
+            c = local.c = zstandard.ZstdCompressor(level=level)
+        return bytes(c.compress(data))
+
+    return compress
 
 
 class Sink(Protocol):
@@ -146,19 +173,22 @@ class McapFile:
     stream
         Binary stream opened for writing, positioned at 0; closed by :meth:`finish`.
     compression
-        Chunk compression: ``"zstd"`` (default, level 1), ``"lz4"`` or ``""``.  On the Fig. 11
-        log zstd-1 takes 393 bytes per control step against lz4's 468 (16 % smaller) for
-        1.6 us of compression per step against 0.8 us; level 3 saves 1.5 % more for 10 us.
+        Chunk compression: ``"lz4"`` (default, :data:`DEFAULT_COMPRESSION`), ``"zstd"`` or
+        ``""``.
     library
         Header ``library`` field.
+    level
+        The compressor's level (default :data:`LZ4_LEVEL`, :data:`ZSTD_LEVEL`).
     """
 
     def __init__(
-        self, stream: Sink, compression: Compression = "zstd", library: str = LIBRARY
+        self, stream: Sink, compression: Compression = DEFAULT_COMPRESSION,
+        library: str = LIBRARY,
+        level: int | None = None,
     ) -> None:
         self._stream = stream
         self._compression = compression
-        self._compress = _compressor(compression)
+        self._compress = _compressor(compression, level)
         self._compression_bytes = compression.encode()
         self._rb = RecordBuilder()
         self._pos = 0
@@ -208,9 +238,10 @@ class McapFile:
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write a Metadata record (and remember its index)."""
         offset = self._pos
-        Metadata(name=name, metadata=data).write(self._rb)
-        length = self._flush_records()
-        self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
+        record = metadata_record(name, data)
+        self._write(record)
+        self._metadata_indexes.append(MetadataIndex(offset=offset, length=len(record),
+                                                    name=name))
 
     def add_attachment(self, name: str, media_type: str, data: bytes) -> None:
         """Write an Attachment record, log and create time 0."""
@@ -421,6 +452,24 @@ class McapFile:
             self._stream.close()
 
 
+_U32: Final = struct.Struct("<I")
+
+
+def _prefixed(text: str) -> bytes:
+    data = text.encode()
+    return _U32.pack(len(data)) + data
+
+
+def metadata_record(name: str, data: Mapping[str, str]) -> bytes:
+    """A Metadata record's bytes as :meth:`mcap.records.Metadata.write` makes them (its name,
+    then the map's byte length and each key and value, length-prefixed UTF-8, in the map's
+    order), packed at once rather than through a ``RecordBuilder`` call per string: a log's
+    ``run`` record has some 20 of them (checked against ``mcap``'s by ``tests/test_mcaplog.py``)."""
+    entries = b"".join([_prefixed(k) + _prefixed(v) for k, v in data.items()])
+    body = b"".join((_prefixed(name), _U32.pack(len(entries)), entries))
+    return struct.pack("<BQ", Opcode.METADATA, len(body)) + body
+
+
 @functools.lru_cache(maxsize=64)
 def _index_records(n: int) -> np.dtype[np.void]:
     """A Message Index record of ``n`` entries as a packed numpy record: opcode, record
@@ -457,14 +506,6 @@ def _address(a: NDArray[Any]) -> int:
         return int(a.ctypes.data)
 
 
-class _Layout(ctypes.Structure):
-    """The stepper's ``wmr_layout``: the per-step topics' channels, bodies and slots."""
-
-    _fields_ = [("n_sig", ctypes.c_int), ("n_extra", ctypes.c_int), ("n_topics", ctypes.c_int),
-                *((name, ctypes.c_void_p) for name in (
-                    "channel", "body_len", "bodies", "n_slots", "slot_off", "slot_src"))]
-
-
 class _CRowEncoder:
     """:class:`RowEncoder`'s bytes, written by the C stepper (``wmr_encode_rows``) one row
     after another instead of by numpy gathers of whole columns.
@@ -489,7 +530,7 @@ class _CRowEncoder:
         self._args = [a.ctypes.data for a in (self._channel, self._body_len, self._bodies,
                                               self._n_slots, self._slot_off, self._slot_src)]
         self._chunk_fun = lib.wmr_encode_chunk
-        self._layout = _Layout(len(SIGNALS), 2, self._n_topics, *self._args)
+        self._layout = Layout(len(SIGNALS), 2, self._n_topics, *self._args)
         self._layout_ref = ctypes.byref(self._layout)
         # a chunk's output buffer, kept per thread (the encoder is shared by every log of a
         # process, and a Dask worker may run logs in several threads): a new 70 kB buffer per
@@ -549,9 +590,7 @@ def _row_encoder(channel_ids: tuple[int, ...],
     """The C row encoder when the stepper is there (and doubles are little-endian, as
     protobuf writes them), else numpy's: the same bytes."""
     if sys.byteorder == "little":
-        from wmr.adapters.fmi.robot import load_stepper
-
-        lib = load_stepper()
+        lib = load_stepper(build=False)
         if lib is not None:
             return _CRowEncoder(lib, channel_ids, layouts)
     return RowEncoder(channel_ids, layouts)
@@ -628,8 +667,8 @@ class RunLogWriter:
         Name -> ``(media_type, data)``, e.g. ``{"scenario.toml": ("application/toml", b"...")}``
         and ``{"modelDescription.xml": ("application/xml", b"...")}``.
     compression
-        Chunk compression, ``"zstd"`` (default: 16 % smaller than ``"lz4"``), ``"lz4"``
-        (fastest) or ``""``.
+        Chunk compression, ``"lz4"`` (default: half the CPU time of zstd), ``"zstd"`` (level
+        1: a fifth fewer bytes; the logs' compression before) or ``""``.
     chunk_period_ns
         Simulation time per chunk, ns (default 1 s).
     topics
@@ -657,7 +696,7 @@ class RunLogWriter:
         run: Mapping[str, object],
         goal: tuple[float, float, float],
         attachments: Mapping[str, tuple[str, bytes]] | None = None,
-        compression: Compression = "zstd",
+        compression: Compression = DEFAULT_COMPRESSION,
         chunk_period_ns: int = 1_000_000_000,
         topics: tuple[TopicLayout, ...] = STEP_TOPICS,
         durable: bool = True,
@@ -752,16 +791,16 @@ class RunLogWriter:
         """
         if self._closed:
             raise LogError(f"{self.path}: write_block after close")
-        t = np.array(t_ns, dtype=None, copy=True)
-        x = np.array(block, dtype=np.float64, copy=True)
+        t = np.asarray(t_ns)
         if t.ndim != 1 or t.dtype.kind not in "iu":
             raise LogError(f"t_ns must be a 1-D integer array of ns, got {t.dtype} {t.shape}")
         n = t.shape[0]
+        x = np.array(block, dtype=np.float64, copy=True)
         if x.shape != (n, len(SIGNALS)):
             raise LogError(f"block must have shape ({n}, {len(SIGNALS)}), got {x.shape}")
         if n == 0:
             return
-        t = t.astype(np.int64)
+        t = t.astype(np.int64, copy=True)  # one copy, whatever the caller's integer type
         if t[0] < self._last_t or t[0] < 0 or (n > 1 and bool(np.any(t[1:] < t[:-1]))):
             raise LogError(
                 f"t_ns must be non-negative and non-decreasing (got {t[0]} after {self._last_t})"
@@ -803,11 +842,6 @@ class RunLogWriter:
             raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
         schema_id = self._file.add_schema(schema_name, schema_data, schema_encoding)
         cid = self._file.add_channel(topic, schema_id, message_encoding)
-        records_of = getattr(messages, "records", None)  # scene.PlacedClouds: all at once
-        built = records_of(cid) if records_of is not None else None
-        if built is not None:
-            self._file.add_chunk(built[0], {cid: (t, built[1])}, uncompressed_crc=built[2])
-            return
         head = struct.Struct("<BQHIQQ")
         parts: list[bytes] = []
         offsets = np.zeros(len(messages), np.int64)
@@ -819,20 +853,34 @@ class RunLogWriter:
         self._file.add_chunk(b"".join(parts), {cid: (t, offsets)})
 
     def _flush_chunks(self, final: bool) -> None:
-        if not self._pending:
-            return
-        pending = self._pending
-        t = np.concatenate([p[0] for p in pending]) if len(pending) > 1 else pending[0][0]
-        x = np.concatenate([p[1] for p in pending]) if len(pending) > 1 else pending[0][1]
-        while len(t):
-            cut = int(np.searchsorted(t, self._boundary, side="left"))
-            if cut == len(t) and not final:
+        """Write the pending rows before the chunk boundary as chunks (and, ``final``, the
+        last rows too).  The pending blocks are cut where the boundary falls, as views: a
+        chunk that is whole blocks (the loop's 100-row blocks fill a 1 s chunk exactly) is
+        written from them without a copy."""
+        while self._pending:
+            boundary = self._boundary
+            head: list[tuple[NDArray[np.int64], NDArray[np.float64]]] = []
+            rest = list(self._pending)
+            while rest:
+                t, x = rest[0]
+                cut = (len(t) if int(t[-1]) < boundary
+                       else int(np.searchsorted(t, boundary, side="left")))
+                if cut == len(t):
+                    head.append(rest.pop(0))
+                    continue
+                if cut:
+                    head.append((t[:cut], x[:cut]))
+                    rest[0] = (t[cut:], x[cut:])
                 break
-            if cut:
-                self._write_chunk(t[:cut], x[:cut], [(t[cut:], x[cut:])] if cut < len(t) else [])
-                t, x = t[cut:], x[cut:]
-            if len(t):
-                self._boundary = (int(t[0]) // self._period + 1) * self._period
+            if not rest and not final:
+                return  # the rows before the boundary may not all be here yet
+            if head:
+                self._write_chunk(head[0][0] if len(head) == 1
+                                  else np.concatenate([h[0] for h in head]),
+                                  head[0][1] if len(head) == 1
+                                  else np.concatenate([h[1] for h in head]), rest)
+            if rest:
+                self._boundary = (int(rest[0][0][0]) // self._period + 1) * self._period
 
     def _write_chunk(self, t: NDArray[np.int64], x: NDArray[np.float64],
                      rest: list[tuple[NDArray[np.int64], NDArray[np.float64]]]) -> None:
@@ -890,4 +938,5 @@ class RunLogWriter:
             raise
 
 
-__all__ = ["LIBRARY", "McapFile", "RunLogWriter", "goal_message", "yaw_quaternion"]
+__all__ = ["LIBRARY", "McapFile", "RunLogWriter", "goal_message", "metadata_record",
+           "yaw_quaternion"]
