@@ -103,3 +103,37 @@ def test_the_core_holds_no_part_of_the_c_fast_path() -> None:
         assert not hasattr(core, name), name
     text = Path(core.__file__).read_text()
     assert "ctypes" not in text and "set_clock" not in text and "raise_step_error" not in text
+
+
+def test_the_fast_loop_is_chosen_only_where_it_gives_the_python_loops_bits() -> None:
+    """``adapters.stepper.loops.fast_loop``: whole blocks in C for a ``"blocks"`` controller
+    without sensors, one C call per step for a ``"servo"`` law on two real ``WheelServo`` s,
+    and the core's Python loop (None) otherwise: no library, a plant whose outputs are not
+    ours, a ``"blocks"`` controller with sensors (the C loop takes the true state only), a
+    servo of another class. Seen failing with the sensing condition dropped."""
+    from types import SimpleNamespace
+
+    from wmr.adapters.stepper.loops import fast_loop
+    from wmr.core.control import WheelServo
+    from wmr.core.signals import PLANT_SIGNALS
+
+    lib, call = object(), SimpleNamespace(n_out=len(PLANT_SIGNALS))
+    servo = WheelServo.__new__(WheelServo)
+    blocks = SimpleNamespace(stepper_kind="blocks")
+    law = SimpleNamespace(stepper_kind="servo", right=servo, left=servo)
+    sensing = object()
+    assert fast_loop(None, (lib, call), blocks, None) is not None
+    assert fast_loop(None, (lib, call), law, None) is not None
+    assert fast_loop(None, (lib, call), law, sensing) is not None  # the law runs in Python
+    assert fast_loop(None, None, blocks, None) is None
+    assert fast_loop(None, (None, call), blocks, None) is None
+    assert fast_loop(None, (lib, SimpleNamespace(n_out=3)), blocks, None) is None
+    assert fast_loop(None, (lib, call), blocks, sensing) is None
+
+    class OtherServo(WheelServo):
+        pass
+
+    other = OtherServo.__new__(OtherServo)
+    assert fast_loop(None, (lib, call), SimpleNamespace(stepper_kind="servo", right=other,
+                                                        left=servo), None) is None
+    assert fast_loop(None, (lib, call), SimpleNamespace(), None) is None
