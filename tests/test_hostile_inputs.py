@@ -345,12 +345,25 @@ def test_a_batch_folder_removed_under_the_workers_is_one_error_not_a_traceback(
     """A worker (re)started after the folder went could not open its log file: it printed a
     traceback; now the batch stops with one line saying so."""
     from wmr.apps.batch.local import LocalPool
-    from wmr.apps.batch.worker import Task
+    from wmr.apps.batch.spec import BatchRun
+    from wmr.apps.batch.worker import Block
 
     spec = load_scenario("fig11").runs[0]
+
+    class _one_block:  # the pool's source of runs: one block of one run
+        def __init__(self, spec: Any) -> None:
+            self.block = Block(range(1), {0: BatchRun("0000-x", spec, spec.name, "", {}, "x")},
+                               1, (), "f")
+
+        def __len__(self) -> int:
+            return 1
+
+        def blocks(self, size: int) -> Any:
+            yield self.block
+
     pool = LocalPool(fmu3, tmp_path / "runs", 1, log_dir=tmp_path / "gone")
     with pytest.raises(WmrError, match=r"could not start: .*worker-0\.log: cannot create"):
-        list(pool.run([Task("0000-x", spec)]))
+        list(pool.run(_one_block(spec)))
     assert "Traceback" not in capfd.readouterr().err
 
 
