@@ -344,6 +344,38 @@ def test_reference_summary_is_the_one_kept(reference: Path) -> None:
     assert (reference / "summary.csv").read_bytes() == REFERENCE_CSV.read_bytes()
 
 
+#: The summary of the first 48 runs of ``scenarios/mc_failures.toml`` (42 converge, 6 time out
+#: and keep their logs), written by the code of before workers drew their own runs (the parent
+#: drew each run and handed it out alone; ``--workers 2 --log failed``).
+REFERENCE_MC_CSV = Path(__file__).parent / "data" / "batch_mc_failures48_summary.csv"
+
+
+def test_workers_drawing_their_ranges_write_the_summary_of_before(fmu3: Path,
+                                                                  tmp_path: Path) -> None:
+    """docs/batch.md, "Execution": each worker draws the runs of its range from the spec and
+    their indices, and their summary rows and journal lines come back a range at a time; the
+    inputs, results and log paths are those of before, bit for bit (here ranges of 3 runs on
+    2 workers, and 1 worker in ranges of 6)."""
+    from wmr.apps.run import LogPolicy
+    from wmr.infra.paths import scenarios_dir
+
+    text = (scenarios_dir() / "mc_failures.toml").read_text(encoding="utf-8")
+    spec = _write(tmp_path, text.replace("n = 800", "n = 48"), "mc_failures.toml")
+    batch = load_batch(spec)
+    for workers in (2, 1):
+        blocks = runner_module._Blocks(batch, runner_module._Ledger(48), None, {},
+                                       LogPolicy("failed"), "f")
+        assert blocks.block_runs(workers) == 6 // workers  # ranges, not runs one by one
+        out = tmp_path / f"w{workers}"
+        result = run_batch(batch, out, workers=workers, fmu_path=fmu3, progress=False,
+                           log=LogPolicy("failed"))
+        assert result.counts == {"converged": 42, "timeout": 6, "failed": 0}
+        assert (out / "summary.csv").read_bytes() == REFERENCE_MC_CSV.read_bytes()
+        assert result.logs_kept == 6 and all(
+            log_complete(out / row["mcap"]) for row in pq.read_table(
+                out / "summary.parquet").to_pylist() if row["mcap"] is not None)
+
+
 def test_two_workers_give_the_same_summary_bit_for_bit(reference: Path, spec20: Path,
                                                        fmu3: Path, tmp_path: Path) -> None:
     result = run_batch(load_batch(spec20), tmp_path, workers=2, fmu_path=fmu3, progress=False)

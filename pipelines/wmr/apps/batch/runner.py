@@ -565,7 +565,7 @@ def _first_difference(line: Mapping[str, Any], corrected: Mapping[str, Any]) -> 
     """The first field of a journal line that its corrected line changes (``"row.inputs.
     gains.K_ps"``, ``"record.status"``), ``""`` when only the seal and the log's stamp do."""
     for part in ("row", "record"):
-        old, new = line.get(part), corrected[part]
+        old, new = line.get(part), corrected.get(part)
         if old == new:
             continue
         if not isinstance(old, dict):
