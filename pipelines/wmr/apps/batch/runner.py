@@ -43,6 +43,7 @@ from wmr.apps.batch.journal import (
 from wmr.apps.batch.local import Killed, LocalPool, Outcome, check_open_files, made_up_record
 from wmr.apps.batch.spec import BatchRun, BatchSpec, RunList, run_index
 from wmr.apps.batch.summary import (
+    CSV_MAX_RUNS,
     STATUSES,
     SummaryRow,
     log_relpath,
@@ -350,7 +351,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             if lines:
                 offset = journal.append_lines(b"".join(lines))
                 for entry, line in zip(kept, lines, strict=True):
-                    ledger.mark(entry.index, offset, entry.status)
+                    ledger.mark(entry.run_index, offset, entry.status)
                     offset += len(line)
                     result.executed.append(entry.run_id)
                     result.logs_kept += entry.kept
@@ -568,7 +569,7 @@ def _first_difference(line: Mapping[str, Any], corrected: Mapping[str, Any]) -> 
         old, new = line.get(part), corrected.get(part)
         if old == new:
             continue
-        if not isinstance(old, dict):
+        if not isinstance(old, dict) or not isinstance(new, dict):
             return part
         inner = new.get("inputs", {}) if part == "row" else {}
         for key in new:
@@ -828,7 +829,7 @@ def _finish(out: Path, chunks: Iterator[Any], result: BatchOutcome, batch: Batch
             fmu_sha: str) -> None:
     """Write the summary and ``batch.json``; a full disk is one :class:`DiskFullError`."""
     try:
-        write_summary(chunks, out)
+        write_summary(chunks, out, csv_too=result.total <= CSV_MAX_RUNS)
         _write_atomic(out / "batch.json", (json.dumps({
                 "spec": str(batch.path) if batch.path else batch.name, "total": result.total,
                 "finished": result.finished, "skipped": result.skipped,

@@ -12,6 +12,7 @@ import io
 import itertools
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -181,35 +182,53 @@ def _csv_cell(value: object) -> str:
     return str(value)
 
 
-def write_summary(tables: pa.Table | Iterable[pa.Table], out_dir: Path) -> tuple[Path, Path]:
+#: A batch of more runs than this writes its summary as Parquet only: the CSV of a
+#: ``mc_fig10`` run is about 480 bytes (every float as its shortest exact decimal) against
+#: 190 in Parquet, and writing it costs the parent about 15 µs a run.  Read a larger one with
+#: ``pandas.read_parquet`` (or ``.to_csv`` it).
+CSV_MAX_RUNS: Final = 1000
+
+
+def write_summary(tables: pa.Table | Iterable[pa.Table], out_dir: Path, csv_too: bool = True
+                  ) -> tuple[Path, Path | None]:
     """Write the summary, a table or the consecutive blocks of one (one schema, the first
-    block maybe empty), as ``summary.parquet`` and ``summary.csv``, each atomically and a
-    block at a time: the summary of a million runs is never whole in memory.
+    block maybe empty), as ``summary.parquet`` and (``csv_too``) ``summary.csv``, each
+    atomically and a block at a time: the summary of a million runs is never whole in memory.
+    Without ``csv_too`` a ``summary.csv`` of before is removed (it would be stale).
 
     Returns
     -------
     tuple of Path
-        The Parquet and the CSV file.
+        The Parquet and the CSV file (``None`` without ``csv_too``).
     """
     blocks = iter([tables] if isinstance(tables, pa.Table) else tables)
     first = next(blocks)
     parquet, csv_path = out_dir / SUMMARY_PARQUET, out_dir / SUMMARY_CSV
     # each under a new random name beside it (a planted 'summary.csv.tmp' link is never
     # followed), renamed into place: the summary before stays until both are whole
-    with replacing(parquet) as parquet_file, replacing(csv_path) as csv_file:
-        stream = io.TextIOWrapper(csv_file, encoding="utf-8", newline="")
-        writer = csv.writer(stream, lineterminator="\n")
-        writer.writerow(first.column_names)
+    with ExitStack() as stack:
+        parquet_file = stack.enter_context(replacing(parquet))
+        writer = None
+        if csv_too:
+            csv_file = stack.enter_context(replacing(csv_path))
+            stream = io.TextIOWrapper(csv_file, encoding="utf-8", newline="")
+            writer = csv.writer(stream, lineterminator="\n")
+            writer.writerow(first.column_names)
         with pq.ParquetWriter(parquet_file, first.schema, compression="zstd",
                               write_statistics=False) as pw:
             for table in itertools.chain([first], blocks):
                 if table.num_rows:
                     pw.write_table(table)
-                columns = [table.column(i).to_pylist() for i in range(table.num_columns)]
-                writer.writerows([_csv_cell(v) for v in row]
-                                 for row in zip(*columns, strict=True))
-        stream.flush()
-        stream.detach()  # replacing() closes the file itself
+                if writer is not None:
+                    columns = [table.column(i).to_pylist() for i in range(table.num_columns)]
+                    writer.writerows([_csv_cell(v) for v in row]
+                                     for row in zip(*columns, strict=True))
+        if writer is not None:
+            stream.flush()
+            stream.detach()  # replacing() closes the file itself
+    if not csv_too:
+        csv_path.unlink(missing_ok=True)
+        return parquet, None
     return parquet, csv_path
 
 
@@ -219,6 +238,7 @@ def read_summary(out_dir: Path) -> pa.Table:
 
 
 __all__ = [
+    "CSV_MAX_RUNS",
     "FORMULA_STARTS",
     "OPTIMUM_RESULT_COLUMNS",
     "RESULT_COLUMNS",

@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 from wmr.adapters.fmi.archive import file_sha256
 from wmr.adapters.fmi.compiled_law import law_library
@@ -134,11 +134,12 @@ class Block:
                     log=self.log, optimal=self.optimal)
 
 
-@dataclass(frozen=True, slots=True)
-class Entry:
-    """One finished run of a :class:`BlockResult`."""
+class Entry(NamedTuple):
+    """One finished run of a :class:`BlockResult` (a tuple: cheap to pickle, a block's
+    entries cross a pipe or the network)."""
 
-    index: int
+    #: The run's index in the spec.
+    run_index: int
     run_id: str
     #: ``converged``, ``timeout`` or ``failed``.
     status: str
