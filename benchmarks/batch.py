@@ -20,11 +20,12 @@ Three measurements, each printed as a table:
     The scaling table: one batch of ``N_RUNS`` runs of ``mc_fig10`` (failed-only logs by
     default) per configuration, side by side, the configurations taking turns ``R`` times
     (default 1; medians): 1 and 2 local workers (and 4 and 8 where the machine has that many
-    cores) and, with ``--dask``, a Dask cluster of 2 worker processes of one thread started
-    with ``dask scheduler`` and ``dask worker``.  Per configuration: runs per second, the
-    speed-up over one local worker, the CPU time of the batch's own process per run
-    (``resource.getrusage(RUSAGE_SELF)``: the parent, or the Dask client, alone; its workers
-    are other processes) and the bytes per run of its journal and summary.
+    cores; ``--workers K``, repeated, chooses) and, with ``--dask``, a Dask cluster of 2
+    worker processes of one thread started with ``dask scheduler`` and ``dask worker``.  Per
+    configuration: runs per second, the speed-up over the first, the CPU time of the batch's
+    own process per run (``resource.getrusage(RUSAGE_SELF)``: the parent, or the Dask
+    client, alone; its workers are other processes) and the bytes per run of its journal
+    and summary.
 
 ``python benchmarks/batch.py policies N_RUNS [--dask] [--policy P ...]``
     One batch of ``N_RUNS`` runs of ``mc_fig10`` (its ``n`` raised to ``N_RUNS``) per log
@@ -253,14 +254,15 @@ def policies(n_runs: int, names: list[str], with_dask: bool) -> None:
 RECORD_FILES = ("journal.jsonl", "summary.parquet", "summary.csv", "batch.json")
 
 
-def scaling(n_runs: int, with_dask: bool, repeats: int, policy: str) -> None:
+def scaling(n_runs: int, with_dask: bool, repeats: int, policy: str,
+            workers: list[int] | None = None) -> None:
     """Runs per second, the parent's CPU per run and the bytes per run, per executor."""
     batch = _mc_fig10(n_runs)
     fmu = default_fmu()
     cores = os.cpu_count() or 1
     configs: dict[str, dict[str, Any]] = {
         f"local, {k} worker{'s' if k > 1 else ''}": {"workers": k}
-        for k in (1, 2, 4, 8) if k <= max(2, cores)}
+        for k in (workers or [k for k in (1, 2, 4, 8) if k <= max(2, cores)])}
     samples: dict[str, list[tuple[float, float, float]]] = {name: [] for name in configs}
     with dask_cluster(2) if with_dask else _nothing() as address:
         if address:
@@ -293,14 +295,15 @@ def scaling(n_runs: int, with_dask: bool, repeats: int, policy: str) -> None:
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     med = {name: tuple(statistics.median(x[k] for x in v) for k in range(3))
            for name, v in samples.items()}
-    one = med["local, 1 worker"][0]
+    one = next(iter(med.values()))[0]
     print(f"scaling: {n_runs} runs of mc_fig10 per batch, log {policy}, median of {repeats} "
           f"(configurations in turn; {cores} cores; load {os.getloadavg()[0]:.1f}; parent's "
           f"peak RSS {peak_mb:.0f} MB)")
-    print(f"{'executor':<26} {'runs/s':>8} {'vs 1':>6} {'parent CPU us/run':>18} "
+    print(f"{'executor':<26} {'runs/s':>8} {'vs first':>8} {'parent CPU us/run':>18} "
           f"{'journal+summary B/run':>22}")
-    for name, (rate, cpu, disk) in med.items():
-        print(f"{name:<26} {rate:>8.1f} {rate / one:>6.2f} {1e6 * cpu:>18.1f} {disk:>22.0f}")
+    for name, (runs_s, cpu_s, bytes_run) in med.items():
+        print(f"{name:<26} {runs_s:>8.1f} {runs_s / one:>8.2f} {1e6 * cpu_s:>18.1f} "
+              f"{bytes_run:>22.0f}")
 
 
 @contextmanager
@@ -321,6 +324,9 @@ def main(argv: list[str]) -> None:
     sc.add_argument("--dask", action="store_true")
     sc.add_argument("--repeats", type=int, default=1)
     sc.add_argument("--policy", default="failed", choices=("full", "failed", "none"))
+    sc.add_argument("--workers", type=int, action="append",
+                    help="local workers of a configuration (repeat; default 1, 2, 4, 8 up to "
+                    "the cores)")
     po = sub.add_parser("policies")
     po.add_argument("n_runs", type=int)
     po.add_argument("--dask", action="store_true")
@@ -329,7 +335,7 @@ def main(argv: list[str]) -> None:
     if args.what == "phases":
         phases(args.n_runs)
     elif args.what == "scaling":
-        scaling(args.n_runs, args.dask, args.repeats, args.policy)
+        scaling(args.n_runs, args.dask, args.repeats, args.policy, args.workers)
     elif args.what == "policies":
         policies(args.n_runs, args.policy or ["full", "failed", "none"], args.dask)
     else:

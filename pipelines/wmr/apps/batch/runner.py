@@ -6,7 +6,8 @@ Layout of the output folder::
                              OUT/runs/<shard>/<run_id>.mcap in a batch of over 1000 runs
     OUT/journal.jsonl        one line per finished run (with its wall time and worker)
     OUT/summary.parquet      one row per finished run, sorted by run id (see summary.py)
-    OUT/summary.csv          the same as CSV
+    OUT/summary.csv          the same as CSV (a batch of up to 1000 runs)
+    OUT/.parts/              the summary rows of this invocation's runs, until it ends
     OUT/batch.json           counts and timings of the last invocation
     OUT/logs/worker-<n>.log  the FMU's messages (local workers)
 
@@ -615,7 +616,8 @@ def _row_json(run: BatchRun) -> dict[str, Any]:
 
 def _row_of(index: int, line: Mapping[str, Any], batch: BatchSpec) -> SummaryRow:
     """The summary row of a journal line; made again from the spec when the line has none
-    (written before lines held their rows) or other input columns (the spec was edited without
+    (lines leave the inputs to the spec; lines of long ago held no row either) or other input
+    columns (the spec was edited without
     changing the run, e.g. a one-value grid axis added: the new column must not be empty)."""
     row = line.get("row")
     if not isinstance(row, dict) or not _row_fits(row, batch.input_columns):
