@@ -31,6 +31,13 @@ MAX_RUN_ID_CHARS = 64
 _TEXT_FIELDS = frozenset(("name", "status", "message", "mcap"))
 
 
+class WallClockLimit(Exception):
+    """Raised from a run's progress callback when it passes its wall-clock limit
+    (:func:`wmr.apps.batch.worker.execute`); here, where a record made again from a log maps
+    it to ``timeout``, so that the workers, which write journal lines, import this module and
+    not the other way round."""
+
+
 def line_check(row: Mapping[str, Any]) -> str:
     """The seal of a journal line: a hash of everything else in it.  A line edited by hand
     (or damaged) without it being recomputed is verified against the spec and its log."""
@@ -48,8 +55,6 @@ def logged_record(path: Path) -> dict[str, Any] | None:
     (:func:`wmr.apps.batch.worker.execute`): the same mapping is made here.
     """
     from mcap.reader import make_reader
-
-    from wmr.apps.batch.worker import WallClockLimit
 
     try:
         with open(path, "rb") as stream:
@@ -222,5 +227,5 @@ def _parse(line: bytes) -> dict[str, Any] | None:
     return None
 
 
-__all__ = ["JOURNAL", "Journal", "line_check", "log_complete", "log_stamp", "logged_record",
-           "sealed_line"]
+__all__ = ["JOURNAL", "Journal", "WallClockLimit", "line_check", "log_complete", "log_stamp",
+           "logged_record", "sealed_line"]

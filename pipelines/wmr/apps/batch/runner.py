@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
+import wmr.apps.batch.summary as summary_module
 from wmr.adapters.fmi.varmap import VariableMap, load_map
 from wmr.apps.batch.journal import (
     JOURNAL,
@@ -732,7 +733,8 @@ class _Blocks:
                      else tuple(indices),
                      runs if isinstance(runs, RunList) else {i: runs[i] for i in indices},
                      len(runs), self._batch.input_columns, self._fmu_sha, self._timeout,
-                     self._log, self._batch.optimal, self._faults)
+                     self._log, self._batch.optimal, self._faults,
+                     shard_runs=summary_module.SHARD_RUNS)
 
 
 def _record(line: bytes) -> dict[str, Any]:

@@ -65,7 +65,7 @@ UNSOLVED: Final = "not solved: the run's worker was killed before the optimum"
 SHARD_RUNS: Final = 1000
 
 
-def log_relpath(run_id: str, n_runs: int = 0) -> str:
+def log_relpath(run_id: str, n_runs: int = 0, shard_runs: int | None = None) -> str:
     """A run's log, relative to the batch folder.
 
     ``runs/<run_id>.mcap`` in a batch of at most :data:`SHARD_RUNS` runs;
@@ -73,11 +73,12 @@ def log_relpath(run_id: str, n_runs: int = 0) -> str:
     (:func:`wmr.apps.batch.spec.run_index`) divided by :data:`SHARD_RUNS`, with at least three
     digits (``runs/012/012345-1f2e3d4c.mcap``), so that the shards sort as their runs do.
     """
-    if n_runs <= SHARD_RUNS:
+    shard = SHARD_RUNS if shard_runs is None else shard_runs
+    if n_runs <= shard:
         return f"runs/{run_id}.mcap"
     head = run_id.partition("-")[0]
-    width = max(3, len(str((n_runs - 1) // SHARD_RUNS)))
-    return f"runs/{int(head) // SHARD_RUNS:0{width}d}/{run_id}.mcap"
+    width = max(3, len(str((n_runs - 1) // shard)))
+    return f"runs/{int(head) // shard:0{width}d}/{run_id}.mcap"
 
 
 def _float(value: object) -> float | None:

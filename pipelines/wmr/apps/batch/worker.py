@@ -25,9 +25,9 @@ from wmr.adapters.fmi.archive import file_sha256
 from wmr.adapters.fmi.compiled_law import law_library
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
-from wmr.apps.batch.journal import log_stamp, sealed_line
+from wmr.apps.batch.journal import WallClockLimit, log_stamp, sealed_line
 from wmr.apps.batch.spec import BatchRun
-from wmr.apps.batch.summary import SummaryRow, log_relpath, summary_table
+from wmr.apps.batch.summary import SHARD_RUNS, SummaryRow, log_relpath, summary_table
 from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.scenario import RunSpec
 from wmr.infra.errors import ConfigError, DiskFullError
@@ -36,10 +36,6 @@ from wmr.infra.errors import ConfigError, DiskFullError
 DISK_FULL = "disk_full"
 #: ``fault`` values understood by :func:`execute`, for tests of the executors only.
 FAULTS = ("hang", "crash", "crash-once", "crash-keeping-pipe")
-
-
-class WallClockLimit(Exception):
-    """Raised from the progress callback when a run passes its wall-clock limit."""
 
 
 @dataclass(frozen=True)
@@ -123,14 +119,21 @@ class Block:
     optimal: str | None = None
     faults: Mapping[str, str] = field(default_factory=dict)
     retry: bool = False
+    #: Runs per shard of logs (:data:`~wmr.apps.batch.summary.SHARD_RUNS`, the parent's).
+    shard_runs: int = SHARD_RUNS
 
     def __len__(self) -> int:
         return len(self.indices)
 
+    def log_relpath(self, run_id: str) -> str:
+        """A run's log relative to the batch folder (:func:`~wmr.apps.batch.summary.
+        log_relpath`)."""
+        return log_relpath(run_id, self.n_runs, self.shard_runs)
+
     def task(self, run: BatchRun) -> Task:
         """The :class:`Task` of ``run``, one of the block's."""
         return Task(run.run_id, run.spec, self.wall_limit_s, self.faults.get(run.run_id),
-                    log_name=log_relpath(run.run_id, self.n_runs).removeprefix("runs/"),
+                    log_name=self.log_relpath(run.run_id).removeprefix("runs/"),
                     log=self.log, optimal=self.optimal)
 
 
@@ -243,7 +246,7 @@ def run_block(block: Block, run_one: Callable[[Task], tuple[dict[str, Any], byte
         if record.get(DISK_FULL):
             stop = ("disk_full", str(record.get("message")))
             break
-        rel = log_relpath(run.run_id, block.n_runs)
+        rel = block.log_relpath(run.run_id)
         status = str(record.get("status"))
         if out_dir is None:  # the parent writes the log, then seals the line
             kept = data is not None and record.get("mcap") is not None
