@@ -376,6 +376,43 @@ def test_workers_drawing_their_ranges_write_the_summary_of_before(fmu3: Path,
                 out / "summary.parquet").to_pylist() if row["mcap"] is not None)
 
 
+def test_a_range_whose_worker_dies_costs_only_its_run_and_holes_resume(
+        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/batch.md, "A crash, a hang": in ranges of 4 runs, a worker that dies on a run of
+    its range loses the range's results, yet only that run is retried (then ``failed``); the
+    range's other runs are run again and their rows are the reference's.  A resume whose missing
+    runs are not consecutive gets them in one range of those runs (not a ``range``)."""
+    from wmr.apps.batch.local import DIED_TWICE
+
+    monkeypatch.setattr(runner_module._Blocks, "block_runs", lambda self, workers: 4)
+    batch = load_batch(spec20)
+    dead, once = batch.runs[5].run_id, batch.runs[9].run_id  # 2nd run of their ranges
+    with _test_hooks(faults={dead: "crash", once: "crash-once"}):
+        result = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False)
+    assert len(result.executed) == 20 and result.counts["failed"] == 1
+    rows = {r["run_id"]: r for r in pq.read_table(tmp_path / "summary.parquet").to_pylist()}
+    ref = {r["run_id"]: r for r in pq.read_table(reference / "summary.parquet").to_pylist()}
+    assert rows[dead]["status"] == "failed" and rows[dead]["message"] == DIED_TWICE
+    assert {k: v for k, v in rows.items() if k != dead} == \
+        {k: v for k, v in ref.items() if k != dead}
+    journal = tmp_path / "journal.jsonl"
+    holes = {batch.runs[i].run_id for i in (2, 7, 8, 13)}
+    journal.write_text("".join(line + "\n" for line in journal.read_text().splitlines()
+                               if json.loads(line)["run_id"] not in holes))
+    blocks = []
+    real = runner_module._Blocks._block
+
+    def seen(self: Any, indices: list[int]) -> Any:
+        blocks.append(list(indices))
+        return real(self, indices)
+
+    monkeypatch.setattr(runner_module._Blocks, "_block", seen)
+    again = run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False)
+    assert sorted(again.executed) == sorted(holes) and blocks == [[2, 7, 8, 13]]
+    assert pq.read_table(tmp_path / "summary.parquet").to_pylist() == list(rows.values())
+
+
 def test_two_workers_give_the_same_summary_bit_for_bit(reference: Path, spec20: Path,
                                                        fmu3: Path, tmp_path: Path) -> None:
     result = run_batch(load_batch(spec20), tmp_path, workers=2, fmu_path=fmu3, progress=False)
