@@ -790,10 +790,13 @@ class _Parts:
             return
         first = pa.ipc.open_stream(table).read_next_batch()["run_id"][0].as_py()
         index = run_index(str(first)) or 0
-        self.folder.mkdir(exist_ok=True)
         path = self.folder / f"{index}-{self._count}.arrow"
         self._count += 1
-        path.write_bytes(table)
+        try:
+            self.folder.mkdir(exist_ok=True)
+            path.write_bytes(table)
+        except OSError as exc:  # a full disk is one line, as for the journal
+            raise storage_error(exc, path) from exc
         self._files.setdefault(index // SUMMARY_BLOCK, []).append(path)
 
     def tables(self, chunk: int) -> list[Any]:
