@@ -16,6 +16,17 @@ Three measurements, each printed as a table:
     control loop without a log, the loop holding its rows (the failed-only policy's cost for
     a run that converges), the loop writing its full log, and appending its journal line.
 
+``python benchmarks/batch.py scaling N_RUNS [--dask] [--repeats R] [--policy P]``
+    The scaling table: one batch of ``N_RUNS`` runs of ``mc_fig10`` (failed-only logs by
+    default) per configuration, side by side, the configurations taking turns ``R`` times
+    (default 1; medians): 1 and 2 local workers (and 4 and 8 where the machine has that many
+    cores; ``--workers K``, repeated, chooses) and, with ``--dask``, a Dask cluster of 2
+    worker processes of one thread started with ``dask scheduler`` and ``dask worker``.  Per
+    configuration: runs per second, the speed-up over the first, the CPU time of the batch's
+    own process per run (``resource.getrusage(RUSAGE_SELF)``: the parent, or the Dask
+    client, alone; its workers are other processes) and the bytes per run of its journal
+    and summary.
+
 ``python benchmarks/batch.py policies N_RUNS [--dask] [--policy P ...]``
     One batch of ``N_RUNS`` runs of ``mc_fig10`` (its ``n`` raised to ``N_RUNS``) per log
     policy (``full``, ``failed``, ``none``; default all three), on 2 local workers and, with
@@ -43,6 +54,7 @@ from pathlib import Path
 from typing import Any
 
 from wmr.apps.batch import BatchSpec, load_batch, run_batch
+from wmr.apps.batch.spec import RunList
 from wmr.apps.run import LogPolicy, default_fmu
 from wmr.infra.paths import scenarios_dir
 
@@ -55,7 +67,10 @@ def _mc_fig10(n_runs: int) -> BatchSpec:
     spec = folder / "mc_fig10.toml"
     spec.write_text(text, encoding="utf-8")
     batch = load_batch(spec)
-    return batch if len(batch.runs) == n_runs else replace(batch, runs=batch.runs[:n_runs])
+    runs = batch.runs
+    assert isinstance(runs, RunList)
+    # a list made on demand, as the spec's own: the workers draw their runs from it
+    return batch if len(runs) == n_runs else replace(batch, runs=runs.head(n_runs))
 
 
 def _folder_bytes(folder: Path) -> int:
@@ -235,6 +250,62 @@ def policies(n_runs: int, names: list[str], with_dask: bool) -> None:
               f"{kept:>6}  {counts}")
 
 
+#: The files of a batch folder counted as "journal and summary" (the logs are not).
+RECORD_FILES = ("journal.jsonl", "summary.parquet", "summary.csv", "batch.json")
+
+
+def scaling(n_runs: int, with_dask: bool, repeats: int, policy: str,
+            workers: list[int] | None = None) -> None:
+    """Runs per second, the parent's CPU per run and the bytes per run, per executor."""
+    batch = _mc_fig10(n_runs)
+    fmu = default_fmu()
+    cores = os.cpu_count() or 1
+    configs: dict[str, dict[str, Any]] = {
+        f"local, {k} worker{'s' if k > 1 else ''}": {"workers": k}
+        for k in (workers or [k for k in (1, 2, 4, 8) if k <= max(2, cores)])}
+    samples: dict[str, list[tuple[float, float, float]]] = {name: [] for name in configs}
+    with dask_cluster(2) if with_dask else _nothing() as address:
+        if address:
+            configs["Dask, 2 worker processes"] = {"scheduler": address}
+            samples["Dask, 2 worker processes"] = []
+        warm = replace(batch, runs=batch.runs.head(50)) if isinstance(batch.runs, RunList) \
+            else batch
+        for how in configs.values():  # imports, the forkserver, the Dask workers' FMU: once
+            folder = Path(tempfile.mkdtemp(prefix="wmr-bench-warm-"))
+            run_batch(warm, folder, fmu_path=fmu, progress=False, log=LogPolicy(policy), **how)
+            shutil.rmtree(folder, ignore_errors=True)
+        for _ in range(repeats):
+            for name, how in configs.items():
+                folder = Path(tempfile.mkdtemp(prefix="wmr-bench-scaling-", dir=os.getcwd()))
+                try:
+                    before = resource.getrusage(resource.RUSAGE_SELF)
+                    t0 = time.perf_counter()
+                    result = run_batch(batch, folder, fmu_path=fmu, progress=False,
+                                       log=LogPolicy(policy), **how)
+                    wall = time.perf_counter() - t0
+                    after = resource.getrusage(resource.RUSAGE_SELF)
+                    assert len(result.executed) == n_runs
+                    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+                    disk = sum((folder / f).stat().st_size for f in RECORD_FILES
+                               if (folder / f).exists())
+                    samples[name].append((n_runs / wall, cpu / n_runs, disk / n_runs))
+                    print(name, *samples[name][-1], file=sys.stderr, flush=True)
+                finally:
+                    shutil.rmtree(folder, ignore_errors=True)
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    med = {name: tuple(statistics.median(x[k] for x in v) for k in range(3))
+           for name, v in samples.items()}
+    one = next(iter(med.values()))[0]
+    print(f"scaling: {n_runs} runs of mc_fig10 per batch, log {policy}, median of {repeats} "
+          f"(configurations in turn; {cores} cores; load {os.getloadavg()[0]:.1f}; parent's "
+          f"peak RSS {peak_mb:.0f} MB)")
+    print(f"{'executor':<26} {'runs/s':>8} {'vs first':>8} {'parent CPU us/run':>18} "
+          f"{'journal+summary B/run':>22}")
+    for name, (runs_s, cpu_s, bytes_run) in med.items():
+        print(f"{name:<26} {runs_s:>8.1f} {runs_s / one:>8.2f} {1e6 * cpu_s:>18.1f} "
+              f"{bytes_run:>22.0f}")
+
+
 @contextmanager
 def _nothing() -> Iterator[str]:
     yield ""
@@ -248,6 +319,14 @@ def main(argv: list[str]) -> None:
     e.add_argument("repeats", nargs="?", type=int, default=3)
     ph = sub.add_parser("phases")
     ph.add_argument("n_runs", nargs="?", type=int, default=50)
+    sc = sub.add_parser("scaling")
+    sc.add_argument("n_runs", type=int)
+    sc.add_argument("--dask", action="store_true")
+    sc.add_argument("--repeats", type=int, default=1)
+    sc.add_argument("--policy", default="failed", choices=("full", "failed", "none"))
+    sc.add_argument("--workers", type=int, action="append",
+                    help="local workers of a configuration (repeat; default 1, 2, 4, 8 up to "
+                    "the cores)")
     po = sub.add_parser("policies")
     po.add_argument("n_runs", type=int)
     po.add_argument("--dask", action="store_true")
@@ -255,6 +334,8 @@ def main(argv: list[str]) -> None:
     args = parser.parse_args(argv or ["executors"])
     if args.what == "phases":
         phases(args.n_runs)
+    elif args.what == "scaling":
+        scaling(args.n_runs, args.dask, args.repeats, args.policy, args.workers)
     elif args.what == "policies":
         policies(args.n_runs, args.policy or ["full", "failed", "none"], args.dask)
     else:

@@ -344,6 +344,75 @@ def test_reference_summary_is_the_one_kept(reference: Path) -> None:
     assert (reference / "summary.csv").read_bytes() == REFERENCE_CSV.read_bytes()
 
 
+#: The summary of the first 48 runs of ``scenarios/mc_failures.toml`` (42 converge, 6 time out
+#: and keep their logs), written by the code of before workers drew their own runs (the parent
+#: drew each run and handed it out alone; ``--workers 2 --log failed``).
+REFERENCE_MC_CSV = Path(__file__).parent / "data" / "batch_mc_failures48_summary.csv"
+
+
+def test_workers_drawing_their_ranges_write_the_summary_of_before(fmu3: Path,
+                                                                  tmp_path: Path) -> None:
+    """docs/batch.md, "Execution": each worker draws the runs of its range from the spec and
+    their indices, and their summary rows and journal lines come back a range at a time; the
+    inputs, results and log paths are those of before, bit for bit (here ranges of 3 runs on
+    2 workers, and 1 worker in ranges of 6)."""
+    from wmr.apps.run import LogPolicy
+    from wmr.infra.paths import scenarios_dir
+
+    text = (scenarios_dir() / "mc_failures.toml").read_text(encoding="utf-8")
+    spec = _write(tmp_path, text.replace("n = 800", "n = 48"), "mc_failures.toml")
+    batch = load_batch(spec)
+    for workers in (2, 1):
+        blocks = runner_module._Blocks(batch, runner_module._Ledger(48), None, {},
+                                       LogPolicy("failed"), "f")
+        assert blocks.block_runs(workers) == 6 // workers  # ranges, not runs one by one
+        out = tmp_path / f"w{workers}"
+        result = run_batch(batch, out, workers=workers, fmu_path=fmu3, progress=False,
+                           log=LogPolicy("failed"))
+        assert result.counts == {"converged": 42, "timeout": 6, "failed": 0}
+        assert (out / "summary.csv").read_bytes() == REFERENCE_MC_CSV.read_bytes()
+        assert result.logs_kept == 6 and all(
+            log_complete(out / row["mcap"]) for row in pq.read_table(
+                out / "summary.parquet").to_pylist() if row["mcap"] is not None)
+
+
+def test_a_range_whose_worker_dies_costs_only_its_run_and_holes_resume(
+        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/batch.md, "A crash, a hang": in ranges of 4 runs, a worker that dies on a run of
+    its range loses the range's results, yet only that run is retried (then ``failed``); the
+    range's other runs are run again and their rows are the reference's.  A resume whose missing
+    runs are not consecutive gets them in one range of those runs (not a ``range``)."""
+    from wmr.apps.batch.local import DIED_TWICE
+
+    monkeypatch.setattr(runner_module._Blocks, "block_runs", lambda self, workers: 4)
+    batch = load_batch(spec20)
+    dead, once = batch.runs[5].run_id, batch.runs[9].run_id  # 2nd run of their ranges
+    with _test_hooks(faults={dead: "crash", once: "crash-once"}):
+        result = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False)
+    assert len(result.executed) == 20 and result.counts["failed"] == 1
+    rows = {r["run_id"]: r for r in pq.read_table(tmp_path / "summary.parquet").to_pylist()}
+    ref = {r["run_id"]: r for r in pq.read_table(reference / "summary.parquet").to_pylist()}
+    assert rows[dead]["status"] == "failed" and rows[dead]["message"] == DIED_TWICE
+    assert {k: v for k, v in rows.items() if k != dead} == \
+        {k: v for k, v in ref.items() if k != dead}
+    journal = tmp_path / "journal.jsonl"
+    holes = {batch.runs[i].run_id for i in (2, 7, 8, 13)}
+    journal.write_text("".join(line + "\n" for line in journal.read_text().splitlines()
+                               if json.loads(line)["run_id"] not in holes))
+    blocks = []
+    real = runner_module._Blocks._block
+
+    def seen(self: Any, indices: list[int]) -> Any:
+        blocks.append(list(indices))
+        return real(self, indices)
+
+    monkeypatch.setattr(runner_module._Blocks, "_block", seen)
+    again = run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False)
+    assert sorted(again.executed) == sorted(holes) and blocks == [[2, 7, 8, 13]]
+    assert pq.read_table(tmp_path / "summary.parquet").to_pylist() == list(rows.values())
+
+
 def test_two_workers_give_the_same_summary_bit_for_bit(reference: Path, spec20: Path,
                                                        fmu3: Path, tmp_path: Path) -> None:
     result = run_batch(load_batch(spec20), tmp_path, workers=2, fmu_path=fmu3, progress=False)
@@ -431,9 +500,13 @@ def test_the_summary_is_read_back_from_the_journal_in_blocks(
     shutil.copytree(reference, out)
     journal = out / "journal.jsonl"
     lines = [json.loads(line) for line in journal.read_text().splitlines()]
-    assert all(set(line["row"]) == {"name", "base", "variant", "inputs"} for line in lines)
-    for line in lines[::2]:
-        del line["row"]
+    # lines of now hold no summary row (its inputs are drawn again from the spec); those of
+    # before did, sealed with it: the odd lines are made such
+    assert not any("row" in line for line in lines)
+    runs = load_batch(spec20).runs
+    for line in lines[1::2]:
+        line["row"] = runner_module._row_json(runs[int(line["run_id"][:4])])
+        line["check"] = line_check(line)
     lines[1]["row"] = "garbled"  # rows a hand or a disk damaged are made again, not trusted
     lines[3]["row"]["inputs"] = 5
     lines[5]["row"]["inputs"]["params.m"] = [1.0]
@@ -455,13 +528,28 @@ def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
         capsys: pytest.CaptureFixture[str]) -> None:
     """A one-value grid axis equal to the base's value changes no run (same ids, nothing
     redone) but adds a column: the rows read back from the journal must fill it, and the
-    lines are made again with the spec's rows (said once, naming why: docs/reliability.md)."""
-    out = tmp_path / "copy"
-    shutil.copytree(reference, out, copy_function=shutil.copy2)
+    lines of before, which held their rows, are made again with the spec's rows (said once,
+    naming why: docs/reliability.md); lines of now hold none: nothing to make again."""
     edited = _write(tmp_path, SPEC20 + "[grid]\nmax_time_s = [15.0]\n", "t20.toml")
     batch = load_batch(edited)
     assert [r.run_id for r in batch.runs] == [r.run_id for r in load_batch(spec20).runs]
+    now = tmp_path / "now"
+    shutil.copytree(reference, now, copy_function=shutil.copy2)
     capsys.readouterr()
+    again = run_batch(batch, now, workers=1, fmu_path=fmu3, progress=False)
+    assert again.skipped == 20 and again.executed == []
+    table = pq.read_table(now / "summary.parquet")
+    assert table.column("max_time_s").to_pylist() == [15.0] * 20
+    assert capsys.readouterr().err == ""
+    out = tmp_path / "copy"  # its lines as a batch of before wrote them: with their rows
+    shutil.copytree(reference, out, copy_function=shutil.copy2)
+    journal = out / "journal.jsonl"
+    before = [json.loads(line) for line in journal.read_text().splitlines()]
+    runs = load_batch(spec20).runs
+    for line in before:
+        line["row"] = runner_module._row_json(runs[int(line["run_id"][:4])])
+        line["check"] = line_check(line)
+    journal.write_text("".join(json.dumps(line) + "\n" for line in before))
     again = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
     assert again.skipped == 20 and again.executed == []
     table = pq.read_table(out / "summary.parquet")

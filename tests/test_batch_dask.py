@@ -232,8 +232,15 @@ class _Cluster:
         _wait_for(self._answers, 60, "the scheduler")
 
     def start_worker(self) -> None:
+        """Start a worker and wait until the scheduler has it (on a loaded machine a worker
+        took more than the batch's 3 s wait to join: the batch then stopped at once, as one
+        without workers, before the test could do what it tests)."""
+        from distributed import Client
+
         self.workers.append(self._start("worker", self.address, "--nworkers", "1",
                                         "--nthreads", "2", "--no-dashboard"))
+        with Client(self.address, timeout="60s") as client:
+            client.wait_for_workers(1, timeout=120)
 
     @staticmethod
     def _kill(proc: subprocess.Popen[bytes]) -> None:

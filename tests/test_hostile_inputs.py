@@ -274,6 +274,15 @@ def test_an_edited_journal_line_is_made_again_from_the_spec_and_the_log(
     """``row.inputs."gains.K_ps"`` edited to 999 used to be in the summary, although the run
     used 0.25; ``record.status`` edited to failed likewise; ``"abc"`` was ArrowInvalid."""
     out, lines = _copy(batch4, tmp_path)
+    # a line of now leaves the run's inputs to the spec; one of before held them (``row``),
+    # which an edit could change: line 1 is made such (sealed before the edit)
+    from wmr.apps.batch import runner
+    from wmr.apps.batch.journal import line_check
+
+    runs = load_batch(batch4 / "t4.toml").runs
+    assert "row" not in lines[1]
+    lines[1]["row"] = runner._row_json(runs[int(lines[1]["run_id"][:4])])
+    lines[1]["check"] = line_check(lines[1])
     edit(lines[1])
     _rewrite(out, lines)
     again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
@@ -345,12 +354,25 @@ def test_a_batch_folder_removed_under_the_workers_is_one_error_not_a_traceback(
     """A worker (re)started after the folder went could not open its log file: it printed a
     traceback; now the batch stops with one line saying so."""
     from wmr.apps.batch.local import LocalPool
-    from wmr.apps.batch.worker import Task
+    from wmr.apps.batch.spec import BatchRun
+    from wmr.apps.batch.worker import Block
 
     spec = load_scenario("fig11").runs[0]
+
+    class _one_block:  # the pool's source of runs: one block of one run
+        def __init__(self, spec: Any) -> None:
+            self.block = Block(range(1), {0: BatchRun("0000-x", spec, spec.name, "", {}, "x")},
+                               1, (), "f")
+
+        def __len__(self) -> int:
+            return 1
+
+        def blocks(self, size: int) -> Any:
+            yield self.block
+
     pool = LocalPool(fmu3, tmp_path / "runs", 1, log_dir=tmp_path / "gone")
     with pytest.raises(WmrError, match=r"could not start: .*worker-0\.log: cannot create"):
-        list(pool.run([Task("0000-x", spec)]))
+        list(pool.run(_one_block(spec)))
     assert "Traceback" not in capfd.readouterr().err
 
 

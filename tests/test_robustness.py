@@ -34,6 +34,7 @@ from wmr.apps.batch import load_batch, parse_batch, run_batch
 from wmr.apps.batch.journal import Journal
 from wmr.apps.batch.local import DIED_TWICE
 from wmr.apps.batch.runner import _test_hooks
+from wmr.apps.batch.spec import run_index
 from wmr.cli import main
 from wmr.config.scenario import load_scenario
 from wmr.infra.durable import partial_path, write_all
@@ -493,7 +494,7 @@ def test_dask_redoes_a_run_whose_result_was_lost(tmp_path: Path, fmu3: Path,
 
     batch = load_batch(_spec(tmp_path, SPEC.replace("max_time_s = 60.0", "max_time_s = 2.0")))
     run_batch(batch, tmp_path / "local", workers=1, fmu_path=fmu3, progress=False)
-    lost_key = f"wmr-runs-{batch.runs[2].run_id}-"
+    lost_key = f"wmr-runs-{run_index(batch.runs[2].run_id)}-"  # a task's key: its first run
     asked: list[str] = []
     real = Future.result
 

@@ -86,15 +86,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "batch", help="many runs (sweeps, Monte Carlo) on all cores or a Dask cluster",
         description="Run every run of a batch spec (a scenario file plus [grid], [[list]] and "
-                    "[random] sections; see docs/batch.md) and write OUT/summary.parquet and "
-                    "OUT/summary.csv, one row per run, and the logs the log policy keeps "
-                    "under OUT/runs (in shards of 1000 runs over 1000 runs).  Rerunning the "
-                    "same command skips the runs already done.  Exit status 0 when the batch "
-                    "completed (whatever the runs' statuses), 130 when interrupted (143 on "
-                    "SIGTERM), 1 on bad input, a full disk, when the first runs all fail "
-                    "before their first step (a broken FMU), or when the Dask scheduler goes "
-                    "away or has no workers (the runs finished are kept: rerun the same "
-                    "command).")
+                    "[random] sections; see docs/batch.md) and write OUT/summary.parquet (and "
+                    "OUT/summary.csv up to 1000 runs), one row per run, and the logs the log "
+                    "policy keeps under OUT/runs (in shards of 1000 runs over 1000 runs).  "
+                    "Rerunning the same command skips the runs already done.  Exit status 0 when "
+                    "the batch completed (whatever the runs' statuses), 130 when interrupted (143"
+                    " on SIGTERM), 1 on bad input, a full disk, when the first runs all fail "
+                    "before their first step (a broken FMU), or when the Dask scheduler goes away"
+                    " or has no workers (the runs finished are kept: rerun the same command).")
     p.add_argument("spec", metavar="SPEC", help="batch spec or scenario (.toml or name)")
     p.add_argument("--out", metavar="DIR", help="batch folder (default batches/SPEC_NAME)")
     p.add_argument("--workers", type=int, metavar="N",

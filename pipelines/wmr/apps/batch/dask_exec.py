@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import itertools
 import logging
 import secrets
 import threading
 import time
 from collections.abc import Iterator
 from concurrent.futures import CancelledError
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Literal
 
@@ -29,8 +29,15 @@ from distributed.diagnostics.plugin import WorkerPlugin
 
 from wmr.adapters.fmi.varmap import VariableMap
 from wmr.apps.batch import worker as _worker
-from wmr.apps.batch.local import DIED_TWICE, Outcome, made_up_record
-from wmr.apps.batch.worker import TOKEN_FILE, Attachment, Task, TaskSource, dask_run_many
+from wmr.apps.batch.local import DIED_TWICE, Killed
+from wmr.apps.batch.worker import (
+    TOKEN_FILE,
+    Attachment,
+    Block,
+    BlockResult,
+    TaskSource,
+    dask_run_block,
+)
 from wmr.infra.errors import ClusterError
 
 if TYPE_CHECKING:
@@ -60,21 +67,21 @@ class FmuPlugin(WorkerPlugin):
         _worker._FMUS.pop(self.sha256, None)
 
 
-#: Dask tasks in flight per worker thread (each of ``chunk`` runs): enough to keep every
+#: Dask tasks in flight per worker thread (each a range of runs): enough to keep every
 #: thread busy while results travel back, few enough that a million-run batch is not all
-#: submitted (and made) at once.
+#: submitted at once.
 WINDOW: Final = 4
 #: Seconds to fetch a finished task's result.  A worker that dies after finishing a task takes
 #: the result with it; Dask then computes the task again, but a fetch that started before the
 #: death was seen to wait for ever while the other workers kept dying.  Past this wait the
 #: task's runs are treated as those of a dead worker: one more try each, under a new key.
 RESULT_WAIT_S: Final = 30.0
-#: Most runs in one Dask task.  A task costs the scheduler, the client and the worker the same
-#: whatever it holds, and a run of ``mc_fig10`` takes a worker 3 ms (19 with its full log):
-#: with 8 runs a task Dask was 16 % slower than the local pool on 10,000 runs, with 32 it is
-#: 13 % faster (failed-only) and 11 % slower (full logs) (docs/batch.md); a dead worker loses
-#: at most 32 runs' work.
-MAX_CHUNK: Final = 32
+#: Most runs in one Dask task (a range: the worker draws its runs and returns their journal
+#: lines and summary rows in one piece).  A task costs the scheduler, the client and the
+#: worker the same whatever it holds (Dask's own cost is 0.2 to 1 ms a task), and a run of
+#: ``mc_fig10`` takes a worker about 2.5 ms: with 128 runs a task that cost is under 1 % of
+#: the task's work; a dead worker loses at most its range's work (its runs are run again).
+MAX_CHUNK: Final = 128
 #: Seconds a batch waits for its scheduler to have a worker before it stops, saying it has
 #: none: a worker started with the batch joins within a few seconds; a batch sent to a
 #: scheduler without workers waited for ever.
@@ -103,7 +110,7 @@ class DaskExecutor:
         Send every log back to the client, even from workers that see ``out_dir``.
     chunk
         Runs per Dask task; default: up to :data:`MAX_CHUNK`, so that each worker thread gets
-        at least 8 tasks (fewer, longer tasks cost the scheduler, which shares the cores, less).
+        at least 8 tasks (fewer, longer tasks cost the scheduler and the client less).
     """
 
     def __init__(self, fmu_path: Path, out_dir: Path, *, scheduler: str | None = None,
@@ -119,8 +126,10 @@ class DaskExecutor:
         self.client = client
         self.attachment = attachment
 
-    def run(self, tasks: TaskSource) -> Iterator[Outcome]:
-        """Submit ``tasks``; yield each :class:`Outcome` as it finishes.
+    def run(self, tasks: TaskSource) -> Iterator[BlockResult | Killed]:
+        """Submit ``tasks``, one Dask task per range of runs; yield each range's
+        :class:`~wmr.apps.batch.worker.BlockResult` as it finishes, and a :class:`Killed` for
+        each run whose task failed.
 
         At most :data:`WINDOW` tasks per worker thread are submitted at a time, the next as one
         finishes: the client holds, and the scheduler tracks, a window of a large batch, not
@@ -150,7 +159,7 @@ class DaskExecutor:
         with _cluster_errors(address, None, "cannot be reached"):
             client = self.client if self.client is not None else Client(self.scheduler,
                                                                          timeout="20s")
-        futures: dict[Any, list[Task]] = {}
+        futures: dict[Any, Block] = {}
         lost = False
         try:
             yield from self._run(client, address, tasks, plugin, att, token, futures)
@@ -168,8 +177,8 @@ class DaskExecutor:
                     client.close()
 
     def _run(self, client: Client, address: str, tasks: TaskSource, plugin: FmuPlugin,
-             att: Attachment | None, token: str, futures: dict[Any, list[Task]]
-             ) -> Iterator[Outcome]:
+             att: Attachment | None, token: str, futures: dict[Any, Block]
+             ) -> Iterator[BlockResult | Killed]:
         """:meth:`run` on ``client``; ``futures`` holds the tasks in flight (the caller
         cancels them)."""
         from distributed import as_completed
@@ -188,25 +197,25 @@ class DaskExecutor:
         out = str(self.out_dir.resolve())
         size = self.chunk or max(1, min(MAX_CHUNK, len(tasks) // (8 * threads)))
 
-        def submit(chunk: list[Task], tag: str) -> Any:
-            fut = client.submit(dask_run_many, chunk, plugin.sha256, att, out, token,
+        def submit(block: Block, tag: str) -> Any:
+            fut = client.submit(dask_run_block, block, plugin.sha256, att, out, token,
                                 self.var_map, pure=False, retries=0,
-                                key=f"wmr-runs-{chunk[0].run_id}-{token[:8]}{tag}")
-            futures[fut] = chunk
+                                key=f"wmr-runs-{block.indices[0]}-{token[:8]}{tag}")
+            futures[fut] = block
             return fut
 
-        source = iter(tasks)
+        source = tasks.blocks(size)
 
         def submit_next() -> Any:
-            chunk = list(itertools.islice(source, size))
-            return submit(chunk, "") if chunk else None
+            block = next(source, None)
+            return submit(block, "") if block is not None else None
 
         try:
             with _cluster_errors(address, client):
                 for _ in range(WINDOW * threads):
                     if submit_next() is None:
                         break
-                retried: set[str] = set()
+                retried: set[int] = set()
                 # Not as_completed(with_results=True): it gathers each result inside its own
                 # tracking task, and a worker that dies during that gather raises KilledWorker
                 # there; the future is then never yielded and the batch waits for ever (seen with
@@ -214,7 +223,7 @@ class DaskExecutor:
                 # future for its result here, cannot lose one.
                 done = as_completed(list(futures))
                 for fut in done:
-                    chunk = futures.pop(fut)
+                    block = futures.pop(fut)
                     more = submit_next()
                     if more is not None:
                         done.add(more)
@@ -234,21 +243,18 @@ class DaskExecutor:
                             fut.cancel()
                         died = how == "worker"
                         # the rule of the local pool: a run whose worker died gets one more
-                        # try, alone (the others of its chunk too: they died with it)
-                        again = [t for t in chunk if died and t.run_id not in retried]
-                        for task in again:
-                            retried.add(task.run_id)
-                            done.add(submit([task], "-retry"))
-                        for task in chunk:
-                            if task in again:
+                        # try, alone (the others of its range too: they died with it)
+                        for index in block.indices:
+                            if died and index not in retried:
+                                retried.add(index)
+                                done.add(submit(replace(block, indices=[index], retry=True),
+                                                "-retry"))
                                 continue
-                            yield Outcome(task.run_id, made_up_record(
-                                task.run_id, "failed", DIED_TWICE if died else
-                                f"the Dask task failed: {type(result).__name__}: {result}"),
-                                0.0, killed=True)
+                            yield Killed(index, "failed", DIED_TWICE if died else
+                                         f"the Dask task failed: {type(result).__name__}: "
+                                         f"{result}", 0.0)
                         continue
-                    for run_id, record, data, wall in result:
-                        yield Outcome(run_id, record, wall, log=data)
+                    yield result
         finally:
             watch.stop()
 
@@ -266,7 +272,7 @@ class _WorkerWatch:
     replaced for the batch.)
     """
 
-    def __init__(self, client: Client, futures: dict[Any, list[Task]]) -> None:
+    def __init__(self, client: Client, futures: dict[Any, Block]) -> None:
         self.client = client
         self.futures = futures
         self.starved = threading.Event()

@@ -31,6 +31,13 @@ MAX_RUN_ID_CHARS = 64
 _TEXT_FIELDS = frozenset(("name", "status", "message", "mcap"))
 
 
+class WallClockLimit(Exception):
+    """Raised from a run's progress callback when it passes its wall-clock limit
+    (:func:`wmr.apps.batch.worker.execute`); here, where a record made again from a log maps
+    it to ``timeout``, so that the workers, which write journal lines, import this module and
+    not the other way round."""
+
+
 def line_check(row: Mapping[str, Any]) -> str:
     """The seal of a journal line: a hash of everything else in it.  A line edited by hand
     (or damaged) without it being recomputed is verified against the spec and its log."""
@@ -48,8 +55,6 @@ def logged_record(path: Path) -> dict[str, Any] | None:
     (:func:`wmr.apps.batch.worker.execute`): the same mapping is made here.
     """
     from mcap.reader import make_reader
-
-    from wmr.apps.batch.worker import WallClockLimit
 
     try:
         with open(path, "rb") as stream:
@@ -114,6 +119,13 @@ def log_complete(path: Path, stamp: Mapping[str, Any] | None = None) -> bool:
     return summary is not None and any(m.name == "result" for m in summary.metadata_indexes)
 
 
+def sealed_line(row: Mapping[str, Any]) -> bytes:
+    """``row`` as a journal line: sealed (:func:`line_check`), JSON on one line, with its
+    newline.  A batch's workers make the lines of their runs, the parent writes them."""
+    sealed = {**row, "check": line_check(row)}
+    return (json.dumps(sealed, allow_nan=False, separators=(",", ":")) + "\n").encode()
+
+
 class Journal:
     """Append-only record of finished runs.
 
@@ -175,8 +187,12 @@ class Journal:
         """Append ``row`` as one line, sealed (:func:`line_check`; a short write is continued,
         a full disk raises :class:`~wmr.infra.errors.DiskFullError`); return the byte offset
         where it starts (the batch folder's lock makes the parent the only writer)."""
-        sealed = {**row, "check": line_check(row)}
-        line = (json.dumps(sealed, allow_nan=False, separators=(",", ":")) + "\n").encode()
+        return self.append_lines(sealed_line(row))
+
+    def append_lines(self, data: bytes) -> int:
+        """Append whole lines (:func:`sealed_line` each, a range's in one write: a batch's
+        parent writes once per range, not per run); return the byte offset where the first
+        starts."""
         fd = open_own(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, "batch journal")
         try:
             size = os.fstat(fd).st_size
@@ -184,9 +200,9 @@ class Journal:
             if not self._checked:
                 self._checked = True
                 if size and not self._ends_with_newline():
-                    line = b"\n" + line
+                    data = b"\n" + data
                     size += 1
-            write_all(fd, line, self.path)  # os.write may write less than asked: loop
+            write_all(fd, data, self.path)  # os.write may write less than asked: loop
         finally:
             os.close(fd)
         return size
@@ -211,4 +227,5 @@ def _parse(line: bytes) -> dict[str, Any] | None:
     return None
 
 
-__all__ = ["JOURNAL", "Journal", "line_check", "log_complete", "log_stamp", "logged_record"]
+__all__ = ["JOURNAL", "Journal", "WallClockLimit", "line_check", "log_complete", "log_stamp",
+           "logged_record", "sealed_line"]

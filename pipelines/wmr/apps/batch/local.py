@@ -3,8 +3,11 @@
 Not :class:`concurrent.futures.ProcessPoolExecutor`: a run that hangs must be killable on its
 own, and a worker that dies (a crash in the FMU's C code, the OOM killer) must cost its run
 only, not the pool: the run is given once more to a fresh worker, then recorded ``failed``.
-Each worker has its own pipe; the parent hands out one run at a time, kills a worker whose run
-passes the hard wall-clock limit, and starts a new one in its place.  Workers come from a
+Each worker has its own pipe; the parent hands out a range of runs at a time (a
+:class:`~wmr.apps.batch.worker.Block`: the worker draws each run itself and sends back the
+range's journal lines and summary rows in one message), reads from a word of shared memory
+which run each worker is on and since when, kills a worker whose run passes the hard
+wall-clock limit, and starts a new one in its place.  Workers come from a
 ``forkserver`` that has imported the simulation code once, so a replacement starts in
 milliseconds and no worker inherits the parent's threads.  Workers ignore SIGINT and SIGTERM:
 the parent alone stops them; and they end as soon as it is gone, even killed outright.
@@ -28,7 +31,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 from pathlib import Path
@@ -36,7 +39,15 @@ from typing import Any
 
 import wmr.apps.run  # noqa: F401 - preloaded by the forkserver, so that workers start fast
 from wmr.adapters.fmi.varmap import VariableMap
-from wmr.apps.batch.worker import PlantHolder, Task, TaskSource, wall_limit_message
+from wmr.apps.batch.worker import (
+    Block,
+    BlockResult,
+    PlantHolder,
+    Task,
+    TaskSource,
+    run_block,
+    wall_limit_message,
+)
 from wmr.core.energy import ENERGY_KEYS
 from wmr.infra.durable import open_own
 from wmr.infra.errors import FmuError, WmrError
@@ -92,7 +103,7 @@ def check_open_files(workers: int) -> None:
 
 @dataclass
 class Outcome:
-    """A finished run as an executor reports it.
+    """A finished run as :func:`wmr.apps.batch.run_batch` reports it to its ``on_outcome``.
 
     Attributes
     ----------
@@ -116,6 +127,30 @@ class Outcome:
     wall_s: float
     killed: bool = False
     log: bytes | None = None
+    worker: str = ""
+
+
+@dataclass(frozen=True)
+class Killed:
+    """A run that its executor stopped or lost (a hang past the hard limit, a worker that died
+    on it twice, a Dask task that failed): its record is made up (:func:`made_up_record`).
+
+    Attributes
+    ----------
+    index
+        The run's index in the spec.
+    status, message
+        Its made-up record's.
+    wall_s
+        How long it ran, s.
+    worker
+        Who ran it.
+    """
+
+    index: int
+    status: str
+    message: str
+    wall_s: float
     worker: str = ""
 
 
@@ -164,8 +199,12 @@ def _die_with(batch_pid: int) -> None:
 
 def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str | None,
                  log_file: str | None, batch_pid: int,
-                 var_map: VariableMap | None = None) -> None:
-    """A worker process: open the FMU once, then run what the pipe brings until ``None``."""
+                 var_map: VariableMap | None = None, where: Any = None) -> None:
+    """A worker process: open the FMU once, then run the blocks the pipe brings until ``None``.
+
+    ``where`` is shared memory of two doubles: the index of the run it starts and when
+    (``time.monotonic``, the same clock in every process), written before each run.
+    """
     _die_with(batch_pid)
     # Ctrl-C and SIGTERM reach the whole process group: the parent alone decides what stops
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -189,17 +228,25 @@ def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str
     conn.send(("ready",))
     att = Path(attachment) if attachment else None
     runs = Path(runs_dir)
+    me = str(os.getpid())
+
+    def starting(index: int) -> None:
+        if where is not None:
+            where[1] = time.monotonic()
+            where[0] = float(index)
+
+    def run_one(task: Task) -> tuple[dict[str, Any], bytes | None]:
+        return holder.run(task, runs / task.log_relpath, att), None
+
     try:
         while True:
             try:
-                task: Task | None = conn.recv()
+                block: Block | None = conn.recv()
             except EOFError:
                 break
-            if task is None:
+            if block is None:
                 break
-            t0 = time.perf_counter()
-            record = holder.run(task, runs / task.log_relpath, att)
-            conn.send(("done", task.run_id, record, time.perf_counter() - t0))
+            conn.send(("done", run_block(block, run_one, runs.parent, me, starting)))
     finally:
         holder.close()
         conn.close()
@@ -260,9 +307,26 @@ class _Slot:
     number: int
     proc: BaseProcess
     conn: Connection
-    task: Task | None = None
-    started: float = 0.0
+    #: [index of the run it is on (-1: none yet), when it started (time.monotonic)]
+    where: Any
+    block: Block | None = None
     ready: bool = False
+
+    def give(self, block: Block) -> None:
+        """Send ``block`` (its first run counts as started now: a worker that never reads it
+        is caught by the hard limit too)."""
+        self.block = block
+        self.where[0], self.where[1] = -1.0, time.monotonic()
+        try:
+            self.conn.send(block)
+        except OSError:  # the worker is gone: wait() reports it
+            pass
+
+    def current(self) -> tuple[int, float]:
+        """The run it is on (its index) and since when (``time.monotonic``)."""
+        assert self.block is not None
+        index, since = int(self.where[0]), float(self.where[1])
+        return (index if index >= 0 else self.block.indices[0]), since
 
 
 class LocalPool:
@@ -307,11 +371,12 @@ class LocalPool:
         except OSError as exc:
             raise WmrError(f"cannot make the pipe of batch worker {number}: "
                            f"{_start_problem(exc)}") from None
+        where = self._ctx.RawArray("d", 2)
         proc = _WorkerProcess(
             target=_worker_main, name=f"wmr-batch-{number}", daemon=True,
             args=(child, str(self.fmu_path), str(self.runs_dir),
                   str(self.attachment) if self.attachment else None, log_file, os.getpid(),
-                  self.var_map))
+                  self.var_map, where))
         try:
             proc.start()
         except (OSError, EOFError, MemoryError) as exc:  # EOFError: the forkserver died
@@ -320,11 +385,11 @@ class LocalPool:
                            ) from None
         finally:
             child.close()
-        return _Slot(number, proc, parent)
+        return _Slot(number, proc, parent, where)
 
     @staticmethod
     def _stop(slot: _Slot, kill: bool) -> None:
-        if kill or slot.task is not None:
+        if kill or slot.block is not None:
             slot.proc.kill()
         else:
             try:
@@ -337,10 +402,15 @@ class LocalPool:
             slot.proc.join(2.0)
         slot.conn.close()
 
-    def run(self, tasks: TaskSource) -> Iterator[Outcome]:
-        """Run ``tasks``; yield each :class:`Outcome` as it finishes (in finishing order).
+    def run(self, tasks: TaskSource, block_runs: int = 1) -> Iterator[BlockResult | Killed]:
+        """Run ``tasks`` in blocks of up to ``block_runs`` runs; yield each block's
+        :class:`~wmr.apps.batch.worker.BlockResult` as it finishes, and a :class:`Killed` for
+        each run stopped or lost with its worker.
 
-        Closing the iterator early (Ctrl-C in the consumer) kills the workers.
+        A worker that dies or is killed loses its block's results: the run it was on gets one
+        more try, alone (then it is a ``failed`` :class:`Killed`), and the block's other runs
+        are given again.  Closing the iterator early (Ctrl-C in the consumer) kills the
+        workers.
 
         Raises
         ------
@@ -348,32 +418,49 @@ class LocalPool:
             A worker cannot open the FMU.
         """
         check_open_files(min(self.workers, len(tasks)))
-        source = iter(tasks)  # taken one at a time: a large batch's runs are made as they go
-        again: deque[Task] = deque()
-        retried: set[str] = set()
+        source = tasks.blocks(block_runs)  # taken as they go: nothing is made up front
+        again: deque[Block] = deque()
+        retried: set[int] = set()
         slots: list[_Slot] = []
         spawned = 0
+
+        def lost(slot: _Slot, died: bool) -> Iterator[Killed]:
+            """The block of ``slot``, whose worker died (``died``) or was killed at the hard
+            limit: its run in flight once more or made up, the others given again."""
+            block = slot.block
+            assert block is not None
+            index, since = slot.current()
+            rest = [i for i in block.indices if i != index]
+            if rest:
+                again.append(replace(block, indices=rest, retry=False))
+            wall = time.monotonic() - since
+            if not died:
+                yield Killed(index, "timeout",
+                             wall_limit_message(block.wall_limit_s or self.hard_limit_s or 0.0)
+                             + "; the worker was killed", wall, str(slot.proc.pid))
+            elif index not in retried:  # e.g. the OOM killer: once more, then failed
+                retried.add(index)
+                again.appendleft(replace(block, indices=[index], retry=True))
+            else:
+                yield Killed(index, "failed", DIED_TWICE, wall,
+                             f"{slot.proc.pid} (died, exit code {slot.proc.exitcode})")
+
         try:
             for _ in range(min(self.workers, len(tasks))):
                 slots.append(self._spawn(spawned))
                 spawned += 1
             while True:
                 for slot in slots:
-                    if slot.task is None:
-                        slot.task = again.popleft() if again else next(source, None)
-                        if slot.task is None:
-                            continue
-                        slot.started = time.monotonic()
-                        try:
-                            slot.conn.send(slot.task)
-                        except OSError:  # the worker is gone: wait() reports it below
-                            pass
-                busy = [s for s in slots if s.task is not None]
+                    if slot.block is None:
+                        block = again.popleft() if again else next(source, None)
+                        if block is not None:
+                            slot.give(block)
+                busy = [s for s in slots if s.block is not None]
                 if not busy:
                     return
                 timeout = 0.5
                 if self.hard_limit_s is not None:
-                    first = min(s.started for s in busy) + self.hard_limit_s
+                    first = min(s.current()[1] for s in busy) + self.hard_limit_s
                     timeout = max(0.0, min(timeout, first - time.monotonic()))
                 # the process too: one gone whose pipe a child of its own (an FMU's helper)
                 # keeps open never reads as EOF
@@ -392,54 +479,39 @@ class LocalPool:
                         slot.ready = True
                         continue
                     if msg is not None and msg[0] == "done":
-                        _, run_id, record, wall = msg
-                        slot.task = None
-                        yield Outcome(run_id, record, wall, worker=str(slot.proc.pid))
+                        slot.block = None
+                        yield msg[1]
                         continue
                     if msg is not None and msg[0] == "init_error":
                         raise FmuError(f"a batch worker cannot open {self.fmu_path}: {msg[1]}")
                     if msg is not None and msg[0] == "setup_error":
                         raise WmrError(f"a batch worker could not start: {msg[1]}")
-                    # the worker died during its run
-                    task = slot.task
-                    assert task is not None
+                    # the worker died during its block
                     slot.proc.join(2.0)
-                    code = slot.proc.exitcode
                     if not slot.ready:
                         log = (f"; see {self.log_dir / f'worker-{slot.number}.log'}"
                                if self.log_dir else "")
                         raise WmrError(f"a batch worker process died while starting (exit "
-                                       f"code {code}){log}")
-                    wall = time.monotonic() - slot.started
-                    slot.task = None
+                                       f"code {slot.proc.exitcode}){log}")
                     self._stop(slot, kill=True)
+                    yield from lost(slot, died=True)
+                    slot.block = None
                     slots[slots.index(slot)] = self._spawn(spawned)
                     spawned += 1
-                    if task.run_id not in retried:  # e.g. the OOM killer: once more, then failed
-                        retried.add(task.run_id)
-                        again.appendleft(task)
-                        continue
-                    yield Outcome(task.run_id, made_up_record(task.run_id, "failed", DIED_TWICE),
-                                  wall, killed=True,
-                                  worker=f"{slot.proc.pid} (died, exit code {code})")
                 if self.hard_limit_s is not None:
                     now = time.monotonic()
                     for i, slot in enumerate(slots):
-                        if slot.task is None or now - slot.started < self.hard_limit_s:
+                        if slot.block is None or now - slot.current()[1] < self.hard_limit_s:
                             continue
-                        task, wall = slot.task, now - slot.started
                         self._stop(slot, kill=True)
+                        yield from lost(slot, died=False)
+                        slot.block = None
                         slots[i] = self._spawn(spawned)
                         spawned += 1
-                        yield Outcome(task.run_id, made_up_record(
-                            task.run_id, "timeout",
-                            wall_limit_message(task.wall_limit_s or self.hard_limit_s)
-                            + "; the worker was killed"),
-                            wall, killed=True, worker=str(slot.proc.pid))
         finally:
             for slot in slots:
-                self._stop(slot, kill=slot.task is not None)
+                self._stop(slot, kill=slot.block is not None)
 
 
-__all__ = ["DIED_TWICE", "LocalPool", "Outcome", "check_open_files", "made_up_record",
+__all__ = ["DIED_TWICE", "Killed", "LocalPool", "Outcome", "check_open_files", "made_up_record",
            "open_files_needed"]

@@ -69,13 +69,13 @@ class BatchFolder:
         if index is None or not 0 <= index < len(runs):
             raise ConfigError(field, f"{run_id!r} is not a run of {self.out_dir} "
                               f"({len(runs)} runs)",
-                              "give a run id of its summary.csv, e.g. "
+                              "give a run id of its summary (summary.parquet), e.g. "
                               f"{runs[0].run_id if runs else '0000-0123abcd'}")
         run = runs[index]
         if run.run_id != run_id:
             raise ConfigError(field, f"run {index} of {self.out_dir} is {run.run_id}, not "
                               f"{run_id} (another spec's run)",
-                              "give a run id of its summary.csv")
+                              "give a run id of its summary (summary.parquet)")
         return run
 
 
@@ -244,7 +244,7 @@ def pick_runs(out_dir: Path, *, worst: int | None = None, by: str = "time_to_goa
         chosen = [(r["run_id"], r["mcap"]) for r in table.to_pylist()]
         if not chosen:
             raise ConfigError(flag.get("status", "status"), f"no {status} run in {out_dir}",
-                              "see its summary.csv for the runs' statuses")
+                              "see its summary.parquet for the runs' statuses")
         return chosen
     if worst is None or worst < 1:
         raise ConfigError(flag.get("worst", "worst"), f"must be >= 1, got {worst}",

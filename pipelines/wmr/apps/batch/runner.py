@@ -6,7 +6,8 @@ Layout of the output folder::
                              OUT/runs/<shard>/<run_id>.mcap in a batch of over 1000 runs
     OUT/journal.jsonl        one line per finished run (with its wall time and worker)
     OUT/summary.parquet      one row per finished run, sorted by run id (see summary.py)
-    OUT/summary.csv          the same as CSV
+    OUT/summary.csv          the same as CSV (a batch of up to 1000 runs)
+    OUT/.parts/              the summary rows of this invocation's runs, until it ends
     OUT/batch.json           counts and timings of the last invocation
     OUT/logs/worker-<n>.log  the FMU's messages (local workers)
 
@@ -17,7 +18,6 @@ the others, half-written logs included; a run is never reported twice.
 from __future__ import annotations
 
 import fcntl
-import itertools
 import json
 import math
 import os
@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
+import wmr.apps.batch.summary as summary_module
 from wmr.adapters.fmi.varmap import VariableMap, load_map
 from wmr.apps.batch.journal import (
     JOURNAL,
@@ -39,17 +40,27 @@ from wmr.apps.batch.journal import (
     log_complete,
     log_stamp,
     logged_record,
+    sealed_line,
 )
-from wmr.apps.batch.local import LocalPool, Outcome, check_open_files
+from wmr.apps.batch.local import Killed, LocalPool, Outcome, check_open_files, made_up_record
 from wmr.apps.batch.spec import BatchRun, BatchSpec, RunList, run_index
 from wmr.apps.batch.summary import (
+    CSV_MAX_RUNS,
     STATUSES,
     SummaryRow,
     log_relpath,
     summary_table,
     write_summary,
 )
-from wmr.apps.batch.worker import DISK_FULL, FAULTS, Task, fmu_digest
+from wmr.apps.batch.worker import (
+    FAULTS,
+    Block,
+    BlockResult,
+    Entry,
+    fmu_digest,
+    journal_row,
+    table_bytes,
+)
 from wmr.apps.progress import count_progress
 from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.naming import plural
@@ -272,9 +283,10 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             attachment = out / f"spec-{batch.path.name}"
             if not attachment.exists() or attachment.read_bytes() != batch.source:
                 _write_atomic(attachment, batch.source)
-        tasks = _Tasks(batch, ledger, run_timeout_s, hooks.faults, policy)
+        tasks = _Blocks(batch, ledger, run_timeout_s, hooks.faults, policy, fmu_sha)
+        parts = _Parts(out)
         if not tasks:
-            stream: Iterator[Outcome] = iter(())
+            stream: Iterator[BlockResult | Killed] = iter(())
         elif scheduler is not None or client is not None:
             from wmr.apps.batch.dask_exec import DaskExecutor
 
@@ -287,7 +299,8 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             hard = None if run_timeout_s is None else run_timeout_s + max(1.0,
                                                                           0.1 * run_timeout_s)
             stream = LocalPool(fmu, runs_dir, n, hard_limit_s=hard, attachment=attachment,
-                               log_dir=out / "logs", var_map=var_map).run(tasks)
+                               log_dir=out / "logs", var_map=var_map
+                               ).run(tasks, block_runs=tasks.block_runs(n))
         # a bar on a terminal, a line every 10 s elsewhere, one bar in a notebook
         bar = count_progress(len(batch.runs), batch.name, "run", progress,
                              initial=ledger.n_done, smoothing=0.05, dynamic_ncols=True)
@@ -302,48 +315,73 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
         lost: ClusterError | None = None
         started = False  # a run of this invocation got past its first step
         unstarted = 0  # runs of this invocation that failed before it
-        try:
-            for outcome in stream:
-                if outcome.record.get(DISK_FULL):
-                    raise DiskFullError(str(outcome.record.get("message")))
-                index, digest, row = tasks.in_flight.pop(outcome.run_id)
-                rel = log_relpath(outcome.run_id, len(batch.runs))
-                if outcome.log is not None:
-                    (out / rel).parent.mkdir(exist_ok=True)
-                    _write_atomic(out / rel, outcome.log)
-                elif outcome.killed:
-                    _recover_partial(out / rel)
-                # the journal line says where the log is, or that there is none (the policy
-                # kept none, or a killed run left nothing): the line is the run's record
-                kept = (outcome.record.get("mcap") is not None or outcome.killed) \
-                    and (out / rel).is_file()
-                result.logs_kept += kept
-                offset = journal.append({"run_id": outcome.run_id, "digest": digest,
-                                         "fmu_sha256": fmu_sha, "killed": outcome.killed,
-                                         "wall_s": round(outcome.wall_s, 6),
-                                         "worker": outcome.worker, "row": row,
-                                         "path": rel if kept else None,
-                                         "log": log_stamp(out / rel) if kept else None,
-                                         "record": outcome.record})
-                ledger.mark(index, offset, outcome.record.get("status"))
-                result.executed.append(outcome.run_id)
-                if outcome.record.get("status") != "failed" or outcome.record.get("steps"):
+
+        def settle(entries: Sequence[Entry], table: Any) -> None:
+            """Journal the finished runs ``entries`` (one write), keep their summary rows
+            (``table``: an Arrow IPC stream, or a table), count them; raise when the batch
+            must stop (its first runs all failed before their first step, a test's
+            Ctrl-C) after journalling the runs up to the one that says so."""
+            nonlocal started, unstarted
+            lines: list[bytes] = []
+            stop: BaseException | None = None
+            for entry in entries:
+                line = entry.line
+                if line is None:  # its log came back as bytes: written here, then stamped
+                    row = dict(entry.row or {})
+                    rel = row.get("path")
+                    if rel is not None and entry.log is not None:
+                        (out / rel).parent.mkdir(exist_ok=True)
+                        _write_atomic(out / rel, entry.log)
+                        row["log"] = log_stamp(out / rel)
+                    line = sealed_line(row)
+                lines.append(line)
+                if entry.started:
                     started = True
-                elif not outcome.killed:
+                elif not entry.killed:
                     unstarted += 1
                     if not started and unstarted >= min(EARLY_STOP_RUNS, len(tasks)):
-                        raise WmrError(
+                        stop = WmrError(
                             f"the first {unstarted} runs all failed before their first step, "
-                            f"stopping the batch: {outcome.record.get('message')}")
-                status = str(outcome.record.get("status"))
-                counts[status] = counts.get(status, 0) + 1
+                            f"stopping the batch: {_record(line).get('message')}")
+                        break
+                if hooks.stop_after is not None \
+                        and len(result.executed) + len(lines) >= hooks.stop_after \
+                        and ledger.n_done + len(lines) < len(batch.runs):
+                    stop = KeyboardInterrupt()
+                    break
+            kept = entries[:len(lines)]
+            if lines:
+                offset = journal.append_lines(b"".join(lines))
+                for entry, line in zip(kept, lines, strict=True):
+                    ledger.mark(entry.run_index, offset, entry.status)
+                    offset += len(line)
+                    result.executed.append(entry.run_id)
+                    result.logs_kept += entry.kept
+                    counts[entry.status] = counts.get(entry.status, 0) + 1
+                parts.add(table, {e.run_id for e in kept} if len(kept) < len(entries)
+                          else None)
                 show()
-                bar.update(1)
+                bar.update(len(lines))
                 if on_outcome is not None:
-                    on_outcome(outcome)
-                if hooks.stop_after is not None and len(result.executed) >= hooks.stop_after \
-                        and ledger.n_done < len(batch.runs):
-                    raise KeyboardInterrupt
+                    for entry, line in zip(kept, lines, strict=True):
+                        journalled = json.loads(line)
+                        on_outcome(Outcome(entry.run_id, journalled["record"], entry.wall_s,
+                                           entry.killed, entry.log, journalled["worker"]))
+            if stop is not None:
+                raise stop
+
+        try:
+            for item in stream:
+                if isinstance(item, Killed):
+                    settle(*_killed(item, batch, out, fmu_sha))
+                    continue
+                settle(item.entries, item.table)
+                if item.stop is not None and item.stop[0] == "disk_full":
+                    raise DiskFullError(item.stop[1])
+                if item.stop is not None:  # a run made late, e.g. a sample drawn out of range
+                    field_, problem, fix = item.stop[1:]
+                    raise ConfigError(field_, problem, f"{fix}; the runs finished are kept: "
+                                      "rerun the same command after the fix")
         except KeyboardInterrupt:
             result.interrupted = True
         except DiskFullError as exc:
@@ -358,10 +396,12 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             result.counts = ledger.counts()
             result.wall_s = time.perf_counter() - t0
             try:
-                _finish(out, _summary_chunks(batch, journal, ledger), result, batch, scheduler,
-                        client, workers, fmu, fmu_sha)
+                _finish(out, _summary_chunks(batch, journal, ledger, parts), result, batch,
+                        scheduler, client, workers, fmu, fmu_sha)
             except DiskFullError as exc:
                 full = full or exc
+            finally:
+                parts.clear()
         if full is not None:
             raise DiskFullError(f"{full}; {result.finished} of {result.total} runs finished "
                                 "and are in the journal; free some space and rerun the same "
@@ -493,29 +533,33 @@ def _verified(run: BatchRun, line: dict[str, Any], fmu_sha: str, out: Path
     if line.get("run_id") != run.run_id or line.get("fmu_sha256") != fmu_sha \
             or line.get("digest") != run.digest:
         return None, ""
-    row = _row_json(run)
+    # a line of before held its summary row (its inputs); one of now has none: the inputs
+    # are drawn again from the spec, as the run was just made to compare its digest
+    row = _row_json(run) if "row" in line else None
+    same_row = row is None or line.get("row") == row
+    with_row = {**line, "row": row} if row is not None else dict(line)
     sealed = line.get("check") == line_check(line) \
         and line["record"].get("status") in STATUSES
     if line.get("killed"):
         if not sealed:
             return None, ""
-        return (line, "") if line.get("row") == row else ({**line, "row": row}, "row")
+        return (line, "") if same_row else (with_row, "row")
     rel = _line_log(line)
     if rel is None:  # no log: its policy kept none (the sealed line is the record), or the
         # line names a path that is not followed
         if not sealed or line.get("path", "") is not None:
             return None, ""
-        return (line, "") if line.get("row") == row else ({**line, "row": row}, "row")
+        return (line, "") if same_row else (with_row, "row")
     log = out / rel
     stamp = line.get("log") if sealed else None
     if sealed and log_complete(log, stamp if isinstance(stamp, dict) else None):
-        if line.get("row") == row:
+        if same_row:
             return line, ""
-        return {**line, "row": row}, "row (the spec's input columns changed)"
+        return with_row, "row (the spec's input columns changed)"
     record = logged_record(log)
     if record is None:
         return None, ""
-    corrected = {**line, "row": row, "record": record, "log": log_stamp(log)}
+    corrected = {**with_row, "record": record, "log": log_stamp(log)}
     corrected.pop("check", None)
     return corrected, _first_difference(line, corrected)
 
@@ -524,10 +568,10 @@ def _first_difference(line: Mapping[str, Any], corrected: Mapping[str, Any]) -> 
     """The first field of a journal line that its corrected line changes (``"row.inputs.
     gains.K_ps"``, ``"record.status"``), ``""`` when only the seal and the log's stamp do."""
     for part in ("row", "record"):
-        old, new = line.get(part), corrected[part]
+        old, new = line.get(part), corrected.get(part)
         if old == new:
             continue
-        if not isinstance(old, dict):
+        if not isinstance(old, dict) or not isinstance(new, dict):
             return part
         inner = new.get("inputs", {}) if part == "row" else {}
         for key in new:
@@ -573,7 +617,8 @@ def _row_json(run: BatchRun) -> dict[str, Any]:
 
 def _row_of(index: int, line: Mapping[str, Any], batch: BatchSpec) -> SummaryRow:
     """The summary row of a journal line; made again from the spec when the line has none
-    (written before lines held their rows) or other input columns (the spec was edited without
+    (lines leave the inputs to the spec; lines of long ago held no row either) or other input
+    columns (the spec was edited without
     changing the run, e.g. a one-value grid axis added: the new column must not be empty)."""
     row = line.get("row")
     if not isinstance(row, dict) or not _row_fits(row, batch.input_columns):
@@ -605,59 +650,167 @@ def _row_fits(row: Mapping[str, Any], columns: Sequence[str]) -> bool:
 SUMMARY_BLOCK: Final = 10_000
 
 
-def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger) -> Iterator[Any]:
-    """The summary of the finished runs as Arrow tables of up to :data:`SUMMARY_BLOCK` rows,
-    in run-id order, read back from the journal (at least one table, maybe empty)."""
-    finished = ledger.finished()
-    while True:
-        block = list(itertools.islice(finished, SUMMARY_BLOCK))
+def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger,
+                    parts: _Parts | None = None) -> Iterator[Any]:
+    """The summary of the finished runs as Arrow tables of the runs ``k * SUMMARY_BLOCK`` to
+    ``(k + 1) * SUMMARY_BLOCK``, in run-id order (at least one table, maybe empty): the rows
+    the workers made this time (``parts``), and the others read back from the journal."""
+    import pyarrow as pa
+
+    n_runs, first = len(batch.runs), True
+    offsets = ledger.offsets
+    for chunk, lo in enumerate(range(0, n_runs, SUMMARY_BLOCK)):
+        made = parts.tables(chunk) if parts is not None else []
+        fresh = {run_index(str(r)) for t in made for r in t["run_id"].to_pylist()}
+        block = [(i, offsets[i]) for i in range(lo, min(lo + SUMMARY_BLOCK, n_runs))
+                 if offsets[i] >= 0 and i not in fresh]
         try:
             lines = list(journal.read_at(off for _, off in block))
         except ValueError as exc:
             raise WmrError(f"{exc}: the journal changed while the batch ran; rerun the same "
                            "command to check it again and rewrite the summary") from None
+        if not lines and not made and not first:
+            continue
+        first = False
         records = {str(line["run_id"]): line["record"] for line in lines}
         logs = {str(line["run_id"]): _line_log(line) for line in lines}
-        yield summary_table([_row_of(i, line, batch) for (i, _), line in zip(block, lines,
+        read = summary_table([_row_of(i, line, batch) for (i, _), line in zip(block, lines,
                                                                               strict=True)],
-                            batch.input_columns, records, logs, optimal=batch.optimal is not None)
-        if len(block) < SUMMARY_BLOCK:
-            return
+                             batch.input_columns, records, logs,
+                             optimal=batch.optimal is not None)
+        yield pa.concat_tables([read, *made]).sort_by("run_id") if made else read
+    if first:  # no run at all
+        yield summary_table([], batch.input_columns, {}, optimal=batch.optimal is not None)
 
 
-class _Tasks:
-    """The runs of ``batch`` not done in ``ledger``, made one by one as the executor asks.
+#: Most runs in a local worker's block: large enough that the parent's cost per block (a
+#: message each way, one journal write, a summary part) is a few microseconds a run, small
+#: enough that a block of ``mc_fig10`` takes a fraction of a second (progress, the last
+#: blocks shared out evenly).
+MAX_BLOCK: Final = 128
 
-    Each made run's index, digest and summary row wait in :attr:`in_flight` until its journal
-    line is written: nothing is made twice, and only the runs in flight are held.
-    """
+
+class _Blocks:
+    """The runs of ``batch`` not done in ``ledger``, in blocks of consecutive indices, made as
+    the executor takes them.  The parent draws no run: each block carries the spec's run list
+    (a :class:`RunList`, a few kB) and its indices, and the worker draws its runs.  A block
+    never crosses a multiple of :data:`SUMMARY_BLOCK` (the summary is merged that many rows at
+    a time)."""
 
     def __init__(self, batch: BatchSpec, ledger: _Ledger, run_timeout_s: float | None,
-                 faults: Mapping[str, str], log: LogPolicy) -> None:
-        self._runs = batch.runs
-        self._log = log
-        self._optimal = batch.optimal
+                 faults: Mapping[str, str], log: LogPolicy, fmu_sha: str) -> None:
+        self._batch = batch
         self._ledger = ledger
-        self._n = len(self._runs) - ledger.n_done
-        self._timeout, self._faults = run_timeout_s, faults
-        self.in_flight: dict[str, tuple[int, str, dict[str, Any]]] = {}
+        self._n = len(batch.runs) - ledger.n_done
+        self._timeout, self._faults, self._log, self._fmu_sha = (run_timeout_s, faults, log,
+                                                                 fmu_sha)
 
     def __len__(self) -> int:
         return self._n
 
-    def __iter__(self) -> Iterator[Task]:
-        for i in range(len(self._runs)):
-            if self._ledger.done(i):
+    def block_runs(self, workers: int) -> int:
+        """Runs per block for ``workers`` workers: each gets at least 8 blocks, none more than
+        :data:`MAX_BLOCK` runs (1 for a small batch: a run at a time, as it always was)."""
+        return max(1, min(MAX_BLOCK, self._n // (8 * max(1, workers))))
+
+    def blocks(self, size: int) -> Iterator[Block]:
+        ledger, n_runs, chunk = self._ledger, len(self._batch.runs), SUMMARY_BLOCK
+        pending: list[int] = []
+        for i in range(n_runs):
+            if ledger.done(i):
                 continue
-            try:
-                run = self._runs[i]
-            except ConfigError as exc:  # a run made late, e.g. a sample drawn out of range
-                raise ConfigError(exc.field, exc.problem, f"{exc.fix}; the runs finished are "
-                                  "kept: rerun the same command after the fix") from None
-            self.in_flight[run.run_id] = (i, run.digest, _row_json(run))
-            yield Task(run.run_id, run.spec, self._timeout, self._faults.get(run.run_id),
-                       log_name=log_relpath(run.run_id, len(self._runs)).removeprefix("runs/"),
-                       log=self._log, optimal=self._optimal)
+            if pending and (len(pending) >= size or i // chunk != pending[0] // chunk):
+                yield self._block(pending)
+                pending = []
+            pending.append(i)
+        if pending:
+            yield self._block(pending)
+
+    def _block(self, indices: list[int]) -> Block:
+        runs = self._batch.runs
+        first, last = indices[0], indices[-1]
+        return Block(range(first, last + 1) if last - first + 1 == len(indices)
+                     else tuple(indices),
+                     runs if isinstance(runs, RunList) else {i: runs[i] for i in indices},
+                     len(runs), self._batch.input_columns, self._fmu_sha, self._timeout,
+                     self._log, self._batch.optimal, self._faults,
+                     shard_runs=summary_module.SHARD_RUNS)
+
+
+def _record(line: bytes) -> dict[str, Any]:
+    """The record of a journal line."""
+    record: dict[str, Any] = json.loads(line)["record"]
+    return record
+
+
+def _killed(item: Killed, batch: BatchSpec, out: Path, fmu_sha: str
+            ) -> tuple[list[Entry], Any]:
+    """The journal entry and summary row of a run its executor stopped or lost: its record made
+    up, its partial log recovered (the parent draws this run: it has no worker's result)."""
+    run = batch.runs[item.index]
+    record = made_up_record(run.run_id, item.status, item.message)
+    rel = log_relpath(run.run_id, len(batch.runs))
+    _recover_partial(out / rel)
+    kept = (out / rel).is_file()
+    line = sealed_line(journal_row(run.run_id, run.digest, fmu_sha, record, item.wall_s,
+                                   item.worker, rel if kept else None, out, killed=True))
+    table = summary_table([SummaryRow.of(run)], batch.input_columns, {run.run_id: record},
+                          {run.run_id: rel if kept else None},
+                          optimal=batch.optimal is not None)
+    return [Entry(item.index, run.run_id, item.status, True, line, None, None, item.wall_s,
+                  kept, killed=True)], table
+
+
+class _Parts:
+    """The summary rows of the runs of this invocation, as the workers made them: Arrow IPC
+    files in ``OUT/.parts``, one per block, by the :data:`SUMMARY_BLOCK` of runs they belong
+    to; merged into the summary at the end (:func:`_summary_chunks`), then removed.  A batch
+    killed before that leaves them: the next one removes them (its journal has the runs)."""
+
+    def __init__(self, out: Path) -> None:
+        import shutil
+
+        self.folder = out / ".parts"
+        shutil.rmtree(self.folder, ignore_errors=True)
+        self._files: dict[int, list[Path]] = {}
+        self._count = 0
+
+    def add(self, table: Any, only: set[str] | None = None) -> None:
+        """Keep ``table`` (a table or its IPC stream), or its rows of the run ids ``only``."""
+        import pyarrow as pa
+        import pyarrow.compute as pc
+
+        if only is not None or not isinstance(table, bytes | bytearray):
+            if isinstance(table, bytes | bytearray):
+                table = pa.ipc.open_stream(table).read_all()
+            if only is not None:
+                table = table.filter(pc.is_in(table["run_id"], pa.array(sorted(only))))
+            table = table_bytes(table)
+        if not table:
+            return
+        first = pa.ipc.open_stream(table).read_next_batch()["run_id"][0].as_py()
+        index = run_index(str(first)) or 0
+        path = self.folder / f"{index}-{self._count}.arrow"
+        self._count += 1
+        try:
+            self.folder.mkdir(exist_ok=True)
+            path.write_bytes(table)
+        except OSError as exc:  # a full disk is one line, as for the journal
+            raise storage_error(exc, path) from exc
+        self._files.setdefault(index // SUMMARY_BLOCK, []).append(path)
+
+    def tables(self, chunk: int) -> list[Any]:
+        """The kept tables of the runs ``chunk * SUMMARY_BLOCK`` to the next block's."""
+        import pyarrow as pa
+
+        return [pa.ipc.open_stream(path.read_bytes()).read_all()
+                for path in self._files.get(chunk, [])]
+
+    def clear(self) -> None:
+        import shutil
+
+        shutil.rmtree(self.folder, ignore_errors=True)
+        self._files.clear()
 
 
 def _recover_partial(log: Path) -> None:
@@ -683,7 +836,7 @@ def _finish(out: Path, chunks: Iterator[Any], result: BatchOutcome, batch: Batch
             fmu_sha: str) -> None:
     """Write the summary and ``batch.json``; a full disk is one :class:`DiskFullError`."""
     try:
-        write_summary(chunks, out)
+        write_summary(chunks, out, csv_too=result.total <= CSV_MAX_RUNS)
         _write_atomic(out / "batch.json", (json.dumps({
                 "spec": str(batch.path) if batch.path else batch.name, "total": result.total,
                 "finished": result.finished, "skipped": result.skipped,

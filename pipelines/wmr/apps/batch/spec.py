@@ -67,6 +67,7 @@ later (a sample drawn out of range) stops its batch with the same error, naming 
 
 from __future__ import annotations
 
+import copy
 import functools
 import hashlib
 import json
@@ -674,9 +675,31 @@ class RunList(Sequence[BatchRun]):
         self._n_variants = self._n_points * len(self._entries) * n_samples
         self._total = len(self._bases) * self._n_variants
         self._width = max(4, len(str(self._total - 1)))
+        self._seed = seed
+        self._cache()
+
+    def _cache(self) -> None:
         # a grid sweeps its samples once per point: keep them (a few kB each) while they last
         self._draw = functools.lru_cache(maxsize=4096)(
-            functools.partial(_sample, seed, dists=self._dists))
+            functools.partial(_sample, self._seed, dists=self._dists))
+
+    def __getstate__(self) -> dict[str, Any]:
+        # a batch's workers draw their runs themselves: the list goes to them (a few kB,
+        # its bases, axes and distributions), its cache of samples does not
+        state = dict(self.__dict__)
+        del state["_draw"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._cache()
+
+    def head(self, n_runs: int) -> RunList:
+        """The first ``n_runs`` runs, as a list made on demand: the same runs, ids and names
+        (their width is the whole list's)."""
+        first = copy.copy(self)
+        first._total = max(0, min(n_runs, self._total))
+        return first
 
     def __len__(self) -> int:
         return self._total

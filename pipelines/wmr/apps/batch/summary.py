@@ -12,6 +12,7 @@ import io
 import itertools
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -64,7 +65,7 @@ UNSOLVED: Final = "not solved: the run's worker was killed before the optimum"
 SHARD_RUNS: Final = 1000
 
 
-def log_relpath(run_id: str, n_runs: int = 0) -> str:
+def log_relpath(run_id: str, n_runs: int = 0, shard_runs: int | None = None) -> str:
     """A run's log, relative to the batch folder.
 
     ``runs/<run_id>.mcap`` in a batch of at most :data:`SHARD_RUNS` runs;
@@ -72,11 +73,12 @@ def log_relpath(run_id: str, n_runs: int = 0) -> str:
     (:func:`wmr.apps.batch.spec.run_index`) divided by :data:`SHARD_RUNS`, with at least three
     digits (``runs/012/012345-1f2e3d4c.mcap``), so that the shards sort as their runs do.
     """
-    if n_runs <= SHARD_RUNS:
+    shard = SHARD_RUNS if shard_runs is None else shard_runs
+    if n_runs <= shard:
         return f"runs/{run_id}.mcap"
     head = run_id.partition("-")[0]
-    width = max(3, len(str((n_runs - 1) // SHARD_RUNS)))
-    return f"runs/{int(head) // SHARD_RUNS:0{width}d}/{run_id}.mcap"
+    width = max(3, len(str((n_runs - 1) // shard)))
+    return f"runs/{int(head) // shard:0{width}d}/{run_id}.mcap"
 
 
 def _float(value: object) -> float | None:
@@ -181,35 +183,53 @@ def _csv_cell(value: object) -> str:
     return str(value)
 
 
-def write_summary(tables: pa.Table | Iterable[pa.Table], out_dir: Path) -> tuple[Path, Path]:
+#: A batch of more runs than this writes its summary as Parquet only: the CSV of a
+#: ``mc_fig10`` run is about 480 bytes (every float as its shortest exact decimal) against
+#: 190 in Parquet, and writing it costs the parent about 15 µs a run.  Read a larger one with
+#: ``pandas.read_parquet`` (or ``.to_csv`` it).
+CSV_MAX_RUNS: Final = 1000
+
+
+def write_summary(tables: pa.Table | Iterable[pa.Table], out_dir: Path, csv_too: bool = True
+                  ) -> tuple[Path, Path | None]:
     """Write the summary, a table or the consecutive blocks of one (one schema, the first
-    block maybe empty), as ``summary.parquet`` and ``summary.csv``, each atomically and a
-    block at a time: the summary of a million runs is never whole in memory.
+    block maybe empty), as ``summary.parquet`` and (``csv_too``) ``summary.csv``, each
+    atomically and a block at a time: the summary of a million runs is never whole in memory.
+    Without ``csv_too`` a ``summary.csv`` of before is removed (it would be stale).
 
     Returns
     -------
     tuple of Path
-        The Parquet and the CSV file.
+        The Parquet and the CSV file (``None`` without ``csv_too``).
     """
     blocks = iter([tables] if isinstance(tables, pa.Table) else tables)
     first = next(blocks)
     parquet, csv_path = out_dir / SUMMARY_PARQUET, out_dir / SUMMARY_CSV
     # each under a new random name beside it (a planted 'summary.csv.tmp' link is never
     # followed), renamed into place: the summary before stays until both are whole
-    with replacing(parquet) as parquet_file, replacing(csv_path) as csv_file:
-        stream = io.TextIOWrapper(csv_file, encoding="utf-8", newline="")
-        writer = csv.writer(stream, lineterminator="\n")
-        writer.writerow(first.column_names)
+    with ExitStack() as stack:
+        parquet_file = stack.enter_context(replacing(parquet))
+        writer = None
+        if csv_too:
+            csv_file = stack.enter_context(replacing(csv_path))
+            stream = io.TextIOWrapper(csv_file, encoding="utf-8", newline="")
+            writer = csv.writer(stream, lineterminator="\n")
+            writer.writerow(first.column_names)
         with pq.ParquetWriter(parquet_file, first.schema, compression="zstd",
                               write_statistics=False) as pw:
             for table in itertools.chain([first], blocks):
                 if table.num_rows:
                     pw.write_table(table)
-                columns = [table.column(i).to_pylist() for i in range(table.num_columns)]
-                writer.writerows([_csv_cell(v) for v in row]
-                                 for row in zip(*columns, strict=True))
-        stream.flush()
-        stream.detach()  # replacing() closes the file itself
+                if writer is not None:
+                    columns = [table.column(i).to_pylist() for i in range(table.num_columns)]
+                    writer.writerows([_csv_cell(v) for v in row]
+                                     for row in zip(*columns, strict=True))
+        if writer is not None:
+            stream.flush()
+            stream.detach()  # replacing() closes the file itself
+    if not csv_too:
+        csv_path.unlink(missing_ok=True)
+        return parquet, None
     return parquet, csv_path
 
 
@@ -219,6 +239,7 @@ def read_summary(out_dir: Path) -> pa.Table:
 
 
 __all__ = [
+    "CSV_MAX_RUNS",
     "FORMULA_STARTS",
     "OPTIMUM_RESULT_COLUMNS",
     "RESULT_COLUMNS",

@@ -15,28 +15,27 @@ import shutil
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 from wmr.adapters.fmi.archive import file_sha256
 from wmr.adapters.fmi.compiled_law import law_library
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
+from wmr.apps.batch.journal import WallClockLimit, log_stamp, sealed_line
+from wmr.apps.batch.spec import BatchRun
+from wmr.apps.batch.summary import SHARD_RUNS, SummaryRow, log_relpath, summary_table
 from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.scenario import RunSpec
-from wmr.infra.errors import DiskFullError
+from wmr.infra.errors import ConfigError, DiskFullError
 
 #: Key of a result record whose log could not be written for lack of space.
 DISK_FULL = "disk_full"
 #: ``fault`` values understood by :func:`execute`, for tests of the executors only.
 FAULTS = ("hang", "crash", "crash-once", "crash-keeping-pipe")
-
-
-class WallClockLimit(Exception):
-    """Raised from the progress callback when a run passes its wall-clock limit."""
 
 
 @dataclass(frozen=True)
@@ -81,13 +80,195 @@ class Task:
         return self.log_name or f"{self.run_id}.mcap"
 
 
+@dataclass(frozen=True)
+class Block:
+    """A range of a batch's runs, as sent to a worker: the worker draws each run from the spec
+    and its index (the parent makes none), runs it, and returns the range's journal lines and
+    summary rows in one piece (:class:`BlockResult`).
+
+    Attributes
+    ----------
+    indices
+        The runs' indices, increasing (a ``range``, or the runs of one not done yet).
+    runs
+        Where the runs are drawn from: the spec's :class:`~wmr.apps.batch.spec.RunList` (a few
+        kB: bases, axes and distributions), or the block's runs by index for a spec given as
+        a list.
+    n_runs
+        Runs in the spec (their logs are in shards beyond :data:`~wmr.apps.batch.summary.
+        SHARD_RUNS`).
+    input_columns
+        The summary's input columns.
+    fmu_sha256
+        The FMU's digest (:func:`fmu_digest`), journalled with each run.
+    wall_limit_s, log, optimal
+        As :class:`Task`'s.
+    faults
+        Test hooks by run id (:data:`FAULTS`).
+    retry
+        The block is a run given once more after its worker died.
+    """
+
+    indices: Sequence[int]
+    runs: Sequence[BatchRun] | Mapping[int, BatchRun]
+    n_runs: int
+    input_columns: tuple[str, ...]
+    fmu_sha256: str
+    wall_limit_s: float | None = None
+    log: LogPolicy = FULL_LOGS
+    optimal: str | None = None
+    faults: Mapping[str, str] = field(default_factory=dict)
+    retry: bool = False
+    #: Runs per shard of logs (:data:`~wmr.apps.batch.summary.SHARD_RUNS`, the parent's).
+    shard_runs: int = SHARD_RUNS
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def log_relpath(self, run_id: str) -> str:
+        """A run's log relative to the batch folder (:func:`~wmr.apps.batch.summary.
+        log_relpath`)."""
+        return log_relpath(run_id, self.n_runs, self.shard_runs)
+
+    def task(self, run: BatchRun) -> Task:
+        """The :class:`Task` of ``run``, one of the block's."""
+        return Task(run.run_id, run.spec, self.wall_limit_s, self.faults.get(run.run_id),
+                    log_name=self.log_relpath(run.run_id).removeprefix("runs/"),
+                    log=self.log, optimal=self.optimal)
+
+
+class Entry(NamedTuple):
+    """One finished run of a :class:`BlockResult` (a tuple: cheap to pickle, a block's
+    entries cross a pipe or the network)."""
+
+    #: The run's index in the spec.
+    run_index: int
+    run_id: str
+    #: ``converged``, ``timeout`` or ``failed``.
+    status: str
+    #: The run got past its first step (a batch whose first runs all fail before it stops).
+    started: bool
+    #: Its sealed journal line; ``None`` when its log came back as bytes (``log``): the
+    #: parent writes the log, then seals ``row`` with the log's stamp.
+    line: bytes | None
+    #: Its journal line before the seal and the log's stamp, when ``line`` is ``None``.
+    row: dict[str, Any] | None
+    #: The log's bytes, sent back by a worker that does not see the batch folder.
+    log: bytes | None
+    wall_s: float
+    #: It kept a log.
+    kept: bool
+    #: Its executor stopped it from outside (its record is made up).
+    killed: bool = False
+
+
+@dataclass
+class BlockResult:
+    """What a worker returns for a :class:`Block`: its finished runs in index order, their
+    summary rows as an Arrow IPC stream (``b""`` when none), and why the block stopped early,
+    if it did: ``("disk_full", message)`` (the run that found the disk full is not among the
+    entries) or ``("config", field, problem, fix)`` (a run could not be made)."""
+
+    entries: list[Entry]
+    table: bytes = b""
+    stop: tuple[str, ...] | None = None
+
+
 class TaskSource(Protocol):
-    """The runs for an executor: their count at once, the runs themselves as it takes them
-    (a list, or the runs of a large batch made one by one)."""
+    """The runs for an executor: their count at once, the blocks of them as it takes them
+    (of ``size`` runs at most: the executor knows its workers)."""
 
     def __len__(self) -> int: ...
 
-    def __iter__(self) -> Iterator[Task]: ...
+    def blocks(self, size: int) -> Iterator[Block]: ...
+
+
+def journal_row(run_id: str, digest: str, fmu_sha256: str, record: Mapping[str, Any],
+                wall_s: float, worker: str, path: str | None, out_dir: Path | None,
+                killed: bool = False) -> dict[str, Any]:
+    """A run's journal line before its seal: ``path`` its log relative to the batch folder
+    ``out_dir`` (``None``: none kept), stamped (:func:`~wmr.apps.batch.journal.log_stamp`).
+    The summary row's inputs are not in it: they are drawn again from the spec."""
+    return {"run_id": run_id, "digest": digest, "fmu_sha256": fmu_sha256, "killed": killed,
+            "wall_s": round(wall_s, 6), "worker": worker, "path": path,
+            "log": log_stamp(out_dir / path) if path is not None and out_dir is not None
+            else None,
+            "record": dict(record)}
+
+
+def table_bytes(table: Any) -> bytes:
+    """An Arrow table as an IPC stream (zstd-compressed)."""
+    import pyarrow as pa
+
+    sink = pa.BufferOutputStream()
+    # compressed: a range's rows wait on disk until the summary is written (about 300 bytes
+    # a run as they are, a third of it compressed)
+    with pa.ipc.new_stream(sink, table.schema,
+                           options=pa.ipc.IpcWriteOptions(compression="zstd")) as writer:
+        writer.write_table(table)
+    return bytes(sink.getvalue())
+
+
+def run_block(block: Block, run_one: Callable[[Task], tuple[dict[str, Any], bytes | None]],
+              out_dir: Path | None, worker: str,
+              starting: Callable[[int], None] | None = None) -> BlockResult:
+    """Draw, run and journal the runs of ``block``, one after the other.
+
+    Parameters
+    ----------
+    block
+        The runs.
+    run_one
+        Runs a task; returns its record and, when the worker does not see the batch folder,
+        its log's bytes (``None`` otherwise: the log, if kept, is in place).
+    out_dir
+        The batch folder as this worker sees it (the journal lines' stamps), ``None`` when
+        logs go back as bytes.
+    worker
+        Who runs them (the journal's ``worker``).
+    starting
+        Called with each run's index before it starts (the local pool's parent learns from
+        it which run a worker that died or hung was on).
+    """
+    entries: list[Entry] = []
+    rows: list[SummaryRow] = []
+    records: dict[str, dict[str, Any]] = {}
+    logs: dict[str, str | None] = {}
+    stop: tuple[str, ...] | None = None
+    for index in block.indices:
+        if starting is not None:
+            starting(index)
+        try:
+            run = block.runs[index]
+        except ConfigError as exc:  # a run made late, e.g. a sample drawn out of range
+            stop = ("config", exc.field, exc.problem, exc.fix)
+            break
+        t0 = time.perf_counter()
+        record, data = run_one(block.task(run))
+        wall = time.perf_counter() - t0
+        if record.get(DISK_FULL):
+            stop = ("disk_full", str(record.get("message")))
+            break
+        rel = block.log_relpath(run.run_id)
+        status = str(record.get("status"))
+        if out_dir is None:  # the parent writes the log, then seals the line
+            kept = data is not None and record.get("mcap") is not None
+        else:
+            kept = record.get("mcap") is not None and (out_dir / rel).is_file()
+        row = journal_row(run.run_id, run.digest, block.fmu_sha256, record, wall, worker,
+                          rel if kept else None, out_dir)
+        line = None if out_dir is None else sealed_line(row)
+        entries.append(Entry(index, run.run_id, status,
+                             status != "failed" or bool(record.get("steps")), line,
+                             row if line is None else None, data if kept else None, wall, kept))
+        rows.append(SummaryRow.of(run))
+        records[run.run_id] = record
+        logs[run.run_id] = rel if kept else None
+    table = b""
+    if rows:
+        table = table_bytes(summary_table(rows, block.input_columns, records, logs,
+                                          optimal=block.optimal is not None))
+    return BlockResult(entries, table, stop)
 
 
 @dataclass(frozen=True)
@@ -285,47 +466,44 @@ def sees_folder(out_dir: str, token: str) -> bool:
 TOKEN_FILE = ".dask-token"
 
 
-def dask_run(task: Task, fmu_sha256: str, attachment: Attachment | None, out_dir: str,
-             token: str, var_map: VariableMap | None = None
-             ) -> tuple[str, dict[str, Any], bytes | None, float]:
-    """A Dask task: run ``task``; return its id, record, log bytes (or ``None``) and wall time.
+def dask_run_block(block: Block, fmu_sha256: str, attachment: Attachment | None,
+                   out_dir: str, token: str, var_map: VariableMap | None = None
+                   ) -> BlockResult:
+    """A Dask task: the runs of ``block`` (:func:`run_block`), one task per range.
 
     A worker that sees the batch folder (same host or shared file system: it holds the
-    client's ``token``) writes the log there, atomically; any other writes it to a private
-    temp file and sends its bytes back for the client to write.
+    client's ``token``) writes each log there, atomically, and the journal lines; any other
+    writes each log to a private temp file and sends its bytes back for the client to write.
     """
-    t0 = time.perf_counter()
     holder = _holder(fmu_sha256, var_map)
     att = materialise(attachment.name, attachment.data) if attachment is not None else None
-    if sees_folder(out_dir, token):
-        final = Path(out_dir) / "runs" / task.log_relpath
-        part = final.with_name(f"{final.name}.{os.getpid()}.{threading.get_ident()}.part")
+    shared = sees_folder(out_dir, token)
+
+    def run_one(task: Task) -> tuple[dict[str, Any], bytes | None]:
+        if shared:
+            final = Path(out_dir) / "runs" / task.log_relpath
+            part = final.with_name(f"{final.name}.{os.getpid()}.{threading.get_ident()}.part")
+            try:
+                record = holder.run(task, part, att)
+                if record.get("mcap") is not None and part.exists():  # kept (the log policy)
+                    os.replace(part, final)
+                    record["mcap"] = str(final)
+            finally:
+                part.unlink(missing_ok=True)
+            return record, None
+        folder = Path(tempfile.mkdtemp(prefix="wmr-run-"))
         try:
-            record = holder.run(task, part, att)
-            if record.get("mcap") is not None and part.exists():  # kept (the log policy)
-                os.replace(part, final)
-                record["mcap"] = str(final)
+            path = folder / f"{task.run_id}.mcap"
+            record = holder.run(task, path, att)
+            data = path.read_bytes() if record.get("mcap") is not None and path.exists() \
+                else None
         finally:
-            part.unlink(missing_ok=True)
-        return task.run_id, record, None, time.perf_counter() - t0
-    folder = Path(tempfile.mkdtemp(prefix="wmr-run-"))
-    try:
-        path = folder / f"{task.run_id}.mcap"
-        record = holder.run(task, path, att)
-        data = path.read_bytes() if record.get("mcap") is not None and path.exists() else None
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
-    return task.run_id, record, data, time.perf_counter() - t0
+            shutil.rmtree(folder, ignore_errors=True)
+        return record, data
+
+    return run_block(block, run_one, Path(out_dir) if shared else None, "")
 
 
-def dask_run_many(tasks: list[Task], fmu_sha256: str, attachment: Attachment | None,
-                  out_dir: str, token: str, var_map: VariableMap | None = None
-                  ) -> list[tuple[str, dict[str, Any], bytes | None, float]]:
-    """A Dask task of several runs (:func:`dask_run` each): fewer, longer tasks cost the
-    scheduler less."""
-    return [dask_run(t, fmu_sha256, attachment, out_dir, token, var_map) for t in tasks]
-
-
-__all__ = ["FAULTS", "Attachment", "PlantHolder", "Task", "WallClockLimit",
-           "dask_run", "dask_run_many", "execute", "fmu_digest", "materialise",
-           "wall_limit_message"]
+__all__ = ["FAULTS", "Attachment", "Block", "BlockResult", "Entry", "PlantHolder", "Task",
+           "WallClockLimit", "dask_run_block", "execute", "fmu_digest", "journal_row",
+           "materialise", "run_block", "table_bytes", "wall_limit_message"]
