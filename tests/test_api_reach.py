@@ -166,6 +166,10 @@ BAD_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
     (["optimal", "--final-time", "3"], lambda: wmr.optimal(final_time_s=3.0),
      "--final-time", "final_time_s"),
     (["optimal", "--out", "o.txt"], lambda: wmr.optimal(out="o.txt"), "--out", "out"),
+    (["optimal", "fig9", "--run", "nope"], lambda: wmr.optimal(scenario="fig9", run="nope"),
+     "--run", "run"),
+    (["optimal", "--torque-limit", "-1"], lambda: wmr.optimal(torque_limit_nm=-1.0),
+     "--torque-limit", "torque_limit_nm"),
     (["replay"], lambda: wmr.replay(), "FILE.mcap|DIR", "logs"),
     (["replay", "x.mcap", "--rrd", "o.txt"], lambda: wmr.replay("x.mcap", rrd="o.txt"),
      "--rrd", "rrd"),
@@ -195,3 +199,27 @@ def test_the_api_gives_the_command_s_one_line_errors(
     # the same problem, another option in it named as each front door names it
     problem = err[0].removeprefix(f"wmr: error: {flag}: ").replace("--scheduler", "scheduler")
     assert problem.startswith(info.value.problem), (problem, info.value.problem)
+
+
+def test_an_optimal_error_s_fix_names_the_other_inputs_as_its_front_door_does(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``apps.optimal`` names every input by its keyword, in the fix too; ``wmr optimal``
+    translates them all into its options (no ``command_line`` flag below the CLI)."""
+    from wmr.apps.optimal import OptimalRequest
+    from wmr.apps.request import Overrides
+    from wmr.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["optimal", "--final-time", "3"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        "wmr: error: --final-time: the time objective leaves the final time free (drop "
+        "--final-time or use --objective energy)")
+    with pytest.raises(ConfigError) as info:
+        wmr.optimal(final_time_s=3.0)
+    assert (info.value.field, info.value.fix) == (
+        "final_time_s", "drop final_time_s or use objective=energy")
+    # a request the optimal manoeuvre cannot honour is refused when made, not ignored
+    with pytest.raises(ConfigError) as info:
+        OptimalRequest(overrides=Overrides(gains={"K_ps": 1.0}))
+    assert info.value.field == "gains"

@@ -363,12 +363,14 @@ def optimal(start: PoseLike | None = None, goal: PoseLike | None = None, *,
     here (``final_time_s``) where the command names the option (``--final-time``).
     """
     _not_in_a_worker_import("optimal")
-    from wmr.apps.optimal import optimal_command
+    from wmr.apps.optimal import OptimalRequest, optimal_command
+    from wmr.apps.request import Overrides
 
-    record = optimal_command(start, goal, objective=objective, torque_limit_nm=torque_limit_nm,
-                             torque_only=torque_only, final_time_s=final_time_s,
-                             period_s=period_s, out=out, fmi=fmi, fmu=fmu, scenario=scenario,
-                             run=run, params=params, limits=limits)
+    record = optimal_command(OptimalRequest(
+        scenario, run=run,
+        overrides=Overrides(start=start, goal=goal, params=params, limits=limits),
+        objective=objective, torque_limit_nm=torque_limit_nm, torque_only=torque_only,
+        final_time_s=final_time_s, period_s=period_s, out=out, fmi=fmi, fmu=fmu))
     return RunResult(record)
 
 

@@ -371,25 +371,20 @@ def _option(keyword: str, command_line: bool) -> str:
 LISTED_RUNS = 20
 
 
-def select_run(scenario: Scenario, name: str | None, command_line: bool = True) -> RunSpec:
-    """The run ``name`` of ``scenario``, or its only run (``--run NAME``, ``run=NAME``)."""
+def select_run(scenario: Scenario, name: str | None) -> RunSpec:
+    """The run ``name`` of ``scenario``, or its only run; an error names the field ``run``."""
     from wmr.config.naming import name_list
 
     names = [r.name for r in scenario.runs]
     runs = [r for r in scenario.runs if name is None or r.name == name]
     if len(runs) == 1:
         return runs[0]
-    option = _option("run", command_line)
     problem = (f"scenario {scenario.name} has no run {name!r}" if name is not None
                else f"scenario {scenario.name} has {len(runs)} runs")
-    how = f"{option} NAME" if command_line else f"{option}=NAME"
     # 20 names and the count (name_list): a scenario's runs are few, and a name cut short
-    # cannot be given back to --run; all of them with their poses: wmr run SCENARIO --list
-    listing = f"; all of them: wmr run {scenario.name} --list" if command_line else ""
-    raise ConfigError(option, problem, f"pick one with {how} of "
-                      f"{name_list(names, shown=LISTED_RUNS)}"
-                      + (" or run them all with 'wmr batch'" if command_line else "")
-                      + listing)
+    # cannot be given back as the run; all of them with their poses: wmr run SCENARIO --list
+    raise ConfigError("run", problem, "pick one with run=NAME of "
+                      f"{name_list(names, shown=LISTED_RUNS)}")
 
 
 #: ``progress_bar(run_name)``: the progress callback of a run and what closes it.
@@ -434,7 +429,7 @@ def resolve_run(request: RunRequest,
             warn(name, f"heading {pose[2]:g} is in degrees but looks like {as_pi} rad: give "
                        f"{math.degrees(pose[2]):.4g} if you meant {as_pi} rad")
     sc = load_scenario(request.scenario)
-    base = select_run(sc, request.run, command_line=False)
+    base = select_run(sc, request.run)
     spec = with_overrides(base, start=None if o.start is None else list(o.start),
                           goal=None if o.goal is None else list(o.goal), gains=o.gains,
                           limits=o.limits, params=o.params, period_s=o.period_s,

@@ -69,7 +69,10 @@ def errors_as_options(options: Mapping[str, str]) -> Iterator[None]:
     try:
         yield
     except ConfigError as exc:
-        option = options.get(exc.field)
+        # a part of a field (``goal y``) is the same part of its option (``--goal y``)
+        head, sep, part = exc.field.partition(" ")
+        option = options.get(exc.field) or (f"{options[head]} {part}"
+                                            if sep and head in options else None)
         if option is None:
             raise
         raise ConfigError(option, _in_options(exc.problem, options),
