@@ -223,3 +223,50 @@ def test_an_optimal_error_s_fix_names_the_other_inputs_as_its_front_door_does(
     with pytest.raises(ConfigError) as info:
         OptimalRequest(overrides=Overrides(gains={"K_ps": 1.0}))
     assert info.value.field == "gains"
+
+
+def _benchmark(**fields: Any) -> object:
+    from wmr.apps.benchmark import BenchmarkRequest, benchmark_command
+
+    return benchmark_command(BenchmarkRequest(**fields))
+
+
+def _tune(**fields: Any) -> object:
+    from wmr.apps.tuning import TuneRequest, tune_command
+
+    return tune_command(TuneRequest(**fields))
+
+
+#: Inputs the apps behind ``wmr benchmark``, ``wmr tune`` and ``wmr ssp`` refuse before any
+#: work, as command-line arguments and as the app's request, with the field each names.
+APP_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
+    (["benchmark", "--controllers", "nope"], lambda: _benchmark(controllers=["nope"]),
+     "--controllers", "controllers"),
+    (["benchmark", "--out", "o.txt/x", "--tuned", "nothere.json"],
+     lambda: _benchmark(out="o.txt/x", tuned="nothere.json"), "--tuned", "tuned"),
+    (["tune", "--budget", "0"], lambda: _tune(budget=0), "--budget", "budget"),
+    (["tune", "--runs", "3"], lambda: _tune(runs=3), "--runs", "runs"),
+    (["tune", "--controller", "nope"], lambda: _tune(controller="nope"),
+     "--controller", "controller"),
+]
+
+
+@pytest.mark.parametrize(("argv", "call", "flag", "keyword"), APP_INPUTS,
+                         ids=[" ".join(case[0]) for case in APP_INPUTS])
+def test_an_app_names_its_request_s_fields_and_the_command_its_options(
+        argv: list[str], call: Callable[[], object], flag: str, keyword: str, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """The front doors only parse and call the apps; the apps name their inputs by the
+    request's fields, and each command by its options (issue 29)."""
+    from wmr.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"wmr: error: {flag}: "), err
+    with pytest.raises(ConfigError) as info:
+        call()
+    assert info.value.field == keyword
+    problem = err[0].removeprefix(f"wmr: error: {flag}: ")
+    assert problem.startswith(info.value.problem.split(" (")[0]), (problem, info.value.problem)
+    assert list(tmp_path.iterdir()) == []  # nothing made

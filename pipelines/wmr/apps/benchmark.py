@@ -71,7 +71,7 @@ def controller_rows(names: Sequence[str]) -> dict[str, tuple[str, bool]]:
     rows: dict[str, tuple[str, bool]] = {}
     for name in names:
         rows[name] = (name, False)
-        if registry.get(name, "--controllers").tuned:
+        if registry.get(name, "controllers").tuned:
             rows[f"{name}{TUNED_SUFFIX}"] = (name, True)
     return rows
 
@@ -88,7 +88,7 @@ def controller_row(label: str, tuned: Mapping[str, Mapping[str, float]]) -> tupl
     Raises
     ------
     ConfigError
-        ``--controllers``: an unknown label (listing the known ones), or ``NAME-tuned`` of a
+        ``controllers``: an unknown label (listing the known ones), or ``NAME-tuned`` of a
         controller without tuned gains.
     """
     from wmr.infra.errors import ConfigError
@@ -98,13 +98,13 @@ def controller_row(label: str, tuned: Mapping[str, Mapping[str, float]]) -> tupl
         name, use_tuned = label[:-len(TUNED_SUFFIX)], True
     if name not in registry.names():
         known = [*CONTROLLERS, *(n for n in registry.names() if n not in CONTROLLERS)]
-        raise ConfigError("--controllers", f"unknown controller {label!r}",
+        raise ConfigError("controllers", f"unknown controller {label!r}",
                           f"one of: {', '.join(known)}")
-    registry.get(name, "--controllers")  # a plug-in that does not load: its one line
+    registry.get(name, "controllers")  # a plug-in that does not load: its one line
     if use_tuned and not tuned.get(name):
-        raise ConfigError("--controllers", f"{name} has no tuned gains",
+        raise ConfigError("controllers", f"{name} has no tuned gains",
                           f"run 'wmr tune --controller {name} --save FILE.json' and give "
-                          "--tuned FILE.json, or ask for the row " + repr(name))
+                          "tuned=FILE.json, or ask for the row " + repr(name))
     return name, use_tuned
 
 
@@ -377,17 +377,17 @@ def load_tuned(path: str | os.PathLike[str] | None) -> dict[str, dict[str, float
         return gains
     fix = "give a file written by 'wmr tune --save'"
     try:
-        data = json.loads(read_input(path, "--tuned", max_bytes=MAX_JSON_BYTES,
+        data = json.loads(read_input(path, "tuned", max_bytes=MAX_JSON_BYTES,
                                      what="a tuned-gains file", fix=fix).decode("utf-8"))
     except ConfigError:  # a ValueError too: already the one line
         raise
     except (OSError, ValueError, RecursionError) as exc:
-        raise ConfigError("--tuned", f"cannot read {path}: {exc}", fix) from None
+        raise ConfigError("tuned", f"cannot read {path}: {exc}", fix) from None
     if not isinstance(data, dict):
-        raise ConfigError("--tuned", f"{path} is not a JSON object of controller -> gains")
+        raise ConfigError("tuned", f"{path} is not a JSON object of controller -> gains")
     for name, g in data.items():
         if name not in registry.names() or not isinstance(g, dict):
-            raise ConfigError("--tuned", f"{path}: unexpected entry {name!r}",
+            raise ConfigError("tuned", f"{path}: unexpected entry {name!r}",
                               f"controllers: {', '.join(registry.names())}")
         gains[name] = {k: float(v) for k, v in g.items()}
     return gains
@@ -479,6 +479,76 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
                                            f.get("torque_sq_integral_n2m2s"))
         rows.extend({k: r.get(k) for k in FIELDS} for r in case_rows)
     return rows
+
+
+@dataclass(frozen=True)
+class BenchmarkRequest:
+    """A benchmark, as ``wmr benchmark`` asks for it; errors name its fields (``controllers``,
+    ``tuned``, ``out``), the command line its options.
+
+    Attributes
+    ----------
+    scenarios
+        Scenario names or TOML files (default :data:`DEFAULT_SCENARIOS`).
+    out
+        The folder of the tables and logs (default ``runs/benchmark``).
+    controllers
+        Row labels (:func:`controller_row`; default :data:`CONTROLLERS`).
+    tuned
+        A ``wmr tune --save`` file of tuned gains (default: the declared ones).
+    optimal
+        Also solve and replay the optimum of each case.
+    limit_cases
+        Only the first N cases.
+    fmi, fmu
+        The project's FMI 2 or 3 build, or another robot FMU.
+    """
+
+    scenarios: Sequence[str] = ()
+    out: str | Path | None = None
+    controllers: Sequence[str] = ()
+    tuned: str | Path | None = None
+    optimal: bool = True
+    limit_cases: int | None = None
+    fmi: int = 3
+    fmu: str | Path | None = None
+
+
+@dataclass(frozen=True)
+class BenchmarkOutcome:
+    """What :func:`benchmark_command` made: the rows, the folder and its two tables."""
+
+    rows: list[dict[str, Any]]
+    out: Path
+    tables: tuple[Path, Path]
+
+
+def benchmark_command(request: BenchmarkRequest,
+                      progress: Callable[[int, str, str], None] | None = None
+                      ) -> BenchmarkOutcome:
+    """What ``wmr benchmark`` does: check the request, run every case by every row's
+    controller on one FMU (:func:`run_benchmark`) and write the tables (:func:`write_tables`).
+
+    ``progress(runs, case, label)`` is told before each run, ``runs`` the number of them.
+    """
+    from wmr.apps.run import default_fmu
+    from wmr.infra.outputs import check_output
+
+    r = request
+    out = check_output(r.out if r.out else Path("runs") / "benchmark", "out", "dir")
+    specs = benchmark_specs(list(r.scenarios) or list(DEFAULT_SCENARIOS))
+    if r.limit_cases is not None:
+        specs = specs[: r.limit_cases]
+    labels = list(r.controllers) or list(CONTROLLERS)
+    tuned = load_tuned(r.tuned)
+    for label in labels:  # before the FMU: an unknown row fails fast
+        controller_row(label, tuned)
+    runs = len(specs) * (len(labels) + (1 if r.optimal else 0))
+    with FmuPlant(Path(r.fmu) if r.fmu else default_fmu(r.fmi)) as plant:
+        rows = run_benchmark(specs, plant, out, labels, tuned, optimal=r.optimal,
+                             progress=None if progress is None
+                             else lambda case, label: progress(runs, case, label))
+    return BenchmarkOutcome(rows, out, write_tables(rows, out))
 
 
 def write_tables(rows: Sequence[Mapping[str, Any]], out_dir: Path) -> tuple[Path, Path]:
@@ -581,7 +651,10 @@ __all__ = [
     "FIELDS",
     "OPTIMAL",
     "TUNED_SUFFIX",
+    "BenchmarkOutcome",
+    "BenchmarkRequest",
     "OptimalRun",
+    "benchmark_command",
     "benchmark_specs",
     "controller_row",
     "controller_rows",
