@@ -237,6 +237,12 @@ def _tune(**fields: Any) -> object:
     return tune_command(TuneRequest(**fields))
 
 
+def _ssp(function: str, *args: Any, **keywords: Any) -> object:
+    import wmr.apps.ssp
+
+    return getattr(wmr.apps.ssp, function)(*args, **keywords)
+
+
 #: Inputs the apps behind ``wmr benchmark``, ``wmr tune`` and ``wmr ssp`` refuse before any
 #: work, as command-line arguments and as the app's request, with the field each names.
 APP_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
@@ -248,6 +254,11 @@ APP_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
     (["tune", "--runs", "3"], lambda: _tune(runs=3), "--runs", "runs"),
     (["tune", "--controller", "nope"], lambda: _tune(controller="nope"),
      "--controller", "controller"),
+    (["ssp", "export", "fig9"], lambda: _ssp("export_package", "fig9"), "--run", "run"),
+    (["ssp", "export", "--out", "o.txt"], lambda: _ssp("export_package", out="o.txt"),
+     "--out", "out"),
+    (["ssp", "run", "x.ssp", "--stop-time", "-1"],
+     lambda: _ssp("run_package", "x.ssp", stop_time_s=-1.0), "--stop-time", "stop_time_s"),
 ]
 
 

@@ -283,7 +283,7 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     """
     target = Path(out)
     if target.suffix != ".ssp":
-        raise ConfigError("--out", f"{target} does not end in .ssp", "give FILE.ssp")
+        raise ConfigError("out", f"{target} does not end in .ssp", "give FILE.ssp")
     if spec.controller != "pi":
         raise ConfigError("controller", f"the controller FMU is the paper's PI stabiliser, "
                           f"not {spec.controller!r}", 'export a scenario with controller = "pi"')
