@@ -170,7 +170,15 @@ BAD_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
      "--run", "run"),
     (["optimal", "--torque-limit", "-1"], lambda: wmr.optimal(torque_limit_nm=-1.0),
      "--torque-limit", "torque_limit_nm"),
+    (["run", "--sensors", "gps", "--sensor", "gps_sigma_m=x"],
+     lambda: wmr.run(sensors="gps", sensor={"gps_sigma_m": "x"}), "--sensor gps_sigma_m",
+     "sensor gps_sigma_m"),
+    (["run", "--log-every", "0"], lambda: wmr.run(log_every=0), "--log-every", "log_every"),
+    (["batch", "fig11", "--log-every", "0"], lambda: wmr.batch("fig11", log_every=0),
+     "--log-every", "log_every"),
     (["replay"], lambda: wmr.replay(), "FILE.mcap|DIR", "logs"),
+    (["replay", ".", "--worst", "2", "--status", "failed"],
+     lambda: wmr.replay(".", worst=2, status="failed"), "--worst", "worst"),
     (["replay", "x.mcap", "--rrd", "o.txt"], lambda: wmr.replay("x.mcap", rrd="o.txt"),
      "--rrd", "rrd"),
     (["replay", "--blueprint", "o.txt"], lambda: wmr.replay(blueprint="o.txt"),
@@ -197,7 +205,9 @@ def test_the_api_gives_the_command_s_one_line_errors(
         call()
     assert info.value.field == keyword
     # the same problem, another option in it named as each front door names it
-    problem = err[0].removeprefix(f"wmr: error: {flag}: ").replace("--scheduler", "scheduler")
+    problem = err[0].removeprefix(f"wmr: error: {flag}: ")
+    for option, keyword_is in (("--scheduler ", "scheduler="), ("--status ", "status=")):
+        problem = problem.replace(option, keyword_is)
     assert problem.startswith(info.value.problem), (problem, info.value.problem)
 
 
@@ -237,14 +247,20 @@ def _tune(**fields: Any) -> object:
     return tune_command(TuneRequest(**fields))
 
 
+def _rerun(*args: Any) -> object:
+    from wmr.apps.batch.rerun import rerun_run
+
+    return rerun_run(*args)
+
+
 def _ssp(function: str, *args: Any, **keywords: Any) -> object:
     import wmr.apps.ssp
 
     return getattr(wmr.apps.ssp, function)(*args, **keywords)
 
 
-#: Inputs the apps behind ``wmr benchmark``, ``wmr tune`` and ``wmr ssp`` refuse before any
-#: work, as command-line arguments and as the app's request, with the field each names.
+#: Inputs the apps behind ``wmr benchmark``, ``wmr tune``, ``wmr rerun`` and ``wmr ssp`` refuse
+#: before any work, as command-line arguments and as the app's request, with the field each names.
 APP_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
     (["benchmark", "--controllers", "nope"], lambda: _benchmark(controllers=["nope"]),
      "--controllers", "controllers"),
@@ -254,6 +270,7 @@ APP_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
     (["tune", "--runs", "3"], lambda: _tune(runs=3), "--runs", "runs"),
     (["tune", "--controller", "nope"], lambda: _tune(controller="nope"),
      "--controller", "controller"),
+    (["rerun", ".", "0000-00000000"], lambda: _rerun(".", "0000-00000000"), "DIR", "out_dir"),
     (["ssp", "export", "fig9"], lambda: _ssp("export_package", "fig9"), "--run", "run"),
     (["ssp", "export", "--out", "o.txt"], lambda: _ssp("export_package", out="o.txt"),
      "--out", "out"),

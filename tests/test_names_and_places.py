@@ -28,7 +28,7 @@ from wmr.config.naming import (
 )
 from wmr.config.scenario import load_scenario
 from wmr.core.plant import Pose, RobotParams
-from wmr.core.sensing.config import SensorConfig, command_line_sensors
+from wmr.core.sensing.config import SensorConfig, override_sensors
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import _REPO_ROOT
 
@@ -152,7 +152,7 @@ def test_an_optimal_log_holds_the_documented_record_and_the_scene(built: BuildRe
 
 def _sensors_name(preset: str | None, *items: str) -> str:
     base = load_scenario("fig11").runs[0]
-    spec = replace(base, sensors=command_line_sensors(base.sensors, preset, list(items)))
+    spec = replace(base, sensors=override_sensors(base.sensors, preset, list(items)))
     return run_name(base, spec)
 
 

@@ -361,12 +361,6 @@ def result_json(record: dict[str, Any]) -> str:
 
 
 
-def _option(keyword: str, command_line: bool) -> str:
-    """How an error names an input: ``--controller-fmu`` on the command line,
-    ``controller_fmu`` in the API (the keywords are the options' names)."""
-    return f"--{keyword.replace('_', '-')}" if command_line else keyword
-
-
 #: Run names an error of :func:`select_run` lists before "...".
 LISTED_RUNS = 20
 
@@ -419,7 +413,7 @@ def resolve_run(request: RunRequest,
     inputs that run as given but look wrong (a heading in radians)."""
     from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
     from wmr.config.scenario import heading_looks_like_radians, load_scenario, with_overrides
-    from wmr.core.sensing.config import command_line_sensors
+    from wmr.core.sensing.config import override_sensors
     from wmr.infra.outputs import check_output
 
     o = request.overrides
@@ -436,7 +430,7 @@ def resolve_run(request: RunRequest,
                           stop_radius_m=o.stop_radius_m, t_max_s=o.max_time_s,
                           controller=o.controller, controller_gains=o.controller_gains)
     if o.sensors is not None or o.sensor:
-        spec = replace(spec, sensors=command_line_sensors(
+        spec = replace(spec, sensors=override_sensors(
             spec.sensors, o.sensors, [f"{k}={v}" for k, v in (o.sensor or {}).items()]))
     choice = request.controller_fmu
     ctrl_choice = (None if choice is False else "" if choice is True
@@ -467,7 +461,7 @@ def resolve_run(request: RunRequest,
                               "give a controller .fmu, or none for the built one")
     return ResolvedRun(
         spec=spec, scenario_file=sc.path, log_path=path,
-        policy=log_policy(request.log, request.log_every, None, command_line=False)
+        policy=log_policy(request.log, request.log_every, None)
         or FULL_LOGS,
         fmu_path=Path(request.fmu) if request.fmu is not None else sc.fmu,
         fmu_map=Path(request.fmu_map) if request.fmu_map is not None else sc.fmu_map,
@@ -521,17 +515,15 @@ def run_scenario(request: RunRequest, *, progress_bar: ProgressBar | None = None
     return record, r.spec
 
 
-def log_policy(keep: str | None, every_k_steps: int | None, base: LogPolicy | None,
-               command_line: bool = True) -> LogPolicy | None:
-    """The log policy of ``--log``/``log`` and ``--log-every``/``log_every`` over ``base`` (a
-    spec's ``[log]``); ``None`` when neither option nor ``base`` names one."""
+def log_policy(keep: str | None, every_k_steps: int | None,
+               base: LogPolicy | None) -> LogPolicy | None:
+    """The log policy of ``log`` and ``log_every`` over ``base`` (a spec's ``[log]``);
+    ``None`` when neither input nor ``base`` names one."""
     if every_k_steps is not None and (isinstance(every_k_steps, bool)
                                       or not isinstance(every_k_steps, int)
                                       or every_k_steps < 1):
-        option = _option("log_every", command_line)
-        raise ConfigError(option, f"must be >= 1, got {every_k_steps}",
-                          f"give e.g. {option} 10, or 1 for every step" if command_line
-                          else f"give e.g. {option}=10, or 1 for every step")
+        raise ConfigError("log_every", f"must be >= 1, got {every_k_steps}",
+                          "give e.g. log_every=10, or 1 for every step")
     if keep is None and every_k_steps is None:
         return base
     start = base or FULL_LOGS

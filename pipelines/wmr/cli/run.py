@@ -269,7 +269,7 @@ def _supervised(args: argparse.Namespace,
 
 def _sensor_items(items: list[str] | None) -> dict[str, str]:
     """``--sensor NAME=VALUE`` items as names to their text (checked and converted by the
-    ``[sensors]`` table's own rules, :func:`wmr.core.sensing.config.command_line_sensors`)."""
+    ``[sensors]`` table's own rules, :func:`wmr.core.sensing.config.override_sensors`)."""
     out: dict[str, str] = {}
     for item in items or []:
         name, sep, value = item.partition("=")
