@@ -35,7 +35,6 @@ import csv
 import json
 import math
 import os
-import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,16 +46,19 @@ import numpy.typing as npt
 from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, RunLogWriter
-from wmr.apps.run import run_metadata, scenario_attachment_name
+from wmr.apps.run import (
+    FULL_LOGS,
+    LogPolicy,
+    _model_description,
+    run_to_log,
+    scenario_attachment_name,
+)
 from wmr.apps.tune import with_gains
 from wmr.config.scenario import load_scenario
 from wmr.config.scenario_file import run_spec_toml
-from wmr.core.closedloop import LoopOutcome, run_closed_loop
 from wmr.core.control import Limits, registry
-from wmr.core.control.from_spec import SpecController
 from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
-from wmr.core.record import result_record
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 
@@ -134,9 +136,8 @@ def safe_name(name: str) -> str:
 
 
 def fmu_attachments(plant: FmuPlant) -> dict[str, tuple[str, bytes]]:
-    """The FMU's ``modelDescription.xml`` as a log attachment."""
-    with zipfile.ZipFile(plant.fmu_path) as zf:
-        return {"modelDescription.xml": ("application/xml", zf.read("modelDescription.xml"))}
+    """The FMU's ``modelDescription.xml`` as a log attachment (read as ``wmr run`` reads it)."""
+    return {"modelDescription.xml": ("application/xml", _model_description(plant.fmu_path))}
 
 
 class _RadiusTracker:
@@ -158,29 +159,27 @@ class _RadiusTracker:
             self.sink.write_block(t_ns, block)
 
 
-def run_logged(spec: RunSpec, plant: FmuPlant, mcap: Path | None,
-               label: str = "") -> tuple[LoopOutcome, float | None]:
-    """One closed-loop run of ``spec`` on ``plant``, logged to ``mcap`` if given.
+#: A run's record without its log.
+_NO_LOG: Final = LogPolicy("none")
+
+
+def run_logged(spec: RunSpec, plant: FmuPlant,
+               mcap: Path | None) -> tuple[dict[str, Any], float | None]:
+    """One closed-loop run of ``spec`` on ``plant`` as ``wmr run`` makes it
+    (:func:`~wmr.apps.run.run_to_log`: the same law, the same log, byte for byte), logged to
+    ``mcap`` if given.
 
     Returns
     -------
-    (LoopOutcome, float or None)
-        The run's result and the time B first entered the stop radius, s.
+    (dict, float or None)
+        The run's record (``docs/results.md``) and the time B first entered the stop
+        radius, s.
     """
-    if mcap is None:
-        tracker = _RadiusTracker(None, spec.goal, spec.stop_radius_m)
-        return run_closed_loop(spec, plant, sink=tracker, controller=SpecController()), tracker.t_s
-    mcap.parent.mkdir(parents=True, exist_ok=True)
-    meta = run_metadata(spec, plant)
-    meta["benchmark_label"] = label or spec.controller
-    goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
-    with RunLogWriter(mcap, run=meta, goal=goal, attachments=fmu_attachments(plant)) as log:
-        tracker = _RadiusTracker(log, spec.goal, spec.stop_radius_m)
-        result = run_closed_loop(spec, plant, sink=tracker, controller=SpecController())
-        # the record of wmr run (docs/results.md), not LoopOutcome's own field names
-        log.close({**result_record(spec.name, result), "mcap": str(mcap),
-                   "time_to_radius_s": tracker.t_s})
-    return result, tracker.t_s
+    tracker = _RadiusTracker(None, spec.goal, spec.stop_radius_m)
+    # no log: the record alone (nothing is written at the path given for none)
+    record = run_to_log(spec, mcap if mcap is not None else Path(os.devnull), plant,
+                        also=tracker, log=FULL_LOGS if mcap is not None else _NO_LOG)
+    return record, tracker.t_s
 
 
 @dataclass
@@ -451,17 +450,15 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
             gains = tuned_gains.get(name, {}) if use_tuned else {}
             run_spec = with_gains(spec, name, gains)
             mcap = None if logs is None else logs / label / fname
-            res, t_radius = run_logged(run_spec, plant, mcap, label)
+            res, t_radius = run_logged(run_spec, plant, mcap)
             case_rows.append({
                 "case": case, "scenario": spec.scenario, "controller": label,
-                "status": res.status, "time_to_goal_s": _num(res.time_to_goal_s),
-                "time_to_radius_s": _num(t_radius), "path_length_m": _num(res.path_length_m),
-                **{k: _num(getattr(res, k)) for k in ENERGY_KEYS},
-                "torque_sq_integral_n2m2s": _num(res.torque_sq_integral),
-                "peak_torque_nm": _num(res.peak_torque_nm),
-                "final_position_error_m": _num(res.final_position_error_m),
-                "final_heading_error_rad": _num(res.final_heading_error_rad),
-                "message": res.message, "mcap": None if mcap is None else str(mcap),
+                "status": res["status"], "time_to_radius_s": _num(t_radius),
+                **{k: _num(res[k]) for k in ("time_to_goal_s", "path_length_m", *ENERGY_KEYS,
+                                             "torque_sq_integral_n2m2s", "peak_torque_nm",
+                                             "final_position_error_m",
+                                             "final_heading_error_rad")},
+                "message": res["message"], "mcap": res["mcap"],
             })
         if opt is not None:
             f = opt.figures
