@@ -443,11 +443,12 @@ def batch(spec: str | Path, out: str | Path | None = None, *,
     _not_in_a_worker_import("batch")
     import pyarrow.parquet as pq
 
-    from wmr.apps.batch.command import batch_command
+    from wmr.apps.batch.command import BatchRequest, batch_command
 
-    folder, _ = batch_command(spec, out, workers=workers, scheduler=scheduler,
-                              run_timeout_s=run_timeout_s, max_runs=max_runs, fmi=fmi, fmu=fmu,
-                              fmu_map=fmu_map, log=log, log_every=log_every, progress=progress)
+    folder, _ = batch_command(BatchRequest(
+        spec, out, workers=workers, scheduler=scheduler, run_timeout_s=run_timeout_s,
+        max_runs=max_runs, fmi=fmi, fmu=fmu, fmu_map=fmu_map, log=log, log_every=log_every),
+        progress=progress)
     return BatchResult(folder, pq.read_table(folder / "summary.parquet").to_pandas())
 
 

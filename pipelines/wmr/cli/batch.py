@@ -25,7 +25,7 @@ BATCH_OPTIONS: dict[str, str] = {
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from wmr.apps.batch.command import batch_command, load_checked
+    from wmr.apps.batch.command import BatchRequest, batch_command, load_checked
     from wmr.config.naming import plural
 
     def warn(field: str, message: str) -> None:
@@ -38,12 +38,11 @@ def _cmd_batch(args: argparse.Namespace) -> int:
                                        run_timeout_s=args.run_timeout, max_runs=args.max_runs,
                                        warn=warn)
             return _check_runs(batch, args.progress)
-        out, result = batch_command(args.spec, args.out, workers=args.workers,
-                                    scheduler=args.scheduler, run_timeout_s=args.run_timeout,
-                                    max_runs=args.max_runs, fmi=args.fmi, fmu=args.fmu,
-                                    fmu_map=args.map or None, log=args.log,
-                                    log_every=args.log_every, progress=args.progress,
-                                    warn=warn)
+        out, result = batch_command(BatchRequest(
+            args.spec, args.out, workers=args.workers, scheduler=args.scheduler,
+            run_timeout_s=args.run_timeout, max_runs=args.max_runs, fmi=args.fmi, fmu=args.fmu,
+            fmu_map=args.map or None, log=args.log, log_every=args.log_every),
+            progress=args.progress, warn=warn)
     c = result.counts
     rate = len(result.executed) / result.wall_s * 60.0 if result.wall_s > 0 else 0.0
     state = "interrupted" if result.interrupted else "done"

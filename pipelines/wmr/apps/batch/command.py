@@ -13,6 +13,7 @@ import os
 import socket
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
@@ -101,33 +102,63 @@ def load_checked(spec: str | Path, *, workers: int | None = None,
     return batch, address, (limit_s if limit_s > 0 else None)
 
 
-def batch_command(spec: str | Path, out: str | Path | None = None, *,
-                  workers: int | None = None, scheduler: str | None = None,
-                  run_timeout_s: float | None = None, max_runs: int | None = None,
-                  fmi: int = 3, fmu: str | Path | None = None,
-                  fmu_map: str | Path | None = None, log: str | None = None,
-                  log_every: int | None = None, progress: bool | None = None,
-                  warn: Callable[[str, str], None] = _warn) -> tuple[Path, BatchOutcome]:
-    """Check the options, load the spec and run the batch into ``out`` (default
-    ``batches/<spec name>``), as ``wmr batch`` and :func:`wmr.batch` do; ``warn`` is
-    :func:`load_checked`'s.
+@dataclass(frozen=True)
+class BatchRequest:
+    """A batch, as ``wmr batch`` and :func:`wmr.batch` ask for it (their options and
+    keywords, ``docs/batch.md``); errors name its fields.
 
-    ``run_timeout_s``: None the default (:data:`DEFAULT_RUN_TIMEOUT_S`), 0 none.  Returns
-    the batch folder and what :func:`~wmr.apps.batch.runner.run_batch` did.
+    Attributes
+    ----------
+    spec, out
+        The batch spec (name or TOML file) and its folder (default ``batches/<spec name>``).
+    workers, scheduler
+        Local worker processes, or the address of a Dask scheduler (not both).
+    run_timeout_s, max_runs
+        The wall-clock limit of a run (None: :data:`DEFAULT_RUN_TIMEOUT_S`, 0: none), and the
+        most runs the spec may expand to.
+    fmi, fmu, fmu_map
+        The project's FMI 2 or 3 build, or another robot FMU and its variable map.
+    log, log_every
+        The log policy over the spec's ``[log]``.
+    """
+
+    spec: str | Path
+    out: str | Path | None = None
+    workers: int | None = None
+    scheduler: str | None = None
+    run_timeout_s: float | None = None
+    max_runs: int | None = None
+    fmi: int = 3
+    fmu: str | Path | None = None
+    fmu_map: str | Path | None = None
+    log: str | None = None
+    log_every: int | None = None
+
+
+def batch_command(request: BatchRequest, progress: bool | None = None,
+                  warn: Callable[[str, str], None] = _warn) -> tuple[Path, BatchOutcome]:
+    """Check the request, load the spec and run the batch, as ``wmr batch`` and
+    :func:`wmr.batch` do; ``progress`` is :func:`~wmr.apps.batch.runner.run_batch`'s,
+    ``warn`` :func:`load_checked`'s.  Returns the batch folder and what
+    :func:`~wmr.apps.batch.runner.run_batch` did.
     """
     from wmr.adapters.fmi.varmap import load_map
     from wmr.apps.run import log_policy
     from wmr.infra.outputs import check_output
 
-    batch, address, limit_s = load_checked(spec, workers=workers, scheduler=scheduler,
-                                           run_timeout_s=run_timeout_s, max_runs=max_runs,
-                                           warn=warn)
-    folder = check_output(out if out else Path("batches") / Path(spec).stem, "out", "dir")
-    policy = log_policy(log, log_every, batch.log)
-    result = run_batch(batch, folder, workers=workers, scheduler=address,
-                       run_timeout_s=limit_s, fmu_path=fmu, fmi_version=fmi, progress=progress,
-                       var_map=load_map(fmu_map) if fmu_map is not None else None, log=policy)
+    r = request
+    batch, address, limit_s = load_checked(r.spec, workers=r.workers, scheduler=r.scheduler,
+                                           run_timeout_s=r.run_timeout_s,
+                                           max_runs=r.max_runs, warn=warn)
+    folder = check_output(r.out if r.out else Path("batches") / Path(r.spec).stem, "out",
+                          "dir")
+    policy = log_policy(r.log, r.log_every, batch.log)
+    result = run_batch(batch, folder, workers=r.workers, scheduler=address,
+                       run_timeout_s=limit_s, fmu_path=r.fmu, fmi_version=r.fmi,
+                       progress=progress,
+                       var_map=load_map(r.fmu_map) if r.fmu_map is not None else None,
+                       log=policy)
     return folder, result
 
 
-__all__ = ["batch_command", "check_scheduler", "load_checked"]
+__all__ = ["BatchRequest", "batch_command", "check_scheduler", "load_checked"]
