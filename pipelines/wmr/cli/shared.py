@@ -51,13 +51,13 @@ def json_line(obj: Any) -> str:
     return json.dumps(clean(obj), allow_nan=False)
 
 
-def in_options(text: str, options: Mapping[str, str]) -> str:
+def _in_options(text: str, options: Mapping[str, str]) -> str:
     """``text`` with the request's ``field=VALUE`` written as ``--option VALUE``, and the
-    fields with an underscore (never a plain word: ``the Dask scheduler``) as their options."""
+    fields with an underscore (never a plain word) as their options."""
     for name, option in options.items():
         text = re.sub(rf"(?<![\w-]){re.escape(name)}=", f"{option} ", text)
         if "_" in name:
-            text = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w=-])", option, text)
+            text = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w=])", option, text)
     return text
 
 
@@ -65,7 +65,7 @@ def in_options(text: str, options: Mapping[str, str]) -> str:
 def errors_as_options(options: Mapping[str, str]) -> Iterator[None]:
     """Errors raised inside name the fields of ``options`` (a request's field -> this
     command's option) as the options, in the field and in the problem and fix
-    (:func:`in_options`): the layers below name their inputs by the API's keywords, the
+    (:func:`_in_options`): the layers below name their inputs by the API's keywords, the
     command line by its options."""
     try:
         yield
@@ -76,5 +76,5 @@ def errors_as_options(options: Mapping[str, str]) -> Iterator[None]:
                                             if sep and head in options else None)
         if option is None:
             raise
-        raise ConfigError(option, in_options(exc.problem, options),
-                          in_options(exc.fix, options)) from None
+        raise ConfigError(option, _in_options(exc.problem, options),
+                          _in_options(exc.fix, options)) from None
