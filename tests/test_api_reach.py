@@ -166,7 +166,19 @@ BAD_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
     (["optimal", "--final-time", "3"], lambda: wmr.optimal(final_time_s=3.0),
      "--final-time", "final_time_s"),
     (["optimal", "--out", "o.txt"], lambda: wmr.optimal(out="o.txt"), "--out", "out"),
+    (["optimal", "fig9", "--run", "nope"], lambda: wmr.optimal(scenario="fig9", run="nope"),
+     "--run", "run"),
+    (["optimal", "--torque-limit", "-1"], lambda: wmr.optimal(torque_limit_nm=-1.0),
+     "--torque-limit", "torque_limit_nm"),
+    (["run", "--sensors", "gps", "--sensor", "gps_sigma_m=x"],
+     lambda: wmr.run(sensors="gps", sensor={"gps_sigma_m": "x"}), "--sensor gps_sigma_m",
+     "sensor gps_sigma_m"),
+    (["run", "--log-every", "0"], lambda: wmr.run(log_every=0), "--log-every", "log_every"),
+    (["batch", "fig11", "--log-every", "0"], lambda: wmr.batch("fig11", log_every=0),
+     "--log-every", "log_every"),
     (["replay"], lambda: wmr.replay(), "FILE.mcap|DIR", "logs"),
+    (["replay", ".", "--worst", "2", "--status", "failed"],
+     lambda: wmr.replay(".", worst=2, status="failed"), "--worst", "worst"),
     (["replay", "x.mcap", "--rrd", "o.txt"], lambda: wmr.replay("x.mcap", rrd="o.txt"),
      "--rrd", "rrd"),
     (["replay", "--blueprint", "o.txt"], lambda: wmr.replay(blueprint="o.txt"),
@@ -193,5 +205,96 @@ def test_the_api_gives_the_command_s_one_line_errors(
         call()
     assert info.value.field == keyword
     # the same problem, another option in it named as each front door names it
-    problem = err[0].removeprefix(f"wmr: error: {flag}: ").replace("--scheduler", "scheduler")
+    problem = err[0].removeprefix(f"wmr: error: {flag}: ")
+    for option, keyword_is in (("--scheduler ", "scheduler="), ("--status ", "status=")):
+        problem = problem.replace(option, keyword_is)
     assert problem.startswith(info.value.problem), (problem, info.value.problem)
+
+
+def test_an_optimal_error_s_fix_names_the_other_inputs_as_its_front_door_does(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``apps.optimal`` names every input by its keyword, in the fix too; ``wmr optimal``
+    translates them all into its options (no ``command_line`` flag below the CLI)."""
+    from wmr.apps.optimal import OptimalRequest
+    from wmr.apps.request import Overrides
+    from wmr.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["optimal", "--final-time", "3"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        "wmr: error: --final-time: the time objective leaves the final time free (drop "
+        "--final-time or use --objective energy)")
+    with pytest.raises(ConfigError) as info:
+        wmr.optimal(final_time_s=3.0)
+    assert (info.value.field, info.value.fix) == (
+        "final_time_s", "drop final_time_s or use objective=energy")
+    # a request the optimal manoeuvre cannot honour is refused when made, not ignored
+    with pytest.raises(ConfigError) as info:
+        OptimalRequest(overrides=Overrides(gains={"K_ps": 1.0}))
+    assert info.value.field == "gains"
+
+
+def _benchmark(**fields: Any) -> object:
+    from wmr.apps.benchmark import BenchmarkRequest, benchmark_command
+
+    return benchmark_command(BenchmarkRequest(**fields))
+
+
+def _tune(**fields: Any) -> object:
+    from wmr.apps.tuning import TuneRequest, tune_command
+
+    return tune_command(TuneRequest(**fields))
+
+
+def _rerun(*args: Any) -> object:
+    from wmr.apps.batch.rerun import rerun_run
+
+    return rerun_run(*args)
+
+
+def _ssp(function: str, *args: Any, **keywords: Any) -> object:
+    import wmr.apps.ssp
+
+    return getattr(wmr.apps.ssp, function)(*args, **keywords)
+
+
+#: Inputs the apps behind ``wmr benchmark``, ``wmr tune``, ``wmr rerun`` and ``wmr ssp`` refuse
+#: before any work, as command-line arguments and as the app's request, with the field each names.
+APP_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
+    (["benchmark", "--controllers", "nope"], lambda: _benchmark(controllers=["nope"]),
+     "--controllers", "controllers"),
+    (["benchmark", "--out", "o.txt/x", "--tuned", "nothere.json"],
+     lambda: _benchmark(out="o.txt/x", tuned="nothere.json"), "--tuned", "tuned"),
+    (["tune", "--budget", "0"], lambda: _tune(budget=0), "--budget", "budget"),
+    (["tune", "--runs", "3"], lambda: _tune(runs=3), "--runs", "runs"),
+    (["tune", "--controller", "nope"], lambda: _tune(controller="nope"),
+     "--controller", "controller"),
+    (["rerun", ".", "0000-00000000"], lambda: _rerun(".", "0000-00000000"), "DIR", "out_dir"),
+    (["ssp", "export", "fig9"], lambda: _ssp("export_package", "fig9"), "--run", "run"),
+    (["ssp", "export", "--out", "o.txt"], lambda: _ssp("export_package", out="o.txt"),
+     "--out", "out"),
+    (["ssp", "run", "x.ssp", "--stop-time", "-1"],
+     lambda: _ssp("run_package", "x.ssp", stop_time_s=-1.0), "--stop-time", "stop_time_s"),
+]
+
+
+@pytest.mark.parametrize(("argv", "call", "flag", "keyword"), APP_INPUTS,
+                         ids=[" ".join(case[0]) for case in APP_INPUTS])
+def test_an_app_names_its_request_s_fields_and_the_command_its_options(
+        argv: list[str], call: Callable[[], object], flag: str, keyword: str, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """The front doors only parse and call the apps; the apps name their inputs by the
+    request's fields, and each command by its options (issue 29)."""
+    from wmr.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"wmr: error: {flag}: "), err
+    with pytest.raises(ConfigError) as info:
+        call()
+    assert info.value.field == keyword
+    problem = err[0].removeprefix(f"wmr: error: {flag}: ")
+    assert problem.startswith(info.value.problem.split(" (")[0]), (problem, info.value.problem)
+    assert list(tmp_path.iterdir()) == []  # nothing made

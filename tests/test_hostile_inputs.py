@@ -686,5 +686,5 @@ def test_tuned_gains_are_read_as_every_input(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=60)
     assert proc.returncode == 1 and proc.stderr.strip().splitlines()[-1].endswith(
-        f"ConfigError: --tuned: {_KIND_WORDS['fifo'].replace('fifo', fifo)} (give a file "
+        f"ConfigError: tuned: {_KIND_WORDS['fifo'].replace('fifo', fifo)} (give a file "
         "written by 'wmr tune --save')"), proc.stderr

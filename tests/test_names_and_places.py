@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import re
 from dataclasses import fields, replace
 from pathlib import Path
@@ -28,7 +29,7 @@ from wmr.config.naming import (
 )
 from wmr.config.scenario import load_scenario
 from wmr.core.plant import Pose, RobotParams
-from wmr.core.sensing.config import SensorConfig, command_line_sensors
+from wmr.core.sensing.config import SensorConfig, override_sensors
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import _REPO_ROOT
 
@@ -89,19 +90,25 @@ def _documented_record_keys() -> list[str]:
     return re.findall(r"^\| `(\w+)` \|", table, flags=re.M)
 
 
-def test_a_benchmark_log_holds_the_documented_record(built: BuildResult, tmp_path: Path) -> None:
-    """``benchmark.run_logged`` writes the record of ``wmr run`` (docs/results.md) as its log's
-    ``result``: ``torque_sq_integral_n2m2s``, not ``torque_sq_integral`` and ``final_pose``."""
+def test_a_benchmark_log_is_wmr_run_s_log_byte_for_byte(built: BuildResult,
+                                                         tmp_path: Path) -> None:
+    """``benchmark.run_logged`` is ``run_to_log``: its log is the one ``wmr run`` writes of
+    the same run, byte for byte (the documented record of docs/results.md, the effective
+    scenario, the scene), and so is its record; before, it wrote a log of its own (no
+    scenario, no scene, ``time_to_radius_s`` and ``benchmark_label`` added)."""
     keys = _documented_record_keys()
     assert {"name", "torque_sq_integral_n2m2s", "steps", "mcap"} <= set(keys)
     spec = replace(load_scenario("fig11").runs[0], t_max_s=0.5)
+    path = tmp_path / "run.mcap"
     with FmuPlant(built.fmus[3]) as plant:
-        run_logged(spec, plant, tmp_path / "bench.mcap", "PI")
-        own = run_to_log(spec, tmp_path / "run.mcap", plant)
-    bench = read_run(tmp_path / "bench.mcap").metadata["result"]
-    assert list(bench) == [*keys, "time_to_radius_s"]
+        bench, t_radius_s = run_logged(spec, plant, path)
+        by_benchmark = path.read_bytes()
+        own = run_to_log(spec, path, plant)
+        unlogged, _ = run_logged(spec, plant, None)
+    assert path.read_bytes() == by_benchmark
     assert list(own) == keys  # the one record of both paths is the documented one
-    assert float(bench["torque_sq_integral_n2m2s"]) == own["torque_sq_integral_n2m2s"]
+    assert json.dumps(bench) == json.dumps(own) == json.dumps({**unlogged, "mcap": str(path)})
+    assert t_radius_s is None  # 0.5 s of a 22 m manoeuvre: never inside the radius
 
 
 def _topics(path: Path) -> set[str]:
@@ -152,7 +159,7 @@ def test_an_optimal_log_holds_the_documented_record_and_the_scene(built: BuildRe
 
 def _sensors_name(preset: str | None, *items: str) -> str:
     base = load_scenario("fig11").runs[0]
-    spec = replace(base, sensors=command_line_sensors(base.sensors, preset, list(items)))
+    spec = replace(base, sensors=override_sensors(base.sensors, preset, list(items)))
     return run_name(base, spec)
 
 

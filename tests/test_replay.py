@@ -540,19 +540,20 @@ def test_a_folder_replays_its_good_logs_skipping_bad_ones_and_links_outside(
     assert code == 1 and len(err.strip().splitlines()) == 1, err
 
 
-def test_replay_logs_names_its_arguments_in_the_callers_words(tmp_path: Path) -> None:
+def test_replay_logs_names_its_arguments_in_the_callers_words(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``apps.replay.replay_logs``, the function both ``wmr replay`` and ``wmr.replay`` call:
     no log, and ``worst`` without one batch folder, are errors naming the argument as the
-    caller wrote it (the keyword for the API, the option for the command line)."""
+    caller wrote it (the keyword for the API, the option for the command line, which
+    translates the keyword)."""
     from wmr.apps.replay import replay_logs
     from wmr.infra.errors import ConfigError
 
     with pytest.raises(ConfigError) as err:
         replay_logs()
     assert err.value.field == "logs" and "no log given" in str(err.value)
-    with pytest.raises(ConfigError) as err:
-        replay_logs(command_line=True)
-    assert err.value.field == "FILE.mcap|DIR"
+    assert main(["replay"]) == 1
+    assert capsys.readouterr().err.startswith("wmr: error: FILE.mcap|DIR: no log given")
     (tmp_path / "a.mcap").write_bytes(b"")
     with pytest.raises(ConfigError) as err:
         replay_logs([tmp_path / "a.mcap"], worst=3)

@@ -225,13 +225,13 @@ def test_a_batch_off_a_terminal_prints_progress_lines(
         tmp_path: Path, capfd: pytest.CaptureFixture[str], fmu3: Path,
         monkeypatch: pytest.MonkeyPatch) -> None:
     from wmr.apps import progress
-    from wmr.apps.batch.command import batch_command
+    from wmr.apps.batch.command import BatchRequest, batch_command
 
     monkeypatch.setattr(progress, "LINE_INTERVAL_S", 0.0)  # every run, not every 10 s
     spec = tmp_path / "masses.toml"
     spec.write_text('name = "masses"\nstart = [0.0, 0.0, 0.0]\ngoal = [2.0, 1.0, 0.0]\n'
                     'max_time_s = 20.0\n[grid.params]\nm = [20.0, 40.0]\n')
-    batch_command(spec, tmp_path / "out", workers=1, fmu=fmu3, progress=None)
+    batch_command(BatchRequest(spec, tmp_path / "out", workers=1, fmu=fmu3), progress=None)
     lines = [line for line in capfd.readouterr().err.splitlines()
              if line.startswith("wmr: masses: ")]
     assert [line.split(" runs")[0] for line in lines] == ["wmr: masses: 1/2",

@@ -364,12 +364,14 @@ def optimal(start: PoseLike | None = None, goal: PoseLike | None = None, *,
     here (``final_time_s``) where the command names the option (``--final-time``).
     """
     _not_in_a_worker_import("optimal")
-    from wmr.apps.optimal import optimal_command
+    from wmr.apps.optimal import OptimalRequest, optimal_command
+    from wmr.apps.request import Overrides
 
-    record = optimal_command(start, goal, objective=objective, torque_limit_nm=torque_limit_nm,
-                             torque_only=torque_only, final_time_s=final_time_s,
-                             period_s=period_s, out=out, fmi=fmi, fmu=fmu, scenario=scenario,
-                             run=run, params=params, limits=limits)
+    record = optimal_command(OptimalRequest(
+        scenario, run=run,
+        overrides=Overrides(start=start, goal=goal, params=params, limits=limits),
+        objective=objective, torque_limit_nm=torque_limit_nm, torque_only=torque_only,
+        final_time_s=final_time_s, period_s=period_s, out=out, fmi=fmi, fmu=fmu))
     return RunResult(record)
 
 
@@ -442,11 +444,12 @@ def batch(spec: str | Path, out: str | Path | None = None, *,
     _not_in_a_worker_import("batch")
     import pyarrow.parquet as pq
 
-    from wmr.apps.batch.command import batch_command
+    from wmr.apps.batch.command import BatchRequest, batch_command
 
-    folder, _ = batch_command(spec, out, workers=workers, scheduler=scheduler,
-                              run_timeout_s=run_timeout_s, max_runs=max_runs, fmi=fmi, fmu=fmu,
-                              fmu_map=fmu_map, log=log, log_every=log_every, progress=progress)
+    folder, _ = batch_command(BatchRequest(
+        spec, out, workers=workers, scheduler=scheduler, run_timeout_s=run_timeout_s,
+        max_runs=max_runs, fmi=fmi, fmu=fmu, fmu_map=fmu_map, log=log, log_every=log_every),
+        progress=progress)
     return BatchResult(folder, pq.read_table(folder / "summary.parquet").to_pandas())
 
 

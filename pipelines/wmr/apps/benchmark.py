@@ -35,7 +35,6 @@ import csv
 import json
 import math
 import os
-import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,16 +46,19 @@ import numpy.typing as npt
 from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, RunLogWriter
-from wmr.apps.run import run_metadata, scenario_attachment_name
+from wmr.apps.run import (
+    FULL_LOGS,
+    LogPolicy,
+    _model_description,
+    run_to_log,
+    scenario_attachment_name,
+)
 from wmr.apps.tune import with_gains
 from wmr.config.scenario import load_scenario
 from wmr.config.scenario_file import run_spec_toml
-from wmr.core.closedloop import LoopOutcome, run_closed_loop
 from wmr.core.control import Limits, registry
-from wmr.core.control.from_spec import SpecController
 from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
-from wmr.core.record import result_record
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 
@@ -71,7 +73,7 @@ def controller_rows(names: Sequence[str]) -> dict[str, tuple[str, bool]]:
     rows: dict[str, tuple[str, bool]] = {}
     for name in names:
         rows[name] = (name, False)
-        if registry.get(name, "--controllers").tuned:
+        if registry.get(name, "controllers").tuned:
             rows[f"{name}{TUNED_SUFFIX}"] = (name, True)
     return rows
 
@@ -88,7 +90,7 @@ def controller_row(label: str, tuned: Mapping[str, Mapping[str, float]]) -> tupl
     Raises
     ------
     ConfigError
-        ``--controllers``: an unknown label (listing the known ones), or ``NAME-tuned`` of a
+        ``controllers``: an unknown label (listing the known ones), or ``NAME-tuned`` of a
         controller without tuned gains.
     """
     from wmr.infra.errors import ConfigError
@@ -98,13 +100,13 @@ def controller_row(label: str, tuned: Mapping[str, Mapping[str, float]]) -> tupl
         name, use_tuned = label[:-len(TUNED_SUFFIX)], True
     if name not in registry.names():
         known = [*CONTROLLERS, *(n for n in registry.names() if n not in CONTROLLERS)]
-        raise ConfigError("--controllers", f"unknown controller {label!r}",
+        raise ConfigError("controllers", f"unknown controller {label!r}",
                           f"one of: {', '.join(known)}")
-    registry.get(name, "--controllers")  # a plug-in that does not load: its one line
+    registry.get(name, "controllers")  # a plug-in that does not load: its one line
     if use_tuned and not tuned.get(name):
-        raise ConfigError("--controllers", f"{name} has no tuned gains",
+        raise ConfigError("controllers", f"{name} has no tuned gains",
                           f"run 'wmr tune --controller {name} --save FILE.json' and give "
-                          "--tuned FILE.json, or ask for the row " + repr(name))
+                          "tuned=FILE.json, or ask for the row " + repr(name))
     return name, use_tuned
 
 
@@ -134,9 +136,8 @@ def safe_name(name: str) -> str:
 
 
 def fmu_attachments(plant: FmuPlant) -> dict[str, tuple[str, bytes]]:
-    """The FMU's ``modelDescription.xml`` as a log attachment."""
-    with zipfile.ZipFile(plant.fmu_path) as zf:
-        return {"modelDescription.xml": ("application/xml", zf.read("modelDescription.xml"))}
+    """The FMU's ``modelDescription.xml`` as a log attachment (read as ``wmr run`` reads it)."""
+    return {"modelDescription.xml": ("application/xml", _model_description(plant.fmu_path))}
 
 
 class _RadiusTracker:
@@ -158,29 +159,27 @@ class _RadiusTracker:
             self.sink.write_block(t_ns, block)
 
 
-def run_logged(spec: RunSpec, plant: FmuPlant, mcap: Path | None,
-               label: str = "") -> tuple[LoopOutcome, float | None]:
-    """One closed-loop run of ``spec`` on ``plant``, logged to ``mcap`` if given.
+#: A run's record without its log.
+_NO_LOG: Final = LogPolicy("none")
+
+
+def run_logged(spec: RunSpec, plant: FmuPlant,
+               mcap: Path | None) -> tuple[dict[str, Any], float | None]:
+    """One closed-loop run of ``spec`` on ``plant`` as ``wmr run`` makes it
+    (:func:`~wmr.apps.run.run_to_log`: the same law, the same log, byte for byte), logged to
+    ``mcap`` if given.
 
     Returns
     -------
-    (LoopOutcome, float or None)
-        The run's result and the time B first entered the stop radius, s.
+    (dict, float or None)
+        The run's record (``docs/results.md``) and the time B first entered the stop
+        radius, s.
     """
-    if mcap is None:
-        tracker = _RadiusTracker(None, spec.goal, spec.stop_radius_m)
-        return run_closed_loop(spec, plant, sink=tracker, controller=SpecController()), tracker.t_s
-    mcap.parent.mkdir(parents=True, exist_ok=True)
-    meta = run_metadata(spec, plant)
-    meta["benchmark_label"] = label or spec.controller
-    goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
-    with RunLogWriter(mcap, run=meta, goal=goal, attachments=fmu_attachments(plant)) as log:
-        tracker = _RadiusTracker(log, spec.goal, spec.stop_radius_m)
-        result = run_closed_loop(spec, plant, sink=tracker, controller=SpecController())
-        # the record of wmr run (docs/results.md), not LoopOutcome's own field names
-        log.close({**result_record(spec.name, result), "mcap": str(mcap),
-                   "time_to_radius_s": tracker.t_s})
-    return result, tracker.t_s
+    tracker = _RadiusTracker(None, spec.goal, spec.stop_radius_m)
+    # no log: the record alone (nothing is written at the path given for none)
+    record = run_to_log(spec, mcap if mcap is not None else Path(os.devnull), plant,
+                        also=tracker, log=FULL_LOGS if mcap is not None else _NO_LOG)
+    return record, tracker.t_s
 
 
 @dataclass
@@ -377,17 +376,17 @@ def load_tuned(path: str | os.PathLike[str] | None) -> dict[str, dict[str, float
         return gains
     fix = "give a file written by 'wmr tune --save'"
     try:
-        data = json.loads(read_input(path, "--tuned", max_bytes=MAX_JSON_BYTES,
+        data = json.loads(read_input(path, "tuned", max_bytes=MAX_JSON_BYTES,
                                      what="a tuned-gains file", fix=fix).decode("utf-8"))
     except ConfigError:  # a ValueError too: already the one line
         raise
     except (OSError, ValueError, RecursionError) as exc:
-        raise ConfigError("--tuned", f"cannot read {path}: {exc}", fix) from None
+        raise ConfigError("tuned", f"cannot read {path}: {exc}", fix) from None
     if not isinstance(data, dict):
-        raise ConfigError("--tuned", f"{path} is not a JSON object of controller -> gains")
+        raise ConfigError("tuned", f"{path} is not a JSON object of controller -> gains")
     for name, g in data.items():
         if name not in registry.names() or not isinstance(g, dict):
-            raise ConfigError("--tuned", f"{path}: unexpected entry {name!r}",
+            raise ConfigError("tuned", f"{path}: unexpected entry {name!r}",
                               f"controllers: {', '.join(registry.names())}")
         gains[name] = {k: float(v) for k, v in g.items()}
     return gains
@@ -451,17 +450,15 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
             gains = tuned_gains.get(name, {}) if use_tuned else {}
             run_spec = with_gains(spec, name, gains)
             mcap = None if logs is None else logs / label / fname
-            res, t_radius = run_logged(run_spec, plant, mcap, label)
+            res, t_radius = run_logged(run_spec, plant, mcap)
             case_rows.append({
                 "case": case, "scenario": spec.scenario, "controller": label,
-                "status": res.status, "time_to_goal_s": _num(res.time_to_goal_s),
-                "time_to_radius_s": _num(t_radius), "path_length_m": _num(res.path_length_m),
-                **{k: _num(getattr(res, k)) for k in ENERGY_KEYS},
-                "torque_sq_integral_n2m2s": _num(res.torque_sq_integral),
-                "peak_torque_nm": _num(res.peak_torque_nm),
-                "final_position_error_m": _num(res.final_position_error_m),
-                "final_heading_error_rad": _num(res.final_heading_error_rad),
-                "message": res.message, "mcap": None if mcap is None else str(mcap),
+                "status": res["status"], "time_to_radius_s": _num(t_radius),
+                **{k: _num(res[k]) for k in ("time_to_goal_s", "path_length_m", *ENERGY_KEYS,
+                                             "torque_sq_integral_n2m2s", "peak_torque_nm",
+                                             "final_position_error_m",
+                                             "final_heading_error_rad")},
+                "message": res["message"], "mcap": res["mcap"],
             })
         if opt is not None:
             f = opt.figures
@@ -479,6 +476,76 @@ def run_benchmark(specs: Sequence[RunSpec], plant: FmuPlant, out_dir: Path | Non
                                            f.get("torque_sq_integral_n2m2s"))
         rows.extend({k: r.get(k) for k in FIELDS} for r in case_rows)
     return rows
+
+
+@dataclass(frozen=True)
+class BenchmarkRequest:
+    """A benchmark, as ``wmr benchmark`` asks for it; errors name its fields (``controllers``,
+    ``tuned``, ``out``), the command line its options.
+
+    Attributes
+    ----------
+    scenarios
+        Scenario names or TOML files (default :data:`DEFAULT_SCENARIOS`).
+    out
+        The folder of the tables and logs (default ``runs/benchmark``).
+    controllers
+        Row labels (:func:`controller_row`; default :data:`CONTROLLERS`).
+    tuned
+        A ``wmr tune --save`` file of tuned gains (default: the declared ones).
+    optimal
+        Also solve and replay the optimum of each case.
+    limit_cases
+        Only the first N cases.
+    fmi, fmu
+        The project's FMI 2 or 3 build, or another robot FMU.
+    """
+
+    scenarios: Sequence[str] = ()
+    out: str | Path | None = None
+    controllers: Sequence[str] = ()
+    tuned: str | Path | None = None
+    optimal: bool = True
+    limit_cases: int | None = None
+    fmi: int = 3
+    fmu: str | Path | None = None
+
+
+@dataclass(frozen=True)
+class BenchmarkOutcome:
+    """What :func:`benchmark_command` made: the rows, the folder and its two tables."""
+
+    rows: list[dict[str, Any]]
+    out: Path
+    tables: tuple[Path, Path]
+
+
+def benchmark_command(request: BenchmarkRequest,
+                      progress: Callable[[int, str, str], None] | None = None
+                      ) -> BenchmarkOutcome:
+    """What ``wmr benchmark`` does: check the request, run every case by every row's
+    controller on one FMU (:func:`run_benchmark`) and write the tables (:func:`write_tables`).
+
+    ``progress(runs, case, label)`` is told before each run, ``runs`` the number of them.
+    """
+    from wmr.apps.run import default_fmu
+    from wmr.infra.outputs import check_output
+
+    r = request
+    out = check_output(r.out if r.out else Path("runs") / "benchmark", "out", "dir")
+    specs = benchmark_specs(list(r.scenarios) or list(DEFAULT_SCENARIOS))
+    if r.limit_cases is not None:
+        specs = specs[: r.limit_cases]
+    labels = list(r.controllers) or list(CONTROLLERS)
+    tuned = load_tuned(r.tuned)
+    for label in labels:  # before the FMU: an unknown row fails fast
+        controller_row(label, tuned)
+    runs = len(specs) * (len(labels) + (1 if r.optimal else 0))
+    with FmuPlant(Path(r.fmu) if r.fmu else default_fmu(r.fmi)) as plant:
+        rows = run_benchmark(specs, plant, out, labels, tuned, optimal=r.optimal,
+                             progress=None if progress is None
+                             else lambda case, label: progress(runs, case, label))
+    return BenchmarkOutcome(rows, out, write_tables(rows, out))
 
 
 def write_tables(rows: Sequence[Mapping[str, Any]], out_dir: Path) -> tuple[Path, Path]:
@@ -581,7 +648,10 @@ __all__ = [
     "FIELDS",
     "OPTIMAL",
     "TUNED_SUFFIX",
+    "BenchmarkOutcome",
+    "BenchmarkRequest",
     "OptimalRun",
+    "benchmark_command",
     "benchmark_specs",
     "controller_row",
     "controller_rows",

@@ -4,10 +4,12 @@ under the PI's limits, replay its torques open-loop on the FMU, log the replay t
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
+from wmr.apps.request import Overrides
 from wmr.core.control import Limits
 from wmr.core.plant import Pose, RobotParams
 from wmr.core.record import RECORD_KEYS, record
@@ -39,23 +41,6 @@ def optimal_limits(torque_limit_nm: float | None = None, torque_only: bool = Fal
 #: ``wmr optimal``'s default start and goal, ``(x_m, y_m, heading_deg)``.
 DEFAULT_START: Final = (0.0, 0.0, 0.0)
 DEFAULT_GOAL: Final = (20.0, 10.0, 0.0)
-
-#: The API's keywords (and :func:`wmr.adapters.ocp.solve_optimal`'s arguments) -> the options of
-#: ``wmr optimal`` that give them.
-_FLAGS: Final = {"final_time_s": "--final-time", "torque_limit_nm": "--torque-limit",
-                 "goal": "--goal", "start": "--start", "control_period_s": "--period",
-                 "period_s": "--period", "out": "--out"}
-
-
-def _as_flag(exc: ConfigError) -> ConfigError:
-    """The same error naming the command-line option instead of the function's argument."""
-    flag = _FLAGS.get(exc.field) or _FLAGS.get(exc.field.split(".")[0])
-    if flag is None:
-        return exc
-    fix = exc.fix.replace("raise n_intervals", "raise n_intervals in the Python API "
-                          "(wmr.adapters.ocp.solve_optimal)")
-    return ConfigError(flag, exc.problem, fix)
-
 
 def _degrees(pose: Pose) -> tuple[float, float, float]:
     """A run's pose as typed on the command line, ``(x_m, y_m, heading_deg)``."""
@@ -101,80 +86,114 @@ def optimal_name(start: tuple[float, float, float], goal: tuple[float, float, fl
                         [*tokens, *fmu_tokens(fmi, None if fmu is None else str(fmu))])
 
 
-def optimal_command(start: Sequence[float] | None = None, goal: Sequence[float] | None = None,
-                    *, objective: str = "time", torque_limit_nm: float | None = None,
-                    torque_only: bool = False, final_time_s: float | None = None,
-                    period_s: float = 0.01, out: str | Path | None = None,
-                    fmi: int = 3, fmu: str | Path | None = None,
-                    progress: Callable[[str], None] | None = None,
-                    command_line: bool = False, scenario: str | Path | None = None,
-                    run: str | None = None, params: Mapping[str, float] | None = None,
-                    limits: Mapping[str, float] | None = None) -> dict[str, Any]:
-    """What ``wmr optimal`` and :func:`wmr.optimal` both do: check the inputs, name the case,
-    solve, replay and log (:func:`optimal_to_log`); return the record.
+@dataclass(frozen=True)
+class OptimalRequest:
+    """One optimal manoeuvre, as ``wmr optimal`` and :func:`wmr.optimal` ask for it.
 
-    Poses are ``(x_m, y_m, heading_deg)`` (default :data:`DEFAULT_START`,
-    :data:`DEFAULT_GOAL`, or the run ``run`` of ``scenario``, resolved as ``wmr run`` does);
-    ``params`` and ``limits`` replace the robot's parameters and the PI's limits by name, as
-    ``wmr run --param/--limit`` do; the log goes to ``out`` (default ``runs/<name>.mcap``).
-    An error
-    names the option on the command line (``--final-time``), the keyword in the API
-    (``final_time_s``).
+    Errors name its fields by the API's keywords (``final_time_s``, ``goal``); the command
+    line names them by its options (:func:`wmr.cli.shared.errors_as_options`).
+
+    Attributes
+    ----------
+    scenario, run
+        The start, goal, robot and limits of this run of this scenario (a name or TOML file,
+        resolved as ``wmr run`` does); ``None``: the overrides alone.
+    overrides
+        Its ``start`` and ``goal`` ``(x_m, y_m, heading_deg)`` (default :data:`DEFAULT_START`,
+        :data:`DEFAULT_GOAL` or the run's), ``params`` and ``limits`` by name (as ``wmr run
+        --param/--limit``); a request with any other override is refused.
+    objective, final_time_s
+        ``time`` or ``energy`` (in ``final_time_s``, default 1.5 x the minimum time).
+    torque_limit_nm, torque_only
+        The torque limit (default the PI's), and whether the other limits are dropped.
+    period_s
+        The longest FMU step of the replay, s.
+    out
+        The log (default ``runs/<name>.mcap``, :func:`optimal_name`).
+    fmi, fmu
+        The project's FMI 2 or 3 build, or another robot FMU.
+    """
+
+    scenario: str | Path | None = None
+    run: str | None = None
+    overrides: Overrides = field(default_factory=Overrides)
+    objective: str = "time"
+    torque_limit_nm: float | None = None
+    torque_only: bool = False
+    final_time_s: float | None = None
+    period_s: float = 0.01
+    out: str | Path | None = None
+    fmi: int = 3
+    fmu: str | Path | None = None
+
+    def __post_init__(self) -> None:
+        o = self.overrides
+        for name in ("gains", "period_s", "stop_radius_m", "max_time_s", "controller",
+                     "controller_gains", "sensors", "sensor"):
+            if getattr(o, name) not in (None, {}):
+                raise ConfigError(name, "has no meaning for the optimal manoeuvre",
+                                  "give start, goal, params and limits only")
+
+
+def optimal_command(request: OptimalRequest,
+                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """What ``wmr optimal`` and :func:`wmr.optimal` both do: check the request, name the
+    case, solve, replay and log (:func:`optimal_to_log`); return the record. ``progress``
+    receives a line at least every few seconds while IPOPT iterates.
 
     Raises
     ------
     ConfigError
-        A bad input, one line.
+        A bad input, one line, naming the request's field (``final_time_s``).
     """
     from wmr.apps.run import default_fmu
     from wmr.config.naming import default_log_path
     from wmr.infra.outputs import check_output
 
-    def option(keyword: str) -> str:
-        return _FLAGS[keyword] if command_line else keyword
-
+    r, o = request, request.overrides
+    start, goal = o.start, o.goal
     spec = None
-    if scenario is not None or run is not None or params or limits:
+    if r.scenario is not None or r.run is not None or o.params or o.limits:
         from wmr.apps.run import select_run
         from wmr.config.scenario import load_scenario, with_overrides
 
-        base = (select_run(load_scenario(scenario), run, command_line) if scenario is not None
-                or run is not None else RunSpec(name="", start=Pose(0.0, 0.0, 0.0),
-                                                goal=Pose(0.0, 0.0, 0.0)))
-        spec = with_overrides(base, params=params, limits=limits)
-        if start is None and scenario is not None:
+        base = (select_run(load_scenario(r.scenario), r.run) if r.scenario is not None
+                or r.run is not None else RunSpec(name="", start=Pose(0.0, 0.0, 0.0),
+                                                  goal=Pose(0.0, 0.0, 0.0)))
+        spec = with_overrides(base, params=o.params, limits=o.limits)
+        if start is None and r.scenario is not None:
             start = _degrees(spec.start)
-        if goal is None and scenario is not None:
+        if goal is None and r.scenario is not None:
             goal = _degrees(spec.goal)
-    start_deg = _pose(start, DEFAULT_START, option("start"))
-    goal_deg = _pose(goal, DEFAULT_GOAL, option("goal"))
-    if not math.isfinite(period_s) or period_s <= 0.0:
-        raise ConfigError(option("period_s"), f"must be > 0, got {period_s!r}")
+    start_deg = _pose(start, DEFAULT_START, "start")
+    goal_deg = _pose(goal, DEFAULT_GOAL, "goal")
+    if not math.isfinite(r.period_s) or r.period_s <= 0.0:
+        raise ConfigError("period_s", f"must be > 0, got {r.period_s!r}")
     changed = [] if spec is None else [
-        *(f"{k}={v:.10g}" for k, v in sorted((params or {}).items())),
-        *(f"{k}={v:.10g}" for k, v in sorted((limits or {}).items()))]
-    name = optimal_name(start_deg, goal_deg, objective=objective,
-                        torque_limit_nm=torque_limit_nm, torque_only=torque_only,
-                        final_time_s=final_time_s, period_s=period_s, fmi=fmi, fmu=fmu,
+        *(f"{k}={v:.10g}" for k, v in sorted((o.params or {}).items())),
+        *(f"{k}={v:.10g}" for k, v in sorted((o.limits or {}).items()))]
+    name = optimal_name(start_deg, goal_deg, objective=r.objective,
+                        torque_limit_nm=r.torque_limit_nm, torque_only=r.torque_only,
+                        final_time_s=r.final_time_s, period_s=r.period_s, fmi=r.fmi, fmu=r.fmu,
                         extra=changed)
-    path = check_output(out if out else default_log_path(name), option("out"), suffix=".mcap")
-    if objective == "time" and final_time_s is not None:
-        raise ConfigError(option("final_time_s"), "the time objective leaves the final time "
-                          "free", "drop --final-time or use --objective energy" if command_line
-                          else "drop final_time_s or use objective='energy'")
+    path = check_output(r.out if r.out else default_log_path(name), "out", suffix=".mcap")
+    if r.objective == "time" and r.final_time_s is not None:
+        raise ConfigError("final_time_s", "the time objective leaves the final time free",
+                          "drop final_time_s or use objective=energy")
     start_pose, goal_pose = (Pose(x, y, math.radians(h)) for x, y, h in (start_deg, goal_deg))
     try:
         return optimal_to_log(start_pose, goal_pose, path,
-                              Path(fmu) if fmu is not None else default_fmu(fmi), name=name,
-                              objective=objective, torque_limit_nm=torque_limit_nm,
-                              torque_only=torque_only, final_time_s=final_time_s,
-                              period_s=period_s, progress=progress,
-                              params=None if spec is None else spec.params,
+                              Path(r.fmu) if r.fmu is not None else default_fmu(r.fmi),
+                              name=name, objective=r.objective,
+                              torque_limit_nm=r.torque_limit_nm, torque_only=r.torque_only,
+                              final_time_s=r.final_time_s, period_s=r.period_s,
+                              progress=progress, params=None if spec is None else spec.params,
                               pi_limits=None if spec is None else spec.limits)
-    except ConfigError as exc:  # solve_optimal's arguments, named as the caller named them
-        if command_line:
-            raise _as_flag(exc) from None
-        raise
+    except ConfigError as exc:
+        # solve_optimal's advice, for a caller who has no n_intervals to raise
+        raise ConfigError(exc.field, exc.problem, exc.fix.replace(
+            "raise n_intervals", "raise n_intervals in the Python API "
+            "(wmr.adapters.ocp.solve_optimal)")) from None
 
 
 def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: str,
@@ -318,6 +337,6 @@ def optimum_fields(spec: RunSpec, objective: str, record: dict[str, Any],
     return out, res if res.objective == "time" else None
 
 
-__all__ = ["DEFAULT_GOAL", "DEFAULT_START", "OPTIMUM_COLUMNS",
+__all__ = ["DEFAULT_GOAL", "DEFAULT_START", "OPTIMUM_COLUMNS", "OptimalRequest",
            "optimal_command", "optimal_limits", "optimal_name", "optimal_to_log",
            "optimum_fields"]

@@ -18,19 +18,12 @@ from wmr.infra.errors import ConfigError
 if TYPE_CHECKING:
     from wmr.adapters.rerun.replay import ReplayResult
 
-#: The API's keywords -> the options of ``wmr replay`` that give them.
-_FLAGS = {"logs": "FILE.mcap|DIR", "rrd": "--rrd", "blueprint": "--blueprint",
-          "blueprint_for": "--blueprint-for", "worst": "--worst", "status": "--status",
-          "pose_topic": "--pose-topic"}
-
-
 def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
                 rrd: str | os.PathLike[str] | None = None,
                 blueprint: str | os.PathLike[str] | None = None, blueprint_for: bool = False,
                 viewer: bool | None = None, worst: int | None = None,
                 by: str = "time_to_goal_s", status: str | None = None,
-                say: Callable[[str], None] | None = None,
-                command_line: bool = False, notebook: bool = False,
+                say: Callable[[str], None] | None = None, notebook: bool = False,
                 pose_topic: str | None = None
                 ) -> ReplayResult | Path | list[Path]:
     """Replay ``logs`` (files and folders of them) in one Rerun recording, or, with
@@ -59,8 +52,6 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         a full log into ``DIR/rerun/`` (:func:`wmr.apps.batch.rerun.batch_logs`), and ``say``
         is told so.  When the batch's spec has ``optimal``, each chosen run's minimum-time
         path is solved again and drawn beside it, labelled ``optimal``.
-    command_line
-        Name the options in errors as ``wmr replay`` does (``--rrd``), else the keywords.
     notebook
         Show the recording in the notebook's inline viewer (rerun-notebook) instead of a
         viewer or an ``.rrd``; refused before any run is read or made again where it cannot
@@ -78,26 +69,22 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
     Raises
     ------
     ConfigError
-        No log given, or an output that cannot be written.
+        No log given, or an output that cannot be written (named by the keywords).
     LogError
         A log that cannot be read.
     """
     from wmr.infra.outputs import check_output
-
-    def option(keyword: str) -> str:
-        return _FLAGS[keyword] if command_line else keyword
 
     if blueprint_for:
         from wmr.adapters.rerun.blueprint import log_blueprint_path, write_log_blueprint
         from wmr.adapters.rerun.replay import find_logs, raw_view
 
         if not logs:
-            raise ConfigError(option("blueprint_for"), "no log given",
-                              "give run logs or folders of them: wmr replay --blueprint-for "
-                              "X.mcap" if command_line else "give run logs or folders of them")
+            raise ConfigError("blueprint_for", "no log given",
+                              "give run logs or folders of them")
         found = find_logs(logs)
         for log in found:  # every output checked before the first is written
-            check_output(log_blueprint_path(log.path), option("blueprint_for"), suffix=".rbl")
+            check_output(log_blueprint_path(log.path), "blueprint_for", suffix=".rbl")
         written = []
         for log in found:
             own = raw_view([log.path])  # each looks down on its own run, plots its range
@@ -112,26 +99,26 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
             from wmr.adapters.rerun.replay import raw_view
 
             view = raw_view(logs)
-        out = check_output(blueprint, option("blueprint"), suffix=".rbl")
+        out = check_output(blueprint, "blueprint", suffix=".rbl")
         out.parent.mkdir(parents=True, exist_ok=True)  # as rrd does
         return write_blueprint(out, frame=view.frame if view else None,
                                sensing=view.sensing if view else False,
                                y_ranges=view.y_ranges if view else None)
     if not logs:
-        raise ConfigError(option("logs"), "no log given", "give run logs or folders of them")
+        raise ConfigError("logs", "no log given", "give run logs or folders of them")
     if notebook:  # before --worst makes runs again, only to find no viewer to show them in
         from wmr.adapters.rerun.replay import check_notebook
 
         check_notebook(rrd, viewer)
     optimal_paths: dict[Path, NDArray[np.float64]] = {}
     if worst is not None or status is not None:
-        chosen = _chosen_runs(logs, worst, by, status, say, command_line)
+        chosen = _chosen_runs(logs, worst, by, status, say)
         optimal_paths = _optimal_paths(Path(logs[0]), chosen, say)
         logs = [log for _, log in chosen]
     else:
-        _kept_logs(logs, command_line)
+        _kept_logs(logs)
     if rrd is not None:
-        check_output(rrd, option("rrd"), suffix=".rrd")
+        check_output(rrd, "rrd", suffix=".rrd")
     from wmr.adapters.rerun.replay import replay
 
     return replay(logs, rrd=rrd, spawn=viewer, notebook=notebook, optimal_paths=optimal_paths,
@@ -168,27 +155,25 @@ def _optimal_paths(out: Path, chosen: Sequence[tuple[str, Path]],
 
 
 def _chosen_runs(logs: Sequence[str | os.PathLike[str]], worst: int | None, by: str,
-                 status: str | None, say: Callable[[str], None] | None,
-                 command_line: bool) -> list[tuple[str, Path]]:
+                 status: str | None,
+                 say: Callable[[str], None] | None) -> list[tuple[str, Path]]:
     """The runs ``--worst``/``--status`` choose in the one batch folder of ``logs``: (run id,
     log), the log made again where the batch kept none."""
     from wmr.apps.batch.rerun import batch_logs, pick_runs
 
-    option = _FLAGS["worst" if worst is not None else "status"] if command_line \
-        else "worst" if worst is not None else "status"
+    option = "worst" if worst is not None else "status"
     if worst is not None and status is not None:
-        raise ConfigError(option, "given with --status" if command_line else "given with status",
-                          "give one of them")
+        raise ConfigError(option, "given with status=STATUS", "give one of them")
     if len(logs) != 1 or not Path(logs[0]).is_dir():
         raise ConfigError(option, "chooses runs of one batch folder",
                           "give one batch folder (the --out of wmr batch)")
     out = Path(logs[0])
-    picked = pick_runs(out, worst=worst, by=by, status=status, command_line=command_line)
+    picked = pick_runs(out, worst=worst, by=by, status=status)
     return list(zip([run_id for run_id, _ in picked], batch_logs(out, picked, say),
                     strict=True))
 
 
-def _kept_logs(logs: Sequence[str | os.PathLike[str]], command_line: bool) -> None:
+def _kept_logs(logs: Sequence[str | os.PathLike[str]]) -> None:
     """A batch folder given whole that holds no log: say its log policy and how to see its
     runs, not only that the folder has no ``.mcap`` file."""
     from wmr.apps.batch.rerun import BATCH_JSON, open_batch
@@ -197,18 +182,11 @@ def _kept_logs(logs: Sequence[str | os.PathLike[str]], command_line: bool) -> No
         folder = Path(item)
         if not (folder / BATCH_JSON).is_file() or any(folder.rglob("*.mcap")):
             continue
-        policy = open_batch(folder, "DIR" if command_line else "logs").log
-        how = (f"wmr replay {folder} --worst N [--by COLUMN], or --status failed|timeout, "
-               f"or wmr rerun {folder} RUN_ID" if command_line
-               else "worst=N [by=COLUMN], or status='failed'|'timeout'")
-        raise ConfigError(option_name(command_line), f"{folder} is a batch whose log policy "
+        policy = open_batch(folder, "logs").log
+        raise ConfigError("logs", f"{folder} is a batch whose log policy "
                           f"({policy.describe()}) kept no log",
-                          f"make runs again with their full logs: {how}")
-
-
-def option_name(command_line: bool) -> str:
-    """How an error names the logs given: ``FILE.mcap|DIR`` or ``logs``."""
-    return _FLAGS["logs"] if command_line else "logs"
+                          "make runs again with their full logs: worst=N [by=COLUMN], or "
+                          f"status=failed|timeout, or wmr rerun {folder} RUN_ID")
 
 
 __all__ = ["replay_logs"]

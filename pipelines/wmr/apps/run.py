@@ -361,35 +361,24 @@ def result_json(record: dict[str, Any]) -> str:
 
 
 
-def _option(keyword: str, command_line: bool) -> str:
-    """How an error names an input: ``--controller-fmu`` on the command line,
-    ``controller_fmu`` in the API (the keywords are the options' names)."""
-    return f"--{keyword.replace('_', '-')}" if command_line else keyword
-
-
 #: Run names an error of :func:`select_run` lists before "...".
 LISTED_RUNS = 20
 
 
-def select_run(scenario: Scenario, name: str | None, command_line: bool = True) -> RunSpec:
-    """The run ``name`` of ``scenario``, or its only run (``--run NAME``, ``run=NAME``)."""
+def select_run(scenario: Scenario, name: str | None) -> RunSpec:
+    """The run ``name`` of ``scenario``, or its only run; an error names the field ``run``."""
     from wmr.config.naming import name_list
 
     names = [r.name for r in scenario.runs]
     runs = [r for r in scenario.runs if name is None or r.name == name]
     if len(runs) == 1:
         return runs[0]
-    option = _option("run", command_line)
     problem = (f"scenario {scenario.name} has no run {name!r}" if name is not None
                else f"scenario {scenario.name} has {len(runs)} runs")
-    how = f"{option} NAME" if command_line else f"{option}=NAME"
     # 20 names and the count (name_list): a scenario's runs are few, and a name cut short
-    # cannot be given back to --run; all of them with their poses: wmr run SCENARIO --list
-    listing = f"; all of them: wmr run {scenario.name} --list" if command_line else ""
-    raise ConfigError(option, problem, f"pick one with {how} of "
-                      f"{name_list(names, shown=LISTED_RUNS)}"
-                      + (" or run them all with 'wmr batch'" if command_line else "")
-                      + listing)
+    # cannot be given back as the run; all of them with their poses: wmr run SCENARIO --list
+    raise ConfigError("run", problem, "pick one with run=NAME of "
+                      f"{name_list(names, shown=LISTED_RUNS)}")
 
 
 #: ``progress_bar(run_name)``: the progress callback of a run and what closes it.
@@ -424,7 +413,7 @@ def resolve_run(request: RunRequest,
     inputs that run as given but look wrong (a heading in radians)."""
     from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
     from wmr.config.scenario import heading_looks_like_radians, load_scenario, with_overrides
-    from wmr.core.sensing.config import command_line_sensors
+    from wmr.core.sensing.config import override_sensors
     from wmr.infra.outputs import check_output
 
     o = request.overrides
@@ -434,14 +423,14 @@ def resolve_run(request: RunRequest,
             warn(name, f"heading {pose[2]:g} is in degrees but looks like {as_pi} rad: give "
                        f"{math.degrees(pose[2]):.4g} if you meant {as_pi} rad")
     sc = load_scenario(request.scenario)
-    base = select_run(sc, request.run, command_line=False)
+    base = select_run(sc, request.run)
     spec = with_overrides(base, start=None if o.start is None else list(o.start),
                           goal=None if o.goal is None else list(o.goal), gains=o.gains,
                           limits=o.limits, params=o.params, period_s=o.period_s,
                           stop_radius_m=o.stop_radius_m, t_max_s=o.max_time_s,
                           controller=o.controller, controller_gains=o.controller_gains)
     if o.sensors is not None or o.sensor:
-        spec = replace(spec, sensors=command_line_sensors(
+        spec = replace(spec, sensors=override_sensors(
             spec.sensors, o.sensors, [f"{k}={v}" for k, v in (o.sensor or {}).items()]))
     choice = request.controller_fmu
     ctrl_choice = (None if choice is False else "" if choice is True
@@ -472,7 +461,7 @@ def resolve_run(request: RunRequest,
                               "give a controller .fmu, or none for the built one")
     return ResolvedRun(
         spec=spec, scenario_file=sc.path, log_path=path,
-        policy=log_policy(request.log, request.log_every, None, command_line=False)
+        policy=log_policy(request.log, request.log_every, None)
         or FULL_LOGS,
         fmu_path=Path(request.fmu) if request.fmu is not None else sc.fmu,
         fmu_map=Path(request.fmu_map) if request.fmu_map is not None else sc.fmu_map,
@@ -526,17 +515,15 @@ def run_scenario(request: RunRequest, *, progress_bar: ProgressBar | None = None
     return record, r.spec
 
 
-def log_policy(keep: str | None, every_k_steps: int | None, base: LogPolicy | None,
-               command_line: bool = True) -> LogPolicy | None:
-    """The log policy of ``--log``/``log`` and ``--log-every``/``log_every`` over ``base`` (a
-    spec's ``[log]``); ``None`` when neither option nor ``base`` names one."""
+def log_policy(keep: str | None, every_k_steps: int | None,
+               base: LogPolicy | None) -> LogPolicy | None:
+    """The log policy of ``log`` and ``log_every`` over ``base`` (a spec's ``[log]``);
+    ``None`` when neither input nor ``base`` names one."""
     if every_k_steps is not None and (isinstance(every_k_steps, bool)
                                       or not isinstance(every_k_steps, int)
                                       or every_k_steps < 1):
-        option = _option("log_every", command_line)
-        raise ConfigError(option, f"must be >= 1, got {every_k_steps}",
-                          f"give e.g. {option} 10, or 1 for every step" if command_line
-                          else f"give e.g. {option}=10, or 1 for every step")
+        raise ConfigError("log_every", f"must be >= 1, got {every_k_steps}",
+                          "give e.g. log_every=10, or 1 for every step")
     if keep is None and every_k_steps is None:
         return base
     start = base or FULL_LOGS

@@ -95,12 +95,12 @@ def batch_cases(spec: str | Path, runs: int | None = None) -> list[RunSpec]:
     from wmr.apps.batch.spec import load_batch
 
     if runs is not None and (isinstance(runs, bool) or not isinstance(runs, int) or runs < 1):
-        raise ConfigError("--runs", f"must be an integer >= 1, got {runs!r}",
-                          "give e.g. --runs 40")
+        raise ConfigError("runs", f"must be an integer >= 1, got {runs!r}",
+                          "give e.g. runs=40")
     batch = load_batch(spec)
     if runs is not None and runs > len(batch.runs):
-        raise ConfigError("--runs", f"{runs} runs asked, the spec {batch.name} has "
-                          f"{len(batch.runs)}", f"give --runs {len(batch.runs)} or fewer, or "
+        raise ConfigError("runs", f"{runs} runs asked, the spec {batch.name} has "
+                          f"{len(batch.runs)}", f"give runs={len(batch.runs)} or fewer, or "
                           "raise the spec's [random] n")
     chosen = [r.spec for r in batch.runs[:len(batch.runs) if runs is None else runs]]
     for s in chosen:
@@ -114,7 +114,7 @@ def batch_cases(spec: str | Path, runs: int | None = None) -> list[RunSpec]:
 def tunable_names() -> list[str]:
     """Every registered controller with gains to tune (``wmr tune --controller all``); a
     plug-in that does not load is named in a one-line error."""
-    return [n for n in registry.names() if registry.get(n, "--controller").tunable()]
+    return [n for n in registry.names() if registry.get(n, "controller").tunable()]
 
 
 def tunable_gains(controller: str) -> tuple[registry.Gain, ...]:
@@ -123,12 +123,12 @@ def tunable_gains(controller: str) -> tuple[registry.Gain, ...]:
     Raises
     ------
     ConfigError
-        ``--controller``: an unknown controller, a plug-in that does not load, or one without
+        ``controller``: an unknown controller, a plug-in that does not load, or one without
         gains to tune.
     """
-    table = registry.get(controller, "--controller").tunable()
+    table = registry.get(controller, "controller").tunable()
     if not table:
-        raise ConfigError("--controller", f"{controller} declares no gain with bounds to tune",
+        raise ConfigError("controller", f"{controller} declares no gain with bounds to tune",
                           f"tune one of: {', '.join(tunable_names())}")
     return table
 
@@ -237,7 +237,8 @@ def tune(controller: str, specs: Sequence[RunSpec], plant: Plant,
     """
     table = tunable_gains(controller)
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
-        raise ConfigError("--budget", f"must be an integer >= 1, got {budget!r}")
+        raise ConfigError("budget", f"must be an integer >= 1, got {budget!r}",
+                          f"give e.g. budget={DEFAULT_BUDGET}")
     if not specs:
         raise ConfigError("scenarios", "the tuning set is empty", "give a scenario with runs")
     names = [g.name for g in table]

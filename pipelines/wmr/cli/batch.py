@@ -9,27 +9,40 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from wmr.cli.run import add_fmu_choice, add_log_choice
+from wmr.cli.shared import errors_as_options
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
     from wmr.apps.batch import BatchSpec
 
 
+#: ``wmr batch``'s options by the keyword of :func:`wmr.batch` (and of its errors) they give.
+BATCH_OPTIONS: dict[str, str] = {
+    "out": "--out", "workers": "--workers", "scheduler": "--scheduler",
+    "run_timeout_s": "--run-timeout", "max_runs": "--max-runs", "fmi": "--fmi", "fmu": "--fmu",
+    "fmu_map": "--map", "log": "--log", "log_every": "--log-every",
+}
+
+
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from wmr.apps.batch.command import batch_command, load_checked
+    from wmr.apps.batch.command import BatchRequest, batch_command, load_checked
     from wmr.config.naming import plural
 
-    if args.check:
-        batch, _, _ = load_checked(args.spec, workers=args.workers, scheduler=args.scheduler,
-                                   run_timeout_s=args.run_timeout, max_runs=args.max_runs,
-                                   command_line=True)
-        return _check_runs(batch, args.progress)
-    out, result = batch_command(args.spec, args.out, workers=args.workers,
-                                scheduler=args.scheduler, run_timeout_s=args.run_timeout,
-                                max_runs=args.max_runs, fmi=args.fmi, fmu=args.fmu,
-                                fmu_map=args.map or None, log=args.log,
-                                log_every=args.log_every, progress=args.progress,
-                                command_line=True)
+    def warn(field: str, message: str) -> None:
+        print(f"wmr: warning: {BATCH_OPTIONS.get(field, field)} {message}", file=sys.stderr)
+
+    with errors_as_options(BATCH_OPTIONS):
+        if args.check:
+            batch, _, _ = load_checked(args.spec, workers=args.workers,
+                                       scheduler=args.scheduler,
+                                       run_timeout_s=args.run_timeout, max_runs=args.max_runs,
+                                       warn=warn)
+            return _check_runs(batch, args.progress)
+        out, result = batch_command(BatchRequest(
+            args.spec, args.out, workers=args.workers, scheduler=args.scheduler,
+            run_timeout_s=args.run_timeout, max_runs=args.max_runs, fmi=args.fmi, fmu=args.fmu,
+            fmu_map=args.map or None, log=args.log, log_every=args.log_every),
+            progress=args.progress, warn=warn)
     c = result.counts
     rate = len(result.executed) / result.wall_s * 60.0 if result.wall_s > 0 else 0.0
     state = "interrupted" if result.interrupted else "done"

@@ -3,60 +3,51 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+from typing import Any
 
-from wmr.cli.shared import add_fmu_options, fmu_path, json_line
+from wmr.cli.shared import add_fmu_options, errors_as_options, json_line
+
+#: ``wmr benchmark``'s options by the field of the request (and of its errors) they fill.
+BENCHMARK_OPTIONS: dict[str, str] = {
+    "out": "--out", "controllers": "--controllers", "tuned": "--tuned",
+    "limit_cases": "--limit-cases", "fmi": "--fmi", "fmu": "--fmu",
+}
 
 
 def _cmd_benchmark(args: argparse.Namespace) -> int:
-    from wmr.adapters.fmi.robot import FmuPlant
-    from wmr.apps.benchmark import (
-        CONTROLLERS,
-        DEFAULT_SCENARIOS,
-        benchmark_specs,
-        format_tables,
-        load_tuned,
-        run_benchmark,
-        write_tables,
-    )
+    from wmr.apps.benchmark import BenchmarkRequest, benchmark_command, format_tables
     from wmr.apps.progress import count_progress
-    from wmr.infra.outputs import check_output
 
-    out = check_output(args.out if args.out else Path("runs") / "benchmark", "--out", "dir")
-    specs = benchmark_specs(args.scenarios or list(DEFAULT_SCENARIOS))
-    if args.limit_cases is not None:
-        specs = specs[: args.limit_cases]
-    labels = (list(CONTROLLERS) if not args.controllers
-              else [c.strip() for c in args.controllers.split(",") if c.strip()])
-    tuned = load_tuned(args.tuned)
-
+    request = BenchmarkRequest(
+        args.scenarios, out=args.out,
+        controllers=[c.strip() for c in (args.controllers or "").split(",") if c.strip()],
+        tuned=args.tuned, optimal=not args.no_optimal, limit_cases=args.limit_cases,
+        fmi=args.fmi, fmu=args.fmu)
     # one bar (a "k/N, about T left" line every 10 s off a terminal), not a line per run
-    steps = len(specs) * (len(labels) + (0 if args.no_optimal else 1))
-    bar = count_progress(steps, "benchmark", "run", False if args.json else None)
-    begun = [False]
+    bar: list[Any] = []
 
-    def progress(case: str, label: str) -> None:  # told before each run: the last one is done
-        if begun[0]:
-            bar.update(1)
-        begun[0] = True
-        bar.set_postfix_str(f"{case}: {label}", refresh=False)
+    def progress(runs: int, case: str, label: str) -> None:  # told before each run
+        if not bar:
+            bar.append(count_progress(runs, "benchmark", "run", False if args.json else None))
+        else:  # the last one is done
+            bar[0].update(1)
+        bar[0].set_postfix_str(f"{case}: {label}", refresh=False)
 
     try:
-        with FmuPlant(fmu_path(args)) as plant:
-            rows = run_benchmark(specs, plant, out, labels, tuned,
-                                 optimal=not args.no_optimal, progress=progress)
-        if begun[0]:
-            bar.update(1)
+        with errors_as_options(BENCHMARK_OPTIONS):
+            done = benchmark_command(request, progress)
+        if bar:
+            bar[0].update(1)
     finally:
-        bar.close()
-    csv_path, pq_path = write_tables(rows, out)
-    print(format_tables(rows))
-    print(f"tables: {csv_path}, {pq_path}; logs: {out / 'logs'}")
+        if bar:
+            bar[0].close()
+    csv_path, pq_path = done.tables
+    print(format_tables(done.rows))
+    print(f"tables: {csv_path}, {pq_path}; logs: {done.out / 'logs'}")
     if args.json:
-        print(json_line(rows))
-    failed = [r for r in rows if r["status"] == "failed"]
+        print(json_line(done.rows))
+    failed = [r for r in done.rows if r["status"] == "failed"]
     return 1 if failed else 0
-
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -5,21 +5,33 @@ from __future__ import annotations
 import argparse
 import math
 
-from wmr.cli.shared import add_fmu_options, json_line, progress_line
+from wmr.cli.shared import add_fmu_options, errors_as_options, json_line, progress_line
+
+#: ``wmr optimal``'s options by the field of the request (and of its errors) they fill.
+OPTIMAL_OPTIONS: dict[str, str] = {
+    "run": "--run", "start": "--start", "goal": "--goal", "params": "--param",
+    "limits": "--limit", "objective": "--objective", "final_time_s": "--final-time",
+    "torque_limit_nm": "--torque-limit", "torque_only": "--torque-only",
+    "period_s": "--period", "control_period_s": "--period", "out": "--out", "fmi": "--fmi",
+    "fmu": "--fmu",
+}
 
 
 def _cmd_optimal(args: argparse.Namespace) -> int:
-    from wmr.apps.optimal import optimal_command
-    from wmr.cli.run import _key_values
+    from wmr.apps.optimal import OptimalRequest, optimal_command
+    from wmr.apps.request import Overrides
+    from wmr.cli.run import _key_values, runs_listed
 
-    record = optimal_command(args.start, args.goal, objective=args.objective,
-                             scenario=args.scenario, run=args.run,
-                             params=_key_values(args.param, "--param"),
-                             limits=_key_values(args.limit, "--limit"),
-                             torque_limit_nm=args.torque_limit, torque_only=args.torque_only,
-                             final_time_s=args.final_time, period_s=args.period,
-                             out=args.out, fmi=args.fmi, fmu=args.fmu, progress=progress_line,
-                             command_line=True)
+    with errors_as_options(OPTIMAL_OPTIONS), runs_listed(args.scenario):
+        request = OptimalRequest(
+            args.scenario, run=args.run,
+            overrides=Overrides(start=args.start, goal=args.goal,
+                                params=_key_values(args.param, "--param"),
+                                limits=_key_values(args.limit, "--limit")),
+            objective=args.objective, torque_limit_nm=args.torque_limit,
+            torque_only=args.torque_only, final_time_s=args.final_time, period_s=args.period,
+            out=args.out, fmi=args.fmi, fmu=args.fmu)
+        record = optimal_command(request, progress=progress_line)
     out = record["mcap"]
     if args.json:
         print(json_line(record))

@@ -6,9 +6,20 @@ import argparse
 import sys
 from pathlib import Path
 
+from wmr.cli.shared import errors_as_options
+from wmr.infra.errors import ConfigError
+
 
 def _warn(line: str) -> None:
     print(f"wmr: warning: {line}", file=sys.stderr, flush=True)
+
+
+#: ``wmr replay``'s options by the keyword of :func:`wmr.replay` (and of its errors) they give.
+REPLAY_OPTIONS: dict[str, str] = {
+    "logs": "FILE.mcap|DIR", "rrd": "--rrd", "blueprint": "--blueprint",
+    "blueprint_for": "--blueprint-for", "worst": "--worst", "by": "--by", "status": "--status",
+    "pose_topic": "--pose-topic",
+}
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
@@ -16,12 +27,20 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from wmr.cli.log import apply_read_limit
 
     apply_read_limit(args)
-    result = replay_logs(args.logs, rrd=args.rrd, blueprint=args.blueprint,
-                         blueprint_for=args.blueprint_for,
-                         viewer=False if args.no_viewer else None, worst=args.worst,
-                         by=args.by, status=args.status, pose_topic=args.pose_topic,
-                         say=lambda line: print(f"wmr: {line}", file=sys.stderr, flush=True),
-                         command_line=True)
+    try:
+        with errors_as_options(REPLAY_OPTIONS):
+            result = replay_logs(args.logs, rrd=args.rrd, blueprint=args.blueprint,
+                                 blueprint_for=args.blueprint_for,
+                                 viewer=False if args.no_viewer else None, worst=args.worst,
+                                 by=args.by, status=args.status,
+                                 pose_topic=args.pose_topic,
+                                 say=lambda line: print(f"wmr: {line}", file=sys.stderr,
+                                                        flush=True))
+    except ConfigError as exc:
+        if exc.field != "--blueprint-for" or exc.problem != "no log given":
+            raise
+        raise ConfigError(exc.field, exc.problem,
+                          f"{exc.fix}: wmr replay --blueprint-for X.mcap") from None
     if isinstance(result, list):  # --blueprint-for: X.rbl beside each X.mcap
         for path in result:
             print(path)

@@ -5,13 +5,21 @@ from __future__ import annotations
 
 import argparse
 
+from wmr.cli.shared import errors_as_options
+
+#: ``wmr rerun``'s arguments and options by the keyword of
+#: :func:`wmr.apps.batch.rerun.rerun_run` (and of its errors) they give.
+RERUN_OPTIONS: dict[str, str] = {"out_dir": "DIR", "run_id": "RUN_ID", "out": "--out",
+                                 "fmu": "--fmu", "fmu_map": "--map"}
+
 
 def _cmd_rerun(args: argparse.Namespace) -> int:
     from wmr.apps.batch.rerun import rerun_run
     from wmr.cli.run import exit_status, print_result
 
-    record = rerun_run(args.dir, args.run_id, out=args.out, fmu=args.fmu, fmu_map=args.map,
-                       command_line=True)
+    with errors_as_options(RERUN_OPTIONS):
+        record = rerun_run(args.dir, args.run_id, out=args.out, fmu=args.fmu,
+                           fmu_map=args.map)
     print_result(record, args.json, sensors=False)
     return exit_status(record)
 

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from wmr.cli.shared import errors_as_options
@@ -113,10 +115,26 @@ def result_summary(record: Mapping[str, Any]) -> str:
 
 
 def select_run(scenario: Scenario, name: str | None) -> RunSpec:
-    """The run ``name`` of ``scenario``, or its only run (:func:`wmr.apps.run.select_run`)."""
+    """The run ``name`` of ``scenario``, or its only run (:func:`wmr.apps.run.select_run`);
+    an error names ``--run``."""
     from wmr.apps.run import select_run as pick
 
-    return pick(scenario, name)
+    with errors_as_options({"run": "--run"}), runs_listed(scenario.name):
+        return pick(scenario, name)
+
+
+@contextlib.contextmanager
+def runs_listed(scenario: str | Path | None) -> Iterator[None]:
+    """An error naming the request's ``run`` inside also says how to list the runs of
+    ``scenario`` (default ``fig11``), or run them all: the command line offers both."""
+    try:
+        yield
+    except ConfigError as exc:
+        if exc.field != "run":
+            raise
+        raise ConfigError("run", exc.problem,
+                          f"{exc.fix}; all of them: wmr run {scenario or 'fig11'} --list, or "
+                          "run them all with 'wmr batch'") from None
 
 
 def _pose_text(pose: Any) -> str:
@@ -177,32 +195,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
     options = {name: option for name, option in RUN_OPTIONS.items()
                if name not in _SCENARIO_KEYS
                or getattr(args, option.lstrip("-").replace("-", "_")) not in (None, [])}
-    with errors_as_options(options):
-        try:
-            request = RunRequest(
-                args.scenario, run=args.run,
-                overrides=Overrides(
-                    start=args.start, goal=args.goal, params=_key_values(args.param, "--param"),
-                    gains=_key_values(args.gain, "--gain"),
-                    limits=_key_values(args.limit, "--limit"), period_s=args.period,
-                    stop_radius_m=args.stop_radius, max_time_s=args.max_time,
-                    controller=args.controller, sensors=args.sensors,
-                    sensor=_sensor_items(args.sensor)),
-                controller_fmu=(None if args.controller_fmu is None
-                                else args.controller_fmu or True),
-                fmi=args.fmi, fmu=args.fmu, fmu_map=args.map, out=args.out, log=args.log,
-                log_every=args.log_every, view=args.view)
-            record, spec = run_scenario(
-                request, progress_bar=lambda name: _progress_bar(name, args.json),
-                on_log=getattr(args, "report_log", None), warn=warn)
-        except ConfigError as exc:
-            if exc.field != "run":
-                raise
-            # the command line also offers the listing and the batch of every run
-            scenario = args.scenario or "fig11"
-            raise ConfigError("run", exc.problem,
-                              f"{exc.fix}; all of them: wmr run {scenario} --list, or run them "
-                              "all with 'wmr batch'") from None
+    with errors_as_options(options), runs_listed(args.scenario):
+        request = RunRequest(
+            args.scenario, run=args.run,
+            overrides=Overrides(
+                start=args.start, goal=args.goal, params=_key_values(args.param, "--param"),
+                gains=_key_values(args.gain, "--gain"),
+                limits=_key_values(args.limit, "--limit"), period_s=args.period,
+                stop_radius_m=args.stop_radius, max_time_s=args.max_time,
+                controller=args.controller, sensors=args.sensors,
+                sensor=_sensor_items(args.sensor)),
+            controller_fmu=(None if args.controller_fmu is None
+                            else args.controller_fmu or True),
+            fmi=args.fmi, fmu=args.fmu, fmu_map=args.map, out=args.out, log=args.log,
+            log_every=args.log_every, view=args.view)
+        record, spec = run_scenario(
+            request, progress_bar=lambda name: _progress_bar(name, args.json),
+            on_log=getattr(args, "report_log", None), warn=warn)
     print_result(record, args.json, spec.sensors is not None)
     return exit_status(record)
 
@@ -260,7 +269,7 @@ def _supervised(args: argparse.Namespace,
 
 def _sensor_items(items: list[str] | None) -> dict[str, str]:
     """``--sensor NAME=VALUE`` items as names to their text (checked and converted by the
-    ``[sensors]`` table's own rules, :func:`wmr.core.sensing.config.command_line_sensors`)."""
+    ``[sensors]`` table's own rules, :func:`wmr.core.sensing.config.override_sensors`)."""
     out: dict[str, str] = {}
     for item in items or []:
         name, sep, value = item.partition("=")

@@ -64,12 +64,16 @@ def _in_options(text: str, options: Mapping[str, str]) -> str:
 @contextlib.contextmanager
 def errors_as_options(options: Mapping[str, str]) -> Iterator[None]:
     """Errors raised inside name the fields of ``options`` (a request's field -> this
-    command's option) as the options, in the field and in the problem and fix: the layers
-    below name their inputs by the API's keywords, the command line by its options."""
+    command's option) as the options, in the field and in the problem and fix
+    (:func:`_in_options`): the layers below name their inputs by the API's keywords, the
+    command line by its options."""
     try:
         yield
     except ConfigError as exc:
-        option = options.get(exc.field)
+        # a part of a field (``goal y``) is the same part of its option (``--goal y``)
+        head, sep, part = exc.field.partition(" ")
+        option = options.get(exc.field) or (f"{options[head]} {part}"
+                                            if sep and head in options else None)
         if option is None:
             raise
         raise ConfigError(option, _in_options(exc.problem, options),

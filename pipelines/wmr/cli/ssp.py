@@ -7,77 +7,38 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wmr.infra.errors import ConfigError
+from wmr.cli.shared import errors_as_options
+
+#: ``wmr ssp export``'s and ``wmr ssp run``'s options by the keyword of
+#: :mod:`wmr.apps.ssp` (and of its errors) they give.
+SSP_OPTIONS: dict[str, str] = {
+    "run": "--run", "start": "--start", "goal": "--goal", "fmi": "--fmi",
+    "robot_fmu": "--robot-fmu", "controller_fmu": "--controller-fmu", "fmu_map": "--map",
+    "out": "--out", "stop_time_s": "--stop-time", "master": "--master",
+    "steps_per_period": "--steps-per-period",
+}
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from dataclasses import replace
+    from wmr.apps.ssp import export_package
+    from wmr.cli.run import runs_listed
 
-    from wmr.adapters.fmi.varmap import load_map
-    from wmr.adapters.ssp.export import export_ssp
-    from wmr.build.fmus import build_fmus
-    from wmr.cli.run import select_run
-    from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
-    from wmr.config.scenario import load_scenario, with_overrides
-    from wmr.infra.outputs import check_output
-
-    scenario = load_scenario(args.scenario)
-    base = select_run(scenario, args.run)
-    spec = with_overrides(base, start=args.start, goal=args.goal)
-    # the scenario file is the provenance of its own run only: a variant's package carries
-    # its effective scenario instead (export_ssp), as a variant's log of 'wmr run' does
-    scenario_file = scenario.path if spec == base else None
-    # named as wmr run names a variant: the run (SSD, parameter sets) after what it changes,
-    # the file also after the FMI version, so that another goal or FMI version never
-    # overwrites the scenario's own package nor passes for it
-    spec = replace(spec, name=run_name(base, spec))
-    name = variant_name(spec.name, fmu_tokens(args.fmi, args.robot_fmu, 2))
-    out = check_output(args.out if args.out else default_log_path(name, "ssp", ".ssp"),
-                       "--out", suffix=".ssp")
-    built = None
-    robot_choice = args.robot_fmu or scenario.fmu
-    if robot_choice is None or args.controller_fmu is None:
-        built = build_fmus()
-    robot = Path(robot_choice) if robot_choice else built.fmus[args.fmi]  # type: ignore[union-attr]
-    map_path = Path(args.map) if args.map else scenario.fmu_map
-    ctrl = (Path(args.controller_fmu) if args.controller_fmu
-            else built.controllers[args.fmi])  # type: ignore[union-attr]
-    print(export_ssp(spec, out, robot, ctrl, scenario_file=scenario_file,
-                     var_map=load_map(map_path) if map_path is not None else None,
-                     steps_per_period=args.steps_per_period))
+    with errors_as_options(SSP_OPTIONS), runs_listed(args.scenario):
+        print(export_package(args.scenario, run=args.run, start=args.start, goal=args.goal,
+                             fmi=args.fmi, robot_fmu=args.robot_fmu,
+                             controller_fmu=args.controller_fmu, fmu_map=args.map,
+                             out=args.out, steps_per_period=args.steps_per_period))
     return 0
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from wmr.adapters.ssp.cosim import log_ssp_run, simulate_libcosim
     from wmr.apps.run import result_json
+    from wmr.apps.ssp import run_package
     from wmr.cli.run import result_summary
-    from wmr.config.naming import default_log_path
-    from wmr.core.runspec import DEFAULT_PERIOD_S, MAX_STEPS
-    from wmr.infra.outputs import check_output
 
-    ssp = Path(args.ssp)
-    # '-ssp': the package of fig11 must not overwrite runs/fig11.mcap of 'wmr run fig11'
-    out = check_output(args.out if args.out else default_log_path(f"{ssp.stem}-ssp"), "--out",
-                       suffix=".mcap")
-    # the longest run a scenario allows at the default period: libcosim sizes its buffers by it
-    longest_s = MAX_STEPS * DEFAULT_PERIOD_S
-    if args.stop_time is not None and not 0 < args.stop_time <= longest_s:
-        raise ConfigError("--stop-time", f"must be > 0 and at most {longest_s:g} s, got "
-                          f"{args.stop_time:g}", "give seconds, e.g. --stop-time 30")
-    master = args.master
-    if master == "auto":  # libcosim loads FMI 2.0 only
-        from wmr.adapters.ssp.package import ROBOT, read_package
-
-        fmi3 = read_package(ssp).component(ROBOT).fmi_version.startswith("3")
-        master = "ecos" if fmi3 else "libcosim"
-    if master == "ecos":
-        from wmr.adapters.ssp.ecos import simulate_ecos
-
-        run = simulate_ecos(ssp, stop_time_s=args.stop_time)
-    else:
-        run = simulate_libcosim(ssp, stop_time_s=args.stop_time)
-    record = log_ssp_run(run, out)
+    with errors_as_options(SSP_OPTIONS):
+        record = run_package(args.ssp, out=args.out, stop_time_s=args.stop_time,
+                             master=args.master)
     if args.json:
         print(result_json(record))
     else:

@@ -3,17 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
-from collections.abc import Sequence
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-from wmr.cli.shared import add_fmu_options, fmu_path, json_line, progress_line
-from wmr.infra.errors import ConfigError
+from wmr.cli.shared import add_fmu_options, errors_as_options, json_line, progress_line
 
 if TYPE_CHECKING:
-    from wmr.core.closedloop import LoopOutcome
+    from wmr.apps.tuning import Tuned, TuneRequest
 
 
 
@@ -42,114 +38,59 @@ class _TuneProgress:
 #: A spec's tuning prints its runs one a line up to this many (then their summary only).
 _LISTED_RUNS = 20
 
+#: ``wmr tune``'s options by the field of the request (and of its errors) they fill.
+TUNE_OPTIONS: dict[str, str] = {
+    "controller": "--controller", "budget": "--budget", "spec": "--spec", "runs": "--runs",
+    "save": "--save", "fmi": "--fmi", "fmu": "--fmu",
+}
 
-def _draw_summary(results: Sequence[LoopOutcome | None]) -> dict[str, Any]:
-    """The converged count and the mean time to goal (s, of the converged runs) of a tuning's
-    runs at its gains."""
-    times = [r.time_to_goal_s for r in results
-             if r is not None and r.status == "converged" and r.time_to_goal_s is not None]
-    return {"converged": len(times),
-            "mean_time_to_goal_s": sum(times) / len(times) if times else math.nan}
+
+def _print_tuned(tuned: Tuned, request: TuneRequest) -> None:
+    """One controller's tuning: its objective, gains and (a spec's up to
+    :data:`_LISTED_RUNS`) runs against the optimum."""
+    res, c = tuned.result, tuned.summary["controller"]
+    gains = ", ".join(f"{k} = {v:.4g}" for k, v in res.gains.items())
+    start = ", ".join(f"{k} = {v:.4g}" for k, v in res.start_gains.items())
+    print(f"{c}: objective {res.start_cost_s:.3f} s -> {res.cost_s:.3f} s in "
+          f"{res.evaluations} evaluations ({res.wall_time_s:.0f} s)")
+    print(f"  start: {start}")
+    print(f"  tuned: {gains}")
+    optimal = request.optimal and request.spec is None
+    if request.spec is None or len(tuned.cases) <= _LISTED_RUNS:
+        for case in tuned.cases:
+            t, t_opt, ratio = case.time_to_goal_s, case.optimal_time_s, case.ratio
+            line = (f"    {case.name:22s} {case.status:9s} t = "
+                    + (f"{t:7.2f} s" if t is not None else "      - s"))
+            if optimal:  # without the optimum there is nothing to compare
+                line += ("  optimal " + (f"{t_opt:7.2f} s" if t_opt is not None
+                                         else "      - s")
+                         + "  ratio " + (f"{ratio:.3f}" if ratio is not None else "-"))
+            print(line)
+    summary = tuned.summary
+    if request.spec is not None:
+        print(f"  on {summary['runs']} runs of {request.spec}: {summary['converged']} "
+              f"converged, their mean time to goal {summary['mean_time_to_goal_s']:.2f} s")
+    ratios = [case.ratio for case in tuned.cases if case.ratio is not None]
+    if ratios:
+        print(f"  time / optimal time: mean {sum(ratios) / len(ratios):.3f}, "
+              f"max {max(ratios):.3f}")
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:
-    from wmr.adapters.fmi.robot import FmuPlant
-    from wmr.apps.benchmark import run_optimal
-    from wmr.apps.tune import (
-        DEFAULT_BUDGET,
-        batch_cases,
-        default_cases,
-        tunable_gains,
-        tunable_names,
-        tune,
-    )
-    from wmr.config.scenario import load_scenario
-    from wmr.core.runspec import RunSpec
-    from wmr.infra.outputs import check_output
+    from wmr.apps.tuning import TuneRequest, tune_command
 
-    budget = DEFAULT_BUDGET if args.budget is None else args.budget
-    if budget < 1:
-        raise ConfigError("--budget", f"must be an integer >= 1, got {budget}",
-                          f"give e.g. --budget {DEFAULT_BUDGET}")
+    request = TuneRequest(args.scenarios, controller=args.controller, budget=args.budget,
+                          spec=args.spec, runs=args.runs, save=args.save,
+                          optimal=not args.no_optimal, fmi=args.fmi, fmu=args.fmu)
+    with errors_as_options(TUNE_OPTIONS):
+        done = tune_command(request, progress_line, _TuneProgress,
+                            lambda tuned: _print_tuned(tuned, request))
     if args.save:
-        check_output(args.save, "--save")
-    specs: list[RunSpec] = []
-    if args.spec is not None:
-        if args.scenarios:
-            raise ConfigError("--spec", "given with scenarios; a tuning set is one or the other",
-                              "drop the scenarios, or --spec")
-        specs = batch_cases(args.spec, args.runs)
-        if not args.no_optimal:  # one OCP per draw would cost more than the tuning itself
-            progress_line("tune: no optimal reference times for a spec's runs (a batch with "
-                      "optimal = \"time\" gives them)")
-            args.no_optimal = True
-    elif args.runs is not None:
-        raise ConfigError("--runs", "given without --spec", "add --spec SPEC.toml")
-    elif args.scenarios:
-        for s in args.scenarios:
-            specs.extend(load_scenario(s).runs)
-    else:
-        specs = default_cases()
-    controllers = tunable_names() if args.controller == "all" else [args.controller]
-    for c in controllers:  # before the FMU and the optimal times: an unknown name fails fast
-        tunable_gains(c)
-    saved: dict[str, dict[str, float]] = {}
-    out: list[dict[str, Any]] = []
-    with FmuPlant(fmu_path(args)) as plant:
-        opt_times: list[float | None] = []
-        if not args.no_optimal:
-            for i, s in enumerate(specs, 1):
-                progress_line(f"tune: the optimal time of {s.name} ({i}/{len(specs)})")
-                o = run_optimal(s, plant, None)
-                opt_times.append(o.final_time_s)
-        for c in controllers:
-            res = tune(c, specs, plant, budget=budget,
-                       progress=_TuneProgress(c, budget, len(specs)))
-            saved[c] = res.gains
-            gains = ", ".join(f"{k} = {v:.4g}" for k, v in res.gains.items())
-            start = ", ".join(f"{k} = {v:.4g}" for k, v in res.start_gains.items())
-            print(f"{c}: objective {res.start_cost_s:.3f} s -> {res.cost_s:.3f} s in "
-                  f"{res.evaluations} evaluations ({res.wall_time_s:.0f} s)")
-            print(f"  start: {start}")
-            print(f"  tuned: {gains}")
-            ratios = []
-            per_run = args.spec is None or len(specs) <= _LISTED_RUNS
-            for s, r, t_opt in zip(specs, res.results, opt_times or [None] * len(specs),
-                                   strict=True):
-                t = r.time_to_goal_s if r is not None else None
-                ratio = t / t_opt if t is not None and t_opt else None
-                if ratio is not None:
-                    ratios.append(ratio)
-                line = (f"    {s.name:22s} {r.status if r else 'rejected':9s} t = "
-                        + (f"{t:7.2f} s" if t is not None else "      - s"))
-                if not args.no_optimal:  # without the optimum there is nothing to compare
-                    line += ("  optimal " + (f"{t_opt:7.2f} s" if t_opt is not None
-                                             else "      - s")
-                             + "  ratio " + (f"{ratio:.3f}" if ratio is not None else "-"))
-                if per_run:
-                    print(line)
-            extra: dict[str, Any] = {}
-            if args.spec is not None:
-                extra = _draw_summary(res.results)
-                print(f"  on {len(specs)} runs of {args.spec}: {extra['converged']} converged, "
-                      f"their mean time to goal {extra['mean_time_to_goal_s']:.2f} s")
-                extra.update(spec=str(args.spec), runs=len(specs))
-            if ratios:
-                print(f"  time / optimal time: mean {sum(ratios) / len(ratios):.3f}, "
-                      f"max {max(ratios):.3f}")
-            out.append({"controller": c, "gains": res.gains, "start_gains": res.start_gains,
-                        "start_objective_s": res.start_cost_s, "objective_s": res.cost_s,
-                        "evaluations": res.evaluations,
-                        "mean_time_ratio": sum(ratios) / len(ratios) if ratios else None,
-                        **extra})
-    if args.save:
-        Path(args.save).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.save).write_text(json.dumps(saved, indent=2) + "\n", encoding="utf-8")
         print(f"tuned gains saved to {args.save} (use: wmr benchmark --tuned {args.save})")
     if args.json:
+        out = [tuned.summary for tuned in done]
         print(json_line(out if len(out) > 1 else out[0]))
     return 0
-
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -305,9 +305,9 @@ def master_step_s(period_s: float, steps_per_period: int) -> float:
     """
     if isinstance(steps_per_period, bool) or not isinstance(steps_per_period, int) or \
             not 1 <= steps_per_period <= MAX_STEPS_PER_PERIOD:
-        raise ConfigError("--steps-per-period", f"must be a whole number from 1 to "
+        raise ConfigError("steps_per_period", f"must be a whole number from 1 to "
                           f"{MAX_STEPS_PER_PERIOD}, got {steps_per_period!r}",
-                          f"give e.g. --steps-per-period {DEFAULT_STEPS_PER_PERIOD}")
+                          f"give e.g. steps_per_period={DEFAULT_STEPS_PER_PERIOD}")
     return period_s / steps_per_period
 
 
@@ -344,7 +344,7 @@ def export_ssp(spec: RunSpec, out: str | os.PathLike[str], robot_fmu: str | os.P
     master_step_s(spec.period_s, steps_per_period)  # refused before any work
     target = Path(out)
     if target.suffix != ".ssp":
-        raise ConfigError("--out", f"{target} does not end in .ssp", "give FILE.ssp")
+        raise ConfigError("out", f"{target} does not end in .ssp", "give FILE.ssp")
     if spec.controller != "pi":
         raise ConfigError("controller", f"the controller FMU is the paper's PI stabiliser, "
                           f"not {spec.controller!r}", 'export a scenario with controller = "pi"')

@@ -2,7 +2,8 @@
 
 The command line parses and calls :func:`batch_command` (or, for ``--check``,
 :func:`load_checked`); the API calls the same functions, so that both give the same one-line
-errors, naming ``--max-runs`` on the command line and ``max_runs`` in the API.
+errors, naming the keywords (``max_runs``), which the command line names by its options
+(``--max-runs``).
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ import math
 import os
 import socket
 import sys
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
@@ -22,12 +25,11 @@ from wmr.infra.errors import ConfigError
 _SCHEMES: Final = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
 
 
-def _name(keyword: str, flag: str, command_line: bool) -> str:
-    """How an error names an input: ``flag`` on the command line, ``keyword`` in the API."""
-    return flag if command_line else keyword
+def _warn(field: str, message: str) -> None:
+    print(f"wmr: warning: {field}={message}", file=sys.stderr)
 
 
-def check_scheduler(address: str, timeout_s: float = 3.0, field: str = "--scheduler") -> str:
+def check_scheduler(address: str, timeout_s: float = 3.0, field: str = "scheduler") -> str:
     """``address`` if it is a Dask scheduler address that answers, else a ConfigError.
 
     A TCP-like address (``tcp://HOST:PORT``, or ``HOST:PORT``) is tried with one connection
@@ -57,9 +59,11 @@ def check_scheduler(address: str, timeout_s: float = 3.0, field: str = "--schedu
 def load_checked(spec: str | Path, *, workers: int | None = None,
                  scheduler: str | None = None, run_timeout_s: float | None = None,
                  max_runs: int | None = None,
-                 command_line: bool = False) -> tuple[BatchSpec, str | None, float | None]:
+                 warn: Callable[[str, str], None] = _warn
+                 ) -> tuple[BatchSpec, str | None, float | None]:
     """Check the options of a batch and load its spec (every run checked as
-    :func:`~wmr.apps.batch.spec.load_batch` does).
+    :func:`~wmr.apps.batch.spec.load_batch` does); ``warn(field, message)`` is told of an
+    input that runs as given but looks wrong (more workers than cores).
 
     Returns
     -------
@@ -70,66 +74,91 @@ def load_checked(spec: str | Path, *, workers: int | None = None,
     Raises
     ------
     ConfigError
-        A bad option (named as the command line or the API names it), or a bad spec.
+        A bad option (named by its keyword), or a bad spec.
     """
     from wmr.config.naming import plural
 
     if max_runs is not None and max_runs < 1:
-        option = _name("max_runs", "--max-runs", command_line)
-        raise ConfigError(option, f"must be >= 1, got {max_runs}",
-                          f"give e.g. {option}{' ' if command_line else '='}2000000")
+        raise ConfigError("max_runs", f"must be >= 1, got {max_runs}",
+                          "give e.g. max_runs=2000000")
     if scheduler is not None and workers is not None:
-        raise ConfigError(_name("workers", "--workers", command_line),
-                          f"has no effect with {_name('scheduler', '--scheduler', command_line)}",
+        raise ConfigError("workers", "has no effect with scheduler=ADDRESS",
                           "size the Dask cluster instead")
     limit_s = DEFAULT_RUN_TIMEOUT_S if run_timeout_s is None else run_timeout_s
     if not math.isfinite(limit_s) or limit_s < 0:
-        raise ConfigError(_name("run_timeout_s", "--run-timeout", command_line),
+        raise ConfigError("run_timeout_s",
                           f"must be >= 0 s, got {run_timeout_s!r}",
                           "give a wall-clock limit in s, or 0 for none")
     if workers is not None:
         if workers < 1:
-            option = _name("workers", "--workers", command_line)
-            raise ConfigError(option, f"must be >= 1, got {workers}",
-                              f"give e.g. {option}{' ' if command_line else '='}2")
+            raise ConfigError("workers", f"must be >= 1, got {workers}",
+                              "give e.g. workers=2")
         cores = os.cpu_count() or 1
         if workers > cores:
-            print(f"wmr: warning: {_name('workers=', '--workers ', command_line)}{workers} on "
-                  f"{plural(cores, 'core')}: the runs share the cores (no faster, more memory)",
-                  file=sys.stderr)
-    address = None if scheduler is None else check_scheduler(
-        scheduler, field=_name("scheduler", "--scheduler", command_line))
+            warn("workers", f"{workers} on {plural(cores, 'core')}: the runs share the cores "
+                 "(no faster, more memory)")
+    address = None if scheduler is None else check_scheduler(scheduler)
     batch = load_batch(spec, max_runs=MAX_RUNS if max_runs is None else max_runs)
     return batch, address, (limit_s if limit_s > 0 else None)
 
 
-def batch_command(spec: str | Path, out: str | Path | None = None, *,
-                  workers: int | None = None, scheduler: str | None = None,
-                  run_timeout_s: float | None = None, max_runs: int | None = None,
-                  fmi: int = 3, fmu: str | Path | None = None,
-                  fmu_map: str | Path | None = None, log: str | None = None,
-                  log_every: int | None = None, progress: bool | None = None,
-                  command_line: bool = False) -> tuple[Path, BatchOutcome]:
-    """Check the options, load the spec and run the batch into ``out`` (default
-    ``batches/<spec name>``), as ``wmr batch`` and :func:`wmr.batch` do.
+@dataclass(frozen=True)
+class BatchRequest:
+    """A batch, as ``wmr batch`` and :func:`wmr.batch` ask for it (their options and
+    keywords, ``docs/batch.md``); errors name its fields.
 
-    ``run_timeout_s``: None the default (:data:`DEFAULT_RUN_TIMEOUT_S`), 0 none.  Returns
-    the batch folder and what :func:`~wmr.apps.batch.runner.run_batch` did.
+    Attributes
+    ----------
+    spec, out
+        The batch spec (name or TOML file) and its folder (default ``batches/<spec name>``).
+    workers, scheduler
+        Local worker processes, or the address of a Dask scheduler (not both).
+    run_timeout_s, max_runs
+        The wall-clock limit of a run (None: :data:`DEFAULT_RUN_TIMEOUT_S`, 0: none), and the
+        most runs the spec may expand to.
+    fmi, fmu, fmu_map
+        The project's FMI 2 or 3 build, or another robot FMU and its variable map.
+    log, log_every
+        The log policy over the spec's ``[log]``.
+    """
+
+    spec: str | Path
+    out: str | Path | None = None
+    workers: int | None = None
+    scheduler: str | None = None
+    run_timeout_s: float | None = None
+    max_runs: int | None = None
+    fmi: int = 3
+    fmu: str | Path | None = None
+    fmu_map: str | Path | None = None
+    log: str | None = None
+    log_every: int | None = None
+
+
+def batch_command(request: BatchRequest, progress: bool | None = None,
+                  warn: Callable[[str, str], None] = _warn) -> tuple[Path, BatchOutcome]:
+    """Check the request, load the spec and run the batch, as ``wmr batch`` and
+    :func:`wmr.batch` do; ``progress`` is :func:`~wmr.apps.batch.runner.run_batch`'s,
+    ``warn`` :func:`load_checked`'s.  Returns the batch folder and what
+    :func:`~wmr.apps.batch.runner.run_batch` did.
     """
     from wmr.adapters.fmi.varmap import load_map
     from wmr.apps.run import log_policy
     from wmr.infra.outputs import check_output
 
-    batch, address, limit_s = load_checked(spec, workers=workers, scheduler=scheduler,
-                                           run_timeout_s=run_timeout_s, max_runs=max_runs,
-                                           command_line=command_line)
-    folder = check_output(out if out else Path("batches") / Path(spec).stem,
-                          _name("out", "--out", command_line), "dir")
-    policy = log_policy(log, log_every, batch.log, command_line=command_line)
-    result = run_batch(batch, folder, workers=workers, scheduler=address,
-                       run_timeout_s=limit_s, fmu_path=fmu, fmi_version=fmi, progress=progress,
-                       var_map=load_map(fmu_map) if fmu_map is not None else None, log=policy)
+    r = request
+    batch, address, limit_s = load_checked(r.spec, workers=r.workers, scheduler=r.scheduler,
+                                           run_timeout_s=r.run_timeout_s,
+                                           max_runs=r.max_runs, warn=warn)
+    folder = check_output(r.out if r.out else Path("batches") / Path(r.spec).stem, "out",
+                          "dir")
+    policy = log_policy(r.log, r.log_every, batch.log)
+    result = run_batch(batch, folder, workers=r.workers, scheduler=address,
+                       run_timeout_s=limit_s, fmu_path=r.fmu, fmi_version=r.fmi,
+                       progress=progress,
+                       var_map=load_map(r.fmu_map) if r.fmu_map is not None else None,
+                       log=policy)
     return folder, result
 
 
-__all__ = ["batch_command", "check_scheduler", "load_checked"]
+__all__ = ["BatchRequest", "batch_command", "check_scheduler", "load_checked"]

@@ -148,15 +148,14 @@ def _batch_fmu(folder: BatchFolder, fmu: str | os.PathLike[str] | None,
     given = f"{candidates[-1]} is another" if candidates else "the project's build is another"
     raise ConfigError(field, f"the batch ran {folder.fmu_name or 'an FMU'} (sha256 "
                       f"{folder.fmu_sha256[:12]}); {given} FMU",
-                      "give the batch's own FMU (and map) with --fmu FILE.fmu [--map "
+                      "give the batch's own FMU (and map) with fmu=FILE.fmu [fmu_map="
                       "MAP.toml]: a run is only reproduced on the FMU that ran it")
 
 
 def rerun_run(out_dir: str | os.PathLike[str], run_id: str, *,
               out: str | os.PathLike[str] | None = None,
               fmu: str | os.PathLike[str] | None = None,
-              fmu_map: str | os.PathLike[str] | None = None,
-              command_line: bool = False) -> dict[str, Any]:
+              fmu_map: str | os.PathLike[str] | None = None) -> dict[str, Any]:
     """Make run ``run_id`` of the batch in ``out_dir`` again, with a full log.
 
     Parameters
@@ -171,8 +170,6 @@ def rerun_run(out_dir: str | os.PathLike[str], run_id: str, *,
         The FMU that ran the batch, when it was neither the spec's nor the project's build
         (``wmr batch --fmu``), and its variable map if the spec names none (``--map``);
         checked against the batch's digest.
-    command_line
-        Name inputs as ``wmr rerun`` does (``--out``), else as the keywords.
 
     Returns
     -------
@@ -184,18 +181,17 @@ def rerun_run(out_dir: str | os.PathLike[str], run_id: str, *,
     ------
     ConfigError
         Not a batch folder, no such run, not the batch's FMU, or an output that cannot be
-        written.
+        written (named by the keywords: ``out_dir``, ``run_id``, ``fmu``, ``out``).
     DiskFullError
         The log could not be written for lack of space.
     """
     from wmr.infra.outputs import check_output
 
-    folder = open_batch(out_dir, "DIR" if command_line else "out_dir")
-    run = folder.run(run_id, "RUN_ID" if command_line else "run_id")
-    fmu_field = "--fmu" if command_line else "fmu"
+    folder = open_batch(out_dir, "out_dir")
+    run = folder.run(run_id, "run_id")
     path = check_output(out if out is not None else rerun_log_path(folder.out_dir, run_id),
-                        "--out" if command_line else "out", suffix=".mcap")
-    fmu_path, var_map = _batch_fmu(folder, fmu, fmu_map, fmu_field)
+                        "out", suffix=".mcap")
+    fmu_path, var_map = _batch_fmu(folder, fmu, fmu_map, "fmu")
     path.parent.mkdir(parents=True, exist_ok=True)
     # the task the batch sent its worker, but with a full log: the same run, kept whole
     task = Task(run.run_id, run.spec, DEFAULT_RUN_TIMEOUT_S, log=FULL_LOGS)
@@ -212,8 +208,7 @@ def rerun_run(out_dir: str | os.PathLike[str], run_id: str, *,
 
 
 def pick_runs(out_dir: Path, *, worst: int | None = None, by: str = "time_to_goal_s",
-              status: str | None = None,
-              command_line: bool = False) -> list[tuple[str, str | None]]:
+              status: str | None = None) -> list[tuple[str, str | None]]:
     """The runs of a batch that ``wmr replay DIR --worst N [--by COLUMN]`` or ``--status S``
     shows, worst first: ``(run_id, log relative to DIR or None when none was kept)``.
 
@@ -228,30 +223,29 @@ def pick_runs(out_dir: Path, *, worst: int | None = None, by: str = "time_to_goa
 
     from wmr.apps.batch.summary import SUMMARY_PARQUET
 
-    flag = {"worst": "--worst", "by": "--by", "status": "--status"} if command_line else {}
     path = out_dir / SUMMARY_PARQUET
     if not path.is_file():
-        raise ConfigError("DIR" if command_line else "logs",
+        raise ConfigError("logs",
                           f"{out_dir} is not a batch folder (no {SUMMARY_PARQUET})",
                           "give the --out folder of a wmr batch")
     schema = pq.read_schema(path)
     if status is not None:
         if status not in ("failed", "timeout"):
-            raise ConfigError(flag.get("status", "status"), f"unknown status {status!r}",
+            raise ConfigError("status", f"unknown status {status!r}",
                               "give failed or timeout")
         table = pq.read_table(path, columns=["run_id", "status", "mcap"],
                               filters=[("status", "=", status)])
         chosen = [(r["run_id"], r["mcap"]) for r in table.to_pylist()]
         if not chosen:
-            raise ConfigError(flag.get("status", "status"), f"no {status} run in {out_dir}",
+            raise ConfigError("status", f"no {status} run in {out_dir}",
                               "see its summary.parquet for the runs' statuses")
         return chosen
     if worst is None or worst < 1:
-        raise ConfigError(flag.get("worst", "worst"), f"must be >= 1, got {worst}",
+        raise ConfigError("worst", f"must be >= 1, got {worst}",
                           "give the number of runs to show, e.g. 5")
     numeric = [f.name for f in schema if f.type in ("double", "int64")]
     if by not in numeric:
-        raise ConfigError(flag.get("by", "by"), f"{by!r} is not a numeric column of "
+        raise ConfigError("by", f"{by!r} is not a numeric column of "
                           f"{path.name}", f"give one of: {', '.join(numeric)}")
     error = "final_position_error_m"
     columns = ["run_id", "status", "mcap", by] + ([error] if error in numeric and error != by

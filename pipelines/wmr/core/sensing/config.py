@@ -202,14 +202,16 @@ def sensor_config(values: Mapping[str, Any], base: SensorConfig | None = None) -
 def preset(name: str) -> SensorConfig:
     """The ``[sensors]`` table named ``name`` (:data:`PRESETS`)."""
     if name not in PRESETS:
-        raise ConfigError("--sensors", f"unknown preset {name!r}",
+        raise ConfigError("sensors", f"unknown preset {name!r}",
                           f"use one of: {', '.join(PRESETS)}")
     return SensorConfig(**PRESETS[name])
 
 
-def command_line_sensors(current: SensorConfig | None, preset_name: str | None,
-                         items: list[str] | None) -> SensorConfig | None:
-    """``wmr run --sensors PRESET|off --sensor NAME=VALUE ...`` applied to a run's sensors.
+def override_sensors(current: SensorConfig | None, preset_name: str | None,
+                     items: list[str] | None) -> SensorConfig | None:
+    """A run's sensors with a preset (``sensors``: ``wmr run --sensors PRESET|off``) and
+    fields (``sensor``: ``--sensor NAME=VALUE``) over them; errors name ``sensors`` and
+    ``sensor`` (``sensor NAME`` for one field's value).
 
     ``off`` removes them (perfect state feedback); a preset replaces them; each ``NAME=VALUE``
     then replaces one field (of the defaults when the run has no sensors).
@@ -224,18 +226,18 @@ def command_line_sensors(current: SensorConfig | None, preset_name: str | None,
         name, sep, text = item.partition("=")
         name = name.strip()
         if not sep or not name:
-            raise ConfigError("--sensor", f"{item!r} is not NAME=VALUE",
-                              "e.g. --sensor gps_sigma_m=0.05")
+            raise ConfigError("sensor", f"{item!r} is not NAME=VALUE",
+                              "e.g. sensor=gps_sigma_m=0.05")
         if name in NAME_FIELDS:
             values[name] = text.strip()
             continue
         try:
             values[name] = float(text)
         except ValueError:
-            raise ConfigError(f"--sensor {name}", f"{text!r} is not a number",
+            raise ConfigError(f"sensor {name}", f"{text!r} is not a number",
                               "give a plain number") from None
     return sensor_config(values, cfg) if values else cfg
 
 
 __all__ = ["ESTIMATORS", "HEADINGS", "NAME_FIELDS", "PRESETS", "SensorConfig",
-           "command_line_sensors", "preset", "sensor_config"]
+           "override_sensors", "preset", "sensor_config"]
