@@ -328,8 +328,7 @@ def test_fmpy_s_first_step_is_its_master_s_not_the_package_s(built: BuildResult,
         set_value,
         simulate_ssp,
     )
-    from fmpy.ssp.ssd import Parameter, find_components, find_connectors, get_connections, \
-        read_ssd
+    from fmpy.ssp.ssd import Parameter, find_components, find_connectors, get_connections, read_ssd
 
     from wmr.adapters.ssp.package import fmpy_parameter_set
 
