@@ -291,7 +291,6 @@ _FMPY_ZERO_START = ("fmpy's simulate_ssp starts every connection at 0.0 and sets
                     "robot's first step no torque; measured 4.27 mm, 0.287 deg")
 
 
-@pytest.mark.slow
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=_FMPY_ZERO_START)
 def test_fmpy_runs_the_non_paper_variant_within_the_claim(built: BuildResult,
                                                           ssp_dir: Path) -> None:
@@ -306,7 +305,6 @@ def test_fmpy_runs_the_non_paper_variant_within_the_claim(built: BuildResult,
     assert pos <= POSITION_TOL_M and head <= HEADING_TOL_RAD, (pos, math.degrees(head))
 
 
-@pytest.mark.slow
 def test_fmpy_s_first_step_is_its_master_s_not_the_package_s(built: BuildResult,
                                                              ssp_dir: Path) -> None:
     """Why no package can bring fmpy within the claim on the variant, and what would.
