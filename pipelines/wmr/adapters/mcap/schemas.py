@@ -487,20 +487,69 @@ def decode_bodies(layout: TopicLayout, datas: list[bytes]) -> NDArray[np.float64
     ndarray of float64, shape (len(datas), len(layout.signals)), or None
         ``None`` when any message does not have the fixed layout (then parse with protobuf).
     """
-    blen = len(layout.body)
-    if not all(len(m) == 2 + blen + m[1] and m[0] == 0x0A and m[1] <= _TS_SLOTS for m in datas):
-        return None
-    m = len(datas)
-    tails = np.frombuffer(b"".join(m_[len(m_) - blen :] for m_ in datas), np.uint8)
-    tails = tails.reshape(m, blen)
-    const = np.ones(blen, np.bool_)
+    sizes = np.fromiter(map(len, datas), np.int64, len(datas))
+    ends = np.cumsum(sizes)
+    rows = decode_spans(layout, np.frombuffer(b"".join(datas), np.uint8), ends - sizes, ends)
+    return None if rows is None else rows.T
+
+
+@functools.lru_cache(maxsize=64)
+def _body_checks(layout: TopicLayout, signals: tuple[str, ...]) -> tuple[
+        NDArray[np.intp], NDArray[np.uint8], NDArray[np.intp]]:
+    """Where in a body its constant bytes are (and what they are), and the 8 bytes of the
+    double of each of ``signals`` (row after row)."""
+    const = np.ones(len(layout.body), np.bool_)
     for off, _ in layout.slots:
         const[off : off + 8] = False
-    template = np.frombuffer(layout.body, np.uint8)
-    if not np.array_equal(tails[:, const], np.broadcast_to(template[const], (m, int(const.sum())))):
+    at = np.flatnonzero(const)
+    slot_of = {src: off for off, src in layout.slots}
+    doubles = np.array([slot_of[COLUMN[name]] + j for name in signals for j in range(8)],
+                       np.intp)
+    return at, np.frombuffer(layout.body, np.uint8)[at], doubles
+
+
+def decode_spans(layout: TopicLayout, data: NDArray[np.uint8], starts: NDArray[np.int64],
+                 ends: NDArray[np.int64],
+                 signals: Sequence[str] | None = None) -> NDArray[np.float64] | None:
+    """Inverse of the fixed layout, in place: the signals of the messages ``data[starts[i]:
+    ends[i]]`` (an inflated chunk, or messages end to end), without a ``bytes`` per message.
+
+    Every message is checked as a whole: the timestamp field first (tag ``0x0A``, a length of
+    at most 12), the body right after it to the message's end, and every constant byte of the
+    body (tags, frame names, zero slots) equal to the layout's.
+
+    Parameters
+    ----------
+    layout
+        The topic's layout (must carry signals).
+    data
+        The bytes the messages are in.
+    starts, ends
+        Where each message starts and ends in ``data`` (int64, shape ``(m,)``).
+    signals
+        The signals to decode (default: all of ``layout.signals``), each one of them.
+
+    Returns
+    -------
+    ndarray of float64, shape (len(signals), m), or None
+        One row per signal (each contiguous), one column per message; ``None`` when any
+        message does not have the fixed layout (then parse with protobuf).
+    """
+    names = layout.signals if signals is None else tuple(signals)
+    const_at, const, doubles = _body_checks(layout, names)
+    m, blen = starts.shape[0], len(layout.body)
+    if m == 0:
+        return np.empty((len(names), 0), np.float64)
+    size = ends - starts
+    if int(size.min()) < 2 + blen:
         return None
-    out = np.empty((m, len(layout.signals)), np.float64)
-    col_of = {COLUMN[name]: i for i, name in enumerate(layout.signals)}
-    for off, src in layout.slots:
-        out[:, col_of[src]] = np.ascontiguousarray(tails[:, off : off + 8]).view("<f8")[:, 0]
-    return out
+    ts_len = data[starts + 1]
+    if not (bool(np.all(data[starts] == 0x0A)) and int(ts_len.max()) <= _TS_SLOTS
+            and np.array_equal(size, 2 + blen + ts_len)):
+        return None
+    body = ends - blen
+    if const.size and not np.array_equal(data[body[:, None] + const_at],
+                                         np.broadcast_to(const, (m, const.size))):
+        return None
+    values = np.ascontiguousarray(data[body[:, None] + doubles]).view("<f8")  # (m, signals)
+    return np.ascontiguousarray(values.T, np.float64)
