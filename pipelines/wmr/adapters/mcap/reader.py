@@ -29,7 +29,6 @@ from mcap.records import (
     Schema,
 )
 from mcap_protobuf.decoder import DecoderFactory
-from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from wmr.adapters.mcap.schemas import (
@@ -41,6 +40,7 @@ from wmr.adapters.mcap.schemas import (
     STEP_TOPICS,
     TORQUE_TOPIC,
     TopicLayout,
+    at_every_byte,
     decode_spans,
     file_descriptor_set,
     message_class,
@@ -467,18 +467,18 @@ class LogScan:
         decoded (``decode``), with numpy: no Python object per message."""
         if not heads.size:
             return True
-        fields = sliding_window_view(data, 14)[heads]  # channel id, sequence, log time
-        cids = np.ascontiguousarray(fields[:, 0:2]).view("<u2")[:, 0]
-        times = np.ascontiguousarray(fields[:, 6:14]).view("<u8")[:, 0]
-        kept: list[tuple[int, NDArray[np.int64], _Plan, NDArray[np.float64] | None]] = []
+        cids = at_every_byte(data, "<u2")[heads]
+        times = at_every_byte(data, "<u8")[heads + 6]  # after the sequence number
+        any_late = bool(times.max() > MAX_LOG_TIME_NS)
+        kept: list[tuple[int, NDArray[np.intp], _Plan, NDArray[np.float64] | None]] = []
         n_bytes = 0
-        for cid in np.unique(cids).tolist():
+        for cid in np.flatnonzero(np.bincount(cids)).tolist():
             plan = self._plan(cid)
             if not plan.wanted:
                 continue
             at = np.flatnonzero(cids == cid)
-            late = times[at] > MAX_LOG_TIME_NS
-            if late.any():
+            if any_late:
+                late = times[at] > MAX_LOG_TIME_NS
                 self.bad_times[cid] = self.bad_times.get(cid, 0) + int(late.sum())
                 at = at[~late]
                 if not at.size:
@@ -698,14 +698,14 @@ def _message_starts(data: NDArray[np.uint8]) -> tuple[NDArray[np.int64],
     cand = np.flatnonzero(data[: n - _MIN_MESSAGE + 1] == Opcode.MESSAGE)
     if not cand.size or cand[0]:
         return None
-    length = np.ascontiguousarray(sliding_window_view(data, 8)[cand + 1]).view("<u8")[:, 0]
+    length = at_every_byte(data, "<u8")[cand + 1]
     fits = (length >= 22) & (length <= (n - 9 - cand).astype(np.uint64))
     starts = cand[fits]
     ends = starts + 9 + length[fits].astype(np.int64)
     for _ in range(_PRUNE_ROUNDS):
         if not starts.size or starts[0]:
             return None
-        if ends[-1] == n and np.array_equal(ends[:-1], starts[1:]):
+        if ends[-1] == n and bool((ends[:-1] == starts[1:]).all()):
             return starts + 9, ends
         at = np.searchsorted(starts, ends)
         hit = at < starts.size
@@ -1114,7 +1114,8 @@ def _pose_topic(name: str, scan: LogScan, by_topic: dict[str, list[Channel]],
 def _pose_series(topic: str, scan: LogScan, channels: list[Channel],
                  warnings: list[str]) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
     """Log times and ``x_m``, ``y_m``, ``theta_rad`` (unwrapped yaw; one row each) of a pose
-    topic, in time order; a ``FrameTransform`` topic of several frame pairs gives its most frequent pair's."""
+    topic, in time order; a ``FrameTransform`` topic of several frame pairs gives its most
+    frequent pair's."""
     layout = TopicLayout(topic, "", b"", (), POSE_SIGNALS)
     times: list[int] = []
     rows: list[tuple[float, float, float]] = []
