@@ -183,7 +183,8 @@ def read_log(path: str | Path, pose_topic: str | None = None,
     from wmr.infra.errors import LogError
 
     data = read_run(path, pose_topic=pose_topic, signals=signals)
-    frame = pd.DataFrame(data.signals, index=pd.Index(data.t_s, name="t_s"))
+    # the columns are read_run's own arrays: the frame takes them without a copy
+    frame = pd.DataFrame(data.signals, index=pd.Index(data.t_s, name="t_s"), copy=False)
     metadata: dict[str, dict[str, Any]] = {}
     warnings = list(data.warnings)
     for rec, values in data.metadata.items():

@@ -562,6 +562,8 @@ def decode_spans(layout: TopicLayout, data: NDArray[np.uint8], starts: NDArray[n
             and bool((size == 2 + blen + ts_len).all())):
         return None
     body = ends - blen
-    if bool(((at_every_byte(data, "<u8")[body[:, None] + words] & mask) != const).any()):
+    seen = at_every_byte(data, "<u8")[body[:, None] + words]
+    seen &= mask
+    if bool((seen != const).any()):
         return None
     return at_every_byte(data, "<f8")[doubles[:, None] + body]  # (signals, m)
