@@ -243,51 +243,80 @@ class _Stop(Exception):
 
 
 class _Batch(NamedTuple):
-    """One chunk's messages of one channel: their log times, and either their data end to end
-    (``blob``, each message ending at its ``ends`` offset) or, decoded as they were read,
-    their signals (``rows``, one row per signal)."""
+    """One chunk's messages of one channel kept as data: where they sit among the channel's
+    messages (``slot``: the first one's index) and their data end to end (``blob``, each
+    message ending at its ``ends`` offset)."""
 
-    times: NDArray[np.int64]
-    ends: NDArray[np.int64] | None
-    blob: NDArray[np.uint8] | None
-    rows: NDArray[np.float64] | None
+    slot: int
+    ends: NDArray[np.int64]
+    blob: NDArray[np.uint8]
 
 
 class ChannelMessages:
-    """The messages of one channel, kept compact: per batch (one chunk's messages of the
-    channel) their log times and end offsets as int64 arrays and their data end to end in one
-    array: 16 bytes a message besides its data, not the ~130 of a tuple of an int and a
+    """The messages of one channel, kept compact: their log times in one int64 array, the data
+    of each batch (one chunk's messages of the channel) end to end in one array with their
+    end offsets: 16 bytes a message besides its data, not the ~130 of a tuple of an int and a
     ``bytes`` (a log of 10^6 rows holds 6 * 10^6 messages).  A batch of one of our signal
-    topics that :class:`LogScan` was asked to decode holds its signals instead of its data
-    (``decode=``; :func:`read_run`): its messages are then no longer iterable as bytes."""
+    topics that :class:`LogScan` was asked to decode (``decode=``; :func:`read_run`) keeps its
+    signals instead of its data, in one float64 array of a row per signal: its messages are
+    then no longer iterable as bytes.
 
-    __slots__ = ("_batches", "count", "nbytes", "raw_count")
+    The times and the signals grow in place (their capacity doubles): no array per batch, and
+    the signals of a whole run are read without a copy of them all at the end."""
+
+    __slots__ = ("_batches", "_rows", "_times", "count", "nbytes", "raw_count")
 
     def __init__(self) -> None:
         self._batches: list[_Batch] = []
+        self._times = np.zeros(0, np.int64)
+        self._rows: NDArray[np.float64] | None = None
         self.count = 0
         #: Bytes kept (what :meth:`LogScan.add_messages` charged, less the decoded rows).
         self.nbytes = 0
         #: Messages kept as data (not decoded yet).
         self.raw_count = 0
 
+    def _append(self, times: NDArray[np.int64], rows: NDArray[np.float64] | None) -> int:
+        """Put ``times`` (and ``rows``) after the messages kept; the first one's index."""
+        slot, m = self.count, len(times)
+        if slot + m > self._times.size:  # grow: twice the capacity, the kept part copied
+            cap = max(2 * self._times.size, slot + m, 1024)
+            grown = np.empty(cap, np.int64)
+            grown[:slot] = self._times[:slot]
+            self._times = grown
+            if self._rows is not None:
+                rows_grown = np.empty((self._rows.shape[0], cap))
+                rows_grown[:, :slot] = self._rows[:, :slot]
+                self._rows = rows_grown
+        if rows is not None and self._rows is None:  # the first decoded batch
+            self._rows = np.empty((rows.shape[0], self._times.size))
+        self._times[slot : slot + m] = times
+        if rows is not None and self._rows is not None:
+            self._rows[:, slot : slot + m] = rows
+        self.count += m
+        return slot
+
     def add(self, times: NDArray[np.int64], ends: NDArray[np.int64],
             blob: NDArray[np.uint8]) -> None:
         """Keep one batch of messages as data (``blob.nbytes + 16 * len(times)`` bytes)."""
-        self._batches.append(_Batch(times, ends, blob, None))
-        self.count += len(times)
+        slot = self._append(times, None)
+        self._batches.append(_Batch(slot, ends, blob))
         self.raw_count += len(times)
         self.nbytes += _batch_bytes(int(blob.nbytes), len(times), 0)
 
     def add_rows(self, times: NDArray[np.int64], rows: NDArray[np.float64]) -> None:
         """Keep one batch of messages decoded (``rows``: one row per signal)."""
-        self._batches.append(_Batch(times, None, None, rows))
-        self.count += len(times)
+        self._append(times, rows)
         self.nbytes += _batch_bytes(0, len(times), rows.shape[0])
 
     def parts(self) -> Iterator[_Batch]:
-        """The batches, in file order."""
+        """The batches kept as data, in file order."""
         yield from self._batches
+
+    def rows(self) -> NDArray[np.float64] | None:
+        """The decoded signals, one row per signal and a column per message (a view: those
+        of messages kept as data are not set), or None when no batch was decoded."""
+        return None if self._rows is None else self._rows[:, : self.count]
 
     def batches(self) -> Iterator[tuple[NDArray[np.int64], list[bytes]]]:
         """``(log times, datas)`` batch by batch (a list of ``bytes`` for one batch only).
@@ -297,19 +326,18 @@ class ChannelMessages:
         ValueError
             A batch was decoded as it was read (its data is gone).
         """
+        if self._rows is not None:
+            raise ValueError("these messages were decoded as they were read "
+                             "(LogScan decode=): their data is not kept")
         for batch in self._batches:
-            if batch.blob is None or batch.ends is None:
-                raise ValueError("these messages were decoded as they were read "
-                                 "(LogScan decode=): their data is not kept")
             raw = batch.blob.tobytes()
             bounds = np.r_[0, batch.ends].tolist()
-            yield batch.times, [raw[a:b] for a, b in itertools.pairwise(bounds)]
+            yield (self._times[batch.slot : batch.slot + len(batch.ends)],
+                   [raw[a:b] for a, b in itertools.pairwise(bounds)])
 
     def times(self) -> NDArray[np.int64]:
-        """Every log time, in file order."""
-        if not self._batches:
-            return np.zeros(0, np.int64)
-        return np.concatenate([b.times for b in self._batches])
+        """Every log time, in file order (a view)."""
+        return self._times[: self.count]
 
     def __iter__(self) -> Iterator[tuple[int, bytes]]:
         for times, datas in self.batches():
@@ -326,7 +354,6 @@ class ChannelMessages:
         return NotImplemented
 
     __hash__ = None  # type: ignore[assignment]  # mutable, like the list it stands for
-
 
 def _batch_bytes(data_bytes: int, n_messages: int, n_signals: int) -> int:
     """Bytes a batch holds: its data (or its decoded rows, 8 bytes a signal), 16 bytes a
@@ -1003,39 +1030,36 @@ def _ours(layout: TopicLayout, schema: Schema | None) -> bool:
 
 def _decode_topic(layout: TopicLayout, signals: tuple[str, ...], channel: Channel,
                   schema: Schema | None, msgs: ChannelMessages) -> NDArray[np.float64] | None:
-    """``signals`` of one channel's messages, one row per signal, batch by batch: decoded
-    as they were read, else the vectorised inverse of the layout, else the file's protobuf
+    """``signals`` of one channel's messages, one row per signal: decoded as they were read,
+    else (batch by batch) the vectorised inverse of the layout, else the file's protobuf
     schema; None when the channel cannot be decoded."""
     ours = _ours(layout, schema)
+    out = msgs.rows()
+    if out is None:
+        if not msgs.count and not ours and _generic_decoder(schema, channel) is None:
+            return None
+        out = np.empty((len(signals), msgs.count))
     decode: Callable[[bytes], Any] | None = None
-    parts: list[NDArray[np.float64]] = []
     for batch in msgs.parts():
-        if batch.rows is not None:
-            parts.append(batch.rows)
-            continue
-        assert batch.blob is not None and batch.ends is not None
+        part = out[:, batch.slot : batch.slot + len(batch.ends)]
         fast = (decode_spans(layout, batch.blob, np.r_[0, batch.ends[:-1]], batch.ends,
                              signals) if ours else None)
         if fast is not None:
-            parts.append(fast)
+            part[:] = fast
             continue
         decode = decode or _generic_decoder(schema, channel)
         if decode is None:
             return None
         raw = batch.blob.tobytes()
-        out = np.full((len(signals), len(batch.times)), np.nan)
+        part[:] = np.nan
         try:
             for i, (a, b) in enumerate(itertools.pairwise(np.r_[0, batch.ends].tolist())):
                 msg = decode(raw[a:b])
                 for j, name in enumerate(signals):
-                    out[j, i] = getattr(msg, name, math.nan)
+                    part[j, i] = getattr(msg, name, math.nan)
         except Exception:  # a damaged or foreign schema (a field of another type): not ours
             return None
-        parts.append(out)
-    if not parts:
-        return (np.zeros((len(signals), 0)) if ours or _generic_decoder(schema, channel)
-                else None)
-    return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
+    return out
 
 
 def _goal(scan: LogScan, by_topic: dict[str, list[Channel]]) -> Pose2D | None:
@@ -1347,7 +1371,7 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
             warnings.append(f"no {rec!r} metadata record")
     return RunData(
         path=name,
-        t_ns=times if times.base is None else times.copy(),  # its own array, not a view
+        t_ns=times,
         signals={sig: columns[sig] if sig in columns else np.full(n, np.nan) for sig in asked},
         metadata=scan.metadata,
         attachments=scan.attachments,
