@@ -111,7 +111,9 @@ class RunData:
     @property
     def t_s(self) -> NDArray[np.float64]:
         """Simulation time of each row, s."""
-        return self.t_ns.astype(np.float64) * 1e-9
+        t_s = self.t_ns.astype(np.float64)
+        t_s *= 1e-9  # in place: one array of the rows' length, not two
+        return t_s
 
     @property
     def n_steps(self) -> int:
