@@ -1284,10 +1284,11 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
         How much the file may make the reader hold (:class:`ReadLimits`; default
         :func:`default_limits`): past ``total_bytes``, the rows that fit, with a warning.
     pose_topic
-        Read the file as a pose-only log (a real robot's), its poses from this topic (a
-        ``foxglove.PoseInFrame`` or ``foxglove.FrameTransform`` one).  Without it, a file
-        with none of our signal topics and one such topic is read that way; ``RunData``'s
-        ``pose_topic`` says so, and a warning line.
+        A file with none of our signal topics (a real robot's) is read as a pose-only log,
+        its poses from its one ``foxglove.PoseInFrame`` or ``foxglove.FrameTransform``
+        topic, or from this one when it has several (``RunData``'s ``pose_topic`` says
+        which, and a warning line).  A log of ours is read as ours whatever this says (so
+        that ``wmr replay SIM.mcap REAL.mcap --pose-topic T`` names REAL's topic).
     signals
         The signals to read (names of :data:`wmr.core.signals.SIGNALS`; default: all).
         Only the topics that carry them are kept and decoded (the path, ``x_m``, ``y_m``,
@@ -1315,7 +1316,7 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
     for channel in sorted(scan.channels.values(), key=lambda c: c.id):
         by_topic.setdefault(channel.topic, []).append(channel)
     foreign: str | None = None
-    if pose_topic is not None or not any(t.topic in by_topic for t in _SIGNAL_TOPICS):
+    if not any(t.topic in by_topic for t in _SIGNAL_TOPICS):  # not ours: a robot's poses?
         foreign = _pose_topic(name, scan, by_topic, pose_topic)
     if foreign is not None:
         # a stranger's file, read again through the same bounded walk, keeping its poses
