@@ -72,15 +72,16 @@ def test_api_input_errors_name_the_argument(tmp_path: Path) -> None:
 def test_a_run_reads_its_log_only_when_its_signals_are_asked(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``wmr.run`` costs what ``wmr run`` costs (issue 31): the log is not read into memory
-    when the run ends, only when ``.path``/``.signals``/``.log`` first need it, and then once.
-    Seen failing when ``run`` read the log eagerly (``read_log`` called before any access)."""
+    when the run ends, only when ``.path``/``.signals``/``.log`` first need it, and then once;
+    ``.path`` alone reads the path's topic alone.  Seen failing when ``run`` read the log
+    eagerly (``read_log`` called before any access), and with ``.path`` reading it whole."""
     import wmr.api
 
-    reads: list[Path] = []
+    reads: list[tuple[Path, object]] = []
     real_read_log = wmr.api.read_log
 
     def counting_read_log(path: str | Path, **kwargs: object) -> wmr.Log:
-        reads.append(Path(path))
+        reads.append((Path(path), kwargs.get("signals")))
         return real_read_log(path, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr(wmr.api, "read_log", counting_read_log)
@@ -88,10 +89,13 @@ def test_a_run_reads_its_log_only_when_its_signals_are_asked(
     assert res.status == "timeout" and res.mcap == tmp_path / "short.mcap"
     assert reads == []  # the record alone: nothing read yet
     path = res.path
-    assert reads == [tmp_path / "short.mcap"]
+    # the path alone (its topic, /robot/state), kept: asked again, not read again
+    assert reads == [(tmp_path / "short.mcap", wmr.api.PATH_COLUMNS)] and res.path is path
     # the path read back is the run's: 2 s of 10 ms steps, starting at fig11's start
     assert len(path) == 201 and path["x_m"].iloc[0] == 0.0
     assert res.signals.shape[0] == 201 and res.log is not None
-    assert reads == [tmp_path / "short.mcap"]  # read once, then kept
+    assert res.log.path.equals(path) and list(path) == list(wmr.api.PATH_COLUMNS)
+    assert reads[1:] == [(tmp_path / "short.mcap", None)]  # the whole log once, then kept
+    assert res.path.equals(path) and len(reads) == 2
     no_log = wmr.RunResult({"name": "x", "status": "converged", "mcap": None})
-    assert no_log.log is None and reads == [tmp_path / "short.mcap"]
+    assert no_log.log is None and len(reads) == 2

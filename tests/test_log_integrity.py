@@ -504,6 +504,13 @@ def _chunk(records: bytes, t0_ns: int = 0, t1_ns: int = 0, *, declared: int | No
     return _rec(0x06, body)
 
 
+def _zstd(data: bytes) -> bytes:
+    """One zstd frame of ``data``, declaring its size (as our writer's and mcap's do)."""
+    import zstandard
+
+    return bytes(zstandard.ZstdCompressor(level=1).compress(data))
+
+
 def _second_chunk(s: int, **kw: Any) -> bytes:
     msgs = _second(s)
     return _chunk(_records(msgs), msgs[0][0], msgs[-1][0], **kw)
@@ -559,6 +566,76 @@ def test_a_hand_built_log_is_read_as_the_mcap_library_reads_it(tmp_path: Path) -
         assert _mcap_library_messages(data) == scan.messages[1]
 
 
+def test_a_zstd_chunk_of_several_frames_is_read_whole(tmp_path: Path) -> None:
+    """zstd frames end to end are one stream (as ``zstd -d`` reads them): a chunk stored as
+    two frames (the first one declaring less than the chunk) is read whole, not taken for
+    damage by the inflation at once, while one frame of the chunk's size followed by another
+    is left out (``_BAD_CHUNKS``)."""
+    records = _records(_second(1, n=6))
+    data, _ = _hand_log(_chunk(records, SECOND_NS, SECOND_NS + 5 * STEP_NS, compression="zstd",
+                               data=_zstd(records[:100]) + _zstd(records[100:])))
+    scan = _scan(tmp_path, data)
+    assert scan.warnings == [] and scan.messages == {1: _second(1, n=6)}
+
+
+def _lookalike_chunk_records() -> tuple[bytes, list[tuple[int, bytes]]]:
+    """Message records whose data hold bytes that read as Message headers: one pointing at
+    the next true record, one at the start of a second look-alike, which points at a true
+    record too, and one pointing past the chunk."""
+    first = _message(1, 0, b"")  # 31 bytes: the records below start at 31, 31 + 69, ...
+    head = struct.Struct("<BQ")
+    # record 2 (at 31, 69 bytes: 9 + 22 + 38 of data); its data starts at 31 + 31 = 62
+    lookalike_to_next = head.pack(5, 31 + 69 - 62 - 9)  # at 62: its end is record 3's start
+    pad = bytes(38 - len(lookalike_to_next))
+    second = _message(1, STEP_NS, lookalike_to_next + pad)
+    # record 3 (at 100, 111 bytes, its data at 131): a chain of two look-alikes, at 131 and
+    # 162, the second ending where record 4 starts (211)
+    chain = head.pack(5, 22) + bytes(22) + head.pack(5, 211 - 162 - 9)
+    third = _message(1, 2 * STEP_NS, chain + bytes(80 - len(chain)))
+    past = head.pack(5, 1 << 40) + bytes(30)  # a length past the chunk: never a candidate
+    fourth = _message(1, 3 * STEP_NS, past)
+    records = first + second + third + fourth
+    return records, [(k * STEP_NS, m[31:]) for k, m in enumerate((first, second, third,
+                                                                    fourth))]
+
+
+def test_a_chunks_records_are_found_at_once_past_bytes_that_look_like_headers(
+        tmp_path: Path) -> None:
+    """The record walk with numpy (``_message_starts``) finds exactly the records that the
+    walk record by record finds, in a chunk whose messages hold bytes that read as Message
+    headers (one pointing at a true record, a chain of two, one past the chunk): look-alikes
+    are dropped because no record points at them, and the records left tile the chunk; the
+    log reads as the ``mcap`` library reads it."""
+    from wmr.adapters.mcap.reader import _chunk_messages, _message_starts
+
+    records, want = _lookalike_chunk_records()
+    data = np.frombuffer(records, np.uint8)
+    assert int(np.count_nonzero(data == 5)) >= 4 + 4  # the true headers and the look-alikes
+    found = _message_starts(data)
+    assert found is not None, "the look-alikes were not dropped"
+    walked = _chunk_messages(records, LogScan(DEFAULT_LIMITS, keep_chunks=False))
+    assert [a.tolist() for a in found] == [a.tolist() for a in walked]
+    assert walked[0].tolist() == [9, 40, 109, 220]
+    log, _ = _hand_log(_chunk(records, 0, 3 * STEP_NS))
+    scan = _scan(tmp_path, log)
+    assert scan.warnings == [] and scan.messages == {1: want}
+    assert _mcap_library_messages(log) == want
+
+
+def test_a_chunk_that_is_not_all_messages_is_walked_record_by_record() -> None:
+    """A chunk holding another record (a Schema, as the ``mcap`` library's writer puts one in
+    the first chunk that uses it), or a message cut short, is not read at once: the record
+    by record walk reads it, or names what is wrong."""
+    from wmr.adapters.mcap.reader import _message_starts
+
+    records = _records(_second(0))
+    assert _message_starts(np.frombuffer(records, np.uint8)) is not None
+    schema = _SCHEMA_AND_CHANNEL[: 9 + struct.unpack_from("<Q", _SCHEMA_AND_CHANNEL, 1)[0]]
+    for other in (schema + records, records + schema, records[:-1],
+                  records + _rec(0x05, bytes(21))):
+        assert _message_starts(np.frombuffer(other, np.uint8)) is None
+
+
 def test_a_chunk_record_is_read_up_to_the_chunk_limit_plus_1_mib_and_left_out_past_it(
         tmp_path: Path) -> None:
     """ReadLimits.chunk_bytes: compressed data never exceeds the uncompressed size by more than
@@ -606,6 +683,12 @@ _BAD_CHUNKS: dict[str, tuple[Callable[[int], bytes], Callable[[int], str]]] = {
         lambda s: f"it inflates to {_n_bytes(s)} bytes, not the {_n_bytes(s) + 1} it declares"),
     "unknown compression": (lambda s: _second_chunk(s, compression="brotli"),
                             lambda s: "unknown compression 'brotli'"),
+    # a zstd frame declaring exactly the chunk's size, and another frame after it
+    "zstd frame past its size": (
+        lambda s: _second_chunk(s, compression="zstd", data=_zstd(_records(_second(s)))
+                                + _zstd(b"more")),
+        lambda s: f"it inflates to more than {_n_bytes(s) + 1} bytes, not the {_n_bytes(s)} "
+                  "it declares"),
     "metadata inside": (lambda s: _chunk(_records(_second(s)) + _rec(0x0C, _str("m") + bytes(4)),
                                          s * SECOND_NS, s * SECOND_NS + 2 * STEP_NS),
                         lambda s: "a record of opcode 0x0c inside the chunk"),

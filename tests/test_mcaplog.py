@@ -33,6 +33,7 @@ from wmr.adapters.mcap.schemas import (
     STEP_TOPICS,
     RowEncoder,
     decode_bodies,
+    decode_spans,
     file_descriptor_set,
     message_class,
 )
@@ -40,7 +41,7 @@ from wmr.adapters.mcap.writer import LIBRARY, _CRowEncoder
 from wmr.adapters.stepper import load_stepper
 from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.durable import partial_path
-from wmr.infra.errors import LogError
+from wmr.infra.errors import ConfigError, LogError
 
 N_SIG = len(SIGNALS)
 STEP_NS = 10_000_000  # 100 Hz
@@ -167,6 +168,64 @@ def test_decode_bodies_rejects_foreign_layout() -> None:
     msg.timestamp.FromNanoseconds(1_500_000_000)
     decoded = decode_bodies(layout, [msg.SerializeToString()])
     assert decoded is not None and decoded.tolist() == [[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]]
+
+
+def test_decode_spans_checks_every_byte_of_each_message() -> None:
+    """The fixed layout decoded in place, message by message in one chunk of records: each
+    byte of a message changed in turn gives None (a tag, a frame name, a zero slot, the
+    timestamp field's tag or length) or changes the one signal whose double holds it (or
+    nothing, for a byte of the timestamp), never another signal's value."""
+    t = np.array([0, 999_999_999, 10**9, 3 * 10**9 + 5], np.int64)  # timestamps of 0 to 12 B
+    block = np.arange(len(t) * N_SIG, dtype=np.float64).reshape(len(t), N_SIG) + 0.5
+    records, offsets = ENCODER.encode(t, block)
+    data = np.frombuffer(records, np.uint8)
+    ends = np.r_[offsets.ravel()[1:], len(records)].reshape(offsets.shape)
+    for k, layout in enumerate(STEP_TOPICS):
+        if not layout.signals:
+            continue
+        starts, stops = offsets[:, k] + 31, ends[:, k]  # each message's data
+        asked = layout.signals[::2]  # every other signal: the others are not read
+        want = block[:, [COLUMN[s] for s in asked]].T
+        got = decode_spans(layout, data, starts, stops, asked)
+        assert got is not None and bits(got).tolist() == bits(want).tolist()
+        slot_of = {src: off for off, src in layout.slots}
+        body_at = int(stops[1]) - len(layout.body)
+        for at in range(int(starts[1]), int(stops[1])):  # the second message, byte by byte
+            bad = bytearray(records)
+            bad[at] ^= 0x40
+            got = decode_spans(layout, np.frombuffer(bytes(bad), np.uint8), starts, stops, asked)
+            off = at - body_at
+            hit = [j for j, s in enumerate(asked) if 0 <= off - slot_of[COLUMN[s]] < 8]
+            if at < int(starts[1]) + 2 or (off >= 0 and not any(
+                    0 <= off - slot < 8 for slot, _ in layout.slots)):
+                assert got is None, (layout.topic, at - int(starts[1]))
+                continue
+            assert got is not None, (layout.topic, at - int(starts[1]))
+            changed = np.flatnonzero((bits(got) != bits(want)).any(axis=1)).tolist()
+            assert changed == hit and np.array_equal(bits(got[:, [0, 2, 3]]),
+                                                     bits(want[:, [0, 2, 3]]))
+
+
+def test_read_run_reads_only_the_signals_asked_for(tmp_path: Path) -> None:
+    """``signals=`` gives those columns, bit for bit the full read's, and reads only the
+    topics carrying them: the path is ``/robot/state`` alone, so a log without the
+    controller's topics reads it without a word, where the full read names each missing
+    topic.  An unknown name is one line naming it."""
+    t, block = make_run(250, seed=3)
+    full_log, robot_log = tmp_path / "full.mcap", tmp_path / "robot.mcap"
+    write_run(full_log, t, block)
+    write_run(robot_log, t, block, topics=STEP_TOPICS[:3])
+    full = read_run(full_log)
+    for names in (("theta_rad", "x_m", "y_m"), ("tau_l_nm", "x_m", "v_mps")):
+        part = read_run(full_log, signals=names)
+        assert tuple(part.signals) == tuple(s for s in SIGNALS if s in names)
+        assert np.array_equal(part.t_ns, full.t_ns) and part.warnings == []
+        assert all(bits(part.signals[s]).tolist() == bits(full.signals[s]).tolist()
+                   for s in names)
+    assert read_run(robot_log, signals=("x_m", "y_m", "theta_rad")).warnings == []
+    assert sum("is missing" in w for w in read_run(robot_log).warnings) == 3
+    with pytest.raises(ConfigError, match=r"^signals: no signal 'x' in a log \(choose"):
+        read_run(full_log, signals=("x_m", "x"))
 
 
 # ------------------------------------------------------------------------------------------
@@ -307,6 +366,36 @@ def test_reads_a_log_written_by_the_plain_mcap_writer(tmp_path: Path) -> None:
     assert np.array_equal(bits(run.block()), bits(block))
     assert run.goal is None
     assert "no 'run' metadata record" in run.warnings
+
+
+def test_chunks_decoded_as_read_and_chunks_parsed_by_protobuf_keep_their_rows_in_order(
+        tmp_path: Path) -> None:
+    """Another writer's chunks of our schemas: canonical protobuf is our fixed layout when no
+    field is zero (decoded as the chunk is read) and not when one is (kept as data, parsed
+    by protobuf at the end).  3,000 rows (the kept times and signals grow twice), one chunk
+    in four with a zero: every row in its place, bit for bit."""
+    t, block = make_run(3000, seed=11)
+    zero = (np.arange(3000) // 40) % 4 == 1  # about 40 rows a chunk: one chunk in four
+    block[zero, COLUMN["v_mps"]] = 0.0
+    path = tmp_path / "mixed.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, chunk_size=40 * 130)
+        w.start()
+        layout = STEP_TOPICS[2]  # /robot/state: v_mps is one of its signals
+        sid = w.register_schema(layout.schema_name, "protobuf",
+                                file_descriptor_set(layout.schema_name))
+        cid = w.register_channel(layout.topic, "protobuf", sid)
+        for i in range(len(t)):
+            msg = message_class(layout.schema_name)()
+            msg.timestamp.FromNanoseconds(int(t[i]))
+            for name in layout.signals:
+                setattr(msg, name, block[i, COLUMN[name]])
+            w.add_message(cid, int(t[i]), msg.SerializeToString(), int(t[i]))
+        w.finish()
+    run = read_run(path, signals=layout.signals)
+    assert np.array_equal(run.t_ns, t)
+    for name in layout.signals:
+        assert bits(run.signals[name]).tolist() == bits(block[:, COLUMN[name]]).tolist(), name
 
 
 # ------------------------------------------------------------------------------------------

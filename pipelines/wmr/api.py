@@ -155,7 +155,8 @@ def _plot_path(path: pd.DataFrame, goal: Mapping[str, float] | None, label: str,
     return ax
 
 
-def read_log(path: str | Path, pose_topic: str | None = None) -> Log:
+def read_log(path: str | Path, pose_topic: str | None = None,
+             signals: Sequence[str] | None = None) -> Log:
     """Read a run log (``wmr run``, ``wmr batch``, ``wmr optimal``) into a :class:`Log`.
 
     A log of poses only (a real robot's: ``foxglove.PoseInFrame`` or
@@ -164,22 +165,27 @@ def read_log(path: str | Path, pose_topic: str | None = None) -> Log:
     every other signal NaN, and a warning saying it is a pose-only log.  A log of ours is
     read as ours whatever ``pose_topic`` says.
 
+    ``signals`` (names of :data:`wmr.core.signals.SIGNALS`; default: all) are the columns of
+    ``Log.signals``: only the topics that carry them are read and decoded (the path, ``x_m``,
+    ``y_m``, ``theta_rad``, is ``/robot/state`` alone), in less time and memory.
+
     Raises
     ------
     wmr.infra.errors.LogError
         The file is missing, not a regular file, or not MCAP (one line naming it); a damaged
         or hostile log is read within limits, with ``truncated`` and ``warnings`` set.
+    wmr.infra.errors.ConfigError
+        ``signals`` names a signal that is not one of ``SIGNALS``.
     """
     import pandas as pd
 
     from wmr.adapters.mcap import read_run
     from wmr.adapters.mcap.reader import metadata_json
-    from wmr.core.signals import SIGNALS
     from wmr.infra.errors import LogError
 
-    data = read_run(path, pose_topic=pose_topic)
-    frame = pd.DataFrame({name: data.signals[name] for name in SIGNALS},
-                         index=pd.Index(data.t_s, name="t_s"))
+    data = read_run(path, pose_topic=pose_topic, signals=signals)
+    # the columns are read_run's own arrays: the frame takes them without a copy
+    frame = pd.DataFrame(data.signals, index=pd.Index(data.t_s, name="t_s"), copy=False)
     metadata: dict[str, dict[str, Any]] = {}
     warnings = list(data.warnings)
     for rec, values in data.metadata.items():
@@ -206,17 +212,18 @@ _UNREAD: Any = object()
 class RunResult:
     """A run made by :func:`run` or :func:`optimal`: its result record and its log.
 
-    The log is read from its file (``record["mcap"]``) when :attr:`log`, :attr:`path`,
-    :attr:`signals` or :meth:`plot` first needs it, not when the run ends: a long run costs
-    the notebook what it costs ``wmr run`` (no frame of every step held in memory) until its
-    signals are asked for.
+    The log is read from its file (``record["mcap"]``) when :attr:`log`, :attr:`signals` or
+    :meth:`plot` first needs it, not when the run ends: a long run costs the notebook what it
+    costs ``wmr run`` (no frame of every step held in memory) until its signals are asked
+    for.  :attr:`path` alone reads the path alone (``/robot/state``), unless the log was read.
     """
 
-    __slots__ = ("_log", "record")
+    __slots__ = ("_log", "_path", "record")
 
     def __init__(self, record: dict[str, Any], log: Log | None = _UNREAD) -> None:
         self.record = record
         self._log = log
+        self._path: pd.DataFrame | None = None
 
     @property
     def log(self) -> Log | None:
@@ -247,6 +254,10 @@ class RunResult:
         empty, and a :class:`UserWarning` says so and how to get the path: an empty frame
         alone read as a run that never moved.
         """
+        if self._log is _UNREAD and self.record.get("mcap"):
+            if self._path is None:  # the path's topic only, kept
+                self._path = read_log(self.record["mcap"], signals=PATH_COLUMNS).path
+            return self._path
         if self.log is None:
             import warnings
 

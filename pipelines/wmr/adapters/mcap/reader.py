@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import math
 import os
 import re
 import stat
 import struct
+import threading
 import zlib
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final, NamedTuple
 
@@ -38,7 +40,8 @@ from wmr.adapters.mcap.schemas import (
     STEP_TOPICS,
     TORQUE_TOPIC,
     TopicLayout,
-    decode_bodies,
+    at_every_byte,
+    decode_spans,
     file_descriptor_set,
     message_class,
 )
@@ -108,7 +111,9 @@ class RunData:
     @property
     def t_s(self) -> NDArray[np.float64]:
         """Simulation time of each row, s."""
-        return self.t_ns.astype(np.float64) * 1e-9
+        t_s = self.t_ns.astype(np.float64)
+        t_s *= 1e-9  # in place: one array of the rows' length, not two
+        return t_s
 
     @property
     def n_steps(self) -> int:
@@ -239,41 +244,102 @@ class _Stop(Exception):
     """The records cannot be followed past this point (cut file, broken framing)."""
 
 
-class ChannelMessages:
-    """The messages of one channel, kept compact: per batch (one chunk's messages of the
-    channel) their log times and end offsets as int64 arrays and their data end to end in one
-    ``bytes``: 16 bytes a message besides its data, not the ~130 of a tuple of an int and a
-    ``bytes`` (a log of 10^6 rows holds 6 * 10^6 messages)."""
+class _Batch(NamedTuple):
+    """One chunk's messages of one channel kept as data: where they sit among the channel's
+    messages (``slot``: the first one's index) and their data end to end (``blob``, each
+    message ending at its ``ends`` offset)."""
 
-    __slots__ = ("_batches", "count")
+    slot: int
+    ends: NDArray[np.int64]
+    blob: NDArray[np.uint8]
+
+
+class ChannelMessages:
+    """The messages of one channel, kept compact: their log times in one int64 array, the data
+    of each batch (one chunk's messages of the channel) end to end in one array with their
+    end offsets: 16 bytes a message besides its data, not the ~130 of a tuple of an int and a
+    ``bytes`` (a log of 10^6 rows holds 6 * 10^6 messages).  A batch of one of our signal
+    topics that :class:`LogScan` was asked to decode (``decode=``; :func:`read_run`) keeps its
+    signals instead of its data, in one float64 array of a row per signal: its messages are
+    then no longer iterable as bytes.
+
+    The times and the signals grow in place (their capacity doubles): no array per batch, and
+    the signals of a whole run are read without a copy of them all at the end."""
+
+    __slots__ = ("_batches", "_rows", "_times", "count", "nbytes", "raw_count")
 
     def __init__(self) -> None:
-        self._batches: list[tuple[NDArray[np.int64], NDArray[np.int64], bytes]] = []
+        self._batches: list[_Batch] = []
+        self._times = np.zeros(0, np.int64)
+        self._rows: NDArray[np.float64] | None = None
         self.count = 0
+        #: Bytes kept (what :meth:`LogScan.add_messages` charged, less the decoded rows).
+        self.nbytes = 0
+        #: Messages kept as data (not decoded yet).
+        self.raw_count = 0
 
-    def add(self, times: list[int], datas: list[bytes]) -> None:
-        """Keep one batch (``len(datas) + 16 * len(times)`` bytes and a few objects)."""
-        ends = np.cumsum(np.fromiter(map(len, datas), np.int64, len(datas)))
-        self._batches.append((np.array(times, np.int64), ends, b"".join(datas)))
-        self.count += len(times)
+    def _append(self, times: NDArray[np.int64], rows: NDArray[np.float64] | None) -> int:
+        """Put ``times`` (and ``rows``) after the messages kept; the first one's index."""
+        slot, m = self.count, len(times)
+        if slot + m > self._times.size:  # grow: twice the capacity, the kept part copied
+            cap = max(2 * self._times.size, slot + m, 1024)
+            grown = np.empty(cap, np.int64)
+            grown[:slot] = self._times[:slot]
+            self._times = grown
+            if self._rows is not None:
+                rows_grown = np.empty((self._rows.shape[0], cap))
+                rows_grown[:, :slot] = self._rows[:, :slot]
+                self._rows = rows_grown
+        if rows is not None and self._rows is None:  # the first decoded batch
+            self._rows = np.empty((rows.shape[0], self._times.size))
+        self._times[slot : slot + m] = times
+        if rows is not None and self._rows is not None:
+            self._rows[:, slot : slot + m] = rows
+        self.count += m
+        return slot
+
+    def add(self, times: NDArray[np.int64], ends: NDArray[np.int64],
+            blob: NDArray[np.uint8]) -> None:
+        """Keep one batch of messages as data (``blob.nbytes + 16 * len(times)`` bytes)."""
+        slot = self._append(times, None)
+        self._batches.append(_Batch(slot, ends, blob))
+        self.raw_count += len(times)
+        self.nbytes += _batch_bytes(int(blob.nbytes), len(times), 0)
+
+    def add_rows(self, times: NDArray[np.int64], rows: NDArray[np.float64]) -> None:
+        """Keep one batch of messages decoded (``rows``: one row per signal)."""
+        self._append(times, rows)
+        self.nbytes += _batch_bytes(0, len(times), rows.shape[0])
+
+    def parts(self) -> Iterator[_Batch]:
+        """The batches kept as data, in file order."""
+        yield from self._batches
+
+    def rows(self) -> NDArray[np.float64] | None:
+        """The decoded signals, one row per signal and a column per message (a view: those
+        of messages kept as data are not set), or None when no batch was decoded."""
+        return None if self._rows is None else self._rows[:, : self.count]
 
     def batches(self) -> Iterator[tuple[NDArray[np.int64], list[bytes]]]:
-        """``(log times, datas)`` batch by batch (a list of ``bytes`` for one batch only)."""
-        for times, ends, blob in self._batches:
-            starts = np.r_[0, ends[:-1]].tolist()
-            yield times, [blob[a:b] for a, b in zip(starts, ends.tolist(), strict=True)]
+        """``(log times, datas)`` batch by batch (a list of ``bytes`` for one batch only).
 
-    @property
-    def nbytes(self) -> int:
-        """Bytes kept (what :meth:`LogScan.add_messages` charged, less the decoded rows)."""
-        return sum(len(blob) + _MESSAGE_OVERHEAD * len(times) + _BATCH_OVERHEAD
-                   for times, _, blob in self._batches)
+        Raises
+        ------
+        ValueError
+            A batch was decoded as it was read (its data is gone).
+        """
+        if self._rows is not None:
+            raise ValueError("these messages were decoded as they were read "
+                             "(LogScan decode=): their data is not kept")
+        for batch in self._batches:
+            raw = batch.blob.tobytes()
+            bounds = np.r_[0, batch.ends].tolist()
+            yield (self._times[batch.slot : batch.slot + len(batch.ends)],
+                   [raw[a:b] for a, b in itertools.pairwise(bounds)])
 
     def times(self) -> NDArray[np.int64]:
-        """Every log time, in file order."""
-        if not self._batches:
-            return np.zeros(0, np.int64)
-        return np.concatenate([times for times, _, _ in self._batches])
+        """Every log time, in file order (a view)."""
+        return self._times[: self.count]
 
     def __iter__(self) -> Iterator[tuple[int, bytes]]:
         for times, datas in self.batches():
@@ -291,20 +357,53 @@ class ChannelMessages:
 
     __hash__ = None  # type: ignore[assignment]  # mutable, like the list it stands for
 
+def _batch_bytes(data_bytes: int, n_messages: int, n_signals: int) -> int:
+    """Bytes a batch holds: its data (or its decoded rows, 8 bytes a signal), 16 bytes a
+    message for its time and place, and the batch's own objects."""
+    return data_bytes + (_MESSAGE_OVERHEAD + 8 * n_signals) * n_messages + _BATCH_OVERHEAD
+
+
+#: How :class:`LogScan` keeps a channel's messages: whether at all, the layout and signals
+#: to decode them into as they are read (None: kept as data), and the signals per message
+#: charged for the rows they become.
+class _Plan(NamedTuple):
+    wanted: bool
+    layout: TopicLayout | None
+    signals: tuple[str, ...]
+    n_signals: int
+
+
+def _gather(data: NDArray[np.uint8], starts: NDArray[np.int64],
+            ends: NDArray[np.int64]) -> tuple[NDArray[np.uint8], NDArray[np.int64]]:
+    """The spans ``data[starts[i]:ends[i]]`` end to end, and where each ends, with numpy."""
+    sizes = ends - starts
+    out_ends = np.cumsum(sizes)
+    if sizes.size and bool(np.all(sizes == sizes[0])):  # one size: a 2-D gather
+        idx = (starts[:, None] + np.arange(int(sizes[0]), dtype=np.int64)).ravel()
+    else:
+        idx = (np.repeat(starts - (out_ends - sizes), sizes)
+               + np.arange(int(out_ends[-1]) if sizes.size else 0, dtype=np.int64))
+    return data[idx], out_ends
+
 
 class LogScan:
     """Everything collected while walking the records of a file.
 
     ``topics`` (None: all) are the topics whose messages are kept; the messages of a channel
     on another topic are read for their CRC and dropped (a channel not yet seen keeps its
-    messages: its record may come later).
+    messages: its record may come later).  ``decode`` maps a topic of ours to its layout
+    and the signals to decode its messages into as each chunk is read, when the channel's
+    schema is ours and the messages have its fixed layout (else they are kept as data).
     """
 
     def __init__(self, limits: ReadLimits, keep_chunks: bool,
-                 topics: Collection[str] | None = None) -> None:
+                 topics: Collection[str] | None = None,
+                 decode: Mapping[str, tuple[TopicLayout, tuple[str, ...]]] | None = None
+                 ) -> None:
         self.limits = limits
         self.keep_chunks = keep_chunks
         self.topics = None if topics is None else frozenset(topics)
+        self.decode = decode
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
         self.messages: dict[int, ChannelMessages] = {}
@@ -329,6 +428,8 @@ class LogScan:
         self.bad_times: dict[int, int] = {}
         #: Where the summary section starts (after Data End), 0 before.
         self.summary_start = 0
+        #: Channel id -> (its Channel and Schema records, what to do with its messages).
+        self._plans: dict[int, tuple[Channel | None, Schema | None, _Plan]] = {}
 
     def damage(self, what: str) -> None:
         self.damaged = True
@@ -363,33 +464,71 @@ class LogScan:
 
     def wanted(self, channel_id: int) -> bool:
         """Whether the messages of this channel are kept."""
-        if self.topics is None:
-            return True
-        channel = self.channels.get(channel_id)
-        return channel is None or channel.topic in self.topics
+        return self._plan(channel_id).wanted
 
-    def add_messages(self, messages: list[tuple[int, int, bytes]], what: str) -> bool:
-        """Keep ``(channel id, log time, data)`` messages, by channel, if they fit the
-        budget (else none of them, and False)."""
-        by_channel: dict[int, tuple[list[int], list[bytes]]] = {}
+    def _plan(self, channel_id: int) -> _Plan:
+        """What to do with the messages of a channel, as its records stand now."""
+        channel = self.channels.get(channel_id)
+        schema = None if channel is None else self.schemas.get(channel.schema_id)
+        cached = self._plans.get(channel_id)
+        if cached is not None and cached[0] is channel and cached[1] is schema:
+            return cached[2]
+        if channel is None:  # its record may come later: keep, decode nothing
+            plan = _Plan(True, None, (), 0)
+        elif self.topics is not None and channel.topic not in self.topics:
+            plan = _Plan(False, None, (), 0)
+        elif self.decode is None:
+            plan = _Plan(True, None, (), _SIGNALS_OF.get(channel.topic, 0))
+        elif channel.topic not in self.decode:
+            plan = _Plan(True, None, (), 0)
+        else:
+            layout, signals = self.decode[channel.topic]
+            plan = _Plan(True, layout if _ours(layout, schema) else None, signals,
+                         len(signals))
+        self._plans[channel_id] = (channel, schema, plan)
+        return plan
+
+    def add_messages(self, data: NDArray[np.uint8], heads: NDArray[np.int64],
+                     ends: NDArray[np.int64], what: str) -> bool:
+        """Keep the messages whose records are in ``data`` (each from its channel id at
+        ``heads[i]`` to its end at ``ends[i]``), by channel, if they fit the budget (else none
+        of them, and False).  Whole channels are kept or dropped, and our signal topics
+        decoded (``decode``), with numpy: no Python object per message."""
+        if not heads.size:
+            return True
+        cids = at_every_byte(data, "<u2")[heads]
+        kept: list[tuple[int, NDArray[np.intp], _Plan, NDArray[np.float64] | None,
+                         NDArray[np.uint64]]] = []
         n_bytes = 0
-        for cid, log_time, data in messages:
-            if not self.wanted(cid) or not self.add_message_time(cid, log_time):
+        for cid in np.flatnonzero(np.bincount(cids)).tolist():
+            plan = self._plan(cid)
+            if not plan.wanted:
                 continue
-            times, datas = by_channel.setdefault(cid, ([], []))
-            times.append(log_time)
-            datas.append(data)
-            n_bytes += len(data)
-        for cid, (times, _) in by_channel.items():
+            at = np.flatnonzero(cids == cid)
+            times = at_every_byte(data, "<u8")[heads[at] + 6]  # after the sequence number
+            if times.max() > MAX_LOG_TIME_NS:
+                late = times > MAX_LOG_TIME_NS
+                self.bad_times[cid] = self.bad_times.get(cid, 0) + int(late.sum())
+                at, times = at[~late], times[~late]
+                if not at.size:
+                    continue
+            rows = (None if plan.layout is None else
+                    decode_spans(plan.layout, data, heads[at] + 22, ends[at], plan.signals))
             # what read_run decodes it into (a message of a few bytes can make many floats),
             # twice: the batches' arrays and their concatenation
-            channel = self.channels.get(cid)
-            decoded = 16 * _SIGNALS_OF.get(channel.topic, 0) if channel is not None else 0
-            n_bytes += (_MESSAGE_OVERHEAD + decoded) * len(times)
-        if not self.charge(n_bytes + _BATCH_OVERHEAD * len(by_channel), what):
+            n_data = 0 if rows is not None else int((ends[at] - heads[at] - 22).sum())
+            n_bytes += n_data + (_MESSAGE_OVERHEAD + 16 * plan.n_signals) * at.size
+            kept.append((cid, at, plan, rows, times))
+        if not self.charge(n_bytes + _BATCH_OVERHEAD * len(kept), what):
             return False
-        for cid, (times, datas) in by_channel.items():
-            self.messages.setdefault(cid, ChannelMessages()).add(times, datas)
+        for cid, at, _, rows, times in kept:
+            msgs = self.messages.setdefault(cid, ChannelMessages())
+            t = times.view(np.int64)  # all below 2^63
+            if rows is not None:
+                msgs.add_rows(t, rows)
+            else:
+                blob, blob_ends = _gather(data, heads[at] + 22, ends[at])
+                msgs.add(t, blob_ends, blob)
         return True
 
 
@@ -485,6 +624,10 @@ def open_log(name: str) -> _LogFile:
     return log
 
 
+#: One zstd decompressor per thread (one must not be used by two threads at once).
+_ZSTD: Final = threading.local()
+
+
 def _inflate(compression: str, data: bytes, size: int) -> bytes:
     """``data`` decompressed, never more than ``size + 1`` bytes (a bomb stops there)."""
     if compression == "":
@@ -492,8 +635,21 @@ def _inflate(compression: str, data: bytes, size: int) -> bytes:
     if compression == "zstd":
         import zstandard
 
-        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data),
-                                                            read_across_frames=True)
+        dctx = getattr(_ZSTD, "dctx", None)
+        if dctx is None:
+            dctx = _ZSTD.dctx = zstandard.ZstdDecompressor()
+        try:
+            declared = zstandard.frame_content_size(data[:18])  # from the frame header
+        except zstandard.ZstdError:
+            declared = -1
+        if declared == size:
+            # one frame declaring exactly the chunk's size (zstd checks what it inflates to
+            # against it) and nothing after it: inflated at once into ``size`` bytes
+            try:
+                return bytes(dctx.decompress(data, allow_extra_data=False))
+            except zstandard.ZstdError:
+                pass  # several frames, or damage: streamed below, which says which
+        reader = dctx.stream_reader(io.BytesIO(data), read_across_frames=True)
         parts, got = [], 0
         while got <= size:
             part = reader.read(size + 1 - got)
@@ -509,17 +665,19 @@ def _inflate(compression: str, data: bytes, size: int) -> bytes:
     raise McapError(f"unknown compression {compression!r}")
 
 
-def _chunk_messages(buf: bytes, scan: LogScan) -> list[tuple[int, int, bytes]]:
-    """The Message records of an inflated, checked chunk as ``(channel id, log time, data)``.
+def _chunk_messages(buf: bytes, scan: LogScan) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The Message records of an inflated, checked chunk, walked record by record: where each
+    one's fields start (its channel id, after the opcode and length) and where it ends.
 
-    Faster than :func:`mcap.stream_reader.breakup_chunk` (no record objects per message);
-    Schema and Channel records inside the chunk are kept in ``scan``.  Raises on any
-    inconsistency, and on any other record (MCAP chunks hold only these three), so that a
-    damaged chunk is dropped whole.
+    The way for a chunk that :func:`_message_starts` cannot read at once; Schema and Channel
+    records inside the chunk are kept in ``scan``.  Raises on any inconsistency, and on any
+    other record (MCAP chunks hold only these three), so that a damaged chunk is dropped
+    whole.
     """
-    out: list[tuple[int, int, bytes]] = []
+    heads: list[int] = []
+    ends: list[int] = []
     pos, end = 0, len(buf)
-    unpack_head, unpack_msg = _HEAD.unpack_from, _MSG_HEAD.unpack_from
+    unpack_head = _HEAD.unpack_from
     while pos < end:
         opcode, length = unpack_head(buf, pos)
         start, pos = pos + 9, pos + 9 + length
@@ -528,8 +686,8 @@ def _chunk_messages(buf: bytes, scan: LogScan) -> list[tuple[int, int, bytes]]:
         if opcode == Opcode.MESSAGE:
             if length < 22:
                 raise McapError("message record too short")
-            cid, _, log_time = unpack_msg(buf, start)
-            out.append((cid, log_time, buf[start + 22 : pos]))
+            heads.append(start)
+            ends.append(pos)
         elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
             rec = ReadDataStream(io.BytesIO(buf[start:pos]))
             if opcode == Opcode.SCHEMA:
@@ -540,7 +698,62 @@ def _chunk_messages(buf: bytes, scan: LogScan) -> list[tuple[int, int, bytes]]:
                 scan.channels[channel.id] = channel
         else:  # a chunk holds only these three (zeros would be walked 9 bytes at a time)
             raise McapError(f"a record of opcode 0x{opcode:02x} inside the chunk")
-    return out
+    return np.array(heads, np.int64), np.array(ends, np.int64)
+
+
+#: Rounds of :func:`_message_starts` dropping look-alike headers before it gives up.
+_PRUNE_ROUNDS: Final = 8
+#: The smallest Message record: opcode, length, and 22 bytes of fields.
+_MIN_MESSAGE: Final = 9 + 22
+#: Bytes of a chunk searched for record headers at once.
+_BLOCK: Final = 1 << 20
+#: The Message opcode as a plain int (an IntEnum makes numpy compare 40 times slower).
+_OP_MESSAGE: Final = int(Opcode.MESSAGE)
+
+
+def _message_starts(data: NDArray[np.uint8]) -> tuple[NDArray[np.int64],
+                                                      NDArray[np.int64]] | None:
+    """Where each record of an inflated chunk starts and ends, found with numpy, when every
+    record is a Message (our writer's chunks, and most of any writer's); None otherwise.
+
+    The candidates are the bytes 0x05 whose length field keeps a Message record (22 bytes of
+    fields at least) inside the chunk.  A byte inside a record may look like such a header:
+    a candidate that no other candidate points to (its start plus 9 plus its length) is
+    dropped, over a few rounds.  The records left must tile the chunk exactly from byte 0,
+    each ending where the next starts and the last at the chunk's end: that is the one way to
+    walk the chunk, as :func:`_chunk_messages` would walk it record by record.  When they do
+    not (another record, damage, or look-alikes that survive), None: the chunk is then walked
+    record by record, which names what is wrong.
+    """
+    n = data.size
+    if n < _MIN_MESSAGE:
+        return None
+    last = n - _MIN_MESSAGE + 1
+    # a block at a time: no byte mask of a whole large chunk (the robot's outlines: 16 MB)
+    parts = [np.flatnonzero(data[i : min(i + _BLOCK, last)] == _OP_MESSAGE) + i
+             for i in range(0, last, _BLOCK)]
+    cand = parts[0] if len(parts) == 1 else np.concatenate(parts)
+    if not cand.size or cand[0]:
+        return None
+    length = at_every_byte(data, "<u8")[cand + 1]
+    fits = (length >= 22) & (length <= (n - 9 - cand).astype(np.uint64))
+    starts = cand[fits]
+    ends = starts + 9 + length[fits].astype(np.int64)
+    for _ in range(_PRUNE_ROUNDS):
+        if not starts.size or starts[0]:
+            return None
+        if ends[-1] == n and bool((ends[:-1] == starts[1:]).all()):
+            return starts + 9, ends
+        at = np.searchsorted(starts, ends)
+        hit = at < starts.size
+        at = at[hit]
+        pointed = np.zeros(starts.size, np.bool_)
+        pointed[0] = True
+        pointed[at[starts[at] == ends[hit]]] = True
+        if pointed.all():  # nothing to drop, and yet no tiling
+            return None
+        starts, ends = starts[pointed], ends[pointed]
+    return None
 
 
 def _inflate_chunk(body: bytes, limits: ReadLimits) -> bytes:
@@ -612,7 +825,9 @@ def _read_chunk(log: _LogFile, start: int, length: int, scan: LogScan) -> None:
     try:
         buf = _inflate_chunk(body, limits)
         del body
-        messages = _chunk_messages(buf, scan)
+        data = np.frombuffer(buf, np.uint8)
+        spans = _message_starts(data)
+        heads, ends = _chunk_messages(buf, scan) if spans is None else spans
     except _OverLimit as exc:
         scan.damage(f"{where} {exc}: {span}")
         scan.bad_chunks += 1
@@ -626,7 +841,7 @@ def _read_chunk(log: _LogFile, start: int, length: int, scan: LogScan) -> None:
         if scan.charge(_MESSAGE_OVERHEAD, f"the chunk at t = {t0 * 1e-9:g} s"):
             scan.chunks.append((start, length))
             return
-    elif scan.add_messages(messages, f"the chunk at t = {t0 * 1e-9:g} s"):
+    elif scan.add_messages(data, heads, ends, f"the chunk at t = {t0 * 1e-9:g} s"):
         return
     scan.bad_chunks += 1
 
@@ -660,8 +875,8 @@ def _parse_record(log: _LogFile, opcode: int, start: int, body: bytes, scan: Log
                     and scan.add_message_time(message.channel_id, message.log_time)):
                 scan.loose.append(message)
         else:
-            scan.add_messages([(message.channel_id, message.log_time, message.data)],
-                              f"the message at byte {start}")
+            scan.add_messages(np.frombuffer(body, np.uint8), np.zeros(1, np.int64),
+                              np.full(1, len(body), np.int64), f"the message at byte {start}")
     elif opcode == Opcode.SCHEMA:
         schema = Schema.read(rec)
         if not scan.in_summary or schema.id not in scan.schemas:
@@ -754,7 +969,9 @@ def _walk(log: _LogFile, scan: LogScan) -> None:
 
 
 def scan_log(log: _LogFile, limits: ReadLimits = DEFAULT_LIMITS,
-             keep_chunks: bool = False, topics: Collection[str] | None = None) -> LogScan:
+             keep_chunks: bool = False, topics: Collection[str] | None = None,
+             decode: Mapping[str, tuple[TopicLayout, tuple[str, ...]]] | None = None
+             ) -> LogScan:
     """Walk every record of an open log, checking each CRC the file offers and each size
     against ``limits``.
 
@@ -762,9 +979,10 @@ def scan_log(log: _LogFile, limits: ReadLimits = DEFAULT_LIMITS,
     summary must not hide an intact Schema); attachment, data section and summary CRCs are
     checked, and bytes after the closing magic are reported.  ``keep_chunks`` keeps the
     places of the good chunks and the loose Message records (for recovery) instead of the
-    messages; ``topics`` (None: all) are the topics whose messages are kept.
+    messages; ``topics`` (None: all) are the topics whose messages are kept, and ``decode``
+    those decoded as they are read (:class:`LogScan`).
     """
-    scan = LogScan(limits, keep_chunks, topics)
+    scan = LogScan(limits, keep_chunks, topics, decode)
     try:
         _walk(log, scan)
     except (_Stop, OSError) as exc:
@@ -783,9 +1001,12 @@ def scan_log(log: _LogFile, limits: ReadLimits = DEFAULT_LIMITS,
 
 
 def scan_file(name: str, limits: ReadLimits | None = None,
-              topics: Collection[str] | None = None) -> LogScan:
+              topics: Collection[str] | None = None,
+              decode: Mapping[str, tuple[TopicLayout, tuple[str, ...]]] | None = None
+              ) -> LogScan:
     """Every readable record of the MCAP file ``name``, checked (:func:`scan_log`), within
-    ``limits`` (default :func:`default_limits`), keeping the messages of ``topics`` (all).
+    ``limits`` (default :func:`default_limits`), keeping the messages of ``topics`` (all),
+    those of ``decode``'s topics decoded as they are read.
 
     Raises
     ------
@@ -793,7 +1014,8 @@ def scan_file(name: str, limits: ReadLimits | None = None,
         The file is missing, not a regular file, empty, or not MCAP at all.
     """
     with open_log(name) as log:
-        return scan_log(log, default_limits() if limits is None else limits, topics=topics)
+        return scan_log(log, default_limits() if limits is None else limits, topics=topics,
+                        decode=decode)
 
 def _generic_decoder(schema: Schema | None, channel: Channel) -> Callable[[bytes], Any] | None:
     try:
@@ -802,39 +1024,44 @@ def _generic_decoder(schema: Schema | None, channel: Channel) -> Callable[[bytes
         return None
 
 
-def _decode_topic(
-    layout: TopicLayout, channel: Channel, schema: Schema | None, msgs: ChannelMessages
-) -> NDArray[np.float64] | None:
-    """Signal columns of one topic, batch by batch: the vectorised inverse, else the file's
-    protobuf schema."""
-    ours = (
-        schema is not None
-        and schema.name == layout.schema_name
-        and schema.data == file_descriptor_set(layout.schema_name)
-    )
+def _ours(layout: TopicLayout, schema: Schema | None) -> bool:
+    """Whether ``schema`` is the one our writer gives ``layout``'s topic (byte for byte)."""
+    return (schema is not None and schema.name == layout.schema_name
+            and schema.data == file_descriptor_set(layout.schema_name))
+
+
+def _decode_topic(layout: TopicLayout, signals: tuple[str, ...], channel: Channel,
+                  schema: Schema | None, msgs: ChannelMessages) -> NDArray[np.float64] | None:
+    """``signals`` of one channel's messages, one row per signal: decoded as they were read,
+    else (batch by batch) the vectorised inverse of the layout, else the file's protobuf
+    schema; None when the channel cannot be decoded."""
+    ours = _ours(layout, schema)
+    out = msgs.rows()
+    if out is None:
+        if not msgs.count and not ours and _generic_decoder(schema, channel) is None:
+            return None
+        out = np.empty((len(signals), msgs.count))
     decode: Callable[[bytes], Any] | None = None
-    parts: list[NDArray[np.float64]] = []
-    for _, datas in msgs.batches():
-        fast = decode_bodies(layout, datas) if ours else None
+    for batch in msgs.parts():
+        part = out[:, batch.slot : batch.slot + len(batch.ends)]
+        fast = (decode_spans(layout, batch.blob, np.r_[0, batch.ends[:-1]], batch.ends,
+                             signals) if ours else None)
         if fast is not None:
-            parts.append(fast)
+            part[:] = fast
             continue
         decode = decode or _generic_decoder(schema, channel)
         if decode is None:
             return None
-        out = np.full((len(datas), len(layout.signals)), np.nan)
+        raw = batch.blob.tobytes()
+        part[:] = np.nan
         try:
-            for i, data in enumerate(datas):
-                msg = decode(data)
-                for j, name in enumerate(layout.signals):
-                    out[i, j] = getattr(msg, name, math.nan)
+            for i, (a, b) in enumerate(itertools.pairwise(np.r_[0, batch.ends].tolist())):
+                msg = decode(raw[a:b])
+                for j, name in enumerate(signals):
+                    part[j, i] = getattr(msg, name, math.nan)
         except Exception:  # a damaged or foreign schema (a field of another type): not ours
             return None
-        parts.append(out)
-    if not parts:
-        return (np.zeros((0, len(layout.signals))) if ours or _generic_decoder(schema, channel)
-                else None)
-    return np.concatenate(parts) if len(parts) > 1 else parts[0]
+    return out
 
 
 def _goal(scan: LogScan, by_topic: dict[str, list[Channel]]) -> Pose2D | None:
@@ -874,8 +1101,11 @@ def _phase(scan: LogScan, channels: list[Channel], t_ns: NDArray[np.int64],
     order = np.argsort(np.array(times, np.int64), kind="stable")
     t = np.array(times, np.int64)[order]
     v = np.array(values, np.float64)[order]
-    at = np.searchsorted(t, t_ns, side="right") - 1
-    return np.where(at >= 0, v[np.maximum(at, 0)], np.nan)
+    # each change holds from its row to the next change's (the last of equal times wins)
+    bounds = np.r_[np.searchsorted(t_ns, t, side="left"), t_ns.size]
+    out = np.full(t_ns.shape, np.nan)
+    out[bounds[0] :] = np.repeat(v, np.diff(bounds))
+    return out
 
 
 #: Schemas a pose-only log (a real robot's) may carry its poses in, found by schema name.
@@ -920,8 +1150,9 @@ def _pose_topic(name: str, scan: LogScan, by_topic: dict[str, list[Channel]],
 
 def _pose_series(topic: str, scan: LogScan, channels: list[Channel],
                  warnings: list[str]) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
-    """Log times and ``x_m``, ``y_m``, ``theta_rad`` (unwrapped yaw) of a pose topic, in time
-    order; a ``FrameTransform`` topic of several frame pairs gives its most frequent pair's."""
+    """Log times and ``x_m``, ``y_m``, ``theta_rad`` (unwrapped yaw; one row each) of a pose
+    topic, in time order; a ``FrameTransform`` topic of several frame pairs gives its most
+    frequent pair's."""
     layout = TopicLayout(topic, "", b"", (), POSE_SIGNALS)
     times: list[int] = []
     rows: list[tuple[float, float, float]] = []
@@ -965,12 +1196,14 @@ def _pose_series(topic: str, scan: LogScan, channels: list[Channel],
     first = np.r_[True, t[1:] != t[:-1]]
     t, v = t[first], v[first]
     v[:, 2] = np.unwrap(v[:, 2])
-    return t, v
+    return t, np.ascontiguousarray(v.T)  # one row per signal, as _topic_series gives
 
 
-def _topic_series(layout: TopicLayout, channels: list[Channel], scan: LogScan,
-                  warnings: list[str]) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
-    """Log times and signal columns of one topic, from every channel on it, in time order.
+def _topic_series(layout: TopicLayout, signals: tuple[str, ...], channels: list[Channel],
+                  scan: LogScan, warnings: list[str]
+                  ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+    """Log times and ``signals`` (one row per signal) of one topic, from every channel on
+    it, in time order.
 
     Whatever is not one message per distinct log time in file order (several channels, times
     going backwards, repeated times, times beyond int64) is said in a warning naming the
@@ -982,9 +1215,10 @@ def _topic_series(layout: TopicLayout, channels: list[Channel], scan: LogScan,
     for channel in channels:
         # decoded, the raw messages go: they and the decoded rows are not held at once
         msgs = scan.messages.pop(channel.id, ChannelMessages())
-        decoded = _decode_topic(layout, channel, scan.schemas.get(channel.schema_id), msgs)
+        decoded = _decode_topic(layout, signals, channel, scan.schemas.get(channel.schema_id),
+                                msgs)
         # the raw messages and the batches' decoded arrays are gone: the rows stay
-        scan.kept_bytes -= msgs.nbytes + 8 * len(layout.signals) * len(msgs)
+        scan.kept_bytes -= msgs.nbytes + 8 * len(signals) * msgs.raw_count
         if decoded is None:
             continue
         times.append(msgs.times())
@@ -1000,19 +1234,19 @@ def _topic_series(layout: TopicLayout, channels: list[Channel], scan: LogScan,
                         f"{', '.join(str(c.id) for c in channels)}): their messages are "
                         "merged by log time")
     t = np.concatenate(times) if len(times) > 1 else times[0]
-    v = np.concatenate(values) if len(values) > 1 else values[0]
+    v = np.concatenate(values, axis=1) if len(values) > 1 else values[0]
     if t.size > 1 and bool(np.any(t[1:] < t[:-1])):
         if len(channels) == 1:
             warnings.append(f"topic {topic}: log times go backwards "
                             f"{int(np.count_nonzero(t[1:] < t[:-1]))} times in file order "
                             "(chunks out of order?): messages sorted by log time")
         order = np.argsort(t, kind="stable")
-        t, v = t[order], v[order]
+        t, v = t[order], v[:, order]
     if t.size > 1 and bool(np.any(t[1:] == t[:-1])):
         first = np.r_[True, t[1:] != t[:-1]]
         warnings.append(f"topic {topic}: {t.size - int(first.sum())} messages repeat the log "
                         "time of another: the first at each time is kept")
-        t, v = t[first], v[first]
+        t, v = t[first], v[:, first]
     return t, v
 
 
@@ -1035,11 +1269,12 @@ def _join_by_time(series: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]
 
 
 def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
-             pose_topic: str | None = None) -> RunData:
+             pose_topic: str | None = None,
+             signals: Collection[str] | None = None) -> RunData:
     """Read a run log; a cut or damaged file gives its readable prefix, marked truncated.
 
-    Rows are joined by log time: row times are the log times of the signal topics, and a
-    topic without a message at a row's time is NaN there (with a warning naming it).
+    Rows are joined by log time: row times are the log times of the signal topics read, and
+    a topic without a message at a row's time is NaN there (with a warning naming it).
 
     Parameters
     ----------
@@ -1054,6 +1289,10 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
         topic, or from this one when it has several (``RunData``'s ``pose_topic`` says
         which, and a warning line).  A log of ours is read as ours whatever this says (so
         that ``wmr replay SIM.mcap REAL.mcap --pose-topic T`` names REAL's topic).
+    signals
+        The signals to read (names of :data:`wmr.core.signals.SIGNALS`; default: all).
+        Only the topics that carry them are kept and decoded (the path, ``x_m``, ``y_m``,
+        ``theta_rad``, is ``/robot/state`` alone), and ``RunData.signals`` holds these.
 
     Returns
     -------
@@ -1064,9 +1303,15 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
     ------
     LogError
         The file is missing, not a regular file, empty, or not MCAP at all.
+    ConfigError
+        ``signals`` names a signal that is not one of ``SIGNALS``.
     """
     name = os.fspath(path)
-    scan = scan_file(name, limits, topics=_READ_TOPICS)
+    asked = _asked(signals)
+    # each signal topic read: the signals of it asked for, decoded as its chunks are read
+    decode = {t.topic: (t, sigs) for t in _SIGNAL_TOPICS
+              if (sigs := tuple(s for s in t.signals if s in asked))}
+    scan = scan_file(name, limits, topics={GOAL_TOPIC, PHASE_TOPIC, *decode}, decode=decode)
     by_topic: dict[str, list[Channel]] = {}
     for channel in sorted(scan.channels.values(), key=lambda c: c.id):
         by_topic.setdefault(channel.topic, []).append(channel)
@@ -1080,7 +1325,7 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
     open_loop = TORQUE_TOPIC.topic in by_topic
     expected = {t.topic for t in (OPEN_LOOP_TOPICS if open_loop else STEP_TOPICS)}
     series: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]] = {}
-    layouts: dict[str, TopicLayout] = {}
+    names: dict[str, tuple[str, ...]] = {}  # the signals of each series' rows
     if foreign is not None:
         schema = scan.schemas.get(by_topic[foreign][0].schema_id)
         warnings.append(f"a pose-only log ({schema.name if schema else '?'} on {foreign}): "
@@ -1089,49 +1334,48 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
         if got is not None:
             t0 = got[0][0]
             series[foreign] = (got[0] - t0, got[1])  # from the first pose, like our logs
-            layouts[foreign] = TopicLayout(foreign, "", b"", (), POSE_SIGNALS)
-    for layout in (*STEP_TOPICS, TORQUE_TOPIC) if foreign is None else ():
-        if not layout.signals:
-            continue
-        channels = by_topic.get(layout.topic)
+            names[foreign] = POSE_SIGNALS
+    for topic, (layout, sigs) in decode.items() if foreign is None else ():
+        channels = by_topic.get(topic)
         if channels is None:
-            if layout.topic in expected:
-                warnings.append(f"topic {layout.topic} is missing: its signals are NaN")
+            if topic in expected:
+                warnings.append(f"topic {topic} is missing: its signals are NaN")
             continue
-        got = _topic_series(layout, channels, scan, warnings)
+        got = _topic_series(layout, sigs, channels, scan, warnings)
         if got is None:
-            warnings.append(f"topic {layout.topic} cannot be decoded: its signals are NaN")
+            warnings.append(f"topic {topic} cannot be decoded: its signals are NaN")
             continue
-        series[layout.topic] = got
-        layouts[layout.topic] = layout
+        series[topic] = got
+        names[topic] = sigs
     times = _join_by_time(series, warnings)
     # the rows' columns, and what the caller makes of them, within what the budget has left
-    row_bytes = 8 * (len(SIGNALS) + 1) * ROW_COPIES
+    row_bytes = 8 * (len(asked) + 1) * ROW_COPIES
     fit = max(0, scan.limits.total_bytes - scan.kept_bytes) // row_bytes
     if times.size > fit:
         scan.over(f"the row at t = {times[fit] * 1e-9:g} s ({fit} of {times.size} rows)")
         warnings.append(scan.warnings[-1])
         last = times[fit - 1] if fit else -1
         times = times[:fit]
-        series = {topic: (t[t <= last], v[t <= last]) for topic, (t, v) in series.items()}
+        series = {topic: (t[t <= last], v[:, t <= last]) for topic, (t, v) in series.items()}
     n = times.size
     columns: dict[str, NDArray[np.float64]] = {}
     for topic, (t, values) in series.items():
         at = None if t is times or t.size == n else np.searchsorted(times, t)
-        for j, sig in enumerate(layouts[topic].signals):
+        for j, sig in enumerate(names[topic]):
+            if sig not in asked:
+                continue
             if at is None:
-                columns[sig] = np.ascontiguousarray(values[:, j])
+                columns[sig] = np.ascontiguousarray(values[j])  # a row: no copy
             else:
                 columns[sig] = np.full(n, np.nan)
-                columns[sig][at] = values[:, j]
-    signals = {sig: columns[sig] if sig in columns else np.full(n, np.nan) for sig in SIGNALS}
+                columns[sig][at] = values[j]
     for rec in ("run", "result") if foreign is None else ():
         if rec not in scan.metadata:
             warnings.append(f"no {rec!r} metadata record")
     return RunData(
         path=name,
-        t_ns=times.copy(),
-        signals=signals,
+        t_ns=times,
+        signals={sig: columns[sig] if sig in columns else np.full(n, np.nan) for sig in asked},
         metadata=scan.metadata,
         attachments=scan.attachments,
         media_types=scan.media_types,
@@ -1143,6 +1387,26 @@ def read_run(path: str | os.PathLike[str], limits: ReadLimits | None = None,
         or scan.over_budget,
         warnings=warnings,
     )
+
+
+def _asked(signals: Collection[str] | None) -> tuple[str, ...]:
+    """The signals asked for, in the order of ``SIGNALS`` (all of them for None).
+
+    Raises
+    ------
+    ConfigError
+        A name that is not one of ``SIGNALS``.
+    """
+    if signals is None:
+        return SIGNALS
+    wanted = {signals} if isinstance(signals, str) else set(signals)
+    unknown = sorted(wanted.difference(SIGNALS))
+    if unknown:
+        from wmr.infra.errors import ConfigError
+
+        raise ConfigError("signals", f"no signal {', '.join(map(repr, unknown))} in a log",
+                          f"choose among {', '.join(SIGNALS)}")
+    return tuple(s for s in SIGNALS if s in wanted)
 
 
 def metadata_json(value: str, limits: ReadLimits = DEFAULT_LIMITS) -> Any:
@@ -1178,8 +1442,6 @@ def metadata_json(value: str, limits: ReadLimits = DEFAULT_LIMITS) -> Any:
 
 #: Topics whose presence makes a file one of our logs (not a pose-only one).
 _SIGNAL_TOPICS: Final = tuple(t for t in (*STEP_TOPICS, TORQUE_TOPIC) if t.signals)
-_READ_TOPICS: Final = frozenset({GOAL_TOPIC, PHASE_TOPIC,
-                                 *(t.topic for t in (*STEP_TOPICS, TORQUE_TOPIC))})
 _JSON_STRING: Final = re.compile(r'"(?:[^"\\]|\\.)*"')
 
 

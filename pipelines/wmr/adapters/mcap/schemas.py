@@ -487,20 +487,83 @@ def decode_bodies(layout: TopicLayout, datas: list[bytes]) -> NDArray[np.float64
     ndarray of float64, shape (len(datas), len(layout.signals)), or None
         ``None`` when any message does not have the fixed layout (then parse with protobuf).
     """
+    sizes = np.fromiter(map(len, datas), np.int64, len(datas))
+    ends = np.cumsum(sizes)
+    rows = decode_spans(layout, np.frombuffer(b"".join(datas), np.uint8), ends - sizes, ends)
+    return None if rows is None else rows.T
+
+
+def at_every_byte(data: NDArray[np.uint8], dtype: str) -> NDArray[Any]:
+    """The value of ``dtype`` that starts at each byte of ``data`` (a view, no copy, unaligned):
+    ``at_every_byte(data, "<u8")[p]`` is the little-endian uint64 in ``data[p:p + 8]``, so
+    that one fancy index reads a field of many records at once."""
+    size = np.dtype(dtype).itemsize
+    return np.ndarray((max(data.size - size + 1, 0),), dtype, buffer=data, strides=(1,))
+
+
+@functools.lru_cache(maxsize=64)
+def _body_checks(layout: TopicLayout, signals: tuple[str, ...]) -> tuple[
+        NDArray[np.int64], NDArray[np.uint64], NDArray[np.uint64], NDArray[np.int64]]:
+    """How to check a body and read it 8 bytes at a time: where its words start (every 8
+    bytes, the last one ending at the body's end), which of their bytes are constant (a
+    mask) and what those hold, and where the double of each of ``signals`` starts."""
     blen = len(layout.body)
-    if not all(len(m) == 2 + blen + m[1] and m[0] == 0x0A and m[1] <= _TS_SLOTS for m in datas):
-        return None
-    m = len(datas)
-    tails = np.frombuffer(b"".join(m_[len(m_) - blen :] for m_ in datas), np.uint8)
-    tails = tails.reshape(m, blen)
-    const = np.ones(blen, np.bool_)
+    assert blen >= 8, "a body with a double slot has 9 bytes at least"
+    const = np.full(blen, 0xFF, np.uint8)
     for off, _ in layout.slots:
-        const[off : off + 8] = False
-    template = np.frombuffer(layout.body, np.uint8)
-    if not np.array_equal(tails[:, const], np.broadcast_to(template[const], (m, int(const.sum())))):
+        const[off : off + 8] = 0
+    words = np.minimum(np.arange(0, blen, 8), blen - 8)
+    at = words[:, None] + np.arange(8)
+    body = np.frombuffer(layout.body, np.uint8)
+    slot_of = {src: off for off, src in layout.slots}
+    doubles = np.array([slot_of[COLUMN[name]] for name in signals], np.int64)
+    return (words.astype(np.int64), const[at].copy().view("<u8")[:, 0],
+            (body & const)[at].copy().view("<u8")[:, 0], doubles)
+
+
+def decode_spans(layout: TopicLayout, data: NDArray[np.uint8], starts: NDArray[np.int64],
+                 ends: NDArray[np.int64],
+                 signals: Sequence[str] | None = None) -> NDArray[np.float64] | None:
+    """Inverse of the fixed layout, in place: the signals of the messages ``data[starts[i]:
+    ends[i]]`` (an inflated chunk, or messages end to end), without a ``bytes`` per message.
+
+    Every message is checked as a whole: the timestamp field first (tag ``0x0A``, a length of
+    at most 12), the body right after it to the message's end, and every constant byte of the
+    body (tags, frame names, zero slots) equal to the layout's.
+
+    Parameters
+    ----------
+    layout
+        The topic's layout (must carry signals).
+    data
+        The bytes the messages are in.
+    starts, ends
+        Where each message starts and ends in ``data`` (int64, shape ``(m,)``).
+    signals
+        The signals to decode (default: all of ``layout.signals``), each one of them.
+
+    Returns
+    -------
+    ndarray of float64, shape (len(signals), m), or None
+        One row per signal (each contiguous), one column per message; ``None`` when any
+        message does not have the fixed layout (then parse with protobuf).
+    """
+    names = layout.signals if signals is None else tuple(signals)
+    words, mask, const, doubles = _body_checks(layout, names)
+    m, blen = starts.shape[0], len(layout.body)
+    if m == 0:
+        return np.empty((len(names), 0), np.float64)
+    size = ends - starts
+    if int(size.min()) < 2 + blen:
         return None
-    out = np.empty((m, len(layout.signals)), np.float64)
-    col_of = {COLUMN[name]: i for i, name in enumerate(layout.signals)}
-    for off, src in layout.slots:
-        out[:, col_of[src]] = np.ascontiguousarray(tails[:, off : off + 8]).view("<f8")[:, 0]
-    return out
+    head = at_every_byte(data, "<u2")[starts]  # the timestamp field's tag, then its length
+    ts_len = head >> 8
+    if not (bool(((head & 0xFF) == 0x0A).all()) and int(ts_len.max()) <= _TS_SLOTS
+            and bool((size == 2 + blen + ts_len).all())):
+        return None
+    body = ends - blen
+    seen = at_every_byte(data, "<u8")[body[:, None] + words]
+    seen &= mask
+    if bool((seen != const).any()):
+        return None
+    return at_every_byte(data, "<f8")[doubles[:, None] + body]  # (signals, m)
