@@ -15,6 +15,7 @@ import sys
 import time
 import tomllib
 import tracemalloc
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -492,12 +493,14 @@ def test_a_cut_journal_line_is_ignored_and_redone(spec20: Path, fmu3: Path,
 
 def test_the_summary_is_read_back_from_the_journal_in_blocks(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        monkeypatch: pytest.MonkeyPatch, journal_of_before: Callable[[Path, Any], None]
+        ) -> None:
     """Blocks of 3 rows (7 blocks), journal lines written before lines held their rows or
     were sealed, and lines whose row or record is damaged (made again from the spec and the
     log) give the reference's summary byte for byte."""
     out = tmp_path / "copy"
     shutil.copytree(reference, out)
+    journal_of_before(out, load_batch(spec20).runs)  # lines that hold their records
     journal = out / "journal.jsonl"
     lines = [json.loads(line) for line in journal.read_text().splitlines()]
     # lines of now hold no summary row (its inputs are drawn again from the spec); those of
@@ -525,7 +528,8 @@ def test_the_summary_is_read_back_from_the_journal_in_blocks(
 
 def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
-        capsys: pytest.CaptureFixture[str]) -> None:
+        capsys: pytest.CaptureFixture[str], journal_of_before: Callable[[Path, Any], None]
+        ) -> None:
     """A one-value grid axis equal to the base's value changes no run (same ids, nothing
     redone) but adds a column: the rows read back from the journal must fill it, and the
     lines of before, which held their rows, are made again with the spec's rows (said once,
@@ -543,6 +547,7 @@ def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
     assert capsys.readouterr().err == ""
     out = tmp_path / "copy"  # its lines as a batch of before wrote them: with their rows
     shutil.copytree(reference, out, copy_function=shutil.copy2)
+    journal_of_before(out, load_batch(spec20).runs)
     journal = out / "journal.jsonl"
     before = [json.loads(line) for line in journal.read_text().splitlines()]
     runs = load_batch(spec20).runs
@@ -564,7 +569,8 @@ def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
 
 def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        monkeypatch: pytest.MonkeyPatch, journal_of_before: Callable[[Path, Any], None]
+        ) -> None:
     """A log with the size and time journalled for it, still ending with the MCAP magic, is
     not parsed again; one zeroed in place (what a crash before the data reached the disk can
     leave), its time put back, is read, found unfinished, and its run done again.  A line
@@ -575,6 +581,7 @@ def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
     out = tmp_path / "copy"
     shutil.copytree(reference, out, copy_function=shutil.copy2)  # keeps the times
     batch = load_batch(spec20)
+    journal_of_before(out, batch.runs)  # lines of before hold their log's stamp
     with monkeypatch.context() as m:
         m.setattr(mcap.reader, "make_reader", lambda *a, **k: pytest.fail("a log was parsed"))
         again = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
