@@ -332,6 +332,25 @@ def test_an_edited_line_of_a_killed_run_is_redone(
     assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
 
 
+def test_an_edited_compact_line_is_run_again_saying_so(
+        batch4: Path, fmu3: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A compact journal line's status edited (failed for converged): its seal no longer
+    matches the run's summary row, so the run is not trusted but run again, in one line."""
+    out = tmp_path / "out"
+    shutil.copytree(batch4 / "out", out, copy_function=shutil.copy2)
+    lines = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()]
+    assert "record" not in lines[1] and lines[1]["status"] == "converged"
+    lines[1]["status"] = "failed"
+    _rewrite(out, lines)
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+                      progress=False)
+    assert again.executed == [lines[1]["run_id"]] and again.counts["converged"] == 4
+    assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
+    assert capsys.readouterr().err == (
+        f"wmr: {out / 'journal.jsonl'}: 1 journalled run had no summary row matching its "
+        f"line, or no finished log (first: run {lines[1]['run_id']}): run again\n")
+
+
 def test_records_made_again_from_logs_are_the_journalled_ones(
         fmu3: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
         journal_of_before: Callable[[Path, Any], None]) -> None:
