@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -54,3 +55,48 @@ def fmu3(built: BuildResult) -> Path:
 def plant(request: pytest.FixtureRequest, built: BuildResult) -> Iterator[FmuPlant]:
     with FmuPlant(built.fmus[request.param]) as p:
         yield p
+
+
+def _journal_of_before(out: Path, runs: Any) -> None:
+    """Rewrite the journal of the batch folder ``out`` as batches wrote it before compact
+    lines (docs/batch.md, "Journal lines of before"): each line the run's whole record (made
+    again from its log's ``result`` record, else from its summary row), the run's own digest,
+    the FMU's, the log's path and stamp, sealed with ``line_check``.  ``runs`` is the spec's
+    run list; the FMU's digest is ``batch.json``'s.  Such a journal must still resume."""
+    import json
+
+    import pyarrow.parquet as pq
+
+    from wmr.apps.batch.journal import JOURNAL, Journal, log_stamp, logged_record, sealed_line
+    from wmr.apps.batch.local import made_up_record
+    from wmr.apps.batch.spec import run_index
+    from wmr.apps.batch.summary import OPTIMUM_RESULT_COLUMNS, RESULT_COLUMNS
+
+    fmu_sha = json.loads((out / "batch.json").read_text())["fmu_sha256"]
+    rows = {r["run_id"]: r for r in pq.read_table(out / "summary.parquet").to_pylist()}
+    data = b""
+    for _, line in Journal(out / JOURNAL).scan():
+        run_id = str(line["run_id"])
+        row, run = rows[run_id], runs[run_index(run_id)]
+        rel, killed = row["mcap"], bool(line.get("killed"))
+        record = None
+        if killed:
+            record = made_up_record(run_id, row["status"], row["message"])
+        elif rel is not None:
+            record = logged_record(out / rel)
+        if record is None:
+            record = {"name": row["name"], **{
+                c: row[c] for c in (*RESULT_COLUMNS, *OPTIMUM_RESULT_COLUMNS)
+                if c in row and c != "mcap" and row[c] is not None}}
+            record["mcap"] = None
+        data += sealed_line({
+            "run_id": run_id, "digest": run.digest, "fmu_sha256": fmu_sha, "killed": killed,
+            "wall_s": 0.5, "worker": "1", "path": rel,
+            "log": log_stamp(out / rel) if rel is not None else None, "record": record})
+    (out / JOURNAL).write_bytes(data)
+
+
+@pytest.fixture
+def journal_of_before() -> Callable[[Path, Any], None]:
+    """:func:`_journal_of_before`: a batch folder's journal as older batches wrote it."""
+    return _journal_of_before

@@ -15,10 +15,12 @@ import sys
 import time
 import tomllib
 import tracemalloc
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from hypothesis import given, settings
@@ -492,12 +494,14 @@ def test_a_cut_journal_line_is_ignored_and_redone(spec20: Path, fmu3: Path,
 
 def test_the_summary_is_read_back_from_the_journal_in_blocks(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        monkeypatch: pytest.MonkeyPatch, journal_of_before: Callable[[Path, Any], None]
+        ) -> None:
     """Blocks of 3 rows (7 blocks), journal lines written before lines held their rows or
     were sealed, and lines whose row or record is damaged (made again from the spec and the
     log) give the reference's summary byte for byte."""
     out = tmp_path / "copy"
     shutil.copytree(reference, out)
+    journal_of_before(out, load_batch(spec20).runs)  # lines that hold their records
     journal = out / "journal.jsonl"
     lines = [json.loads(line) for line in journal.read_text().splitlines()]
     # lines of now hold no summary row (its inputs are drawn again from the spec); those of
@@ -525,7 +529,8 @@ def test_the_summary_is_read_back_from_the_journal_in_blocks(
 
 def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
-        capsys: pytest.CaptureFixture[str]) -> None:
+        capsys: pytest.CaptureFixture[str], journal_of_before: Callable[[Path, Any], None]
+        ) -> None:
     """A one-value grid axis equal to the base's value changes no run (same ids, nothing
     redone) but adds a column: the rows read back from the journal must fill it, and the
     lines of before, which held their rows, are made again with the spec's rows (said once,
@@ -543,6 +548,7 @@ def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
     assert capsys.readouterr().err == ""
     out = tmp_path / "copy"  # its lines as a batch of before wrote them: with their rows
     shutil.copytree(reference, out, copy_function=shutil.copy2)
+    journal_of_before(out, load_batch(spec20).runs)
     journal = out / "journal.jsonl"
     before = [json.loads(line) for line in journal.read_text().splitlines()]
     runs = load_batch(spec20).runs
@@ -564,7 +570,8 @@ def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
 
 def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        monkeypatch: pytest.MonkeyPatch, journal_of_before: Callable[[Path, Any], None]
+        ) -> None:
     """A log with the size and time journalled for it, still ending with the MCAP magic, is
     not parsed again; one zeroed in place (what a crash before the data reached the disk can
     leave), its time put back, is read, found unfinished, and its run done again.  A line
@@ -575,6 +582,7 @@ def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
     out = tmp_path / "copy"
     shutil.copytree(reference, out, copy_function=shutil.copy2)  # keeps the times
     batch = load_batch(spec20)
+    journal_of_before(out, batch.runs)  # lines of before hold their log's stamp
     with monkeypatch.context() as m:
         m.setattr(mcap.reader, "make_reader", lambda *a, **k: pytest.fail("a log was parsed"))
         again = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
@@ -906,3 +914,79 @@ def test_each_batch_log_attaches_its_own_run_not_the_spec(reference: Path, spec2
         assert tomls == [f"{r.spec.name}.toml"]
         back = parse_scenario(tomllib.loads(log.attachments[tomls[0]].decode())).runs
         assert back == (r.spec,)
+
+
+_KILLED_BETWEEN_WRITES = """
+import os, signal, sys
+from pathlib import Path
+from wmr.apps.batch import load_batch, run_batch
+from wmr.apps.batch.runner import _test_hooks
+
+calls = []
+
+def kill_at_the_third_range(run_ids):
+    calls.append(run_ids)
+    if len(calls) == 3:  # ranges 1 and 2 journalled, range 3's rows written, not its lines
+        os.kill(os.getpid(), signal.SIGKILL)
+
+with _test_hooks(between_writes=kill_at_the_third_range):
+    run_batch(load_batch(sys.argv[1]), sys.argv[2], workers=1, fmu_path=sys.argv[3],
+              progress=False)
+"""
+
+
+def _killed_between_writes(spec20: Path, fmu3: Path, out: Path) -> list[str]:
+    """The 20-run batch (ranges of 2 runs on one worker) killed with SIGKILL after its third
+    range's summary rows are on disk and before that range's journal lines; the ids of the
+    runs journalled."""
+    proc = subprocess.run([sys.executable, "-c", _KILLED_BETWEEN_WRITES, str(spec20),
+                           str(out), str(fmu3)], capture_output=True, text=True, timeout=120,
+                          env=dict(os.environ))
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    assert not (out / "summary.parquet").exists()  # killed: no summary, the parts are all
+    return _journal_ids(out)
+
+
+@pytest.mark.slow
+def test_a_batch_killed_between_a_ranges_rows_and_its_lines_resumes_to_the_same_summary(
+        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """docs/reliability.md: a range's summary rows are on disk (fsynced) before its journal
+    lines, so every journalled run has its row: killed between the two writes, the resume
+    keeps every journalled run (none run again, nothing said) and runs the rest; the summary
+    is the uninterrupted batch's byte for byte."""
+    out = tmp_path / "o"
+    journalled = _killed_between_writes(spec20, fmu3, out)
+    on_disk = {r for part in (out / ".parts").glob("*.arrow")
+               for r in pa.ipc.open_stream(part.read_bytes()).read_all()["run_id"].to_pylist()}
+    assert set(journalled) <= on_disk, "a journalled run without its summary row on disk"
+    assert len(journalled) == 4 and len(on_disk) == 6
+    capsys.readouterr()
+    again = run_batch(load_batch(spec20), out, workers=1, fmu_path=fmu3, progress=False)
+    assert again.skipped == len(journalled) and len(again.executed) == 20 - len(journalled)
+    assert not set(again.executed) & set(journalled)
+    assert capsys.readouterr().err == ""
+    assert _summary_bytes(out) == _summary_bytes(reference)
+    assert not (out / ".parts").exists()
+
+
+@pytest.mark.slow
+def test_a_part_lost_after_its_journal_lines_reruns_its_runs_saying_so(
+        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A range's summary rows removed after its journal lines were written (the batch killed
+    before its summary): the journal says done, but there is no row to trust, so the resume
+    runs those runs again, saying so in one line; the summary is the uninterrupted batch's."""
+    out = tmp_path / "o"
+    journalled = _killed_between_writes(spec20, fmu3, out)
+    first = journalled[0]
+    (lost,) = [p for p in (out / ".parts").glob("*.arrow") if p.name.startswith("0-")]
+    lost.unlink()  # the part of runs 0 and 1
+    capsys.readouterr()
+    again = run_batch(load_batch(spec20), out, workers=1, fmu_path=fmu3, progress=False)
+    assert again.skipped == len(journalled) - 2
+    assert set(journalled[:2]) <= set(again.executed)
+    assert capsys.readouterr().err == (
+        f"wmr: {out / 'journal.jsonl'}: 2 journalled runs had no summary row matching its "
+        f"line, or no finished log (first: run {first}): run again\n")
+    assert _summary_bytes(out) == _summary_bytes(reference)

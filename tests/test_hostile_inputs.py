@@ -12,6 +12,7 @@ import subprocess
 import sys
 import tomllib
 import zipfile
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -249,9 +250,13 @@ def batch4(fmu3: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder
 
 
-def _copy(batch4: Path, tmp_path: Path) -> tuple[Path, list[dict[str, Any]]]:
+def _copy(batch4: Path, tmp_path: Path, journal_of_before: Callable[[Path, Any], None]
+          ) -> tuple[Path, list[dict[str, Any]]]:
+    """The batch copied, its journal as batches before compact lines wrote it (the lines
+    that hold their records: what an edit here changes)."""
     out = tmp_path / "out"
     shutil.copytree(batch4 / "out", out, copy_function=shutil.copy2)
+    journal_of_before(out, load_batch(batch4 / "t4.toml").runs)
     lines = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()]
     return out, lines
 
@@ -270,10 +275,11 @@ def _rewrite(out: Path, lines: list[dict[str, Any]], extra: str = "") -> None:
 ], ids=["input", "status", "text-input", "result", "type", "name"])
 def test_an_edited_journal_line_is_made_again_from_the_spec_and_the_log(
         edit: Any, field: str, batch4: Path, fmu3: Path, tmp_path: Path,
-        capsys: pytest.CaptureFixture[str]) -> None:
+        capsys: pytest.CaptureFixture[str], journal_of_before: Callable[[Path, Any], None]
+        ) -> None:
     """``row.inputs."gains.K_ps"`` edited to 999 used to be in the summary, although the run
     used 0.25; ``record.status`` edited to failed likewise; ``"abc"`` was ArrowInvalid."""
-    out, lines = _copy(batch4, tmp_path)
+    out, lines = _copy(batch4, tmp_path, journal_of_before)
     # a line of now leaves the run's inputs to the spec; one of before held them (``row``),
     # which an edit could change: line 1 is made such (sealed before the edit)
     from wmr.apps.batch import runner
@@ -297,10 +303,12 @@ def test_an_edited_journal_line_is_made_again_from_the_spec_and_the_log(
     assert "did not match" not in capsys.readouterr().err
 
 
-def test_garbage_journal_lines_are_skipped(batch4: Path, fmu3: Path, tmp_path: Path) -> None:
+def test_garbage_journal_lines_are_skipped(batch4: Path, fmu3: Path, tmp_path: Path,
+                                          journal_of_before: Callable[[Path, Any], None]
+                                          ) -> None:
     """A 5,000-digit run id was ValueError (int's digit limit); 100,000 ``[`` RecursionError;
     a line without a seal (or an older journal's) is made again silently."""
-    out, lines = _copy(batch4, tmp_path)
+    out, lines = _copy(batch4, tmp_path, journal_of_before)
     del lines[0]["check"]
     _rewrite(out, lines, '{"run_id": "' + "1" * 5000 + '-0a433d73", "record": {}}\n'
              + "[" * 100_000 + "\n" + '{"run_id": "' + "7" * 60 + '", "record": {}}\n')
@@ -310,11 +318,12 @@ def test_garbage_journal_lines_are_skipped(batch4: Path, fmu3: Path, tmp_path: P
     assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
 
 
-def test_an_edited_line_of_a_killed_run_is_redone(batch4: Path, fmu3: Path,
-                                                  tmp_path: Path) -> None:
+def test_an_edited_line_of_a_killed_run_is_redone(
+        batch4: Path, fmu3: Path, tmp_path: Path,
+        journal_of_before: Callable[[Path, Any], None]) -> None:
     """A killed run's record was made up by the executor: no log record to make it again
     from, so an edited one is not trusted but the run done again."""
-    out, lines = _copy(batch4, tmp_path)
+    out, lines = _copy(batch4, tmp_path, journal_of_before)
     lines[2].update(killed=True, record={**lines[2]["record"], "status": "timeout"})
     _rewrite(out, lines)
     again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
@@ -323,9 +332,28 @@ def test_an_edited_line_of_a_killed_run_is_redone(batch4: Path, fmu3: Path,
     assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
 
 
-def test_records_made_again_from_logs_are_the_journalled_ones(fmu3: Path, tmp_path: Path,
-                                                              capsys: pytest.CaptureFixture[str]
-                                                              ) -> None:
+def test_an_edited_compact_line_is_run_again_saying_so(
+        batch4: Path, fmu3: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A compact journal line's status edited (failed for converged): its seal no longer
+    matches the run's summary row, so the run is not trusted but run again, in one line."""
+    out = tmp_path / "out"
+    shutil.copytree(batch4 / "out", out, copy_function=shutil.copy2)
+    lines = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()]
+    assert "record" not in lines[1] and lines[1]["status"] == "converged"
+    lines[1]["status"] = "failed"
+    _rewrite(out, lines)
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+                      progress=False)
+    assert again.executed == [lines[1]["run_id"]] and again.counts["converged"] == 4
+    assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
+    assert capsys.readouterr().err == (
+        f"wmr: {out / 'journal.jsonl'}: 1 journalled run had no summary row matching its "
+        f"line, or no finished log (first: run {lines[1]['run_id']}): run again\n")
+
+
+def test_records_made_again_from_logs_are_the_journalled_ones(
+        fmu3: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        journal_of_before: Callable[[Path, Any], None]) -> None:
     """Runs stopped by their wall-clock limit (logged failed, journalled timeout) and finished
     ones: every line unsealed, each is made again from its log, equal to what was written."""
     spec = tmp_path / "t4.toml"
@@ -339,6 +367,7 @@ def test_records_made_again_from_logs_are_the_journalled_ones(fmu3: Path, tmp_pa
     first = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False,
                       run_timeout_s=0.02)
     assert first.counts["timeout"] >= 1
+    journal_of_before(out, load_batch(spec).runs)  # lines that hold their records
     lines = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()]
     summary = (out / "summary.csv").read_bytes()
     _rewrite(out, [{k: v for k, v in x.items() if k != "check"} for x in lines])

@@ -455,3 +455,32 @@ def test_a_full_disk_while_appending_is_one_line_naming_the_journal(
         Journal(path).append({"run_id": "0001-b", "record": {}})
     message = str(info.value)
     assert str(path) in message and "no space left" in message and "\n" not in message
+
+
+# -- compact lines -----------------------------------------------------------------------------
+
+def test_a_compact_line_is_94_bytes_sealed_over_itself_and_the_runs_row(tmp_path: Path) -> None:
+    """docs/batch.md ("The journal"): id, status, digest, ``killed`` only when true, and the
+    CRC-32 of the line's other fields continued over the row's result columns (sorted keys,
+    no spaces): the CRC of the two texts one after the other, computed here by binascii."""
+    import binascii
+
+    from wmr.apps.batch.journal import compact_line
+
+    row = {"status": "converged", "steps": 695, "mcap": None, "final_position_error_m": 0.01}
+    body = '{"run_id":"0042-1f2e3d4c","status":"converged","digest":"9c1d0f5e2a7b3c48"}'
+    text = '{"final_position_error_m":0.01,"mcap":null,"status":"converged","steps":695}'
+    seal = binascii.crc32((body + text).encode())
+    line = compact_line("0042-1f2e3d4c", "converged", "9c1d0f5e2a7b3c48", row)
+    assert line == (body[:-1] + f',"seal":"{seal:08x}"}}\n').encode()
+    assert len(line) == 94
+    killed = compact_line("0042-1f2e3d4c", "converged", "9c1d0f5e2a7b3c48", row, killed=True)
+    body = body[:-1] + ',"killed":true}'
+    assert killed == (body[:-1] + f',"seal":"{binascii.crc32((body + text).encode()):08x}"}}\n'
+                      ).encode()
+    # another row (a result changed): another seal
+    assert compact_line("0042-1f2e3d4c", "converged", "9c1d0f5e2a7b3c48",
+                        {**row, "steps": 696}) != line
+    path = tmp_path / "journal.jsonl"
+    path.write_bytes(line + line.replace(b'"seal":"', b'"seal":"0') + killed)
+    assert [row["run_id"] for _, row in Journal(path).scan()] == ["0042-1f2e3d4c"] * 2

@@ -10,7 +10,9 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -250,12 +252,13 @@ def test_a_sharded_batch_resumes_replays_and_reports(
 
 def test_an_unsharded_batch_folder_of_before_still_resumes(
         batches: dict[str, Path], spec8: Path, fmu3: Path, tmp_path: Path,
-        shards_of_3: None) -> None:
+        shards_of_3: None, journal_of_before: Callable[[Path, Any], None]) -> None:
     """Journal lines written before lines said where their log is (no ``path``) have it at
     ``runs/<run_id>.mcap``: a batch folder of that time, resumed by a batch that shards, keeps
     every run and its summary."""
     out = tmp_path / "old"
     shutil.copytree(batches["full"], out, copy_function=shutil.copy2)
+    journal_of_before(out, load_batch(spec8).runs)  # lines that hold their records
     lines = _journal(out)
     for line in lines:
         del line["path"]
@@ -267,10 +270,14 @@ def test_an_unsharded_batch_folder_of_before_still_resumes(
         (batches["full"] / "summary.csv").read_bytes()
 
 
-def test_a_journal_path_outside_runs_is_not_followed(batches: dict[str, Path], spec8: Path,
-                                                     fmu3: Path, tmp_path: Path) -> None:
+def test_a_journal_path_outside_runs_is_not_followed(
+        batches: dict[str, Path], spec8: Path, fmu3: Path, tmp_path: Path,
+        journal_of_before: Callable[[Path, Any], None]) -> None:
+    """A journal line of before names its log (``path``); a compact line leaves it to the
+    summary row, which its seal covers."""
     out = tmp_path / "copy"
     shutil.copytree(batches["full"], out, copy_function=shutil.copy2)
+    journal_of_before(out, load_batch(spec8).runs)
     lines = _journal(out)
     # a path out of the folder and back: it names the run's finished log, but is not followed
     lines[2]["path"] = f"runs/../../{out.name}/{lines[2]['path']}"

@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 
 from wmr.adapters.mcap import read_run
 from wmr.apps.batch import BatchSpec, load_batch, run_batch
-from wmr.apps.batch.journal import log_complete
+from wmr.apps.batch.journal import log_complete, run_digest
 from wmr.apps.batch.runner import BatchOutcome
 
 TWO_RUNS = """
@@ -72,8 +72,8 @@ def test_resume_redoes_every_run_when_the_fmu_changed(fmu3: Path, tmp_path: Path
     changed = run_batch(batch, out, workers=1, fmu_path=other, progress=False)
     assert changed.skipped == 0
     assert sorted(changed.executed) == sorted(first.executed)
-    last = {str(line["run_id"]): line["fmu_sha256"] for line in _journal(out)}
-    assert set(last.values()) == {file_sha256(other)}
+    last = {str(line["run_id"]): line["digest"] for line in _journal(out)}
+    assert last == {run.run_id: run_digest(run.digest, file_sha256(other)) for run in batch.runs}
     # and back to the first FMU: its old lines were superseded, so every run is redone again
     back = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
     assert back.skipped == 0 and len(back.executed) == 2
@@ -189,7 +189,7 @@ def test_a_killed_run_done_again_is_recovered_over_its_earlier_log(fmu3: Path,
     other = _other_fmu(fmu3, tmp_path)
     result, _ = _batch_killed_mid_log(batch, out, other)
     assert result.executed == [batch.runs[0].run_id] and result.counts["failed"] == 1
-    assert _journal(out)[-1]["fmu_sha256"] == file_sha256(other)
+    assert _journal(out)[-1]["digest"] == run_digest(batch.runs[0].digest, file_sha256(other))
     assert sorted(p.name for p in log.parent.iterdir()) == [log.name], "left beside the log"
     assert log.stat().st_ino != earlier, "the earlier run's log was kept"
     data = read_run(log)

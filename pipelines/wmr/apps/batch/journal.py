@@ -2,10 +2,16 @@
 
 The parent process appends one JSON line per finished run to a file opened with ``O_APPEND``
 (a short write is continued until every byte is written): a batch killed at any moment leaves
-whole lines, plus at most one cut line, which the reader ignores.  A run counts as done when
-its journal line matches its inputs and its FMU, and its log ends with a ``result`` metadata
-record (or the executor killed it: then the journal line, and the log recovered from what the
-run had written, are all there is).
+whole lines, plus at most one cut line, which the reader ignores.
+
+A line (:func:`compact_line`, about 90 bytes) holds the run's id, its status, a digest of its
+inputs and of the FMU (:func:`run_digest`) and a seal: a CRC-32 of the line and of the run's
+result columns in the summary (:func:`row_bytes`).  The results themselves are in the
+columnar files only (``.parts`` and ``summary.parquet``): a run counts as done when its line
+matches its inputs and its FMU, a summary row of it matches the seal, and its log, if it kept
+one, ends with a ``result`` metadata record (or the executor killed it).  Lines of older
+batches held the whole result record (``record``, sealed by :func:`line_check`): they are read
+as they always were.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ import hashlib
 import itertools
 import json
 import os
+import zlib
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -44,6 +51,53 @@ def line_check(row: Mapping[str, Any]) -> str:
     body = {k: v for k, v in row.items() if k != "check"}
     return hashlib.sha256(json.dumps(body, sort_keys=True, allow_nan=False,
                                      separators=(",", ":")).encode()).hexdigest()[:32]
+
+
+#: Hex digits of a compact line's digest (:func:`run_digest`): 64 bits.
+DIGEST_CHARS = 16
+
+
+def run_digest(spec_digest: str, fmu_sha256: str) -> str:
+    """What a compact journal line keeps of a run's inputs and FMU: a hash of both (the
+    resume compares it with the spec's run and the FMU of the batch)."""
+    return hashlib.sha256(f"{spec_digest}|{fmu_sha256}".encode()).hexdigest()[:DIGEST_CHARS]
+
+
+def row_bytes(values: Mapping[str, Any]) -> bytes:
+    """A summary row's result columns (name -> value) as the seal hashes them: canonical JSON
+    (sorted keys, no spaces; floats as their shortest exact decimal, so a row read back from
+    Parquet hashes as the worker's did)."""
+    return json.dumps(values, sort_keys=True, allow_nan=False, separators=(",", ":")).encode()
+
+
+def _body(run_id: str, status: str, digest: str, killed: bool) -> dict[str, Any]:
+    body: dict[str, Any] = {"run_id": run_id, "status": status, "digest": digest}
+    if killed:
+        body["killed"] = True
+    return body
+
+
+def body_crc(line: Mapping[str, Any]) -> int:
+    """The CRC-32 of a compact line without its seal (the seal goes on over the row)."""
+    body = _body(str(line["run_id"]), str(line["status"]), str(line["digest"]),
+                 bool(line.get("killed")))
+    return zlib.crc32(json.dumps(body, separators=(",", ":")).encode())
+
+
+def compact_line(run_id: str, status: str, digest: str, row: Mapping[str, Any],
+                 killed: bool = False) -> bytes:
+    """A run's journal line, with its newline: id, status, :func:`run_digest`, ``killed``
+    only when its executor stopped it, and ``seal``, the CRC-32 (8 hex digits) of the rest
+    and of ``row``, the run's result columns in the summary (:func:`row_bytes`)."""
+    body = _body(run_id, status, digest, killed)
+    seal = zlib.crc32(row_bytes(row), zlib.crc32(json.dumps(body, separators=(",", ":"))
+                                                 .encode()))
+    return (json.dumps({**body, "seal": f"{seal:08x}"}, separators=(",", ":")) + "\n").encode()
+
+
+def is_compact(line: Mapping[str, Any]) -> bool:
+    """Whether ``line`` is a compact line (:func:`compact_line`), not one of an older batch."""
+    return "seal" in line
 
 
 def logged_record(path: Path) -> dict[str, Any] | None:
@@ -117,6 +171,24 @@ def log_complete(path: Path, stamp: Mapping[str, Any] | None = None) -> bool:
     except Exception:  # missing, cut or damaged: not finished
         return False
     return summary is not None and any(m.name == "result" for m in summary.metadata_indexes)
+
+
+def log_ends_whole(path: Path) -> bool:
+    """Whether the file at ``path`` (a link is not followed) ends with the MCAP magic: what a
+    compact journal line's run needs of its log (a stat and an 8-byte read, about 20 µs).  A
+    log cut, or zeroed in place by a crash before its data reached the disk, does not; its
+    result itself is in the summary row, which the line's seal covers."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError:
+        return False
+    try:
+        size = os.fstat(fd).st_size
+        return size >= 2 * len(MAGIC) and os.pread(fd, len(MAGIC), size - len(MAGIC)) == MAGIC
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
 
 
 def sealed_line(row: Mapping[str, Any]) -> bytes:
@@ -221,11 +293,21 @@ def _parse(line: bytes) -> dict[str, Any] | None:
         row = json.loads(line)
     except (ValueError, RecursionError):  # garbled, or nested deeper than Python recurses
         return None
-    if isinstance(row, dict) and isinstance(row.get("run_id"), str) \
-            and len(row["run_id"]) <= MAX_RUN_ID_CHARS and isinstance(row.get("record"), dict):
+    if not isinstance(row, dict) or not isinstance(row.get("run_id"), str) \
+            or len(row["run_id"]) > MAX_RUN_ID_CHARS:
+        return None
+    if isinstance(row.get("record"), dict):  # a line of an older batch: the whole record
+        return row
+    if all(isinstance(row.get(k), str) for k in ("status", "digest", "seal")) \
+            and len(row["seal"]) == 8 and len(row["digest"]) == DIGEST_CHARS:
+        try:
+            int(row["seal"], 16)
+        except ValueError:
+            return None
         return row
     return None
 
 
-__all__ = ["JOURNAL", "Journal", "WallClockLimit", "line_check", "log_complete", "log_stamp",
-           "logged_record", "sealed_line"]
+__all__ = ["DIGEST_CHARS", "JOURNAL", "Journal", "WallClockLimit", "body_crc", "compact_line",
+           "is_compact", "line_check", "log_complete", "log_ends_whole", "log_stamp",
+           "logged_record", "row_bytes", "run_digest", "sealed_line"]

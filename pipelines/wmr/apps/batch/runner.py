@@ -4,10 +4,11 @@ Layout of the output folder::
 
     OUT/runs/<run_id>.mcap   one log per run (as the log policy keeps them), in shards
                              OUT/runs/<shard>/<run_id>.mcap in a batch of over 1000 runs
-    OUT/journal.jsonl        one line per finished run (with its wall time and worker)
+    OUT/journal.jsonl        one line per finished run: id, status, digest, seal (journal.py)
     OUT/summary.parquet      one row per finished run, sorted by run id (see summary.py)
     OUT/summary.csv          the same as CSV (a batch of up to 1000 runs)
-    OUT/.parts/              the summary rows of this invocation's runs, until it ends
+    OUT/.parts/              the summary rows of the runs finished since the last summary:
+                             each range's written and fsynced before its journal lines
     OUT/batch.json           counts and timings of the last invocation
     OUT/logs/worker-<n>.log  the FMU's messages (local workers)
 
@@ -18,11 +19,13 @@ the others, half-written logs included; a run is never reported twice.
 from __future__ import annotations
 
 import fcntl
+import itertools
 import json
 import math
 import os
 import sys
 import time
+import zlib
 from array import array
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -36,19 +39,25 @@ from wmr.adapters.fmi.varmap import VariableMap, load_map
 from wmr.apps.batch.journal import (
     JOURNAL,
     Journal,
+    body_crc,
+    is_compact,
     line_check,
     log_complete,
+    log_ends_whole,
     log_stamp,
     logged_record,
-    sealed_line,
+    row_bytes,
+    run_digest,
 )
 from wmr.apps.batch.local import Killed, LocalPool, Outcome, check_open_files, made_up_record
 from wmr.apps.batch.spec import BatchRun, BatchSpec, RunList, run_index
 from wmr.apps.batch.summary import (
     CSV_MAX_RUNS,
     STATUSES,
+    SUMMARY_PARQUET,
     SummaryRow,
     log_relpath,
+    result_rows,
     summary_table,
     write_summary,
 )
@@ -57,8 +66,8 @@ from wmr.apps.batch.worker import (
     Block,
     BlockResult,
     Entry,
+    block_lines,
     fmu_digest,
-    journal_row,
     table_bytes,
 )
 from wmr.apps.progress import count_progress
@@ -152,10 +161,14 @@ class _TestHooks:
         Behave as if Ctrl-C came after this many runs of the invocation.
     faults
         Run id -> a fault of :data:`wmr.apps.batch.worker.FAULTS` (``"hang"``, ``"crash"``, ...).
+    between_writes
+        Called with the run ids of a range after its summary rows are on disk and before its
+        journal lines are written (a test kills the batch there).
     """
 
     stop_after: int | None = None
     faults: Mapping[str, str] = field(default_factory=dict)
+    between_writes: Callable[[Sequence[str]], None] | None = None
 
 
 #: The hooks of the batches run in this context (a context variable: a test's hooks reach
@@ -165,7 +178,9 @@ _HOOKS: ContextVar[_TestHooks | None] = ContextVar("wmr_batch_test_hooks", defau
 
 @contextmanager
 def _test_hooks(*, stop_after: int | None = None,
-                faults: Mapping[str, str] | None = None) -> Iterator[None]:
+                faults: Mapping[str, str] | None = None,
+                between_writes: Callable[[Sequence[str]], None] | None = None
+                ) -> Iterator[None]:
     """Run the :func:`run_batch` calls inside the ``with`` block with test hooks.
 
     For the tests of the executors only (a crash, a hang, a Ctrl-C after N runs): they are
@@ -180,7 +195,7 @@ def _test_hooks(*, stop_after: int | None = None,
         if fault not in FAULTS:
             raise ConfigError("faults", f"{run_id}: unknown fault {fault!r}",
                               f"use one of {FAULTS}")
-    token = _HOOKS.set(_TestHooks(stop_after, dict(faults or {})))
+    token = _HOOKS.set(_TestHooks(stop_after, dict(faults or {}), between_writes))
     try:
         yield
     finally:
@@ -275,7 +290,8 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     lock = _Lock(out)
     try:
         journal = Journal(out / JOURNAL)
-        ledger = _resume(batch, journal, fmu_sha, out, progress)
+        parts = _Parts(out)
+        ledger = _resume(batch, journal, fmu_sha, out, progress, parts)
         result = BatchOutcome(out_dir=out, total=len(batch.runs), skipped=ledger.n_done,
                               log=policy)
         attachment = None
@@ -284,7 +300,6 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             if not attachment.exists() or attachment.read_bytes() != batch.source:
                 _write_atomic(attachment, batch.source)
         tasks = _Blocks(batch, ledger, run_timeout_s, hooks.faults, policy, fmu_sha)
-        parts = _Parts(out)
         if not tasks:
             stream: Iterator[BlockResult | Killed] = iter(())
         elif scheduler is not None or client is not None:
@@ -317,24 +332,20 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
         unstarted = 0  # runs of this invocation that failed before it
 
         def settle(entries: Sequence[Entry], table: Any) -> None:
-            """Journal the finished runs ``entries`` (one write), keep their summary rows
-            (``table``: an Arrow IPC stream, or a table), count them; raise when the batch
+            """Keep the summary rows of the finished runs ``entries`` (``table``: an Arrow IPC
+            stream, or a table; written and fsynced first, so that a journal line always has
+            its row on disk), journal them (one write), count them; raise when the batch
             must stop (its first runs all failed before their first step, a test's
             Ctrl-C) after journalling the runs up to the one that says so."""
             nonlocal started, unstarted
             lines: list[bytes] = []
             stop: BaseException | None = None
             for entry in entries:
-                line = entry.line
-                if line is None:  # its log came back as bytes: written here, then stamped
-                    row = dict(entry.row or {})
-                    rel = row.get("path")
-                    if rel is not None and entry.log is not None:
-                        (out / rel).parent.mkdir(exist_ok=True)
-                        _write_atomic(out / rel, entry.log)
-                        row["log"] = log_stamp(out / rel)
-                    line = sealed_line(row)
-                lines.append(line)
+                if entry.log is not None and entry.path is not None:  # its log came back as
+                    # bytes: written here, before the line
+                    (out / entry.path).parent.mkdir(exist_ok=True)
+                    _write_atomic(out / entry.path, entry.log)
+                lines.append(entry.line)
                 if entry.started:
                     started = True
                 elif not entry.killed:
@@ -342,7 +353,8 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                     if not started and unstarted >= min(EARLY_STOP_RUNS, len(tasks)):
                         stop = WmrError(
                             f"the first {unstarted} runs all failed before their first step, "
-                            f"stopping the batch: {_record(line).get('message')}")
+                            "stopping the batch: "
+                            f"{(entry.record or {}).get('message')}")
                         break
                 if hooks.stop_after is not None \
                         and len(result.executed) + len(lines) >= hooks.stop_after \
@@ -351,6 +363,10 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                     break
             kept = entries[:len(lines)]
             if lines:
+                parts.add(table, {e.run_id for e in kept} if len(kept) < len(entries)
+                          else None)
+                if hooks.between_writes is not None:
+                    hooks.between_writes([e.run_id for e in kept])
                 offset = journal.append_lines(b"".join(lines))
                 for entry, line in zip(kept, lines, strict=True):
                     ledger.mark(entry.run_index, offset, entry.status)
@@ -358,15 +374,13 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
                     result.executed.append(entry.run_id)
                     result.logs_kept += entry.kept
                     counts[entry.status] = counts.get(entry.status, 0) + 1
-                parts.add(table, {e.run_id for e in kept} if len(kept) < len(entries)
-                          else None)
                 show()
                 bar.update(len(lines))
                 if on_outcome is not None:
-                    for entry, line in zip(kept, lines, strict=True):
-                        journalled = json.loads(line)
-                        on_outcome(Outcome(entry.run_id, journalled["record"], entry.wall_s,
-                                           entry.killed, entry.log, journalled["worker"]))
+                    for entry in kept:
+                        on_outcome(Outcome(entry.run_id, dict(entry.record or {}),
+                                           entry.wall_s, entry.killed, entry.log,
+                                           entry.worker))
             if stop is not None:
                 raise stop
 
@@ -398,10 +412,9 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
             try:
                 _finish(out, _summary_chunks(batch, journal, ledger, parts), result, batch,
                         scheduler, client, workers, fmu, fmu_sha)
+                parts.clear()  # only now: until the summary is written they hold the results
             except DiskFullError as exc:
                 full = full or exc
-            finally:
-                parts.clear()
         if full is not None:
             raise DiskFullError(f"{full}; {result.finished} of {result.total} runs finished "
                                 "and are in the journal; free some space and rerun the same "
@@ -418,11 +431,12 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
 
 
 class _Ledger:
-    """Which runs of a batch are finished, and where their journal lines are: 9 bytes a run
-    (a million-run batch keeps 9 MB, not its records), whatever the records hold.
+    """Which runs of a batch are finished, and where their journal lines are: 10 bytes a run
+    (a million-run batch keeps 10 MB, not its records), whatever the records hold.
 
-    The journal line of a finished run holds its record and its summary row: the summary is
-    read back from the journal (:func:`_summary_chunks`), a block of rows at a time.
+    A run's summary row is in the batch's parts (:class:`_Parts`), or, for a line of an older
+    batch (its whole record), read back from the journal (``from_journal``,
+    :func:`_summary_chunks`), a block of rows at a time.
     """
 
     _CODES: Final = {status: k + 1 for k, status in enumerate(STATUSES)}
@@ -430,23 +444,29 @@ class _Ledger:
     def __init__(self, n_runs: int) -> None:
         self.offsets = array("q", [-1]) * n_runs
         self._status = bytearray(n_runs)
+        #: 1 where the run's summary row is made from its journal line (an older batch's)
+        self.from_journal = bytearray(n_runs)
         self.n_done = 0
 
     def done(self, index: int) -> bool:
         return self.offsets[index] >= 0
 
-    def mark(self, index: int, offset: int, status: object) -> None:
-        """Run ``index`` finished, with ``status``; its journal line starts at ``offset``."""
+    def mark(self, index: int, offset: int, status: object, from_journal: bool = False
+             ) -> None:
+        """Run ``index`` finished, with ``status``; its journal line starts at ``offset``
+        (and holds its record when ``from_journal``)."""
         if self.offsets[index] < 0:
             self.n_done += 1
         self.offsets[index] = offset
         self._status[index] = self._CODES.get(str(status), 0)
+        self.from_journal[index] = from_journal
 
     def unmark(self, index: int) -> None:
         if self.offsets[index] >= 0:
             self.n_done -= 1
         self.offsets[index] = -1
         self._status[index] = 0
+        self.from_journal[index] = 0
 
     def counts(self) -> dict[str, int]:
         """Finished runs per status (the three statuses always present)."""
@@ -466,13 +486,17 @@ def _bar_off(progress: bool | None) -> bool | None:
 
 
 def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, out: Path,
-            progress: bool | None) -> _Ledger:
+            progress: bool | None, parts: _Parts | None = None) -> _Ledger:
     """The runs of ``batch`` that the journal says are done, as a :class:`_Ledger`.
 
     A line counts when its run is the spec's run of that id (same inputs: same digest), was
     run by the same FMU, and was killed by its executor or has a complete log; the last line
     of a run wins.  Each line's run is made again to compare its digest (about 0.2 ms a run):
-    only the runs done are made, not the spec.
+    only the runs done are made, not the spec.  A compact line (:func:`~wmr.apps.batch.
+    journal.compact_line`) counts when, besides, a summary row of its run in ``parts`` (the
+    ranges of a batch killed before its summary) or ``summary.parquet`` matches its seal
+    (:func:`_carry`); a line of an older batch holds its record and is checked against the
+    run's log (:func:`_verified`).
     """
     from tqdm import tqdm
 
@@ -481,12 +505,15 @@ def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, out: Path,
     try:
         size = journal.path.stat().st_size
     except FileNotFoundError:
+        if parts is not None:
+            parts.drop_leftovers()
         return ledger
     # over about 10,000 lines (2 s) the check gets its own bar
     bar = tqdm(total=size, desc="checking the journal", unit="B", unit_scale=True,
                file=sys.stderr, leave=False,
                disable=True if size < 10_000_000 else _bar_off(progress))
     remade: dict[int, tuple[dict[str, Any], str]] = {}  # by run index: the last line wins
+    seals = _Seals(len(runs))
     with bar:
         for offset, line in journal.scan():
             bar.update(offset - bar.n)
@@ -494,6 +521,15 @@ def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, out: Path,
             if i is None or i >= len(runs):
                 continue
             remade.pop(i, None)
+            if is_compact(line):
+                run = runs[i]
+                if line["run_id"] != run.run_id or line["status"] not in STATUSES \
+                        or line["digest"] != run_digest(run.digest, fmu_sha):
+                    ledger.unmark(i)
+                else:
+                    ledger.mark(i, offset, line["status"])
+                    seals.keep(i, line)
+                continue
             checked, differs = _verified(runs[i], line, fmu_sha, out)
             if checked is not None and batch.optimal is not None and not checked.get("killed") \
                     and not checked["record"].get("optimal_status"):
@@ -503,17 +539,114 @@ def _resume(batch: BatchSpec, journal: Journal, fmu_sha: str, out: Path,
             if checked is None:
                 ledger.unmark(i)
             else:
-                ledger.mark(i, offset, checked["record"].get("status"))
+                ledger.mark(i, offset, checked["record"].get("status"), from_journal=True)
                 if checked is not line:
                     remade[i] = (checked, differs)
     for i, (checked, _) in remade.items():  # written again, sealed: the summary reads them
-        ledger.mark(i, journal.append(checked), checked["record"].get("status"))
+        ledger.mark(i, journal.append(checked), checked["record"].get("status"),
+                    from_journal=True)
     edited = [(runs[i].run_id, differs) for i, (_, differs) in remade.items() if differs]
     if edited:
         print(f"wmr: {journal.path}: {plural(len(edited), 'line')} did not match the spec or "
               f"the run's log (first: run {edited[0][0]}, {edited[0][1]}): made again from "
               "them, not trusted", file=sys.stderr)
+    if parts is not None:
+        _carry(batch, ledger, seals, out, parts)
     return ledger
+
+
+class _Seals:
+    """What the resume keeps of each compact journal line until it has found the run's
+    summary row: the line's seal, the CRC of the rest of it, of its run id, and whether its
+    executor killed the run (13 bytes a run)."""
+
+    def __init__(self, n_runs: int) -> None:
+        self.seal = array("L", [0]) * n_runs
+        self.body = array("L", [0]) * n_runs
+        self.run_id = array("L", [0]) * n_runs
+        self.killed = bytearray(n_runs)
+        self.any = False
+
+    def keep(self, index: int, line: Mapping[str, Any]) -> None:
+        self.any = True
+        self.seal[index] = int(line["seal"], 16)
+        self.body[index] = body_crc(line)
+        self.run_id[index] = zlib.crc32(str(line["run_id"]).encode())
+        self.killed[index] = bool(line.get("killed"))
+
+
+def _carry(batch: BatchSpec, ledger: _Ledger, seals: _Seals, out: Path, parts: _Parts) -> None:
+    """Find the summary row of each run done by a compact journal line, in the parts a killed
+    batch left and in ``summary.parquet``: a row counts when its run id, status and results
+    match the line's seal, and its log, if it kept one, ends whole (:func:`~wmr.apps.batch.
+    journal.log_ends_whole`).  The rows found are kept
+    as this invocation's parts (in the summary's columns); the runs without one are not done
+    (said in one line: they are run again); the parts of before are then removed."""
+    import pyarrow as pa
+
+    runs, n_runs = batch.runs, len(batch.runs)
+    optimal = batch.optimal is not None
+    schema = summary_table([], batch.input_columns, {}, optimal=optimal).schema
+    found = bytearray(n_runs)
+    leftovers = parts.leftovers()
+    for table in itertools.chain(_summary_blocks(out), parts.read(leftovers)) if seals.any \
+            else ():
+        ids = table["run_id"].to_pylist()
+        take: list[int] = []
+        for k, (run_id, res) in enumerate(zip(ids, result_rows(table), strict=True)):
+            i = run_index(str(run_id))
+            if i is None or i >= n_runs or found[i] or not ledger.done(i) \
+                    or ledger.from_journal[i] \
+                    or zlib.crc32(str(run_id).encode()) != seals.run_id[i]:
+                continue
+            try:
+                sealed = zlib.crc32(row_bytes(res), seals.body[i]) == seals.seal[i]
+            except ValueError:  # a value JSON cannot hold: not a row a worker made
+                sealed = False
+            if not sealed or (optimal and not seals.killed[i] and not res.get("optimal_status")):
+                continue
+            rel = res.get("mcap")
+            if rel is not None and not seals.killed[i]:
+                safe = _line_log({"run_id": run_id, "path": rel})
+                if safe is None or not log_ends_whole(out / safe):
+                    continue
+            found[i] = 1
+            take.append(k)
+        if not take:
+            continue
+        kept = table.take(pa.array(take, pa.int64()))
+        if kept.schema != schema:  # another spec's columns: made again in the summary's
+            records = dict(zip(kept["run_id"].to_pylist(), result_rows(kept), strict=True))
+            kept = summary_table([SummaryRow.of(runs[run_index(r) or 0]) for r in records],
+                                 batch.input_columns, records,
+                                 {r: rec.get("mcap") for r, rec in records.items()},
+                                 optimal=optimal)
+        parts.add(kept)
+    missing = [i for i, _ in ledger.finished() if not ledger.from_journal[i] and not found[i]]
+    for i in missing:
+        ledger.unmark(i)
+    if missing:
+        print(f"wmr: {out / JOURNAL}: {plural(len(missing), 'journalled run')} had no summary "
+              f"row matching its line, or no finished log (first: run {runs[missing[0]].run_id}"
+              "): run again", file=sys.stderr)
+    parts.drop(leftovers)
+
+
+def _summary_blocks(out: Path) -> Iterator[Any]:
+    """The rows of the batch's ``summary.parquet``, :data:`SUMMARY_BLOCK` at a time; none
+    when it is missing or unreadable (its runs are then run again)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = out / SUMMARY_PARQUET
+    if path.is_symlink() or not path.is_file():
+        return
+    try:
+        with pq.ParquetFile(path) as source:
+            for block in source.iter_batches(batch_size=SUMMARY_BLOCK):
+                yield pa.Table.from_batches([block])
+    except (OSError, ValueError, pa.ArrowException):  # damaged: its runs are run again
+        return
 
 
 def _verified(run: BatchRun, line: dict[str, Any], fmu_sha: str, out: Path
@@ -654,7 +787,8 @@ def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger,
                     parts: _Parts | None = None) -> Iterator[Any]:
     """The summary of the finished runs as Arrow tables of the runs ``k * SUMMARY_BLOCK`` to
     ``(k + 1) * SUMMARY_BLOCK``, in run-id order (at least one table, maybe empty): the rows
-    the workers made this time (``parts``), and the others read back from the journal."""
+    in ``parts`` (the workers' of this invocation, those the resume found), and those of
+    older journal lines read back from the journal."""
     import pyarrow as pa
 
     n_runs, first = len(batch.runs), True
@@ -663,7 +797,7 @@ def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger,
         made = parts.tables(chunk) if parts is not None else []
         fresh = {run_index(str(r)) for t in made for r in t["run_id"].to_pylist()}
         block = [(i, offsets[i]) for i in range(lo, min(lo + SUMMARY_BLOCK, n_runs))
-                 if offsets[i] >= 0 and i not in fresh]
+                 if offsets[i] >= 0 and ledger.from_journal[i] and i not in fresh]
         try:
             lines = list(journal.read_at(off for _, off in block))
         except ValueError as exc:
@@ -737,12 +871,6 @@ class _Blocks:
                      shard_runs=summary_module.SHARD_RUNS)
 
 
-def _record(line: bytes) -> dict[str, Any]:
-    """The record of a journal line."""
-    record: dict[str, Any] = json.loads(line)["record"]
-    return record
-
-
 def _killed(item: Killed, batch: BatchSpec, out: Path, fmu_sha: str
             ) -> tuple[list[Entry], Any]:
     """The journal entry and summary row of a run its executor stopped or lost: its record made
@@ -752,31 +880,60 @@ def _killed(item: Killed, batch: BatchSpec, out: Path, fmu_sha: str
     rel = log_relpath(run.run_id, len(batch.runs))
     _recover_partial(out / rel)
     kept = (out / rel).is_file()
-    line = sealed_line(journal_row(run.run_id, run.digest, fmu_sha, record, item.wall_s,
-                                   item.worker, rel if kept else None, out, killed=True))
     table = summary_table([SummaryRow.of(run)], batch.input_columns, {run.run_id: record},
                           {run.run_id: rel if kept else None},
                           optimal=batch.optimal is not None)
-    return [Entry(item.index, run.run_id, item.status, True, line, None, None, item.wall_s,
-                  kept, killed=True)], table
+    line = block_lines(table, {run.run_id: run_digest(run.digest, fmu_sha)}, killed=True)
+    return [Entry(item.index, run.run_id, item.status, True, line[run.run_id],
+                  rel if kept else None, None, item.wall_s, kept, killed=True, record=record,
+                  worker=item.worker)], table
 
 
 class _Parts:
-    """The summary rows of the runs of this invocation, as the workers made them: Arrow IPC
-    files in ``OUT/.parts``, one per block, by the :data:`SUMMARY_BLOCK` of runs they belong
-    to; merged into the summary at the end (:func:`_summary_chunks`), then removed.  A batch
-    killed before that leaves them: the next one removes them (its journal has the runs)."""
+    """The summary rows of the runs finished since the batch's summary was last written, as
+    Arrow IPC files in ``OUT/.parts``, one per range, by the :data:`SUMMARY_BLOCK` of runs
+    they belong to: each written and fsynced before the range's journal lines (a journal line
+    always has its row on disk), merged into the summary at the end (:func:`_summary_chunks`),
+    then removed.  A batch killed before that leaves them: the next one finds its runs' rows
+    there (:func:`_carry`), keeps them as its own and removes the others."""
 
     def __init__(self, out: Path) -> None:
-        import shutil
-
         self.folder = out / ".parts"
-        shutil.rmtree(self.folder, ignore_errors=True)
         self._files: dict[int, list[Path]] = {}
         self._count = 0
+        # this invocation's names never meet a killed one's
+        self._tag = f"{os.getpid()}-{time.time_ns():x}"
+
+    def leftovers(self) -> list[Path]:
+        """The part files a batch killed before its summary left (links are not followed)."""
+        try:
+            return sorted(p for p in self.folder.iterdir()
+                          if p.suffix == ".arrow" and not p.is_symlink() and p.is_file())
+        except OSError:
+            return []
+
+    def read(self, paths: Sequence[Path]) -> Iterator[Any]:
+        """The tables of the part files ``paths``; a damaged one is skipped (its runs are run
+        again)."""
+        import pyarrow as pa
+
+        for path in paths:
+            try:
+                yield pa.ipc.open_stream(path.read_bytes()).read_all()
+            except (OSError, pa.ArrowException):
+                continue
+
+    def drop(self, paths: Sequence[Path]) -> None:
+        for path in paths:
+            path.unlink(missing_ok=True)
+
+    def drop_leftovers(self) -> None:
+        """Remove the parts of before (a batch without a journal has no run in them)."""
+        self.drop(self.leftovers())
 
     def add(self, table: Any, only: set[str] | None = None) -> None:
-        """Keep ``table`` (a table or its IPC stream), or its rows of the run ids ``only``."""
+        """Keep ``table`` (a table or its IPC stream), or its rows of the run ids ``only``:
+        written whole and fsynced (its folder too) before this returns."""
         import pyarrow as pa
         import pyarrow.compute as pc
 
@@ -785,18 +942,20 @@ class _Parts:
                 table = pa.ipc.open_stream(table).read_all()
             if only is not None:
                 table = table.filter(pc.is_in(table["run_id"], pa.array(sorted(only))))
+            if not table.num_rows:
+                return
             table = table_bytes(table)
         if not table:
             return
         first = pa.ipc.open_stream(table).read_next_batch()["run_id"][0].as_py()
         index = run_index(str(first)) or 0
-        path = self.folder / f"{index}-{self._count}.arrow"
+        path = self.folder / f"{index}-{self._tag}-{self._count}.arrow"
         self._count += 1
         try:
             self.folder.mkdir(exist_ok=True)
-            path.write_bytes(table)
         except OSError as exc:  # a full disk is one line, as for the journal
             raise storage_error(exc, path) from exc
+        _write_atomic(path, bytes(table))
         self._files.setdefault(index // SUMMARY_BLOCK, []).append(path)
 
     def tables(self, chunk: int) -> list[Any]:

@@ -167,6 +167,15 @@ def summary_table(runs: Iterable[BatchRun | SummaryRow], input_columns: Sequence
     return pa.table({f.name: pa.array(cols[f.name], f.type) for f in fields}, schema=schema)
 
 
+def result_rows(table: pa.Table) -> list[dict[str, Any]]:
+    """Each row's result columns (:data:`RESULT_COLUMNS`, and the optimum's when the table
+    has them), name -> value: what a compact journal line seals
+    (:func:`wmr.apps.batch.journal.compact_line`)."""
+    names = [c for c in table.column_names
+             if c in RESULT_COLUMNS or c in OPTIMUM_RESULT_COLUMNS]
+    return table.select(names).to_pylist()
+
+
 #: What a spreadsheet takes for the start of a formula (OWASP, "CSV Injection").
 FORMULA_STARTS: Final = ("=", "+", "-", "@", "\t", "\r")
 
@@ -208,7 +217,8 @@ def write_summary(tables: pa.Table | Iterable[pa.Table], out_dir: Path, csv_too:
     # each under a new random name beside it (a planted 'summary.csv.tmp' link is never
     # followed), renamed into place: the summary before stays until both are whole
     with ExitStack() as stack:
-        parquet_file = stack.enter_context(replacing(parquet))
+        # fsynced: once it is written the parts are removed, and it holds the only results
+        parquet_file = stack.enter_context(replacing(parquet, durable=True))
         writer = None
         if csv_too:
             csv_file = stack.enter_context(replacing(csv_path))
@@ -249,6 +259,7 @@ __all__ = [
     "SummaryRow",
     "log_relpath",
     "read_summary",
+    "result_rows",
     "summary_table",
     "write_summary",
 ]

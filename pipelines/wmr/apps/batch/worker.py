@@ -25,9 +25,15 @@ from wmr.adapters.fmi.archive import file_sha256
 from wmr.adapters.fmi.compiled_law import law_library
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.varmap import VariableMap
-from wmr.apps.batch.journal import WallClockLimit, log_stamp, sealed_line
+from wmr.apps.batch.journal import WallClockLimit, compact_line, run_digest
 from wmr.apps.batch.spec import BatchRun
-from wmr.apps.batch.summary import SHARD_RUNS, SummaryRow, log_relpath, summary_table
+from wmr.apps.batch.summary import (
+    SHARD_RUNS,
+    SummaryRow,
+    log_relpath,
+    result_rows,
+    summary_table,
+)
 from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.scenario import RunSpec
 from wmr.infra.errors import ConfigError, DiskFullError
@@ -148,18 +154,22 @@ class Entry(NamedTuple):
     status: str
     #: The run got past its first step (a batch whose first runs all fail before it stops).
     started: bool
-    #: Its sealed journal line; ``None`` when its log came back as bytes (``log``): the
-    #: parent writes the log, then seals ``row`` with the log's stamp.
-    line: bytes | None
-    #: Its journal line before the seal and the log's stamp, when ``line`` is ``None``.
-    row: dict[str, Any] | None
-    #: The log's bytes, sent back by a worker that does not see the batch folder.
+    #: Its sealed journal line (:func:`~wmr.apps.batch.journal.compact_line`).
+    line: bytes
+    #: Its log relative to the batch folder, ``None`` when it kept none.
+    path: str | None
+    #: The log's bytes, sent back by a worker that does not see the batch folder (the parent
+    #: writes them at ``path`` before the line).
     log: bytes | None
     wall_s: float
     #: It kept a log.
     kept: bool
     #: Its executor stopped it from outside (its record is made up).
     killed: bool = False
+    #: Its result record (for ``on_outcome``; the journal keeps only the seal of its row).
+    record: dict[str, Any] | None = None
+    #: Who ran it.
+    worker: str = ""
 
 
 @dataclass
@@ -183,17 +193,15 @@ class TaskSource(Protocol):
     def blocks(self, size: int) -> Iterator[Block]: ...
 
 
-def journal_row(run_id: str, digest: str, fmu_sha256: str, record: Mapping[str, Any],
-                wall_s: float, worker: str, path: str | None, out_dir: Path | None,
-                killed: bool = False) -> dict[str, Any]:
-    """A run's journal line before its seal: ``path`` its log relative to the batch folder
-    ``out_dir`` (``None``: none kept), stamped (:func:`~wmr.apps.batch.journal.log_stamp`).
-    The summary row's inputs are not in it: they are drawn again from the spec."""
-    return {"run_id": run_id, "digest": digest, "fmu_sha256": fmu_sha256, "killed": killed,
-            "wall_s": round(wall_s, 6), "worker": worker, "path": path,
-            "log": log_stamp(out_dir / path) if path is not None and out_dir is not None
-            else None,
-            "record": dict(record)}
+def block_lines(table: Any, digests: Mapping[str, str], killed: bool = False
+                ) -> dict[str, bytes]:
+    """The compact journal lines (:func:`~wmr.apps.batch.journal.compact_line`) of the runs
+    of ``table`` (their summary rows; ``digests`` their
+    :func:`~wmr.apps.batch.journal.run_digest` by run id), by run id: each sealed over its
+    row's results."""
+    ids = table["run_id"].to_pylist()
+    return {run_id: compact_line(run_id, str(row["status"]), digests[run_id], row, killed)
+            for run_id, row in zip(ids, result_rows(table), strict=True)}
 
 
 def table_bytes(table: Any) -> bytes:
@@ -230,7 +238,7 @@ def run_block(block: Block, run_one: Callable[[Task], tuple[dict[str, Any], byte
         Called with each run's index before it starts (the local pool's parent learns from
         it which run a worker that died or hung was on).
     """
-    entries: list[Entry] = []
+    done: list[tuple[int, BatchRun, str, bool, bytes | None, float, dict[str, Any]]] = []
     rows: list[SummaryRow] = []
     records: dict[str, dict[str, Any]] = {}
     logs: dict[str, str | None] = {}
@@ -250,25 +258,29 @@ def run_block(block: Block, run_one: Callable[[Task], tuple[dict[str, Any], byte
             stop = ("disk_full", str(record.get("message")))
             break
         rel = block.log_relpath(run.run_id)
-        status = str(record.get("status"))
-        if out_dir is None:  # the parent writes the log, then seals the line
+        if out_dir is None:  # the parent writes the log
             kept = data is not None and record.get("mcap") is not None
         else:
             kept = record.get("mcap") is not None and (out_dir / rel).is_file()
-        row = journal_row(run.run_id, run.digest, block.fmu_sha256, record, wall, worker,
-                          rel if kept else None, out_dir)
-        line = None if out_dir is None else sealed_line(row)
-        entries.append(Entry(index, run.run_id, status,
-                             status != "failed" or bool(record.get("steps")), line,
-                             row if line is None else None, data if kept else None, wall, kept))
+        done.append((index, run, rel, kept, data, wall, record))
         rows.append(SummaryRow.of(run))
         records[run.run_id] = record
         logs[run.run_id] = rel if kept else None
-    table = b""
-    if rows:
-        table = table_bytes(summary_table(rows, block.input_columns, records, logs,
-                                          optimal=block.optimal is not None))
-    return BlockResult(entries, table, stop)
+    if not rows:
+        return BlockResult([], b"", stop)
+    table = summary_table(rows, block.input_columns, records, logs,
+                          optimal=block.optimal is not None)
+    lines = block_lines(table, {run.run_id: run_digest(run.digest, block.fmu_sha256)
+                                for _, run, *_ in done})
+    entries = []
+    for index, run, rel, kept, data, wall, record in done:
+        status = str(record.get("status"))
+        entries.append(Entry(index, run.run_id, status,
+                             status != "failed" or bool(record.get("steps")),
+                             lines[run.run_id],
+                             rel if kept else None, data if kept else None, wall, kept,
+                             record=record, worker=worker))
+    return BlockResult(entries, table_bytes(table), stop)
 
 
 @dataclass(frozen=True)
@@ -505,5 +517,5 @@ def dask_run_block(block: Block, fmu_sha256: str, attachment: Attachment | None,
 
 
 __all__ = ["FAULTS", "Attachment", "Block", "BlockResult", "Entry", "PlantHolder", "Task",
-           "WallClockLimit", "dask_run_block", "execute", "fmu_digest", "journal_row",
+           "WallClockLimit", "block_lines", "dask_run_block", "execute", "fmu_digest",
            "materialise", "run_block", "table_bytes", "wall_limit_message"]
