@@ -14,6 +14,7 @@ import pytest
 from mcap.reader import make_reader
 
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, read_run
+from wmr.adapters.mcap.readme import README_TOPIC
 from wmr.adapters.mcap.scene import GOAL_TOPIC, PATH_TOPIC, ROBOT_TOPIC
 from wmr.cli import main
 from wmr.config.scenario import parse_scenario
@@ -21,7 +22,13 @@ from wmr.config.scenario import parse_scenario
 
 def test_a_far_goal_fails_fast_in_one_line_naming_the_option(
         capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """(The host build the command uses is made first, so that its standard error holds the
+    error alone, not a build's progress, whichever test ran before.)"""
     import wmr.adapters.ocp.solve
+    from wmr.apps.run import default_fmu
+
+    default_fmu(3)
+    capfd.readouterr()
 
     def never(*_a: object) -> None:
         raise AssertionError("the NLP was built for a goal it cannot resolve (33 s of IPOPT)")
@@ -56,9 +63,10 @@ def test_the_optimal_log_is_named_complete_and_exact(
     # only the topics that apply, each with every field finite
     with path.open("rb") as fh:
         topics = {c.topic for c in make_reader(fh).get_summary().channels.values()}  # type: ignore[union-attr]
-    # the open-loop topics, and the scene (no controller: no /controller/phase)
+    # the open-loop topics, the scene (no controller: no /controller/phase) and the note a
+    # bare Rerun viewer shows
     assert topics == {t.topic for t in OPEN_LOOP_TOPICS} | {"/goal", ROBOT_TOPIC, PATH_TOPIC,
-                                                            GOAL_TOPIC}
+                                                            GOAL_TOPIC, README_TOPIC}
     for layout in OPEN_LOOP_TOPICS:
         for sig in layout.signals:
             assert np.all(np.isfinite(log.signals[sig])), sig

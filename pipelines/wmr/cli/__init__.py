@@ -240,8 +240,20 @@ class _Signals:
         self._old: dict[int, Any] = {}
         self._notify = notify  # told of the first signal (a supervising parent: wmr run)
         self._at = 0.0  # when the first came (time.monotonic)
+        self._held = False  # the first came while a log was being finished
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        from wmr.infra.durable import stop_signal_held
+
+        if self._held:  # the first signal again, delivered once a log was whole
+            if stop_signal_held(signum):  # (a second signal while the hold lasts: noted)
+                if self._notify is None or signum != self.first or \
+                        time.monotonic() - self._at > _SAME_SIGNAL_S:
+                    print("wmr: already stopping, finishing the logs and the summary",
+                          file=sys.stderr)
+                return
+            self._held = False
+            raise Terminated() if self.first == signal.SIGTERM else KeyboardInterrupt()
         if self.first is not None:
             # a supervising parent forwards the signal that a Ctrl-C also sent this process:
             # the same signal at once is that one, not a second Ctrl-C
@@ -253,6 +265,9 @@ class _Signals:
         self.first, self._at = signum, time.monotonic()
         if self._notify is not None:
             self._notify(signum)
+        if stop_signal_held(signum):  # a log is being finished: raised when it is whole
+            self._held = True
+            return
         raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
     def install(self) -> None:

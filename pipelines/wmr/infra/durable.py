@@ -24,6 +24,7 @@ import errno
 import fcntl
 import os
 import secrets
+import signal
 import stat
 import sys
 import threading
@@ -38,6 +39,43 @@ from wmr.infra.outputs import refuse_special
 #: Suffix of a file being written (or left by a killed writer).
 PARTIAL_SUFFIX: Final = ".partial"
 _FULL: Final = (errno.ENOSPC, errno.EDQUOT)
+
+
+#: Holds in force (:func:`stop_signals_held`), and the stop signal that came during them.
+_holds = 0
+_held_signal: int | None = None
+
+
+def stop_signal_held(signum: int) -> bool:
+    """For a stop signal's handler: whether a file is being finished (:func:`stop_signals_held`),
+    so that the signal must wait; it is then delivered again when the file is whole."""
+    global _held_signal
+    if _holds == 0:
+        return False
+    if _held_signal is None:
+        _held_signal = signum
+    return True
+
+
+@contextmanager
+def stop_signals_held() -> Iterator[None]:
+    """Hold a stop signal (SIGINT, SIGTERM) back while a file is finished, then deliver it.
+
+    The command line's handler raises in the main thread at the next bytecode, wherever that
+    is: in the last writes of a log whose run has ended, it would leave the log unfinished (its
+    ``.partial``), though nothing was left to stop. Its handler asks :func:`stop_signal_held`
+    first; a held signal is raised again (``signal.raise_signal``) when the outermost hold
+    ends, so the log is whole, with its own result, and the command then stops as asked.
+    """
+    global _holds, _held_signal
+    _holds += 1
+    try:
+        yield
+    finally:
+        _holds -= 1
+        if _holds == 0 and _held_signal is not None:
+            signum, _held_signal = _held_signal, None
+            signal.raise_signal(signum)
 
 
 def partial_path(path: str | os.PathLike[str]) -> Path:

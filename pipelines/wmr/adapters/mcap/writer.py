@@ -79,7 +79,7 @@ from wmr.adapters.mcap.schemas import (
 )
 from wmr.adapters.stepper import Layout, load_stepper
 from wmr.core.signals import COLUMN, SIGNALS
-from wmr.infra.durable import AtomicFile
+from wmr.infra.durable import AtomicFile, stop_signals_held
 from wmr.infra.errors import LogError
 
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
@@ -922,20 +922,22 @@ class RunLogWriter:
         """
         if self._closed:
             raise LogError(f"{self.path}: closed twice")
-        if self._scene is not None:
-            self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
-            # what to run to see the log as wmr's dashboard: Rerun shows it as a document
-            self.write_messages(README_TOPIC, README_SCHEMA, README_SCHEMA_DATA, [0],
-                                [readme_message()], schema_encoding=README_SCHEMA_ENCODING,
-                                message_encoding=README_MESSAGE_ENCODING)
-        self._closed = True
-        try:
-            self._flush_chunks(final=True)
-            self._file.add_metadata("result", _str_dict("result", result))
-            self._file.finish()
-        except BaseException:
-            self._file.abort()
-            raise
+        # a stop signal now would leave the log of an ended run unfinished: it waits
+        with stop_signals_held():
+            if self._scene is not None:
+                self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
+                # what to run to see the log as wmr's dashboard: Rerun shows it as a document
+                self.write_messages(README_TOPIC, README_SCHEMA, README_SCHEMA_DATA, [0],
+                                    [readme_message()], schema_encoding=README_SCHEMA_ENCODING,
+                                    message_encoding=README_MESSAGE_ENCODING)
+            self._closed = True
+            try:
+                self._flush_chunks(final=True)
+                self._file.add_metadata("result", _str_dict("result", result))
+                self._file.finish()
+            except BaseException:
+                self._file.abort()
+                raise
 
 
 __all__ = ["LIBRARY", "McapFile", "RunLogWriter", "goal_message", "metadata_record",
