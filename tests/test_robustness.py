@@ -43,6 +43,10 @@ from wmr.infra.paths import safe_filename, scenarios_dir
 
 # a run of about 12000 steps: long enough to be killed in the middle
 LONG = ["--goal", "300", "300", "0", "--max-time", "120"]
+#: A run long enough that a signal sent once its log holds data lands in the loop, not after
+#: it (the whole of LONG's 12,000 steps can end in the moment the signal takes: its log then
+#: ends with its own result, test_stopping.py).
+LONGER = ["--goal", "3000", "3000", "0", "--max-time", "2000"]
 
 
 def _env(tmp: Path | None = None, **extra: str) -> dict[str, str]:
@@ -154,7 +158,7 @@ def test_fmu_folders_of_killed_processes_are_removed(tmp_path: Path, fmu3: Path,
 def test_sigterm_stops_wmr_run_like_ctrl_c(tmp_path: Path, fmu3: Path) -> None:
     out = tmp_path / "run.mcap"
     tmp = tmp_path / "tmp"
-    proc = subprocess.Popen(_wmr("run", *LONG, "--fmu", str(fmu3), "--out", str(out)),
+    proc = subprocess.Popen(_wmr("run", *LONGER, "--fmu", str(fmu3), "--out", str(out)),
                             env=_env(tmp), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     partial = partial_path(out)
