@@ -14,7 +14,6 @@ from wmr.cli.shared import errors_as_options
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
-    from wmr.apps.run import LogPolicy
     from wmr.config.scenario import Scenario
     from wmr.core.runspec import RunSpec
 
@@ -80,14 +79,6 @@ def add_log_choice(parser: argparse.ArgumentParser, default: str) -> None:
                              f"default {default}")
     parser.add_argument("--log-every", type=int, default=None, metavar="K",
                         help="log every K-th control step and the last (default 1: every step)")
-
-
-def log_policy(args: argparse.Namespace, base: LogPolicy | None) -> LogPolicy | None:
-    """The log policy of ``--log`` and ``--log-every`` over ``base`` (a spec's ``[log]``);
-    ``None`` when neither option nor ``base`` names one (:func:`wmr.apps.run.log_policy`)."""
-    from wmr.apps.run import log_policy as policy
-
-    return policy(args.log, args.log_every, base)
 
 
 def add_scenario_choice(parser: argparse.ArgumentParser, doing: str) -> None:
