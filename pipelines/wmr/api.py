@@ -20,9 +20,7 @@ from __future__ import annotations
 
 import html
 import math
-import os
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -509,34 +507,12 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
 
         warnings.warn(line, stacklevel=3)
 
-    with _read_limit(read_limit_mib):
+    from wmr.adapters.mcap.reader import read_limit
+
+    with read_limit(read_limit_mib):
         return replay_logs(inputs, rrd=rrd, blueprint=blueprint, blueprint_for=blueprint_for,
                            viewer=viewer, worst=worst, by=by, status=status, say=say,
                            notebook=notebook, pose_topic=pose_topic)
-
-
-@contextmanager
-def _read_limit(mib: float | None) -> Iterator[None]:
-    """``WMR_READ_LIMIT_MIB`` set to ``mib`` for the block (every read of the replay takes
-    it, as ``--read-limit`` makes it for the command), then as it was."""
-    if mib is None:
-        yield
-        return
-    from wmr.adapters.mcap.reader import READ_LIMIT_ENV, default_limits
-
-    try:
-        default_limits(mib)
-    except ConfigError as exc:
-        raise ConfigError("read_limit_mib", exc.problem, exc.fix) from None
-    old = os.environ.get(READ_LIMIT_ENV)
-    os.environ[READ_LIMIT_ENV] = repr(float(mib))
-    try:
-        yield
-    finally:
-        if old is None:
-            os.environ.pop(READ_LIMIT_ENV, None)
-        else:
-            os.environ[READ_LIMIT_ENV] = old
 
 
 __all__ = ["BatchResult", "Log", "RunResult", "batch", "load_scenario", "optimal",

@@ -14,31 +14,20 @@ def add_read_limit(parser: argparse.ArgumentParser) -> None:
                              "up to it, with a warning")
 
 
-def apply_read_limit(args: argparse.Namespace) -> None:
-    """Make ``--read-limit`` the limit of every read of this command (checked first)."""
-    import os
-
-    from wmr.adapters.mcap.reader import READ_LIMIT_ENV, default_limits
-
-    if args.read_limit is not None:
-        try:
-            default_limits(args.read_limit)
-        except Exception as exc:  # ConfigError naming read_limit: name the option instead
-            from wmr.infra.errors import ConfigError
-
-            raise ConfigError("--read-limit", f"{args.read_limit!r} is not a size in MiB "
-                              f"from 1 to {1 << 24}", "e.g. --read-limit 4096") from exc
-        os.environ[READ_LIMIT_ENV] = repr(args.read_limit)
+#: The option of each keyword of the reads' errors.
+READ_LIMIT_OPTIONS: dict[str, str] = {"read_limit_mib": "--read-limit"}
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
+    from wmr.adapters.mcap.reader import read_limit
     from wmr.adapters.mcap.recover import recover_log
+    from wmr.cli.shared import errors_as_options
     from wmr.infra.outputs import check_output
 
-    apply_read_limit(args)
     if args.out is not None:  # a device or FIFO there is refused even with --force
         check_output(args.out, "--out")
-    rec = recover_log(args.file, args.out, overwrite=args.force, scene=not args.no_scene)
+    with errors_as_options(READ_LIMIT_OPTIONS), read_limit(args.read_limit):
+        rec = recover_log(args.file, args.out, overwrite=args.force, scene=not args.no_scene)
     for line in rec.lost:
         print(f"wmr: lost: {line}", file=sys.stderr)
     print(f"recovered {rec.messages} messages in {rec.chunks} chunks from {rec.source}",

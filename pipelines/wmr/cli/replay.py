@@ -18,17 +18,16 @@ def _warn(line: str) -> None:
 REPLAY_OPTIONS: dict[str, str] = {
     "logs": "FILE.mcap|DIR", "rrd": "--rrd", "blueprint": "--blueprint",
     "blueprint_for": "--blueprint-for", "worst": "--worst", "by": "--by", "status": "--status",
-    "pose_topic": "--pose-topic",
+    "pose_topic": "--pose-topic", "read_limit_mib": "--read-limit",
 }
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from wmr.adapters.mcap.reader import read_limit
     from wmr.apps.replay import replay_logs
-    from wmr.cli.log import apply_read_limit
 
-    apply_read_limit(args)
     try:
-        with errors_as_options(REPLAY_OPTIONS):
+        with errors_as_options(REPLAY_OPTIONS), read_limit(args.read_limit):
             result = replay_logs(args.logs, rrd=args.rrd, blueprint=args.blueprint,
                                  blueprint_for=args.blueprint_for,
                                  viewer=False if args.no_viewer else None, worst=args.worst,

@@ -13,6 +13,7 @@ import struct
 import threading
 import zlib
 from collections.abc import Callable, Collection, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Final, NamedTuple
 
@@ -222,6 +223,37 @@ def default_limits(total_mib: float | None = None) -> ReadLimits:
         raise ConfigError(name, f"{text!r} is not a size in MiB from 1 to {1 << 24}",
                           "give the read limit in MiB, e.g. 4096")
     return ReadLimits(total_bytes=int(mib * (1 << 20)))
+@contextmanager
+def read_limit(mib: float | None) -> Iterator[None]:
+    """Every read inside the block takes ``mib`` MiB as its limit (``WMR_READ_LIMIT_MIB`` set
+    for the block, then as it was): ``wmr replay``/``wmr log recover --read-limit`` and
+    ``wmr.replay(read_limit_mib=...)``.  ``None`` leaves the limit as it is.
+
+    Raises
+    ------
+    ConfigError
+        ``read_limit_mib``: not a size in MiB from 1 to 2**24 (checked before the block runs).
+    """
+    if mib is None:
+        yield
+        return
+    from wmr.infra.errors import ConfigError
+
+    try:
+        default_limits(mib)
+    except ConfigError as exc:
+        raise ConfigError("read_limit_mib", exc.problem, exc.fix) from None
+    old = os.environ.get(READ_LIMIT_ENV)
+    os.environ[READ_LIMIT_ENV] = repr(float(mib))
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(READ_LIMIT_ENV, None)
+        else:
+            os.environ[READ_LIMIT_ENV] = old
+
+
 #: Largest log time that fits the int64 ns of :class:`RunData` (year 2262).
 MAX_LOG_TIME_NS: Final = (1 << 63) - 1
 _HEAD: Final = struct.Struct("<BQ")
@@ -1470,6 +1502,7 @@ __all__ = [
     "metadata_json",
     "open_log",
     "read_chunk_at",
+    "read_limit",
     "read_run",
     "scan_file",
     "scan_log",
