@@ -68,7 +68,7 @@ def test_a_memory_log_keeps_copies_of_the_blocks_it_was_given() -> None:
     buf[:] = np.nan
     assert log.t_ns.tolist() == [0, 1, 2, 3, 4, 5]
     assert np.array_equal(log.block, np.vstack([first, first + 1000.0]))
-    assert log.rows == 6 and log.n_blocks == 2
+    assert log.rows == 6 and log.block_sizes == (3, 3)
     assert isinstance(log, RunLog)
 
 

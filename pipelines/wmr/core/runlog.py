@@ -162,8 +162,6 @@ class MemoryLog:
         Whether :meth:`close` (or the ``with`` block's end) closed it.
     discarded
         Whether :meth:`discard` closed it.
-    n_blocks
-        How many blocks were written (empty ones too).
     """
 
     def __init__(self, header: LogHeader | None = None) -> None:
@@ -172,7 +170,6 @@ class MemoryLog:
         self.result: dict[str, object] | None = None
         self.closed = False
         self.discarded = False
-        self.n_blocks = 0
         self._t: list[npt.NDArray[np.int64]] = []
         self._rows: list[npt.NDArray[np.float64]] = []
 
@@ -197,6 +194,11 @@ class MemoryLog:
         """How many rows were written."""
         return sum(len(t) for t in self._t)
 
+    @property
+    def block_sizes(self) -> tuple[int, ...]:
+        """The rows of each block as it was written (empty ones too), in order."""
+        return tuple(len(t) for t in self._t)
+
     def _check_open(self, what: str) -> None:
         if self.closed:
             raise LogError(f"memory log of {self.header.run.get('name', 'a run')!s}: "
@@ -217,7 +219,6 @@ class MemoryLog:
         if t.ndim != 1 or x.shape != (len(t), len(SIGNALS)):
             raise LogError(f"block must have shape ({len(t)}, {len(SIGNALS)}) for t_ns of "
                            f"shape {t.shape}, got {x.shape}")
-        self.n_blocks += 1
         self._t.append(t)
         self._rows.append(x)
 
