@@ -239,6 +239,7 @@ def test_the_mcap_opener_is_the_writer_of_a_path(tmp_path: Path) -> None:
     path = tmp_path / "new" / "o.mcap"
     with McapOpener(path, on_open=lambda p: opened.append(
             Path(str(p) + ".partial").exists()))(header) as log:
+        assert isinstance(log, RunLog) and log.location == str(path)
         log.write_block(t, block)
         log.close({"status": "converged"})
     with RunLogWriter(tmp_path / "w.mcap", run=header.run, goal=header.goal,
