@@ -126,6 +126,7 @@ def phases(n_runs: int) -> None:
     """Where a run's time goes, in one process (no pool, no pipes)."""
     from wmr.adapters.fmi.compiled_law import CompiledLawController
     from wmr.adapters.fmi.robot import FmuPlant
+    from wmr.adapters.mcap import McapOpener
     from wmr.apps.batch.journal import Journal
     from wmr.apps.run import run_to_log
     from wmr.core.closedloop import run_closed_loop
@@ -160,12 +161,13 @@ def phases(n_runs: int) -> None:
                 # the three variants take turns on each run: a load that comes and goes
                 # falls on all of them alike
                 timed("loop, rows held (failed-only, converged)", run_to_log, run.spec,
-                      folder / "held.mcap", plant, durable=False, log=LogPolicy("failed"))
+                      McapOpener(folder / "held.mcap", durable=False), plant,
+                      log=LogPolicy("failed"))
                 # a new file per run, as in a batch (a rename over an existing file makes
                 # ext4 write the new one out first)
                 log = folder / f"full-{i}.mcap"
-                record = timed("loop, full log", run_to_log, run.spec, log, plant,
-                               durable=False)
+                record = timed("loop, full log", run_to_log, run.spec,
+                               McapOpener(log, durable=False), plant)
                 log.unlink()
                 timed("journal line", journal.append, {
                     "run_id": run.run_id, "digest": run.digest, "fmu_sha256": "x",

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import functools
 import statistics
 import sys
 import tempfile
@@ -41,7 +40,7 @@ from typing import Any
 
 from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.robot import FmuPlant
-from wmr.adapters.mcap import RunLogWriter
+from wmr.adapters.mcap import McapOpener
 from wmr.apps import run as app_run
 from wmr.build.fmus import build_fmus
 from wmr.config.scenario import load_scenario
@@ -53,16 +52,6 @@ SHORT_S = 10.0
 #: The far goal: 1 km ahead along x, beyond what any run here reaches.
 FAR_GOAL = Pose(1000.0, 0.0, 0.0)
 UNLOGGED = "unlogged (PI compiled into the stepper)"
-
-
-def _writer(**options: Any) -> Callable[..., RunLogWriter]:
-    """The log writer ``run_to_log`` opens, with ``options`` in place of its own."""
-
-    @functools.wraps(RunLogWriter)
-    def make(*args: Any, **kwargs: Any) -> RunLogWriter:
-        return RunLogWriter(*args, **(kwargs | options))
-
-    return make
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -79,13 +68,11 @@ def main(argv: list[str] | None = None) -> None:
         sizes: dict[str, int] = {}
 
         def logged(**options: Any) -> Callable[[RunSpec], int]:
+            # the MCAP opener run_to_log opens for a path, with ``options`` in place of its own
+            opener = McapOpener(log, **options)
+
             def run(spec: RunSpec) -> int:
-                shipped = app_run.RunLogWriter
-                app_run.RunLogWriter = _writer(**options)  # type: ignore[misc,assignment]
-                try:
-                    return int(app_run.run_to_log(spec, log, plant)["steps"])
-                finally:
-                    app_run.RunLogWriter = shipped  # type: ignore[misc]
+                return int(app_run.run_to_log(spec, opener, plant)["steps"])
             return run
 
         rows: dict[str, Callable[[RunSpec], int]] = {

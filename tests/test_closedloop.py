@@ -14,25 +14,13 @@ from wmr.core.closedloop import BLOCK_ROWS, run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.physics import ReferencePlant
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runlog import MemoryLog
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, SIGNALS
 
 POS_BAR_M = 0.05
 HEAD_BAR_RAD = math.radians(2.0)
 
-
-class Recorder:
-    def __init__(self) -> None:
-        self.t: list[npt.NDArray[np.int64]] = []
-        self.blocks: list[npt.NDArray[np.float64]] = []
-
-    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
-        self.t.append(t_ns.copy())
-        self.blocks.append(block.copy())
-
-    @property
-    def rows(self) -> npt.NDArray[np.float64]:
-        return np.vstack(self.blocks)
 
 
 def _spec(start: tuple[float, float, float], goal: tuple[float, float, float],
@@ -51,7 +39,7 @@ def _assert_converged(spec: RunSpec) -> None:
 
 def test_fig11_converges_and_logs_every_step() -> None:
     (spec,) = expand(load_scenario("fig11"))
-    rec = Recorder()
+    rec = MemoryLog()
     ticks: list[float] = []
     res = run_closed_loop(spec, ReferencePlant(), rec, progress=lambda t, tm: ticks.append(t),
                           controller=SpecController())
@@ -64,10 +52,10 @@ def test_fig11_converges_and_logs_every_step() -> None:
     assert res.energy_abs_j > res.energy_positive_j > abs(res.energy_net_j)
     assert abs(res.energy_net_j) < 1.0  # no friction: the net work is the final kinetic energy, 0
     # the effort against the logged torques: test_promises_core
-    rows = rec.rows
+    rows = rec.block
     assert rows.shape == (res.steps, len(SIGNALS))
-    assert all(len(b) == BLOCK_ROWS for b in rec.blocks[:-1])
-    t_ns = np.concatenate(rec.t)
+    assert all(n == BLOCK_ROWS for n in rec.block_sizes[:-1])
+    t_ns = rec.t_ns
     np.testing.assert_array_equal(t_ns, np.arange(res.steps, dtype=np.int64) * 10_000_000)
     assert rows[-1, COLUMN["tau_r_nm"]] == 0.0
     assert rows[0, COLUMN["x_m"]] == 0.0
@@ -130,12 +118,12 @@ class _Exploding(ReferencePlant):
 
 
 def test_plant_failure_is_a_status_and_keeps_the_rows() -> None:
-    rec = Recorder()
+    rec = MemoryLog()
     res = run_closed_loop(_spec((0, 0, 0), (5, 0, 0)), _Exploding(150), rec,
                           controller=SpecController())
     assert res.status == "failed"
     assert "solver blew up" in res.message
-    assert rec.rows.shape[0] == 150
+    assert rec.block.shape[0] == 150
 
 
 class _Interrupted(ReferencePlant):
@@ -187,13 +175,13 @@ def test_the_loop_runs_a_users_own_controller_through_the_protocol() -> None:
     """The loop configures the controller it is given with the run and drives it: a straight
     run to a goal ahead converges on the user's law, whose torques are the logged ones."""
     own = _OwnController()
-    rec = Recorder()
+    rec = MemoryLog()
     spec = _spec((0, 0, 0), (3, 0, 0), t_max_s=30.0)
     res = run_closed_loop(spec, ReferencePlant(), rec, controller=own)
     assert own.configured == ["t"]
     assert res.status == "converged", res.message
     assert res.final_position_error_m < 0.2
-    rows = rec.rows
+    rows = rec.block
     assert np.all(rows[:-1, COLUMN["tau_r_nm"]] == rows[:-1, COLUMN["tau_l_nm"]])
     assert rows[0, COLUMN["tau_r_nm"]] == 2.0  # 3 m ahead: the user's law saturates at 2 N m
 

@@ -45,6 +45,7 @@ from wmr.core.closedloop import run_closed_loop
 from wmr.core.control import ALIGN, Gains, Limits, PIController
 from wmr.core.control.from_spec import SpecController
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runlog import MemoryLog
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, CONTROL_SIGNALS, SIGNALS
 from wmr.infra import paths
@@ -438,16 +439,11 @@ def test_non_finite_measurements_give_an_error_and_no_nan_torque(
 
 
 def _paths(spec: RunSpec, plant: FmuPlant, ctrl: FmuController | None) -> F64:
-    """The run's rows (x, y, theta and every controller signal) through a recording sink."""
-    rows: list[F64] = []
-
-    class Sink:
-        def write_block(self, t_ns: npt.NDArray[np.int64], block: F64) -> None:
-            rows.append(block.copy())
-
-    result = run_closed_loop(spec, plant, sink=Sink(), controller=ctrl or SpecController())
+    """The run's rows (x, y, theta and every controller signal), recorded in memory."""
+    rows = MemoryLog()
+    result = run_closed_loop(spec, plant, sink=rows, controller=ctrl or SpecController())
     assert result.status == "converged", (spec.name, result.message)
-    return np.vstack(rows)
+    return rows.block
 
 
 @pytest.mark.parametrize("scenario", ["fig9", "fig10"])

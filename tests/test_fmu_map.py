@@ -21,6 +21,7 @@ from wmr.adapters.mcap.reader import read_run
 from wmr.build.fmus import BuildResult
 from wmr.cli import main
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.core.runlog import MemoryLog
 from wmr.infra.errors import ConfigError
 
 OTHER = Path(__file__).parent / "other_fmus"
@@ -222,14 +223,6 @@ def test_an_ssp_of_the_other_fmu_runs_in_libcosim_with_its_units(
     assert pos <= 5e-3 and head <= math.radians(0.2), (pos, math.degrees(head))
 
 
-class _Blocks:
-    def __init__(self) -> None:
-        self.rows: list[np.ndarray] = []
-
-    def write_block(self, t_ns: np.ndarray, block: np.ndarray) -> None:
-        self.rows.append(block.copy())
-
-
 #: Our robot's names as another tool's export might spell them (fmu-manipulation-toolbox
 #: renames the model description's variables without touching the binary).
 _RENAMED = {"tau_r": "drive.torque_right", "tau_l": "drive.torque_left", "x": "body.pos_x",
@@ -259,11 +252,11 @@ def test_our_robot_renamed_by_fmu_manipulation_toolbox_gives_the_same_path(
     spec = next(iter(load_scenario("fig11").runs))
     logs = []
     for path, vm in ((built.fmus[fmi], None), (renamed, var_map)):
-        sink = _Blocks()
+        sink = MemoryLog()
         with FmuPlant(path, var_map=vm) as plant:
             assert run_closed_loop(spec, plant, sink=sink,
                                    controller=SpecController()).status == "converged"
-        logs.append(np.vstack(sink.rows))
+        logs.append(sink.block)
     assert np.array_equal(logs[0], logs[1])  # every signal of every row
     with pytest.raises(ConfigError, match=r"no input named 'tau_r'.*drive\.torque_right"):
         FmuPlant(renamed)  # without the map: one line naming the variable and the candidates

@@ -34,6 +34,8 @@ from wmr.apps.batch.summary import log_relpath
 from wmr.apps.run import LogPolicy, run_to_log
 from wmr.cli import main
 from wmr.config.scenario import load_scenario
+from wmr.core.runlog import MemoryLog
+from wmr.core.signals import SIGNALS
 from wmr.infra.errors import ConfigError
 
 # 2 x N short runs: the "ok" ones converge (about 25 ms each), the "weak" ones time out after
@@ -151,28 +153,20 @@ def test_every_kth_step_and_the_last(batches: dict[str, Path]) -> None:
         assert "log_every_k_steps" not in full.metadata["run"]
 
 
-class _Rows:
-    def __init__(self) -> None:
-        self.t: list[int] = []
-
-    def write_block(self, t_ns: np.ndarray, block: np.ndarray) -> None:
-        self.t += t_ns.tolist()
-
-
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.integers(0, 12), max_size=12), st.integers(1, 9))
 def test_decimation_does_not_depend_on_the_blocks(sizes: list[int], k: int) -> None:
     """Rows 0, k, 2k, ... of the whole run and its last row, however the loop cuts blocks."""
-    sink = _Rows()
+    sink = MemoryLog()
     thin = run_module._EveryK(sink, k)
     t = np.arange(sum(sizes), dtype=np.int64)
     start = 0
     for n in sizes:
-        thin.write_block(t[start:start + n], np.zeros((n, 2)))
+        thin.write_block(t[start:start + n], np.zeros((n, len(SIGNALS))))
         start += n
     thin.end()
     total = len(t)
-    assert sink.t == ([] if not total else sorted({*range(0, total, k), total - 1}))
+    assert sink.t_ns.tolist() == ([] if not total else sorted({*range(0, total, k), total - 1}))
 
 
 def test_a_long_run_spills_its_held_rows_and_a_converged_one_leaves_nothing(

@@ -8,7 +8,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import numpy.typing as npt
 import pytest
 
 from wmr.adapters.fmi.robot import FmuPlant
@@ -24,6 +23,7 @@ from wmr.core.control.peers import (
 )
 from wmr.core.control.registry import make_controller
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runlog import MemoryLog
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
 from wmr.infra.errors import ConfigError
@@ -34,16 +34,6 @@ CASES = {
     "fig11": (Pose(0.0, 0.0, 0.0), Pose(20.0, 10.0, 0.0)),
 }
 
-
-class _Keep:
-    def __init__(self) -> None:
-        self.blocks: list[npt.NDArray[np.float64]] = []
-
-    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
-        self.blocks.append(block.copy())
-
-    def array(self) -> npt.NDArray[np.float64]:
-        return np.vstack(self.blocks)
 
 
 @pytest.fixture(scope="module")
@@ -57,12 +47,12 @@ def fmu(fmu3: Path) -> Iterator[FmuPlant]:
 def test_peer_converges_on_the_fmu(fmu: FmuPlant, controller: str, case: str) -> None:
     start, goal = CASES[case]
     spec = RunSpec(name=case, start=start, goal=goal, controller=controller, t_max_s=80.0)
-    keep = _Keep()
+    keep = MemoryLog()
     r = run_closed_loop(spec, fmu, sink=keep, controller=SpecController())
     assert r.status == "converged", r.message
     assert r.final_position_error_m <= spec.stop_radius_m
     assert r.final_heading_error_rad <= spec.heading_tolerance_rad + 1e-12
-    rows = keep.array()
+    rows = keep.block
     lim = Limits()
     # the same servos and limits as the PI: torque and wheel references within the limits
     assert np.nanmax(np.abs(rows[:, COLUMN["tau_r_nm"]])) <= lim.torque_max_nm + 1e-9
@@ -78,22 +68,22 @@ def test_astolfi_reverses_to_a_goal_behind_and_graceful_does_not(fmu: FmuPlant) 
     start, goal = CASES["behind"]
     v_min = {}
     for controller in ("astolfi", "graceful"):
-        keep = _Keep()
+        keep = MemoryLog()
         spec = RunSpec(name="behind", start=start, goal=goal, controller=controller)
         assert run_closed_loop(spec, fmu, sink=keep,
                                controller=SpecController()).status == "converged"
-        v_min[controller] = float(np.min(keep.array()[:, COLUMN["v_mps"]]))
+        v_min[controller] = float(np.min(keep.block[:, COLUMN["v_mps"]]))
     assert v_min["astolfi"] < -0.5  # the book's backward frame
     assert v_min["graceful"] > -0.05  # forward only (the alignment may creep a few mm/s)
 
 
 def test_astolfi_without_reverse_drives_forward(fmu: FmuPlant) -> None:
     start, goal = CASES["behind"]
-    keep = _Keep()
+    keep = MemoryLog()
     spec = RunSpec(name="behind", start=start, goal=goal, controller="astolfi",
                    controller_gains=(("reverse", 0.0),))
     assert run_closed_loop(spec, fmu, sink=keep, controller=SpecController()).status == "converged"
-    assert float(np.min(keep.array()[:, COLUMN["v_mps"]])) > -0.05
+    assert float(np.min(keep.block[:, COLUMN["v_mps"]])) > -0.05
 
 
 def test_limits_scale_v_and_omega_together_keeping_the_curvature() -> None:

@@ -22,23 +22,13 @@ from wmr.core.control.from_spec import SpecController
 from wmr.core.control.stabiliser import Gains, Limits, PointStabiliser
 from wmr.core.physics import ReferencePlant
 from wmr.core.plant import Plant, RobotParams
+from wmr.core.runlog import MemoryLog
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS
 
 _TAU = [COLUMN["tau_r_nm"], COLUMN["tau_l_nm"]]
 _STATES = [COLUMN[name] for name in PLANT_SIGNALS]
 
-
-class _Recorder:
-    def __init__(self) -> None:
-        self.blocks: list[npt.NDArray[np.float64]] = []
-
-    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
-        self.blocks.append(block.copy())
-
-    @property
-    def rows(self) -> npt.NDArray[np.float64]:
-        return np.vstack(self.blocks)
 
 
 def replay_torques(plant: Plant, params: RobotParams, spec: RunSpec,
@@ -62,9 +52,9 @@ def _short_fig11(**params: float) -> RunSpec:
 def test_parameter_overrides_drive_the_plant_not_just_the_spec() -> None:
     heavy = {"m": 40.0, "b_f": 0.02, "tau_c": 0.1}
     spec = _short_fig11(**heavy)
-    rec = _Recorder()
+    rec = MemoryLog()
     run_closed_loop(spec, ReferencePlant(), rec, controller=SpecController())
-    rows = rec.rows
+    rows = rec.block
     assert rows.shape[0] > 100
     logged = rows[:, _STATES]
     # the same plant code with the overridden parameters repeats the run exactly ...
@@ -83,10 +73,10 @@ def test_parameter_overrides_drive_the_plant_not_just_the_spec() -> None:
 def test_the_effort_is_the_integral_of_the_logged_torques_squared(period_s: float) -> None:
     (spec,) = expand(load_scenario("fig11"))
     spec = with_overrides(spec, goal=(3.0, 1.0, 0.0), period_s=period_s)
-    rec = _Recorder()
+    rec = MemoryLog()
     res = run_closed_loop(spec, ReferencePlant(), rec, controller=SpecController())
     assert res.status == "converged", res.message
-    tau = rec.rows[:, _TAU]
+    tau = rec.block[:, _TAU]
     # each logged torque is held over one period; the last row (at rest) applies none
     by_hand = 0.0
     for tau_r, tau_l in tau[:-1]:

@@ -14,7 +14,6 @@ import numpy as np
 import pyarrow as pa
 import pytest
 import rerun.chunk as rrc
-from numpy.typing import NDArray
 
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import read_run
@@ -32,6 +31,7 @@ from wmr.cli import main
 from wmr.config.scenario import load_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control.from_spec import SpecController
+from wmr.core.runlog import MemoryLog
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import SIGNALS
 from wmr.infra.errors import LogError
@@ -291,34 +291,22 @@ def test_replay_refuses_a_non_rrd_output(fig11_log: Path, tmp_path: Path) -> Non
     assert rc == 1 and "must end in .rrd" in stderr
 
 
-class Recorder:
-    """A sink that keeps copies of what it gets (and spoils the arrays like the master)."""
-
-    def __init__(self) -> None:
-        self.t: list[NDArray[np.int64]] = []
-        self.blocks: list[NDArray[np.float64]] = []
-
-    def write_block(self, t_ns: NDArray[np.int64], block: NDArray[np.float64]) -> None:
-        self.t.append(t_ns.copy())
-        self.blocks.append(block.copy())
-
-
 def test_live_view_sink_through_a_tee(spec: RunSpec, fmu_plant: FmuPlant,
                                       tmp_path: Path) -> None:
     rrd = tmp_path / "live.rrd"
-    recorder = Recorder()
+    recorder = MemoryLog()
     with live_view_sink(spec.name, spec.goal, rrd, start=spec.start,
                         stop_radius_m=spec.stop_radius_m) as live:
         result = run_closed_loop(spec, fmu_plant, sink=TeeSink(recorder, live),
                                  controller=SpecController())
     assert result.status == "converged"
     n = result.steps
-    assert sum(len(t) for t in recorder.t) == n
+    assert recorder.rows == n
     assert live.rows == n
     ents, n_bp = read_rrd(rrd)
     assert n_bp == 1 + live.reframed  # the fig11 path leaves the start-goal frame once
     root = f"/runs/{spec.name}"
-    block = np.concatenate(recorder.blocks)
+    block = recorder.block
     x_min, x_max, y_min, y_max = _world_bounds(rrd)[-1]
     xy = block[:, [SIGNALS.index("x_m"), SIGNALS.index("y_m")]]
     assert x_min <= xy[:, 0].min() and xy[:, 0].max() <= x_max

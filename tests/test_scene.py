@@ -179,7 +179,8 @@ def test_a_long_run_draws_its_robot_once_per_phase(tmp_path: Path) -> None:
     rows[:, COLUMN["x_m"]] = np.linspace(0.0, 1.0, n)
     rows[:, COLUMN["dr_m"]] = 5.0
     rows[-1000:, COLUMN["dr_m"]] = 0.01  # aligned for the last 10 s
-    rec = scene_mod.SceneRecorder({"stop_radius_m": "0.05"}, (0.0, 0.0, 0.0), controlled=True)
+    rec = scene_mod.SceneRecorder((0.0, 0.0, 0.0), half_track_m=0.3, wheel_radius_m=0.15,
+                                  stop_radius_m=0.05, controlled=True)
     rec.add(t, rows)
 
     class Log:
@@ -201,7 +202,8 @@ def test_a_long_run_draws_its_robot_once_per_phase(tmp_path: Path) -> None:
 def test_a_full_disk_is_the_log_s_failure_a_drawing_s_only_warns(error: Exception) -> None:
     """The scene's failures warn and leave the signal topics as they are, but a file that
     cannot be written (a full disk, an I/O error) is raised as itself, not a warning."""
-    rec = scene_mod.SceneRecorder({"stop_radius_m": "0.05"}, (0.0, 0.0, 0.0), controlled=True)
+    rec = scene_mod.SceneRecorder((0.0, 0.0, 0.0), half_track_m=0.3, wheel_radius_m=0.15,
+                                  stop_radius_m=0.05, controlled=True)
 
     class Log:
         def write_messages(self, *args: Any) -> None:
@@ -244,3 +246,54 @@ def test_the_lichtblick_layouts_name_only_what_our_logs_write(name: str) -> None
     # the layout tree names exactly the panels configured
     tree = layout["layout"]
     assert {tree["first"], tree["second"]} == set(panels)
+
+
+class _Topics:
+    """The messages a recorder writes, by topic (a log's ``write_messages``)."""
+
+    def __init__(self) -> None:
+        self.topics: dict[str, tuple[list[int], list[bytes]]] = {}
+
+    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                       t_ns: Any, messages: list[bytes]) -> None:
+        self.topics[topic] = ([int(v) for v in t_ns], list(messages))
+
+
+def _drawn(rec: scene_mod.SceneRecorder) -> dict[str, tuple[list[int], list[bytes]]]:
+    t = np.arange(300, dtype=np.int64) * 10_000_000
+    rows = np.zeros((len(t), len(SIGNALS)))
+    rows[:, COLUMN["x_m"]] = np.linspace(0.0, 2.0, len(t))
+    rows[:, COLUMN["dr_m"]] = np.linspace(2.0, 0.0, len(t))
+    rec.add(t, rows)
+    log = _Topics()
+    rec._write(log)
+    return log.topics
+
+
+@pytest.mark.parametrize(("run", "typed"), [
+    # what a log's run record holds (JSON strings) and the typed values it stands for
+    ({"params": '{"L": 0.4, "r": 0.1}', "stop_radius_m": "0.2"}, (0.4, 0.1, 0.2)),
+    ({"params": '{"L": 0.4}'}, (0.4, scene_mod.DEFAULT_WHEEL_RADIUS_M, None)),
+    # a stranger's values: the paper's robot, no ring, no phase
+    ({"params": '{"L": -1, "r": 0.1}', "stop_radius_m": "null"},
+     (scene_mod.DEFAULT_HALF_TRACK_M, scene_mod.DEFAULT_WHEEL_RADIUS_M, None)),
+    ({"params": "[not json", "stop_radius_m": "NaN"},
+     (scene_mod.DEFAULT_HALF_TRACK_M, scene_mod.DEFAULT_WHEEL_RADIUS_M, None)),
+])
+def test_a_run_record_s_strings_draw_as_their_typed_values(
+        run: dict[str, str], typed: tuple[float, float, float | None]) -> None:
+    """Recovery has only the log's strings: :meth:`SceneRecorder.from_run_record` parses
+    them into the typed values the writer is given, and the two draw the same bytes (and
+    not those of another robot: the outline depends on the values)."""
+    goal = (2.0, 0.0, 0.0)
+    parsed = _drawn(scene_mod.SceneRecorder.from_run_record(run, goal, controlled=True))
+    half_track, radius, stop = typed
+    given_typed = _drawn(scene_mod.SceneRecorder(goal, half_track_m=half_track,
+                                                 wheel_radius_m=radius, stop_radius_m=stop,
+                                                 controlled=True))
+    assert parsed == given_typed
+    assert (PHASE_TOPIC in parsed) == (stop is not None)
+    other = _drawn(scene_mod.SceneRecorder(goal, half_track_m=half_track + 0.1,
+                                           wheel_radius_m=radius, stop_radius_m=stop,
+                                           controlled=True))
+    assert other[ROBOT_TOPIC] != parsed[ROBOT_TOPIC]

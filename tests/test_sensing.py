@@ -18,6 +18,7 @@ from wmr.core.closedloop import run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.physics import ReferencePlant
 from wmr.core.plant import Pose, RobotParams
+from wmr.core.runlog import MemoryLog
 from wmr.core.runspec import RunSpec
 from wmr.core.sensing import Sensing, SensorConfig, preset
 from wmr.core.sensing.ekf import PoseEKF
@@ -327,14 +328,6 @@ def test_ekf_late_fix_equals_a_fix_on_time_once_it_arrived() -> None:
 
 # -- the master loop -------------------------------------------------------------------------
 
-class _Rows:
-    def __init__(self) -> None:
-        self.blocks: list[np.ndarray] = []
-
-    def write_block(self, t_ns: np.ndarray, block: np.ndarray) -> None:
-        self.blocks.append(block.copy())
-
-
 def test_sensors_off_is_bit_identical_and_reports_true_errors() -> None:
     """No [sensors]: the same rows as perfect state feedback, and estimate = truth.
 
@@ -342,23 +335,23 @@ def test_sensors_off_is_bit_identical_and_reports_true_errors() -> None:
     estimator, exact encoders) drives the robot exactly as perfect feedback does."""
     (spec,) = expand(load_scenario("fig11"))
     spec = replace(spec, t_max_s=8.0)
-    rec = _Rows()
+    rec = MemoryLog()
     res = run_closed_loop(spec, ReferencePlant(), rec, controller=SpecController())
     assert res.sensing is None
     assert res.estimated_final_position_error_m == res.final_position_error_m
     assert res.estimated_final_heading_error_rad == res.final_heading_error_rad
     exact = SensorConfig(gps_rate_hz=100.0, compass_rate_hz=100.0)
-    rec2 = _Rows()
+    rec2 = MemoryLog()
     res2 = run_closed_loop(with_overrides(spec, sensors=exact), ReferencePlant(), rec2,
                            controller=SpecController())
-    assert np.array_equal(np.vstack(rec.blocks), np.vstack(rec2.blocks))
+    assert np.array_equal(rec.block, rec2.block)
     assert res2.final_pose == res.final_pose
     # the rows as the code before wmr.core.sensing wrote them (commit 9cba7f7), this 8 s fig11
     # run on the reference plant: tests/data/fig11_8s_rows_9cba7f7.npz (docs/testing.md).  A
     # SHA-256 of them pinned one machine's bits: the same code on another CPU (numpy's SIMD
     # kernels, libm) writes other last bits, so the rows are compared to 1e-12 relative; a
     # behavioural change moves them far more
-    rows = np.vstack(rec.blocks)
+    rows = rec.block
     reference = np.load(DATA / "fig11_8s_rows_9cba7f7.npz")["rows"]
     assert rows.shape == reference.shape, (
         f"the rows without sensors changed since 9cba7f7: {rows.shape} rows x signals against "
@@ -464,25 +457,13 @@ def test_noisy_run_is_reproducible_and_seeded() -> None:
     assert np.all(a.sensing.gps_arrival_ns - a.sensing.gps_t_ns == 50_000_000)
 
 
-class _Truth:
-    """The time and true position of every step, as the master writes them."""
-
-    def __init__(self) -> None:
-        self.t_ns: list[np.ndarray] = []
-        self.xy_m: list[np.ndarray] = []
-
-    def write_block(self, t_ns: np.ndarray, block: np.ndarray) -> None:
-        self.t_ns.append(t_ns.copy())
-        self.xy_m.append(block[:, :2].copy())  # x_m, y_m lead the rows
-
-
 def _fix_errors(spec: RunSpec) -> tuple[np.ndarray, np.ndarray]:
     """``spec`` on the reference plant: its GPS fixes minus the true position each measured,
     and the true path, m."""
-    rec = _Truth()
+    rec = MemoryLog()
     res = run_closed_loop(spec, ReferencePlant(), rec, controller=SpecController())
     assert res.sensing is not None and len(res.sensing.gps_t_ns) > 10
-    t_ns, xy_m = np.concatenate(rec.t_ns), np.vstack(rec.xy_m)
+    t_ns, xy_m = rec.t_ns, rec.block[:, :2]  # x_m, y_m lead the rows
     idx = np.searchsorted(t_ns, res.sensing.gps_t_ns)
     assert np.array_equal(t_ns[idx], res.sensing.gps_t_ns)
     return res.sensing.gps_xy_m - xy_m[idx], xy_m
@@ -581,12 +562,12 @@ def test_controller_fmu_acts_on_the_estimate_as_python_does(built: Any) -> None:
 
     (spec,) = expand(load_scenario("fig11"))
     spec = with_overrides(replace(spec, t_max_s=10.0), sensors=preset("gps"))
-    py_rows, c_rows = _Rows(), _Rows()
+    py_rows, c_rows = MemoryLog(), MemoryLog()
     py = run_closed_loop(spec, ReferencePlant(), py_rows, controller=SpecController())
     with FmuController(built.controllers[3]) as ctrl:
         c = run_closed_loop(spec, ReferencePlant(), c_rows, controller=ctrl or SpecController())
     assert py.sensing is not None and c.sensing is not None
-    np.testing.assert_allclose(np.vstack(c_rows.blocks), np.vstack(py_rows.blocks),
+    np.testing.assert_allclose(c_rows.block, py_rows.block,
                                rtol=0, atol=1e-9)
     np.testing.assert_allclose(c.sensing.est_pose, py.sensing.est_pose, rtol=0, atol=1e-9)
 

@@ -45,7 +45,7 @@ import numpy.typing as npt
 
 from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
-from wmr.adapters.mcap import OPEN_LOOP_TOPICS, RunLogWriter
+from wmr.adapters.mcap import OPEN_LOOP_TOPICS, McapOpener
 from wmr.apps.run import (
     FULL_LOGS,
     LogPolicy,
@@ -59,6 +59,7 @@ from wmr.config.scenario_file import run_spec_toml
 from wmr.core.control import Limits, registry
 from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
+from wmr.core.runlog import LogHeader
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
 
@@ -275,12 +276,12 @@ def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
     run, record
         The ``run`` and ``result`` metadata records.
     scenario
-        The case as a run (:func:`optimal_scenario`), attached as a scenario file.
+        The case as a run (:func:`optimal_scenario`), attached as a scenario file; its
+        robot is the one the scene draws.
     scene
         Also write the drawable topics (:mod:`wmr.adapters.mcap.scene`; ``wmr optimal``
         does).
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
     n = len(replay.t_s)
     h_s = replay_step_s(replay)
     block = np.full((n, len(SIGNALS)), np.nan)
@@ -298,9 +299,15 @@ def write_optimal_log(path: Path, result: Any, replay: Any, plant: FmuPlant,
     if scenario is not None:
         attachments[scenario_attachment_name(scenario)] = (
             "application/toml", run_spec_toml(scenario).encode("utf-8"))
-    with RunLogWriter(path, run={**run, "control_period_s": h_s}, attachments=attachments,
-                      goal=(goal.x_m, goal.y_m, goal.heading_rad),
-                      topics=OPEN_LOOP_TOPICS, scene=scene) as log:
+    # the robot drawn is the scenario's (the paper's without one); no stop radius: the
+    # optimum has no controller whose phases or ring to draw
+    robot = scenario.params if scenario is not None else RobotParams()
+    header = LogHeader(run={**run, "control_period_s": h_s},
+                       goal=(goal.x_m, goal.y_m, goal.heading_rad),
+                       attachments=tuple((name, media_type, data)
+                                         for name, (media_type, data) in attachments.items()),
+                       half_track_m=robot.L, wheel_radius_m=robot.r, stop_radius_m=None)
+    with McapOpener(path, scene=scene, topics=OPEN_LOOP_TOPICS)(header) as log:
         log.write_block(t_ns, block)
         log.close(record)
 

@@ -2,8 +2,8 @@
 
 This is the main job (``wmr run``) and the unit of work of a batch: it ties a
 :class:`~wmr.core.runspec.RunSpec`, the FMU (:class:`~wmr.adapters.fmi.robot.FmuPlant`), the
-master loop (:func:`~wmr.core.closedloop.run_closed_loop`) and the log
-(:class:`~wmr.adapters.mcap.RunLogWriter`).
+master loop (:func:`~wmr.core.closedloop.run_closed_loop`) and the log, through the log
+protocol (:mod:`wmr.core.runlog`; MCAP by default: :class:`~wmr.adapters.mcap.McapOpener`).
 """
 
 from __future__ import annotations
@@ -26,11 +26,12 @@ import numpy.typing as npt
 from wmr import __version__
 from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.robot import FmuPlant
-from wmr.adapters.mcap import RunLogWriter
+from wmr.adapters.mcap import McapOpener
 from wmr.apps.request import RunRequest
 from wmr.config.scenario_file import run_spec_toml
 from wmr.core.closedloop import BlockSink, Controller, Progress, run_closed_loop
 from wmr.core.record import result_record
+from wmr.core.runlog import LogHeader, LogOpener, RunLog
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import safe_filename
@@ -120,13 +121,13 @@ def _model_description(fmu_path: str | os.PathLike[str]) -> bytes:
     return md
 
 
-def _attachments(spec: RunSpec, plant: FmuPlant) -> dict[str, tuple[str, bytes]]:
+def _attachments(spec: RunSpec, plant: FmuPlant) -> tuple[tuple[str, str, bytes], ...]:
     """The FMU's ``modelDescription.xml`` and the run's effective scenario: the scenario file
     with every override of this run applied, one run only (a batch run's log holds its own
     run, not the whole spec), which ``wmr run`` reads back into the same run."""
-    return {"modelDescription.xml": ("application/xml", _model_description(plant.fmu_path)),
-            scenario_attachment_name(spec): ("application/toml",
-                                             run_spec_toml(spec).encode("utf-8"))}
+    return (("modelDescription.xml", "application/xml", _model_description(plant.fmu_path)),
+            (scenario_attachment_name(spec), "application/toml",
+             run_spec_toml(spec).encode("utf-8")))
 
 
 #: What a log policy keeps: every run's log, the logs of the runs that did not converge
@@ -186,8 +187,9 @@ FULL_LOGS: Final = LogPolicy()
 
 
 class _EveryK:
-    """A sink that passes every k-th row (counted over the whole run) and, at :meth:`end`,
-    the run's last row if it was not passed: a decimated log still ends where the run did."""
+    """A sink that passes every k-th row (counted over the whole run) to any
+    :class:`~wmr.core.closedloop.BlockSink` and, at :meth:`end`, the run's last row if it was
+    not passed: a decimated log still ends where the run did."""
 
     def __init__(self, sink: BlockSink, k: int) -> None:
         self._sink, self._k = sink, k
@@ -214,14 +216,14 @@ class _EveryK:
 class _Held:
     """A sink that holds the run's rows in memory (a copy of each block, no encoding) until
     :meth:`spill` or :data:`HOLD_ROWS` rows, then writes them, and the rest, to the log that
-    ``open_log`` opens: a run that converges under a ``failed`` policy costs a copy of its rows,
-    not the encoding and compression of a log."""
+    ``open_log`` opens (any :class:`~wmr.core.runlog.RunLog`): a run that converges under a
+    ``failed`` policy costs a copy of its rows, not the encoding and compression of a log."""
 
-    def __init__(self, open_log: Callable[[], RunLogWriter]) -> None:
+    def __init__(self, open_log: Callable[[], RunLog]) -> None:
         self._open = open_log
         self._blocks: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]] = []
         self._rows = 0
-        self.log: RunLogWriter | None = None
+        self.log: RunLog | None = None
 
     def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
         if self.log is not None:
@@ -232,7 +234,7 @@ class _Held:
         if self._rows >= HOLD_ROWS:
             self.spill()
 
-    def spill(self) -> RunLogWriter:
+    def spill(self) -> RunLog:
         """The log, opened now if it was not, with the rows held so far written to it (the
         bytes are those of a log written as the run went: chunks are cut by simulation time,
         not by how the rows arrive)."""
@@ -244,71 +246,80 @@ class _Held:
         return self.log
 
 
-def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant, *,
+def log_header(spec: RunSpec, plant: FmuPlant, controller_fmu: FmuController | None = None,
+               scenario_file: Path | None = None, policy: LogPolicy = FULL_LOGS) -> LogHeader:
+    """The header a run's log is opened with: :func:`run_metadata` (with ``source_file``,
+    the name of ``scenario_file``, and ``log_every_k_steps`` of a decimating ``policy``), the
+    goal, the attachments (:func:`scenario_attachment_name`) and the spec's robot and stop
+    radius."""
+    run = run_metadata(spec, plant, controller_fmu)
+    if scenario_file is not None:
+        run["source_file"] = Path(scenario_file).name
+    if policy.every_k_steps > 1:
+        run["log_every_k_steps"] = policy.every_k_steps
+    return LogHeader.of_spec(spec, run, _attachments(spec, plant))
+
+
+def run_to_log(spec: RunSpec, out: str | os.PathLike[str] | LogOpener, plant: FmuPlant, *,
                scenario_file: Path | None = None,
                progress: Progress | None = None,
                also: BlockSink | None = None,
                controller_fmu: FmuController | None = None,
-               durable: bool = True, log: LogPolicy = FULL_LOGS,
-               controller: Controller | None = None,
-               on_log: Callable[[Path, str], None] | None = None) -> dict[str, Any]:
-    """Run ``spec`` on ``plant`` and log it to ``mcap_path``; return the result record.
+               log: LogPolicy = FULL_LOGS,
+               controller: Controller | None = None) -> dict[str, Any]:
+    """Run ``spec`` on ``plant`` and log it; return the result record.
+
+    ``out`` is where the log goes: a path (the MCAP log there, as
+    :class:`~wmr.adapters.mcap.McapOpener` of that path opens it) or any
+    :data:`~wmr.core.runlog.LogOpener` (an MCAP opener with other options: not fsynced,
+    ``on_open``; an in-memory :class:`~wmr.core.runlog.MemoryOpener`; another format's).  It
+    is called with the run's :func:`log_header` when the log is opened.
 
     The log attaches the run's effective scenario (:func:`scenario_attachment_name`), not
     ``scenario_file``, whose name only is recorded in the ``run`` metadata (``source_file``).
 
-    The log is written as the run goes, to ``mcap_path + ".partial"``, and renamed into place
-    when finished (fsynced first unless ``durable`` is false): a run killed midway leaves the
-    previous log whole and its own readable up to its last chunk in the ``.partial`` file
-    (without a ``result`` record).  A run that fails is logged with status ``failed`` and its
-    error, and the file is closed and readable.  ``also`` receives the same blocks as the log
-    (the live Rerun view of ``wmr run --view``).  ``controller_fmu`` runs the controller FMU
-    in place of the Python controller (``wmr run --controller-fmu``); ``controller`` runs any
-    other :class:`~wmr.core.closedloop.Controller` (default: the run's own law,
-    :class:`~wmr.adapters.fmi.compiled_law.CompiledLawController`, which runs the paper's PI
-    compiled into the C stepper with the Python law's bits, and any other law in Python).
+    An MCAP log is written as the run goes, to ``path + ".partial"``, and renamed into place
+    when finished (fsynced first unless the opener's ``durable`` is false): a run killed
+    midway leaves the previous log whole and its own readable up to its last chunk in the
+    ``.partial`` file (without a ``result`` record).  A run that fails is logged with status
+    ``failed`` and its error, and the log is closed and readable.  ``also`` receives the same
+    blocks as the log (the live Rerun view of ``wmr run --view``).  ``controller_fmu`` runs
+    the controller FMU in place of the Python controller (``wmr run --controller-fmu``);
+    ``controller`` runs any other :class:`~wmr.core.closedloop.Controller` (default: the
+    run's own law, :class:`~wmr.adapters.fmi.compiled_law.CompiledLawController`, which runs
+    the paper's PI compiled into the C stepper with the Python law's bits, and any other law
+    in Python).
 
     ``log`` decides whether a log is kept (:class:`LogPolicy`): with ``keep="failed"`` the
     rows are held in memory (up to :data:`HOLD_ROWS`) and written only if the run does not
     converge, with ``keep="none"`` never; with ``every_k_steps=k`` every k-th step and the
     last are logged, and the ``run`` record says ``log_every_k_steps``.  A run without a log
-    leaves nothing at ``mcap_path`` (a log there from before is left alone) and its record's
-    ``mcap`` is ``None``.  ``on_log(path, run_name)`` is called once the log's ``.partial``
-    file is open (a supervising parent finishes it if this process dies:
-    :mod:`wmr.apps.supervise`).
+    opens none (nothing is written at an MCAP path; a log there from before is left alone)
+    and its record's ``mcap`` is ``None``.
 
     Returns
     -------
     dict
         The fields of ``wmr run --json``: ``status`` (``converged``, ``timeout``, ``failed``),
         ``message``, ``final_position_error_m``, ``final_heading_error_rad``,
-        ``time_to_goal_s``, ``path_length_m``, ``mcap`` (``None`` when no log was kept), the
-        energy and torque figures, and ``estimated_final_position_error_m``,
-        ``estimated_final_heading_error_rad``: the errors the stabiliser believed (the
-        ``final_*`` ones are the true errors; the two agree without sensors).
+        ``time_to_goal_s``, ``path_length_m``, ``mcap`` (the log's location: ``None`` when no
+        log was kept, or it is not a file), the energy and torque figures, and
+        ``estimated_final_position_error_m``, ``estimated_final_heading_error_rad``: the
+        errors the stabiliser believed (the ``final_*`` ones are the true errors; the two
+        agree without sensors).
     """
     if controller is not None and controller_fmu is not None:
         raise ConfigError("controller", "both a controller and a controller FMU were given",
                           "give one of them")
-    path = Path(mcap_path)
-    goal = (spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad)
-    run = run_metadata(spec, plant, controller_fmu)
-    if scenario_file is not None:
-        run["source_file"] = Path(scenario_file).name
-    if log.every_k_steps > 1:
-        run["log_every_k_steps"] = log.every_k_steps
+    opener: LogOpener = out if callable(out) else McapOpener(Path(out))
 
-    def open_log() -> RunLogWriter:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        opened = RunLogWriter(path, run=run, goal=goal, attachments=_attachments(spec, plant),
-                              durable=durable, scene=True)
-        if on_log is not None:
-            on_log(path, spec.name)
-        return opened
+    def open_log() -> RunLog:
+        # the header when a log is opened, not before: a run that keeps none never makes it
+        return opener(log_header(spec, plant, controller_fmu, scenario_file, log))
 
     with ExitStack() as stack:
         held: _Held | None = None
-        writer: RunLogWriter | None = None
+        writer: RunLog | None = None
         if log.keep == "full":
             writer = stack.enter_context(open_log())
         elif log.keep == "failed":
@@ -339,17 +350,14 @@ def run_to_log(spec: RunSpec, mcap_path: str | os.PathLike[str], plant: FmuPlant
             if log.keeps(result.status):
                 writer = stack.enter_context(held.spill())
             elif held.log is not None:  # a long run spilled, then converged: not kept
-                held.log.close(record)
+                held.log.discard(record)
                 held.log = None
-                path.unlink()
         if writer is None:
             record["mcap"] = None
             return record
-        record["mcap"] = str(path)
+        record["mcap"] = writer.location
         if result.sensing is not None:
-            from wmr.adapters.mcap.sensing import write_sensing
-
-            write_sensing(writer, result.sensing)
+            writer.write_sensing(result.sensing)
         writer.close(record)
     return record
 
@@ -476,7 +484,9 @@ def run_scenario(request: RunRequest, *, progress_bar: ProgressBar | None = None
     (:func:`resolve_run`), open the FMUs, run and log.
 
     ``progress_bar(run_name)`` gives the run's progress callback and what closes it;
-    ``on_log`` is :func:`run_to_log`'s; ``warn`` is :func:`resolve_run`'s.
+    ``on_log(path, run_name)`` is called once the log's ``.partial`` file is open (a
+    supervising parent finishes it if this process dies: :mod:`wmr.apps.supervise`);
+    ``warn`` is :func:`resolve_run`'s.
 
     Returns
     -------
@@ -503,9 +513,12 @@ def run_scenario(request: RunRequest, *, progress_bar: ProgressBar | None = None
 
             ctrl = stack.enter_context(FmuController(ctrl_path))
         try:
-            record = run_to_log(r.spec, r.log_path, plant, scenario_file=r.scenario_file,
+            name = r.spec.name
+            opener = McapOpener(r.log_path, on_open=None if on_log is None
+                                else lambda path: on_log(path, name))
+            record = run_to_log(r.spec, opener, plant, scenario_file=r.scenario_file,
                                 progress=progress, also=live, controller_fmu=ctrl,
-                                log=r.policy, on_log=on_log)
+                                log=r.policy)
         finally:
             if finish is not None:
                 finish()

@@ -53,7 +53,12 @@ _L_W_R, _L_W_L = LAW_INDEX["omega_r_ref_radps"], LAW_INDEX["omega_l_ref_radps"]
 
 
 class BlockSink(Protocol):
-    """Receives the run's rows in blocks (the MCAP writer implements it)."""
+    """Receives the run's rows in blocks: the narrow protocol the loop writes to.
+
+    Every run log (:class:`wmr.core.runlog.RunLog`: the MCAP writer, the in-memory
+    :class:`wmr.core.runlog.MemoryLog`) is one; so are the live view and the filters of a
+    log policy (:mod:`wmr.apps.run`).
+    """
 
     def write_block(self, t_ns: npt.NDArray[np.int64],
                     block: npt.NDArray[np.float64]) -> None:

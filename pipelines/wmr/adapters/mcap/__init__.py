@@ -40,11 +40,12 @@ from wmr.adapters.mcap.schemas import (
     file_descriptor_set,
     message_class,
 )
-from wmr.adapters.mcap.writer import RunLogWriter, goal_message, yaw_quaternion
+from wmr.adapters.mcap.writer import McapOpener, RunLogWriter, goal_message, yaw_quaternion
 
 __all__ = [
     "OPEN_LOOP_TOPICS",
     "STEP_TOPICS",
+    "McapOpener",
     "Pose2D",
     "RunData",
     "RunLogWriter",

@@ -1487,6 +1487,66 @@ def _json_depth(text: str) -> int:
     return int(np.cumsum(step).max(initial=0))
 
 
+# --------------------------------------------------------------------------- finished logs
+
+
+def log_stamp(path: str | os.PathLike[str]) -> dict[str, int] | None:
+    """Size and modification time (ns) of the file at ``path`` (what a batch journals with
+    its run's log), ``None`` if there is none."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def log_finished(path: str | os.PathLike[str],
+                 stamp: Mapping[str, Any] | None = None) -> bool:
+    """Whether ``path`` is a finished MCAP log with a ``result`` metadata record.
+
+    With the ``stamp`` taken when the log was finished (:func:`log_stamp`), a log of the same
+    size and modification time that still ends with the MCAP magic is that log (a stat and an
+    8-byte read, about 20 µs: a resume of a million runs checks in seconds).  Otherwise, or
+    when those differ, the footer and the summary section are read (about 0.5 ms, not the
+    messages).  A missing, cut or damaged file is not finished.
+    """
+    from mcap.reader import make_reader
+
+    if stamp is not None and log_stamp(path) == stamp:
+        try:
+            with open(path, "rb") as stream:
+                stream.seek(-len(MAGIC), os.SEEK_END)
+                if stream.read() == MAGIC:
+                    return True
+        except OSError:
+            return False
+    try:
+        with open(path, "rb") as stream:
+            summary = make_reader(stream).get_summary()
+    except Exception:  # missing, cut or damaged: not finished
+        return False
+    return summary is not None and any(m.name == "result" for m in summary.metadata_indexes)
+
+
+def finished_result(path: str | os.PathLike[str]) -> dict[str, str] | None:
+    """The ``result`` metadata record (its strings) of the finished log at ``path``;
+    ``None`` if the log is missing, unfinished (its summary lists no ``result``) or
+    damaged."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as stream:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            if summary is None or not any(m.name == "result" for m in summary.metadata_indexes):
+                return None
+            return next((dict(m.metadata) for m in reader.iter_metadata()
+                         if m.name == "result"), None)
+    except Exception:  # missing, cut or damaged: nothing to read the record from
+        return None
+
+
+
 __all__ = [
     "DEFAULT_LIMITS",
     "MAX_LOG_TIME_NS",
@@ -1499,6 +1559,9 @@ __all__ = [
     "ReadLimits",
     "RunData",
     "default_limits",
+    "finished_result",
+    "log_finished",
+    "log_stamp",
     "metadata_json",
     "open_log",
     "read_chunk_at",

@@ -19,7 +19,10 @@ its terminating NUL as a uint32, and the UTF-8 bytes with the NUL.
 from __future__ import annotations
 
 import struct
-from typing import Final
+from collections.abc import Sequence
+from typing import Final, Protocol
+
+from numpy.typing import ArrayLike
 
 #: The topic of the note.
 README_TOPIC: Final = "/wmr/readme"
@@ -61,6 +64,26 @@ def readme_message(text: str = README_TEXT) -> bytes:
     return _CDR_LE + struct.pack("<I", len(data)) + data
 
 
+class NoteLog(Protocol):
+    """What :func:`write_readme` needs of a log: the writer's ``write_messages`` with its
+    encodings (:meth:`wmr.adapters.mcap.writer.RunLogWriter.write_messages`, and recovery's
+    sink of the topics it makes)."""
+
+    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                       t_ns: ArrayLike, messages: Sequence[bytes], *,
+                       schema_encoding: str = ..., message_encoding: str = ...) -> None:
+        """Log serialised messages on a topic of their own."""
+        ...
+
+
+def write_readme(log: NoteLog) -> None:
+    """Write the note (:data:`README_TEXT`) on :data:`README_TOPIC` at t = 0: the one way
+    a log gets it, when the log writer closes a log and when recovery makes it."""
+    log.write_messages(README_TOPIC, README_SCHEMA, README_SCHEMA_DATA, [0], [readme_message()],
+                       schema_encoding=README_SCHEMA_ENCODING,
+                       message_encoding=README_MESSAGE_ENCODING)
+
+
 def read_readme(data: bytes) -> str:
     """The text of a CDR ``std_msgs/msg/String`` written by :func:`readme_message`.
 
@@ -78,5 +101,5 @@ def read_readme(data: bytes) -> str:
 
 
 __all__ = ["README_MESSAGE_ENCODING", "README_SCHEMA", "README_SCHEMA_DATA",
-           "README_SCHEMA_ENCODING", "README_TEXT", "README_TOPIC", "read_readme",
-           "readme_message"]
+           "README_SCHEMA_ENCODING", "README_TEXT", "README_TOPIC", "NoteLog", "read_readme",
+           "readme_message", "write_readme"]

@@ -43,14 +43,7 @@ from wmr.adapters.mcap.reader import (
     read_chunk_at,
     scan_log,
 )
-from wmr.adapters.mcap.readme import (
-    README_MESSAGE_ENCODING,
-    README_SCHEMA,
-    README_SCHEMA_DATA,
-    README_SCHEMA_ENCODING,
-    README_TOPIC,
-    readme_message,
-)
+from wmr.adapters.mcap.readme import README_TOPIC, write_readme
 from wmr.adapters.mcap.scene import (
     GOAL_TOPIC,
     PATH_TOPIC,
@@ -248,14 +241,13 @@ def _add_scene(file: McapFile, src: Path, scan: LogScan, limits: ReadLimits,
     if run.goal is None:  # no goal to draw: the path and the robot all the same
         missing.discard(GOAL_TOPIC)
     goal = run.goal or (0.0, 0.0, 0.0)
-    recorder = SceneRecorder(run.metadata["run"], (goal[0], goal[1], goal[2]),
-                             controlled=TORQUE_TOPIC.topic not in topics)
+    # the file has only the run record's strings: parsed in the scene's one place
+    recorder = SceneRecorder.from_run_record(run.metadata["run"], (goal[0], goal[1], goal[2]),
+                                             controlled=TORQUE_TOPIC.topic not in topics)
     recorder.add(run.t_ns, run.block())
     sink = _SceneSink(file, missing, rec)
     recorder.write(sink)
-    sink.write_messages(README_TOPIC, README_SCHEMA, README_SCHEMA_DATA, [0],
-                        [readme_message()], schema_encoding=README_SCHEMA_ENCODING,
-                        message_encoding=README_MESSAGE_ENCODING)
+    write_readme(sink)
 
 
 def _write(scan: LogScan, log: _LogFile, src: Path, rec: Recovery,

@@ -379,28 +379,48 @@ class SceneRecorder:
 
     Parameters
     ----------
-    run
-        The log's ``run`` record (strings): ``params`` (robot geometry) and ``stop_radius_m``
-        (the phase and the goal ring; without it, no phase topic).
     goal
         ``(x_m, y_m, theta_rad)`` of the goal.
+    half_track_m, wheel_radius_m
+        The robot's half track ``L`` and wheel radius ``r``, m (its outline); either not
+        positive and finite: the paper's robot (:data:`DEFAULT_HALF_TRACK_M`,
+        :data:`DEFAULT_WHEEL_RADIUS_M`).
+    stop_radius_m
+        The run's stop radius, m (the phase and the goal ring); ``None``, not positive or not
+        finite: no ring, no phase topic.
     controlled
         Whether the rows come from the closed loop (``dr_m`` is the controller's): the phase
         topic is written only then.
     """
 
-    def __init__(self, run: Mapping[str, str], goal: tuple[float, float, float], *,
+    def __init__(self, goal: tuple[float, float, float], *, half_track_m: float,
+                 wheel_radius_m: float, stop_radius_m: float | None,
                  controlled: bool) -> None:
         self._goal = goal
-        self._half_track, self._wheel_radius = robot_geometry(run)
-        try:
-            eps = float(run.get("stop_radius_m", "nan"))
-        except ValueError:
-            eps = math.nan
+        half_track, radius = float(half_track_m), float(wheel_radius_m)
+        self._half_track, self._wheel_radius = (
+            (half_track, radius)
+            if half_track > 0 and radius > 0 and math.isfinite(half_track + radius)
+            else (DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M))
+        eps = math.nan if stop_radius_m is None else float(stop_radius_m)
         self._stop_radius = eps if math.isfinite(eps) and eps > 0 else None
         self._controlled = controlled
         self._t: list[npt.NDArray[np.int64]] = []
         self._rows: list[npt.NDArray[np.float64]] = []
+
+    @classmethod
+    def from_run_record(cls, run: Mapping[str, str], goal: tuple[float, float, float], *,
+                        controlled: bool) -> SceneRecorder:
+        """The recorder of a log known only by its ``run`` record's strings (a log read
+        back: recovery; a writer given no typed values): ``params`` (a JSON object with
+        ``L`` and ``r``) and ``stop_radius_m`` parsed here, the one place they are."""
+        half_track_m, wheel_radius_m = robot_geometry(run)
+        try:
+            stop_radius_m = float(run.get("stop_radius_m", "nan"))
+        except ValueError:
+            stop_radius_m = math.nan
+        return cls(goal, half_track_m=half_track_m, wheel_radius_m=wheel_radius_m,
+                   stop_radius_m=stop_radius_m, controlled=controlled)
 
     def add(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
         """Keep the position and ``dr_m`` of the rows (the caller's arrays are not kept)."""

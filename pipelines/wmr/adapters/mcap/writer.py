@@ -30,8 +30,10 @@ import struct
 import sys
 import threading
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 from types import TracebackType
 from typing import Any, Final, Literal, Protocol
 
@@ -54,14 +56,7 @@ from mcap.records import (
 from numpy.typing import ArrayLike, NDArray
 
 import wmr
-from wmr.adapters.mcap.readme import (
-    README_MESSAGE_ENCODING,
-    README_SCHEMA,
-    README_SCHEMA_DATA,
-    README_SCHEMA_ENCODING,
-    README_TOPIC,
-    readme_message,
-)
+from wmr.adapters.mcap.readme import write_readme
 from wmr.adapters.mcap.scene import SceneRecorder
 from wmr.adapters.mcap.schemas import (
     GOAL_SCHEMA,
@@ -78,6 +73,8 @@ from wmr.adapters.mcap.schemas import (
     message_class,
 )
 from wmr.adapters.stepper import Layout, load_stepper
+from wmr.core.runlog import LogHeader, failed_result
+from wmr.core.sensing import SensingRecord
 from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.durable import AtomicFile, stop_signals_held
 from wmr.infra.errors import LogError
@@ -679,6 +676,11 @@ class RunLogWriter:
     scene
         Also write, when closed, the topics Rerun and Foxglove draw by themselves
         (:mod:`wmr.adapters.mcap.scene`; ``wmr run`` and ``wmr batch`` turn it on).
+    scene_values
+        ``(half_track_m, wheel_radius_m, stop_radius_m)`` the scene draws, typed (a
+        :class:`~wmr.core.runlog.LogHeader`'s: :meth:`from_header`); ``None``: parsed from
+        ``run``'s ``params`` and ``stop_radius_m``
+        (:meth:`~wmr.adapters.mcap.scene.SceneRecorder.from_run_record`).
 
     Raises
     ------
@@ -701,6 +703,7 @@ class RunLogWriter:
         topics: tuple[TopicLayout, ...] = STEP_TOPICS,
         durable: bool = True,
         scene: bool = False,
+        scene_values: tuple[float, float, float | None] | None = None,
     ) -> None:
         self.path = os.fspath(path)
         if chunk_period_ns <= 0:
@@ -730,13 +733,40 @@ class RunLogWriter:
             for name, (media_type, data) in (attachments or {}).items():
                 self._file.add_attachment(name, media_type, bytes(data))
             self._encoder = _row_encoder(channel_ids, topics)
-            self._scene = (SceneRecorder(run_record, goal, controlled=topics == STEP_TOPICS)
-                           if scene else None)
+            controlled = topics == STEP_TOPICS
+            self._scene = (None if not scene
+                           else SceneRecorder.from_run_record(run_record, goal,
+                                                              controlled=controlled)
+                           if scene_values is None
+                           else SceneRecorder(goal, half_track_m=scene_values[0],
+                                              wheel_radius_m=scene_values[1],
+                                              stop_radius_m=scene_values[2],
+                                              controlled=controlled))
             self._channel_ids = channel_ids
             self._write_goal(goal_channel, goal)
         except BaseException:
             stream.close()
             raise
+
+    @classmethod
+    def from_header(cls, path: str | os.PathLike[str], header: LogHeader, *,
+                    compression: Compression = DEFAULT_COMPRESSION,
+                    chunk_period_ns: int = 1_000_000_000,
+                    topics: tuple[TopicLayout, ...] = STEP_TOPICS, durable: bool = True,
+                    scene: bool = True) -> RunLogWriter:
+        """The log of the run ``header`` describes, at ``path`` (the other parameters as
+        the constructor's): its metadata, goal and attachments, and the scene's typed
+        values."""
+        return cls(path, run=header.run, goal=header.goal,
+                   attachments=header.attachment_map(), compression=compression,
+                   chunk_period_ns=chunk_period_ns, topics=topics, durable=durable,
+                   scene=scene, scene_values=(header.half_track_m, header.wheel_radius_m,
+                                              header.stop_radius_m))
+
+    @property
+    def location(self) -> str:
+        """The log's final path (a :class:`~wmr.core.runlog.RunLog`'s location)."""
+        return self.path
 
     # -- context manager ---------------------------------------------------------------------
     def __enter__(self) -> RunLogWriter:
@@ -751,10 +781,10 @@ class RunLogWriter:
         if self._closed:
             return
         if exc is None:
-            self.close({"status": "failed", "error": "the run ended without a result"})
+            self.close(failed_result(None))
             return
         try:
-            self.close({"status": "failed", "error": f"{type(exc).__name__}: {exc}"})
+            self.close(failed_result(exc))
         except Exception:  # never hide the run's own exception behind a logging one
             self._file.abort()
 
@@ -852,6 +882,13 @@ class RunLogWriter:
             pos += head.size + len(data)
         self._file.add_chunk(b"".join(parts), {cid: (t, offsets)})
 
+    def write_sensing(self, record: SensingRecord) -> None:
+        """Log the run's sensor fixes and estimates (:mod:`wmr.adapters.mcap.sensing`);
+        call before :meth:`close`."""
+        from wmr.adapters.mcap.sensing import write_sensing
+
+        write_sensing(self, record)
+
     def _flush_chunks(self, final: bool) -> None:
         """Write the pending rows before the chunk boundary as chunks (and, ``final``, the
         last rows too).  The pending blocks are cut where the boundary falls, as views: a
@@ -927,9 +964,7 @@ class RunLogWriter:
             if self._scene is not None:
                 self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
                 # what to run to see the log as wmr's dashboard: Rerun shows it as a document
-                self.write_messages(README_TOPIC, README_SCHEMA, README_SCHEMA_DATA, [0],
-                                    [readme_message()], schema_encoding=README_SCHEMA_ENCODING,
-                                    message_encoding=README_MESSAGE_ENCODING)
+                write_readme(self)
             self._closed = True
             try:
                 self._flush_chunks(final=True)
@@ -939,6 +974,47 @@ class RunLogWriter:
                 self._file.abort()
                 raise
 
+    def discard(self, result: Mapping[str, object]) -> None:
+        """Close the log and remove it: the run's log is not kept (a ``failed`` policy's
+        run that converged after its rows were spilled to the file)."""
+        self.close(result)
+        os.unlink(self.path)
 
-__all__ = ["LIBRARY", "McapFile", "RunLogWriter", "goal_message", "metadata_record",
-           "yaw_quaternion"]
+
+@dataclass(frozen=True)
+class McapOpener:
+    """The :data:`~wmr.core.runlog.LogOpener` of a run's MCAP log at ``path``: the one way
+    ``wmr run``, ``wmr batch``, ``wmr benchmark``, ``wmr optimal`` and ``wmr ssp run`` open
+    their logs (:meth:`RunLogWriter.from_header`).
+
+    Attributes
+    ----------
+    path
+        The log's final path (its folder is made when the log is opened).
+    durable, scene, topics, compression
+        As :class:`RunLogWriter`'s (``scene`` on by default: every run log draws).
+    on_open
+        Called with ``path`` once the log's ``.partial`` file is open (a supervising parent
+        finishes it if the run's process dies: :mod:`wmr.apps.supervise`).
+    """
+
+    path: Path
+    durable: bool = True
+    scene: bool = True
+    topics: tuple[TopicLayout, ...] = STEP_TOPICS
+    compression: Compression = DEFAULT_COMPRESSION
+    on_open: Callable[[Path], None] | None = None
+
+    def __call__(self, header: LogHeader) -> RunLogWriter:
+        path = Path(self.path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        log = RunLogWriter.from_header(path, header, compression=self.compression,
+                                       topics=self.topics, durable=self.durable,
+                                       scene=self.scene)
+        if self.on_open is not None:
+            self.on_open(path)
+        return log
+
+
+__all__ = ["LIBRARY", "McapFile", "McapOpener", "RunLogWriter", "goal_message",
+           "metadata_record", "yaw_quaternion"]

@@ -25,6 +25,7 @@ from wmr.adapters.ssp.cosim import c_stdout_to_stderr, simulate_libcosim, steps_
 from wmr.adapters.ssp.package import fmpy_parameter_set, read_package
 from wmr.core.closedloop import LoopOutcome, run_closed_loop
 from wmr.core.control.from_spec import SpecController
+from wmr.core.runlog import MemoryLog
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN
 
@@ -33,14 +34,6 @@ _POSE = [COLUMN["x_m"], COLUMN["y_m"], COLUMN["theta_rad"]]
 #: measured lag: the worst distance and the worst heading difference over the run.
 POSITION_BAR_M = 5e-3
 HEADING_BAR_RAD = math.radians(0.2)
-
-
-class _Rows:
-    def __init__(self) -> None:
-        self.blocks: list[npt.NDArray[np.float64]] = []
-
-    def write_block(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
-        self.blocks.append(block[:, _POSE].copy())
 
 
 def wmr_run_path(spec: RunSpec, robot_fmu: str | os.PathLike[str],
@@ -55,10 +48,10 @@ def wmr_run(spec: RunSpec, robot_fmu: str | os.PathLike[str],
             var_map: VariableMap | None = None) -> tuple[LoopOutcome, npt.NDArray[np.float64]]:
     """``wmr run``'s result and ``(x, y, theta)`` rows of ``spec`` on ``robot_fmu`` (through
     ``var_map`` for a robot FMU of another tool)."""
-    rows = _Rows()
+    rows = MemoryLog()  # the run's rows, recorded as a log would receive them
     with FmuPlant(Path(robot_fmu), var_map=var_map) as plant:
         result = run_closed_loop(spec, plant, sink=rows, controller=SpecController())
-    return result, np.vstack(rows.blocks)
+    return result, rows.block[:, _POSE]
 
 
 def libcosim_path(ssp: str | os.PathLike[str]) -> tuple[str, npt.NDArray[np.float64]]:

@@ -39,7 +39,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -48,8 +48,9 @@ from wmr.adapters.fmi.varmap import PARAMETER_NAMES, MapEntry
 from wmr.adapters.ssp.package import CONTROLLER, ROBOT, SspPackage, unpacked_package
 from wmr.build.controller_interface import SIGNAL_OUTPUTS
 from wmr.core.energy import ENERGY_KEYS, wheel_work
-from wmr.core.plant import OUTPUT_NAMES
+from wmr.core.plant import OUTPUT_NAMES, RobotParams
 from wmr.core.record import record
+from wmr.core.runlog import LogHeader
 from wmr.core.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
 from wmr.infra.errors import ConfigError, FmuError
 
@@ -419,13 +420,20 @@ def energies(run: SspRunData) -> dict[str, float]:
 
 def log_ssp_run(run: SspRunData, mcap_path: str | os.PathLike[str]) -> dict[str, object]:
     """Write ``run`` to an MCAP log of ``wmr run``'s layout; return the result record."""
-    from wmr.adapters.mcap import RunLogWriter
+    from wmr.adapters.mcap import McapOpener
 
     path = Path(mcap_path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     record = result_record(run, path)
-    with RunLogWriter(path, run=run_record(run), goal=_goal(run.package),
-                      attachments=run.package.attachments, scene=True) as log:
+    meta = run_record(run)
+    # run_record's typed values, as the scene draws them
+    params = cast("dict[str, float]", meta["params"])
+    header = LogHeader(run=meta, goal=_goal(run.package),
+                       attachments=tuple((name, media_type, data) for name, (media_type, data)
+                                         in run.package.attachments.items()),
+                       half_track_m=params.get("L", RobotParams.L),
+                       wheel_radius_m=params.get("r", RobotParams.r),
+                       stop_radius_m=cast("float | None", meta["stop_radius_m"]))
+    with McapOpener(path)(header) as log:
         log.write_block(run.t_ns, run.block)
         log.close(record)
     return record

@@ -25,6 +25,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from wmr.adapters.mcap.reader import finished_result, log_finished, log_stamp
 from wmr.adapters.mcap.schemas import MAGIC
 from wmr.infra.durable import open_own, write_all
 
@@ -102,24 +103,14 @@ def is_compact(line: Mapping[str, Any]) -> bool:
 
 def logged_record(path: Path) -> dict[str, Any] | None:
     """The result record a batch journals for the run logged at ``path``, made again from the
-    log's ``result`` metadata record; ``None`` if the log is missing, unfinished or damaged.
+    log's ``result`` metadata record (:func:`wmr.adapters.mcap.reader.finished_result`);
+    ``None`` if the log is missing, unfinished or damaged.
 
     A run stopped by its wall-clock limit is logged ``failed`` with the ``WallClockLimit``
     error (it was stopped from outside the loop) and journalled ``timeout``
     (:func:`wmr.apps.batch.worker.execute`): the same mapping is made here.
     """
-    from mcap.reader import make_reader
-
-    try:
-        with open(path, "rb") as stream:
-            reader = make_reader(stream)
-            summary = reader.get_summary()
-            if summary is None or not any(m.name == "result" for m in summary.metadata_indexes):
-                return None
-            meta = next((dict(m.metadata) for m in reader.iter_metadata()
-                         if m.name == "result"), None)
-    except Exception:  # missing, cut or damaged: nothing to make the record from
-        return None
+    meta = finished_result(path)
     if meta is None:
         return None
     record: dict[str, Any] = {}
@@ -136,41 +127,11 @@ def logged_record(path: Path) -> dict[str, Any] | None:
     return record
 
 
-def log_stamp(path: Path) -> dict[str, int] | None:
-    """Size and modification time of the log at ``path`` (journalled with its run), ``None``
-    if there is none."""
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
-
-
 def log_complete(path: Path, stamp: Mapping[str, Any] | None = None) -> bool:
-    """Whether ``path`` is a finished MCAP log with a ``result`` metadata record.
-
-    With the ``stamp`` journalled when the run finished (:func:`log_stamp`), a log of the same
-    size and modification time that still ends with the MCAP magic is the log the batch
-    wrote (a stat and an 8-byte read, about 20 µs: a resume of a million runs checks in
-    seconds).  Otherwise, or when those differ, the footer and the summary section are read
-    (about 0.5 ms, not the messages).
-    """
-    from mcap.reader import make_reader
-
-    if stamp is not None and log_stamp(path) == stamp:
-        try:
-            with open(path, "rb") as stream:
-                stream.seek(-len(MAGIC), os.SEEK_END)
-                if stream.read() == MAGIC:
-                    return True
-        except OSError:
-            return False
-    try:
-        with open(path, "rb") as stream:
-            summary = make_reader(stream).get_summary()
-    except Exception:  # missing, cut or damaged: not finished
-        return False
-    return summary is not None and any(m.name == "result" for m in summary.metadata_indexes)
+    """Whether ``path`` is a finished MCAP log with a ``result`` metadata record: the MCAP
+    adapter's :func:`~wmr.adapters.mcap.reader.log_finished`, trusting a log whose
+    :func:`log_stamp` is the ``stamp`` journalled when the run finished."""
+    return log_finished(path, stamp)
 
 
 def log_ends_whole(path: Path) -> bool:

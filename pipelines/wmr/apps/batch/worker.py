@@ -338,6 +338,7 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
     A run past its wall-clock limit ends with status ``timeout`` and the message of
     :func:`wall_limit_message` (its log says ``failed``: it was stopped from outside the loop).
     """
+    from wmr.adapters.mcap import McapOpener
     from wmr.apps.run import run_to_log
 
     if task.fault == "crash":
@@ -381,8 +382,8 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
                 int(plant.fmi_version[0]))
             ctrl = stack.enter_context(FmuController(ctrl_path))
         # no fsync per log: the resume checks every log, and redoes one a power loss damaged
-        record = run_to_log(task.spec, mcap_path, plant, scenario_file=attachment,
-                            progress=progress, controller_fmu=ctrl, durable=False,
+        record = run_to_log(task.spec, McapOpener(mcap_path, durable=False), plant,
+                            scenario_file=attachment, progress=progress, controller_fmu=ctrl,
                             log=task.log)
     if limit is not None and record["status"] == "failed" \
             and str(record["message"]).startswith(WallClockLimit.__name__):
