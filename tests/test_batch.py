@@ -436,8 +436,9 @@ def test_dask_gives_the_same_summary_and_logs(reference: Path, spec20: Path, fmu
     assert len(result.executed) == 20 and result.counts["converged"] == 20
     assert _summary_bytes(tmp_path) == _summary_bytes(reference)
     # every log: the worker's two threads share the process's row encoder (a thread's rows
-    # were written into another's log, test_mcaplog; seen in clean-clone CI, where a log
-    # written before the stepper was built left the numpy encoder to the whole process)
+    # were written into another's log, test_mcaplog; seen in clean-clone CI: with a cold
+    # cache, test_api's documented wmr.run wrote its log before the stepper was built and left
+    # the numpy encoder to the whole process, then this test in the same worker failed)
     differ = {}
     for log in sorted((reference / "runs").glob("*.mcap")):
         here, there = read_run(tmp_path / "runs" / log.name), read_run(log)
