@@ -51,6 +51,28 @@ def fmu3(built: BuildResult) -> Path:
     return built.fmus[3]
 
 
+@pytest.fixture(scope="module")
+def fmu3_plant(fmu3: Path) -> Iterator[FmuPlant]:
+    """One plant of the FMI 3 FMU for a test module, its runs one after another (reset per
+    run).  Per module, not per session: a module's tests may change its parameters or leave it
+    after a failed run, and no other module should see that."""
+    with FmuPlant(fmu3) as plant:
+        yield plant
+
+
+@pytest.fixture(scope="module")
+def fig11_log(tmp_path_factory: pytest.TempPathFactory, fmu3_plant: FmuPlant) -> Path:
+    """The log of the scenario ``fig11`` (its one run, on the FMI 3 plant), once per test
+    module; tests read it or copy it, never change it."""
+    from wmr.apps.run import run_to_log
+    from wmr.config.scenario import load_scenario
+
+    path = tmp_path_factory.mktemp("logs") / "fig11.mcap"
+    record = run_to_log(load_scenario("fig11").runs[0], path, fmu3_plant)
+    assert record["status"] == "converged"
+    return path
+
+
 @pytest.fixture(params=[2, 3], ids=["fmi2", "fmi3"])
 def plant(request: pytest.FixtureRequest, built: BuildResult) -> Iterator[FmuPlant]:
     with FmuPlant(built.fmus[request.param]) as p:

@@ -435,17 +435,20 @@ def test_dask_gives_the_same_summary_and_logs(reference: Path, spec20: Path, fmu
                            progress=False, dask_ship_logs=ship_logs)
     assert len(result.executed) == 20 and result.counts["converged"] == 20
     assert _summary_bytes(tmp_path) == _summary_bytes(reference)
-    some = sorted((reference / "runs").glob("*.mcap"))[5].name
-    here, there = read_run(tmp_path / "runs" / some), read_run(reference / "runs" / some)
-    assert here.metadata["run"] == there.metadata["run"]  # same FMU file name and hash
-    assert here.attachments == there.attachments
-    differ = [k for k in here.signals
-              if not np.array_equal(here.signals[k], there.signals[k], equal_nan=True)]
-    if differ:
-        # seen twice in clean-clone CI (the full suite, 2 xdist workers), never when this
-        # module runs alone: the summaries agree bit for bit, a kept log's signals do not
-        pytest.xfail(f"in-process Dask threads: the log's {differ[:4]} differ from the "
-                     "local pool's in the full suite (cause not found yet)")
+    # every log: the worker's two threads share the process's row encoder (a thread's rows
+    # were written into another's log, test_mcaplog; seen in clean-clone CI: with a cold
+    # cache, test_api's documented wmr.run wrote its log before the stepper was built and left
+    # the numpy encoder to the whole process, then this test in the same worker failed)
+    differ = {}
+    for log in sorted((reference / "runs").glob("*.mcap")):
+        here, there = read_run(tmp_path / "runs" / log.name), read_run(log)
+        assert here.metadata["run"] == there.metadata["run"]  # same FMU file name and hash
+        assert here.attachments == there.attachments
+        signals = [k for k in here.signals
+                   if not np.array_equal(here.signals[k], there.signals[k], equal_nan=True)]
+        if signals:
+            differ[log.name] = signals[:4]
+    assert differ == {}
 
 
 @pytest.mark.slow

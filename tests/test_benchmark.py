@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -34,12 +33,6 @@ name = "near-left"
 goal = [2.0, 3.0, 90.0]
 """
 
-
-
-@pytest.fixture(scope="module")
-def fmu(fmu3: Path) -> Iterator[FmuPlant]:
-    with FmuPlant(fmu3) as p:
-        yield p
 
 
 def _last_json(capsys: pytest.CaptureFixture[str]) -> object:
@@ -75,10 +68,10 @@ def test_benchmark_json_on_two_cases(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert pq.read_table(out / "benchmark.parquet").num_rows == len(rows)
 
 
-def test_optimal_is_never_slower_than_the_pi_on_fig11(fmu: FmuPlant) -> None:
+def test_optimal_is_never_slower_than_the_pi_on_fig11(fmu3_plant: FmuPlant) -> None:
     spec = load_scenario("fig11").runs[0]
-    pi = run_closed_loop(spec, fmu, controller=SpecController())
-    opt = run_optimal(spec, fmu, None)
+    pi = run_closed_loop(spec, fmu3_plant, controller=SpecController())
+    opt = run_optimal(spec, fmu3_plant, None)
     assert pi.status == "converged" and opt.status == "solved"
     assert opt.final_time_s is not None and pi.time_to_goal_s is not None
     assert opt.final_time_s <= pi.time_to_goal_s
@@ -126,19 +119,19 @@ def test_wmr_optimal_bad_torque_is_one_line_error(capsys: pytest.CaptureFixture[
 
 
 @pytest.mark.slow
-def test_optimal_never_slower_than_pi_across_fig9(fmu: FmuPlant) -> None:
+def test_optimal_never_slower_than_pi_across_fig9(fmu3_plant: FmuPlant) -> None:
     for spec in load_scenario("fig9").runs:
-        pi = run_closed_loop(spec, fmu, controller=SpecController())
-        opt = run_optimal(spec, fmu, None)
+        pi = run_closed_loop(spec, fmu3_plant, controller=SpecController())
+        opt = run_optimal(spec, fmu3_plant, None)
         assert pi.status == "converged" and opt.status == "solved", spec.name
         assert opt.final_time_s is not None and pi.time_to_goal_s is not None
         assert opt.final_time_s <= pi.time_to_goal_s, spec.name
 
 
 @pytest.mark.slow
-def test_full_fig9_fig10_benchmark(fmu: FmuPlant, tmp_path: Path) -> None:
+def test_full_fig9_fig10_benchmark(fmu3_plant: FmuPlant, tmp_path: Path) -> None:
     specs = list(load_scenario("fig9").runs) + list(load_scenario("fig10").runs)
-    rows = run_benchmark(specs, fmu, tmp_path)
+    rows = run_benchmark(specs, fmu3_plant, tmp_path)
     assert len(rows) == len(specs) * (len(CONTROLLERS) + 1)
     assert all(r["status"] in ("converged", "solved") for r in rows)
     assert all(r["time_ratio"] is not None and r["time_ratio"] >= 0.999 for r in rows

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Iterator
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
@@ -33,13 +32,7 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.fixture(scope="module")
-def fmu_plant(fmu3: Path) -> Iterator[FmuPlant]:
-    with FmuPlant(fmu3) as plant:
-        yield plant
-
-
-@pytest.fixture(scope="module")
-def logs(tmp_path_factory: pytest.TempPathFactory, fmu_plant: FmuPlant) -> Path:
+def logs(tmp_path_factory: pytest.TempPathFactory, fmu3_plant: FmuPlant) -> Path:
     """A few runs of each scenario, laid out like ``wmr figures`` lays out its own logs."""
     root = tmp_path_factory.mktemp("figlogs")
     picks = {"fig9": ("fig9-thd-045", "fig9-thd+000", "fig9-thd+045"),
@@ -49,7 +42,7 @@ def logs(tmp_path_factory: pytest.TempPathFactory, fmu_plant: FmuPlant) -> Path:
         scenario = load_scenario(name)
         for spec in scenario.runs:
             if spec.name in runs:
-                run_to_log(spec, root / name / f"{spec.name}.mcap", fmu_plant,
+                run_to_log(spec, root / name / f"{spec.name}.mcap", fmu3_plant,
                            scenario_file=scenario.path)
     return root
 
@@ -139,9 +132,9 @@ def test_fig12_wheel_speeds_scaled_by_a_tenth(logs: Path) -> None:
     assert fig.axes[0].get_xlabel() == "t [s]"
 
 
-def test_region_of_attraction_small_grid(fmu_plant: FmuPlant, tmp_path: Path) -> None:
+def test_region_of_attraction_small_grid(fmu3_plant: FmuPlant, tmp_path: Path) -> None:
     base = load_scenario("fig11").runs[0]
-    roa = compute_roa(fmu_plant, base, grid=3, headings=2, half_width_m=6.0, t_max_s=8.0)
+    roa = compute_roa(fmu3_plant, base, grid=3, headings=2, half_width_m=6.0, t_max_s=8.0)
     assert roa.status.shape == (2, 3, 3) == roa.time_to_goal_s.shape
     assert set(np.unique(roa.status)) <= {"converged", "timeout", "failed"}
     conv = roa.status == "converged"

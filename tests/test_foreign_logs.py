@@ -18,7 +18,7 @@ from mcap_protobuf.writer import Writer as ProtobufWriter
 from numpy.typing import NDArray
 
 import wmr
-from test_replay import fig11_log, fmu_plant, read_rrd, run_cli, spec  # noqa: F401  (fixtures)
+from test_replay import read_rrd, run_cli
 from wmr.adapters.mcap import read_run
 from wmr.adapters.mcap.reader import ReadLimits
 from wmr.adapters.mcap.scene import ALIGN, APPROACH, control_phases
@@ -39,7 +39,7 @@ exec sleep 600
 
 
 def test_a_spawned_viewer_keeps_neither_our_pipe_nor_our_terminal(
-        fig11_log: Path, tmp_path: Path) -> None:  # noqa: F811
+        fig11_log: Path, tmp_path: Path) -> None:
     """Before: ``wmr replay LOG 2>&1 | tail`` waited as long as the viewer ran (rr.spawn let it
     inherit our stdout/stderr) and its lines came out on ours.  Now it gets neither: our pipe
     closes when wmr ends; its lines are in its own log in the cache."""
@@ -81,7 +81,7 @@ def test_a_spawned_viewer_keeps_neither_our_pipe_nor_our_terminal(
 # -- item 13: the control phase in wmr.read_log ---------------------------------------------------
 
 
-def test_read_log_gives_the_logged_control_phase_at_each_row(fig11_log: Path) -> None:  # noqa: F811
+def test_read_log_gives_the_logged_control_phase_at_each_row(fig11_log: Path) -> None:
     """Before: ``/controller/phase`` was logged but ``wmr.read_log`` had no phase.  Now
     ``Log.phase`` is a column on the rows' index: the logged step plot, forward-filled, which
     is the stabiliser's hysteresis on the logged distance to the goal."""
@@ -97,7 +97,7 @@ def test_read_log_gives_the_logged_control_phase_at_each_row(fig11_log: Path) ->
     assert set(np.unique(phase.to_numpy())) == {APPROACH, ALIGN}
 
 
-def test_a_log_without_the_phase_topic_has_no_phase(fig11_log: Path, tmp_path: Path) -> None:  # noqa: F811
+def test_a_log_without_the_phase_topic_has_no_phase(fig11_log: Path, tmp_path: Path) -> None:
     """A log without ``/controller/phase`` (a killed run's) says so: ``phase`` is None."""
     cut = tmp_path / "cut.mcap"
     data = fig11_log.read_bytes()

@@ -614,6 +614,56 @@ def test_c_row_encoder_writes_the_bytes_of_the_numpy_one(layouts: tuple[Any, ...
         assert indexes == rb.end()
 
 
+@pytest.mark.parametrize("kind", ["numpy", "c"])
+def test_a_row_encoder_shared_by_threads_writes_each_thread_s_own_bytes(kind: str) -> None:
+    """One encoder serves every log of a process (``writer._row_encoder`` is cached per
+    layout), and a Dask worker writes logs in several threads at once.  The numpy encoder
+    kept one scratch buffer for all callers: two threads encoding at once wrote each other's
+    rows into their logs (a threaded Dask cluster's logs differed from the local pool's while
+    the summaries, made by the loop, agreed).  Each thread must get the bytes it gets alone."""
+    import sys
+    import threading
+
+    lib = load_stepper() if kind == "c" else None
+    if kind == "c" and lib is None:
+        pytest.skip("no C compiler: the stepper is not built")
+    ids = tuple(range(1, 1 + len(STEP_TOPICS)))
+
+    def encoder() -> Any:
+        return RowEncoder(ids) if lib is None else _CRowEncoder(lib, ids, STEP_TOPICS)
+
+    def encode(enc: Any, t: NDArray[np.int64], block: NDArray[np.float64]) -> bytes:
+        if lib is None:
+            return bytes(enc.encode(t, block)[0])
+        return bytes(enc.encode_chunk(t, block)[0])  # the writer's call
+
+    rng = np.random.default_rng(11)
+    # each thread its own rows, of another length (a longer block grows the buffer)
+    work = [(np.arange(k * 1000, k * 1000 + n, dtype=np.int64) * STEP_NS,
+             rng.normal(size=(n, N_SIG))) for k, n in enumerate((100, 137, 60, 100))]
+    alone = [encode(encoder(), t, block) for t, block in work]
+    shared = encoder()
+    wrong = [0] * len(work)
+    start = threading.Barrier(len(work))
+
+    def run(i: int) -> None:
+        start.wait()
+        for _ in range(150):
+            wrong[i] += encode(shared, *work[i]) != alone[i]
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # threads switch often: what a loaded machine does
+    try:
+        threads = [threading.Thread(target=run, args=(i,)) for i in range(len(work))]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert wrong == [0] * len(work)
+
+
 class _Capture(io.BytesIO):
     """A sink that keeps its bytes when closed."""
 

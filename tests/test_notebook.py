@@ -3,28 +3,16 @@ rerun-notebook (the ``notebook`` extra), checked by executing a notebook headles
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 import wmr
-from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.rerun.replay import NOTEBOOK_EXTRA
-from wmr.apps.run import run_to_log
-from wmr.config.scenario import load_scenario
 from wmr.infra.errors import ConfigError
 
 #: The mime type of an ipywidget in a cell's output (the viewer is one).
 WIDGET_MIME = "application/vnd.jupyter.widget-view+json"
-
-
-@pytest.fixture(scope="module")
-def fig11_log(tmp_path_factory: pytest.TempPathFactory, fmu3: Path) -> Iterator[Path]:
-    path = tmp_path_factory.mktemp("nb") / "fig11.mcap"
-    with FmuPlant(fmu3) as plant:
-        assert run_to_log(load_scenario("fig11").runs[0], path, plant)["status"] == "converged"
-    yield path
 
 
 def test_a_notebook_executed_headless_shows_the_replay_inline(

@@ -17,7 +17,7 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from mcap_protobuf.writer import Writer as ProtobufWriter
 
 import wmr
-from test_replay import fig11_log, fmu_plant, read_rrd, run_cli, spec  # noqa: F401  (fixtures)
+from test_replay import read_rrd, run_cli
 from wmr.adapters.mcap import read_run
 from wmr.adapters.rerun.overlay import DEVIATION_ENTITY
 from wmr.core.compare import (
@@ -106,7 +106,7 @@ def _deviation(rrd: Path) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("planted_s", [0.0, 0.25])
 def test_a_real_robots_log_is_aligned_at_the_start_of_motion_and_its_deviation_plotted(
-        fig11_log: Path, tmp_path: Path, planted_s: float) -> None:  # noqa: F811
+        fig11_log: Path, tmp_path: Path, planted_s: float) -> None:
     """``wmr replay SIM REAL``: REAL's times shifted by -STILL_S (its motion starts with the
     simulation's), and the deviation panel is the known offset all along.  With the motion
     planted a quarter second later in REAL than the offset says (``planted_s``), the
@@ -136,7 +136,7 @@ def test_a_real_robots_log_is_aligned_at_the_start_of_motion_and_its_deviation_p
     assert "| poses only |" in robot_row
 
 
-def test_a_misaligned_overlay_would_show_in_the_deviation(fig11_log: Path,  # noqa: F811
+def test_a_misaligned_overlay_would_show_in_the_deviation(fig11_log: Path,
                                                           tmp_path: Path) -> None:
     """The independent check that the deviation can see a misalignment: the same logs put
     on their own times (each from its first sample: no alignment) are metres apart."""
@@ -148,7 +148,7 @@ def test_a_misaligned_overlay_would_show_in_the_deviation(fig11_log: Path,  # no
     assert dev.max() > 1.0
 
 
-def test_pose_topic_names_the_robots_topic_in_the_overlay(fig11_log: Path,  # noqa: F811
+def test_pose_topic_names_the_robots_topic_in_the_overlay(fig11_log: Path,
                                                           tmp_path: Path) -> None:
     """A robot's log with poses on two topics: refused until ``--pose-topic`` names one,
     which applies to it, not to our log (which has ``/robot/pose`` too); the API's

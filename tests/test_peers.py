@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -36,19 +34,13 @@ CASES = {
 
 
 
-@pytest.fixture(scope="module")
-def fmu(fmu3: Path) -> Iterator[FmuPlant]:
-    with FmuPlant(fmu3) as p:
-        yield p
-
-
 @pytest.mark.parametrize("case", list(CASES))
 @pytest.mark.parametrize("controller", ["astolfi", "graceful"])
-def test_peer_converges_on_the_fmu(fmu: FmuPlant, controller: str, case: str) -> None:
+def test_peer_converges_on_the_fmu(fmu3_plant: FmuPlant, controller: str, case: str) -> None:
     start, goal = CASES[case]
     spec = RunSpec(name=case, start=start, goal=goal, controller=controller, t_max_s=80.0)
     keep = MemoryLog()
-    r = run_closed_loop(spec, fmu, sink=keep, controller=SpecController())
+    r = run_closed_loop(spec, fmu3_plant, sink=keep, controller=SpecController())
     assert r.status == "converged", r.message
     assert r.final_position_error_m <= spec.stop_radius_m
     assert r.final_heading_error_rad <= spec.heading_tolerance_rad + 1e-12
@@ -64,25 +56,26 @@ def test_peer_converges_on_the_fmu(fmu: FmuPlant, controller: str, case: str) ->
     assert np.all(np.isnan(rows[:, COLUMN["i_s_mps"]]))
 
 
-def test_astolfi_reverses_to_a_goal_behind_and_graceful_does_not(fmu: FmuPlant) -> None:
+def test_astolfi_reverses_to_a_goal_behind_and_graceful_does_not(fmu3_plant: FmuPlant) -> None:
     start, goal = CASES["behind"]
     v_min = {}
     for controller in ("astolfi", "graceful"):
         keep = MemoryLog()
         spec = RunSpec(name="behind", start=start, goal=goal, controller=controller)
-        assert run_closed_loop(spec, fmu, sink=keep,
+        assert run_closed_loop(spec, fmu3_plant, sink=keep,
                                controller=SpecController()).status == "converged"
         v_min[controller] = float(np.min(keep.block[:, COLUMN["v_mps"]]))
     assert v_min["astolfi"] < -0.5  # the book's backward frame
     assert v_min["graceful"] > -0.05  # forward only (the alignment may creep a few mm/s)
 
 
-def test_astolfi_without_reverse_drives_forward(fmu: FmuPlant) -> None:
+def test_astolfi_without_reverse_drives_forward(fmu3_plant: FmuPlant) -> None:
     start, goal = CASES["behind"]
     keep = MemoryLog()
     spec = RunSpec(name="behind", start=start, goal=goal, controller="astolfi",
                    controller_gains=(("reverse", 0.0),))
-    assert run_closed_loop(spec, fmu, sink=keep, controller=SpecController()).status == "converged"
+    assert run_closed_loop(spec, fmu3_plant, sink=keep,
+                           controller=SpecController()).status == "converged"
     assert float(np.min(keep.block[:, COLUMN["v_mps"]])) > -0.05
 
 

@@ -88,21 +88,6 @@ def spec() -> RunSpec:
     return load_scenario("fig11").runs[0]
 
 
-@pytest.fixture(scope="module")
-def fmu_plant(fmu3: Path) -> Iterator[FmuPlant]:
-    with FmuPlant(fmu3) as plant:
-        yield plant
-
-
-@pytest.fixture(scope="module")
-def fig11_log(tmp_path_factory: pytest.TempPathFactory, spec: RunSpec,
-              fmu_plant: FmuPlant) -> Path:
-    path = tmp_path_factory.mktemp("logs") / "fig11.mcap"
-    record = run_to_log(spec, path, fmu_plant)
-    assert record["status"] == "converged"
-    return path
-
-
 @pytest.fixture(autouse=True)
 def no_screen(monkeypatch: pytest.MonkeyPatch) -> None:
     """Never spawn a viewer from the tests."""
@@ -228,15 +213,15 @@ def test_corrupt_log_is_one_error_line(tmp_path: Path, content: bytes) -> None:
         replay([bad], rrd=tmp_path / "y.rrd")
 
 
-def test_folder_of_runs_is_one_recording(fig11_log: Path, spec: RunSpec, fmu_plant: FmuPlant,
+def test_folder_of_runs_is_one_recording(fig11_log: Path, spec: RunSpec, fmu3_plant: FmuPlant,
                                          tmp_path: Path) -> None:
     batch = tmp_path / "batch"
     (batch / "a").mkdir(parents=True)
     (batch / "b").mkdir()
     (batch / "a" / "fig11.mcap").write_bytes(fig11_log.read_bytes())
     short = with_overrides(spec, start=(10.0, 10.0, 90.0), name="short")
-    run_to_log(short, batch / "b" / "fig11.mcap", fmu_plant)  # same file name, other folder
-    run_to_log(short, batch / "b" / "other+run.mcap", fmu_plant)
+    run_to_log(short, batch / "b" / "fig11.mcap", fmu3_plant)  # same file name, other folder
+    run_to_log(short, batch / "b" / "other+run.mcap", fmu3_plant)
     logs = find_logs([batch])
     assert [lg.name for lg in logs] == ["a_fig11", "b_fig11", "other+run"]
     result = replay([batch])
@@ -291,13 +276,13 @@ def test_replay_refuses_a_non_rrd_output(fig11_log: Path, tmp_path: Path) -> Non
     assert rc == 1 and "must end in .rrd" in stderr
 
 
-def test_live_view_sink_through_a_tee(spec: RunSpec, fmu_plant: FmuPlant,
+def test_live_view_sink_through_a_tee(spec: RunSpec, fmu3_plant: FmuPlant,
                                       tmp_path: Path) -> None:
     rrd = tmp_path / "live.rrd"
     recorder = MemoryLog()
     with live_view_sink(spec.name, spec.goal, rrd, start=spec.start,
                         stop_radius_m=spec.stop_radius_m) as live:
-        result = run_closed_loop(spec, fmu_plant, sink=TeeSink(recorder, live),
+        result = run_closed_loop(spec, fmu3_plant, sink=TeeSink(recorder, live),
                                  controller=SpecController())
     assert result.status == "converged"
     n = result.steps

@@ -16,7 +16,6 @@ import pytest
 import rerun.chunk as rrc
 import rerun_cli
 
-from test_replay import fig11_log, fmu_plant, spec  # noqa: F401  (fixtures)
 from wmr.adapters.mcap import read_run
 from wmr.adapters.mcap.readme import README_TEXT, README_TOPIC, read_readme, readme_message
 
@@ -38,7 +37,7 @@ def _save(path: Path, out: Path, env: dict[str, str]) -> subprocess.CompletedPro
                           text=True, timeout=120, check=False)
 
 
-def test_rerun_hands_an_mcap_file_to_its_own_importer_only(fig11_log: Path,  # noqa: F811
+def test_rerun_hands_an_mcap_file_to_its_own_importer_only(fig11_log: Path,
                                                            tmp_path: Path) -> None:
     """An importer on PATH is called for a file type Rerun does not know (the probe works),
     and not for our ``.mcap`` log: ``rerun X.mcap`` cannot be made to call ours."""
@@ -61,7 +60,7 @@ def test_rerun_hands_an_mcap_file_to_its_own_importer_only(fig11_log: Path,  # n
     assert calls.read_text().split() == [str(other)]  # not called for the .mcap
 
 
-def test_rerun_shows_the_logs_note_saying_what_to_run(fig11_log: Path,  # noqa: F811
+def test_rerun_shows_the_logs_note_saying_what_to_run(fig11_log: Path,
                                                       tmp_path: Path) -> None:
     """Rerun's own importer (what ``rerun X.mcap`` runs) makes the note a ``TextDocument``,
     whose text is the whole note; our reader leaves the topic alone."""

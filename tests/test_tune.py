@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -33,12 +32,6 @@ goal = [2.0, -2.0, -60.0]
 
 
 
-@pytest.fixture(scope="module")
-def fmu(fmu3: Path) -> Iterator[FmuPlant]:
-    with FmuPlant(fmu3) as p:
-        yield p
-
-
 def test_wmr_tune_small_budget_improves_or_equals(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scen = tmp_path / "small.toml"
@@ -54,18 +47,18 @@ def test_wmr_tune_small_budget_improves_or_equals(
 
 
 @pytest.mark.parametrize("controller", ["astolfi", "graceful"])
-def test_tune_peers_improves_or_equals(fmu: FmuPlant, controller: str) -> None:
+def test_tune_peers_improves_or_equals(fmu3_plant: FmuPlant, controller: str) -> None:
     specs = [RunSpec(name="a", start=Pose(0, 0, 0), goal=Pose(3.0, 1.0, 0.5), t_max_s=40.0)]
-    res = tune(controller, specs, fmu, budget=6)
+    res = tune(controller, specs, fmu3_plant, budget=6)
     assert res.evaluations <= 6
     assert res.cost_s <= res.start_cost_s
-    again, _ = evaluate(controller, res.gains, specs, fmu)
+    again, _ = evaluate(controller, res.gains, specs, fmu3_plant)
     assert again == pytest.approx(res.cost_s)  # deterministic
 
 
-def test_inadmissible_gains_cost_the_penalty(fmu: FmuPlant) -> None:
+def test_inadmissible_gains_cost_the_penalty(fmu3_plant: FmuPlant) -> None:
     specs = [RunSpec(name="a", start=Pose(0, 0, 0), goal=Pose(3.0, 0.0, 0.0), t_max_s=30.0)]
-    cost, results = evaluate("astolfi", {"k_rho": 5.0, "k_alpha": 1.0}, specs, fmu)
+    cost, results = evaluate("astolfi", {"k_rho": 5.0, "k_alpha": 1.0}, specs, fmu3_plant)
     assert results == [None] and cost == pytest.approx(2 * 30.0 + PENALTY_S)
 
 
@@ -113,7 +106,7 @@ def _draw_of(spec: RunSpec) -> tuple[object, ...]:
 
 def test_wmr_tune_on_a_spec_scores_every_candidate_on_the_same_draws(
         tmp_path: Path, capsys: pytest.CaptureFixture[str],
-        monkeypatch: pytest.MonkeyPatch, fmu: FmuPlant) -> None:
+        monkeypatch: pytest.MonkeyPatch, fmu3_plant: FmuPlant) -> None:
     import wmr.apps.tune as tune_mod
 
     spec = tmp_path / "tiny_mc.toml"
@@ -144,8 +137,8 @@ def test_wmr_tune_on_a_spec_scores_every_candidate_on_the_same_draws(
     monkeypatch.setattr(tune_mod, "run_closed_loop", real)
     specs = tune_mod.batch_cases(spec, 3)
     start_cost, _ = evaluate("pi", {g.name: g.default for g in tune_mod.tunable_gains("pi")},
-                             specs, fmu)
-    tuned_cost, results = evaluate("pi", rec["gains"], specs, fmu)
+                             specs, fmu3_plant)
+    tuned_cost, results = evaluate("pi", rec["gains"], specs, fmu3_plant)
     assert start_cost == pytest.approx(rec["start_objective_s"])
     assert tuned_cost == pytest.approx(rec["objective_s"]) and tuned_cost <= start_cost
     assert rec["converged"] == sum(r is not None and r.status == "converged" for r in results)

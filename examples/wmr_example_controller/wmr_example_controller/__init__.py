@@ -22,13 +22,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
 
-from wmr.core.control.registry import ControllerInfo, Gain
+from wmr.core.control.registry import ControllerInfo, Gain, LawSpec
 from wmr.core.control.stabiliser import wrap_angle
-
-if TYPE_CHECKING:
-    from wmr.core.runspec import RunSpec
 
 TURN, DRIVE, ALIGN = 0, 2, 1  # ALIGN = 1: wmr's scene draws phase 1 as the final alignment
 #: wmr's at-rest thresholds of a converged run (wmr.core.control.stabiliser).
@@ -42,7 +38,7 @@ SIGNALS = ("dr_m", "e_s_m", "e_theta_rad", "alpha_rad", "u_s_mps", "u_theta_radp
 class TurnThenDrive:
     """The law of one run: pose in, the :data:`SIGNALS` out (a wmr ``Stabiliser``)."""
 
-    def __init__(self, spec: RunSpec, gains: Mapping[str, float]) -> None:
+    def __init__(self, spec: LawSpec, gains: Mapping[str, float]) -> None:
         self.xd, self.yd, self.theta_d = spec.goal.x_m, spec.goal.y_m, spec.goal.heading_rad
         self.k_v, self.k_w = gains["k_v"], gains["k_w"]
         self.turn_tolerance = gains["turn_tolerance_rad"]

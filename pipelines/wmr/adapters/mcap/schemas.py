@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import itertools
 import struct
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Final, Protocol
@@ -407,7 +408,10 @@ class RowEncoder:
         self._seg_start = np.concatenate([[0], np.cumsum(self._seg_const)[:-1]])
         self._n_topics = n_topics
         self._cols_by_key: dict[int, NDArray[np.intp]] = {}
-        self._src = np.empty((0, self._n_src), np.uint8)
+        # the source rows' scratch buffer, one per thread: the writer shares one encoder
+        # between every log of a process, and a Dask worker writes logs in several threads
+        # (one buffer for all wrote a thread's rows into another's log)
+        self._scratch = threading.local()
 
     def _cols(self, key: int) -> NDArray[np.intp]:
         """Source columns of a row whose timestamp varints have lengths ``divmod(key, 8)``."""
@@ -421,6 +425,15 @@ class RowEncoder:
                 keep[pos : pos + _TS_SLOTS] = used
             cols = self._cols_by_key[key] = self._col_map[keep]
         return cols
+
+    def _source_rows(self, n: int) -> NDArray[np.uint8]:
+        """This thread's ``n`` source rows (their constant columns filled)."""
+        buf: NDArray[np.uint8] | None = getattr(self._scratch, "src", None)
+        if buf is None or buf.shape[0] < n:
+            buf = np.empty((n, self._n_src), np.uint8)
+            buf[:, : self._consts.shape[0]] = self._consts
+            self._scratch.src = buf
+        return buf[:n]
 
     def encode(
         self, t_ns: NDArray[np.int64], block: NDArray[np.float64]
@@ -446,10 +459,7 @@ class RowEncoder:
             return b"", np.zeros((0, self._n_topics), np.int64)
         ts, nbytes = encode_timestamps(t_ns)
         tslen = nbytes.sum(axis=1) + np.count_nonzero(nbytes, axis=1)
-        if self._src.shape[0] < n:
-            self._src = np.empty((n, self._n_src), np.uint8)
-            self._src[:, : self._consts.shape[0]] = self._consts
-        src = self._src[:n]
+        src = self._source_rows(n)
         b = self._base
         src[:, b["t"] : b["t"] + 8] = t_ns.astype("<u8").view(np.uint8).reshape(n, 8)
         src[:, b["tslen"]] = tslen

@@ -2,10 +2,11 @@ r"""Every controller a run can use, in one registry: the paper's PI, the peers, 
 
 A controller is a :class:`ControllerInfo`: its name (``RunSpec.controller``, ``wmr run
 --controller NAME``), its gains (:class:`Gain`: name, default, unit, and the bounds ``wmr tune``
-searches), how to make its law from a :class:`~wmr.core.runspec.RunSpec`, and the signals the
-law fills, by name (of :data:`wmr.core.signals.LAW_SIGNALS`).  Every command reads it: ``wmr
-run``, ``wmr batch`` (``controller`` as a dimension), ``wmr benchmark --controllers``, ``wmr
-tune --controller``, the scenario files and ``wmr.run(controller=..., controller_gains=...)``.
+searches), how to make its law from a run (a :class:`~wmr.core.runspec.RunSpec`, seen here as
+a :class:`LawSpec`), and the signals the law fills, by name (of
+:data:`wmr.core.signals.LAW_SIGNALS`).  Every command reads it: ``wmr run``, ``wmr batch``
+(``controller`` as a dimension), ``wmr benchmark --controllers``, ``wmr tune --controller``,
+the scenario files and ``wmr.run(controller=..., controller_gains=...)``.
 
 The law is a point stabiliser (:class:`wmr.core.control.Stabiliser`: ``reset``, ``update(x, y,
 theta)`` returning the declared signals in the declared order, ``converged``,
@@ -33,7 +34,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from functools import cache
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from wmr.core.control import ServoedController
 from wmr.core.control.peers import (
@@ -42,14 +43,14 @@ from wmr.core.control.peers import (
     GracefulGains,
     GracefulStabiliser,
 )
-from wmr.core.control.stabiliser import Gains, PointStabiliser
+from wmr.core.control.stabiliser import Gains, Limits, PointStabiliser
+from wmr.core.plant import Pose, RobotParams
 from wmr.core.signals import LAW_INDEX, LAW_SIGNALS, WHEEL_REFERENCES
 from wmr.infra import plugins
 from wmr.infra.errors import ConfigError
 
 if TYPE_CHECKING:
     from wmr.core.control import Stabiliser
-    from wmr.core.runspec import RunSpec
 
 #: The entry-point group of controller plug-ins.
 ENTRY_POINT_GROUP: Final = "wmr.controllers"
@@ -59,6 +60,38 @@ CONTROLLER_GAINS: Final = "controller_gains"
 RUN_GAINS: Final = "gains"
 #: Characters a controller's name may hold (it is a file name, a CSV cell and a list item).
 _NAME_CHARS: Final = frozenset("abcdefghijklmnopqrstuvwxyz0123456789_-.")
+
+
+class LawSpec(Protocol):
+    """What a controller's law is made from: the run's fields that :class:`ControllerInfo`'s
+    ``make`` and :func:`make_controller` read.  A :class:`~wmr.core.runspec.RunSpec` is one
+    (the registry names this protocol, not the class: a run spec checks its controller's
+    gains here when it is made, so the registry must not import it back)."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def start(self) -> Pose: ...
+    @property
+    def goal(self) -> Pose: ...
+    @property
+    def params(self) -> RobotParams: ...
+    @property
+    def gains(self) -> Gains: ...
+    @property
+    def limits(self) -> Limits: ...
+    @property
+    def period_s(self) -> float: ...
+    @property
+    def stop_radius_m(self) -> float: ...
+    @property
+    def t_max_s(self) -> float: ...
+    @property
+    def heading_tolerance_rad(self) -> float: ...
+    @property
+    def controller(self) -> str: ...
+    @property
+    def controller_gains(self) -> tuple[tuple[str, float], ...]: ...
 
 
 @dataclass(frozen=True)
@@ -120,7 +153,7 @@ class ControllerInfo:
 
     name: str
     summary: str
-    make: Callable[[RunSpec, Mapping[str, float]], Stabiliser]
+    make: Callable[[LawSpec, Mapping[str, float]], Stabiliser]
     gains: tuple[Gain, ...] = ()
     signals: tuple[str, ...] = LAW_SIGNALS
     check: Callable[[Mapping[str, float]], object] | None = None
@@ -211,7 +244,7 @@ def _gains_of(cls: type, units: Mapping[str, str],
                  for f in fields(cls) if isinstance(f.default, int | float))
 
 
-def _make_pi(spec: RunSpec, gains: Mapping[str, float]) -> Stabiliser:
+def _make_pi(spec: LawSpec, gains: Mapping[str, float]) -> Stabiliser:
     goal, p = spec.goal, spec.params
     return PointStabiliser(goal.x_m, goal.y_m, goal.heading_rad, spec.gains, spec.limits, p.r,
                            p.L, spec.period_s, spec.stop_radius_m)
@@ -222,12 +255,12 @@ def _astolfi_gains(gains: Mapping[str, float]) -> AstolfiGains:
     return AstolfiGains(**gains)  # type: ignore[arg-type]
 
 
-def _make_astolfi(spec: RunSpec, gains: Mapping[str, float]) -> Stabiliser:
+def _make_astolfi(spec: LawSpec, gains: Mapping[str, float]) -> Stabiliser:
     return AstolfiStabiliser(spec.goal, _astolfi_gains(gains), spec.limits, spec.params,
                              spec.period_s, spec.stop_radius_m)
 
 
-def _make_graceful(spec: RunSpec, gains: Mapping[str, float]) -> Stabiliser:
+def _make_graceful(spec: LawSpec, gains: Mapping[str, float]) -> Stabiliser:
     return GracefulStabiliser(spec.goal, GracefulGains(**gains), spec.limits, spec.params,
                               spec.period_s, spec.stop_radius_m)
 
@@ -358,7 +391,7 @@ class _Scattered:
         return getattr(self.law, name)
 
 
-def make_controller(spec: RunSpec) -> ServoedController:
+def make_controller(spec: LawSpec) -> ServoedController:
     """The law ``spec.controller`` names, with the run's gains, on the two wheel servos."""
     info = get(spec.controller)
     law = info.make(spec, info.checked_gains(dict(spec.controller_gains)))
@@ -375,6 +408,7 @@ __all__ = [
     "RUN_GAINS",
     "ControllerInfo",
     "Gain",
+    "LawSpec",
     "check_gains",
     "get",
     "make_controller",
