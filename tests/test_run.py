@@ -111,6 +111,7 @@ class _FailingPlant:
     def __init__(self, inner: FmuPlant, fail_at: int) -> None:
         self.inner, self.fail_at, self.n = inner, fail_at, 0
         self.sha256, self.fmu_path, self.fmi_version = inner.sha256, inner.fmu_path, "3.0"
+        self.model_description_xml = inner.model_description_xml
 
     def reset(self, params: RobotParams, start: Pose, v0_mps: float = 0.0,
               omega0_radps: float = 0.0) -> np.ndarray:

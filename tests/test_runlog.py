@@ -146,6 +146,28 @@ def test_the_mcap_log_and_the_memory_log_receive_the_same_run(
     assert attached == list(log.header.attachments)
 
 
+def test_the_log_attaches_the_model_description_of_the_fmu_the_run_ran(
+        fmu3: Path, tmp_path: Path) -> None:
+    """The attached ``modelDescription.xml`` is the one the plant extracted and runs, not
+    the archive read again at log time: an FMU file replaced (or a batch thread's other FMU)
+    after the plant opened does not change what the log says ran.  Seen failing when the
+    archive was re-read by path (a replaced file made the run fail with BadZipFile)."""
+    import shutil
+    import zipfile
+
+    fmu = tmp_path / "robot.fmu"
+    shutil.copyfile(fmu3, fmu)
+    with zipfile.ZipFile(fmu3) as zf:
+        expected = zf.read("modelDescription.xml")
+    memory = MemoryOpener()
+    with FmuPlant(fmu) as plant:
+        fmu.write_bytes(b"not an FMU any more")
+        record = run_to_log(_fig11(1.0), memory, plant)
+    assert record["status"] != "failed", record["message"]
+    assert dict((a[0], a[2]) for a in memory.last.header.attachments)[
+        "modelDescription.xml"] == expected
+
+
 def test_a_run_with_sensors_writes_its_sensing_through_the_protocol(
         fmu3: Path, tmp_path: Path) -> None:
     """``write_sensing``: the in-memory log keeps the run's record, the MCAP log's sensing

@@ -49,7 +49,6 @@ from wmr.adapters.mcap import OPEN_LOOP_TOPICS, McapOpener
 from wmr.apps.run import (
     FULL_LOGS,
     LogPolicy,
-    _model_description,
     run_to_log,
     scenario_attachment_name,
 )
@@ -138,7 +137,7 @@ def safe_name(name: str) -> str:
 
 def fmu_attachments(plant: FmuPlant) -> dict[str, tuple[str, bytes]]:
     """The FMU's ``modelDescription.xml`` as a log attachment (read as ``wmr run`` reads it)."""
-    return {"modelDescription.xml": ("application/xml", _model_description(plant.fmu_path))}
+    return {"modelDescription.xml": ("application/xml", plant.model_description_xml)}
 
 
 class _RadiusTracker:

@@ -12,7 +12,6 @@ import json
 import math
 import os
 import sys
-import zipfile
 from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass, replace
@@ -103,29 +102,11 @@ def scenario_attachment_name(spec: RunSpec) -> str:
     return f"{safe_filename(spec.name)}.toml"
 
 
-#: The last FMU's ``modelDescription.xml``: ``(path, size, mtime_ns, bytes)`` (a batch worker
-#: attaches the same one to every log; a changed file is read again).
-_MODEL_DESCRIPTION: list[tuple[str, int, int, bytes]] = []
-
-
-def _model_description(fmu_path: str | os.PathLike[str]) -> bytes:
-    """The ``modelDescription.xml`` of the FMU at ``fmu_path``, read once while it is the
-    same file."""
-    path = os.fspath(fmu_path)
-    st = os.stat(path)
-    if _MODEL_DESCRIPTION and _MODEL_DESCRIPTION[0][:3] == (path, st.st_size, st.st_mtime_ns):
-        return _MODEL_DESCRIPTION[0][3]
-    with zipfile.ZipFile(path) as zf:
-        md = zf.read("modelDescription.xml")
-    _MODEL_DESCRIPTION[:] = [(path, st.st_size, st.st_mtime_ns, md)]
-    return md
-
-
 def _attachments(spec: RunSpec, plant: FmuPlant) -> tuple[tuple[str, str, bytes], ...]:
     """The FMU's ``modelDescription.xml`` and the run's effective scenario: the scenario file
     with every override of this run applied, one run only (a batch run's log holds its own
     run, not the whole spec), which ``wmr run`` reads back into the same run."""
-    return (("modelDescription.xml", "application/xml", _model_description(plant.fmu_path)),
+    return (("modelDescription.xml", "application/xml", plant.model_description_xml),
             (scenario_attachment_name(spec), "application/toml",
              run_spec_toml(spec).encode("utf-8")))
 

@@ -71,6 +71,8 @@ class FmuPlant:
             slave.remove_folder()
             raise FmuError(f"{self.fmu_path}: not a co-simulation FMU")
         self.model_description = md
+        #: ``modelDescription.xml`` of the instance, as extracted (a log's attachment).
+        self.model_description_xml: bytes = slave.model_description_xml
         self.fmi_version = slave.fmi_version
         self.sha256 = file_sha256(self.fmu_path)
         try:

@@ -241,6 +241,9 @@ class FmuSlave:
             safe_extract(self.fmu_path, self._tmp)
             with _READ_MD:
                 md = read_model_description(str(self._tmp))
+            # the bytes a log attaches: those of the instance this slave runs (extracted and
+            # checked above), not the archive read again, which may have changed since
+            xml = (self._tmp / "modelDescription.xml").read_bytes()
         except FmuError:
             self.remove_folder()
             raise
@@ -253,6 +256,8 @@ class FmuSlave:
             self.remove_folder()
             raise FmuError(f"{self.fmu_path}: unreadable model description: {exc}") from exc
         self.model_description: Any = md
+        #: ``modelDescription.xml`` as extracted (what a run's log attaches).
+        self.model_description_xml: bytes = xml
         self.fmi_version: str = md.fmiVersion
         self._fmi2 = self.fmi_version.startswith("2")
         #: fmpy's ``FMU2Slave``/``FMU3Slave`` once :meth:`instantiate_or_reset` made it.
