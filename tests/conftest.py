@@ -122,16 +122,3 @@ def _journal_of_before(out: Path, runs: Any) -> None:
 def journal_of_before() -> Callable[[Path, Any], None]:
     """:func:`_journal_of_before`: a batch folder's journal as older batches wrote it."""
     return _journal_of_before
-
-
-@pytest.fixture(autouse=True)
-def read_limit_of_the_test_only() -> Iterator[None]:
-    """``--read-limit`` sets ``WMR_READ_LIMIT_MIB`` for the rest of its process (the
-    command's every read); a test calling ``main`` must not leave it to the tests after it
-    in the same worker (a 16 MiB limit read a later test's 7 MB log as truncated)."""
-    before = os.environ.get("WMR_READ_LIMIT_MIB")
-    yield
-    if before is None:
-        os.environ.pop("WMR_READ_LIMIT_MIB", None)
-    else:
-        os.environ["WMR_READ_LIMIT_MIB"] = before
