@@ -12,7 +12,7 @@ from typing import Any, Final
 from wmr.apps.request import Overrides
 from wmr.core.control import Limits
 from wmr.core.plant import Pose, RobotParams
-from wmr.core.record import RECORD_KEYS, record
+from wmr.core.record import RECORD_KEYS, RunFigures, record
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 
@@ -255,19 +255,19 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
                                   control_period_s=period_s)
         figures = replay_figures(replay, goal, 0.05)
         # an open-loop replay has no stabiliser: what it "believed" is the truth
-        done = {**record(name=name, status=res.status, message=message,
-                         final_position_error_m=figures["final_position_error_m"],
-                         final_heading_error_rad=figures["final_heading_error_rad"],
-                         time_to_goal_s=res.final_time_s,
-                         path_length_m=figures["path_length_m"],
-                         energy_net_j=figures["energy_net_j"],
-                         energy_positive_j=figures["energy_positive_j"],
-                         energy_abs_j=figures["energy_abs_j"],
-                         torque_sq_integral_n2m2s=figures["torque_sq_integral_n2m2s"],
-                         peak_torque_nm=figures["peak_torque_nm"], steps=len(replay.t_s),
-                         estimated_final_position_error_m=figures["final_position_error_m"],
-                         estimated_final_heading_error_rad=figures["final_heading_error_rad"],
-                         mcap=str(out)),
+        done = {**record(RunFigures(
+                    name=name, status=res.status, message=message,
+                    final_position_error_m=figures["final_position_error_m"],
+                    final_heading_error_rad=figures["final_heading_error_rad"],
+                    time_to_goal_s=res.final_time_s, path_length_m=figures["path_length_m"],
+                    energy_net_j=figures["energy_net_j"],
+                    energy_positive_j=figures["energy_positive_j"],
+                    energy_abs_j=figures["energy_abs_j"],
+                    torque_sq_integral_n2m2s=figures["torque_sq_integral_n2m2s"],
+                    peak_torque_nm=figures["peak_torque_nm"], steps=len(replay.t_s),
+                    estimated_final_position_error_m=figures["final_position_error_m"],
+                    estimated_final_heading_error_rad=figures["final_heading_error_rad"],
+                    mcap=str(out))),
                 **own, "time_to_radius_s": figures["time_to_radius_s"],
                 "final_speed_mps": replay.final_speed_mps}
         write_optimal_log(out, res, replay, plant,
