@@ -128,22 +128,23 @@ def test_an_unknown_objective_is_refused_naming_the_field(tmp_path: Path) -> Non
 def test_the_previous_solution_warm_starts_the_same_manoeuvre_only() -> None:
     """A worker's previous optimum starts IPOPT when the new run is the same manoeuvre
     relative to its start (another robot); for another manoeuvre the kinematic path does."""
-    from wmr.adapters.ocp import OptimalLimits, solve_optimal
+    from wmr.adapters.ocp import OptimalLimits, OptimalProblem, solve_optimal
     from wmr.core.control import Limits
     from wmr.core.plant import Pose, RobotParams
 
     limits = OptimalLimits.like(Limits())
     goal = Pose(0.0, 0.0, math.pi)
-    first = solve_optimal(Pose(3.0, 0.0, 0.0), goal, limits=limits)
+    first = solve_optimal(OptimalProblem(Pose(3.0, 0.0, 0.0), goal, limits=limits))
     assert first.extra["guess"] == "kinematic"
     # the same manoeuvre turned by -90 deg about the goal, on a heavier robot
-    same = solve_optimal(Pose(0.0, -3.0, -math.pi / 2), Pose(0.0, 0.0, math.pi / 2),
-                         RobotParams(m=40.0), limits=limits, previous=first)
+    turned = OptimalProblem(Pose(0.0, -3.0, -math.pi / 2), Pose(0.0, 0.0, math.pi / 2),
+                            RobotParams(m=40.0), limits=limits)
+    same = solve_optimal(turned, previous=first)
     assert same.solved and same.extra["guess"] == "previous"
-    fresh = solve_optimal(Pose(0.0, -3.0, -math.pi / 2), Pose(0.0, 0.0, math.pi / 2),
-                          RobotParams(m=40.0), limits=limits)
+    fresh = solve_optimal(turned)
     assert same.final_time_s == pytest.approx(fresh.final_time_s, rel=1e-6)
-    other = solve_optimal(Pose(2.0, 1.0, 0.0), goal, limits=limits, previous=first)
+    other = solve_optimal(OptimalProblem(Pose(2.0, 1.0, 0.0), goal, limits=limits),
+                          previous=first)
     assert other.solved and other.extra["guess"] == "kinematic"
 
 

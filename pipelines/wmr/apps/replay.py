@@ -140,13 +140,13 @@ def _optimal_paths(out: Path, chosen: Sequence[tuple[str, Path]],
     folder = open_batch(out)
     if folder.spec.optimal is None:
         return {}
-    from wmr.adapters.ocp import OptimalLimits, solve_optimal
+    from wmr.adapters.ocp import OptimalLimits, OptimalProblem, solve_optimal
 
     paths: dict[Path, NDArray[np.float64]] = {}
     for run_id, log in chosen:
         spec = folder.run(run_id).spec
-        res = solve_optimal(spec.start, spec.goal, spec.params, objective="time",
-                            limits=OptimalLimits.like(spec.limits))
+        res = solve_optimal(OptimalProblem(spec.start, spec.goal, spec.params,
+                                           limits=OptimalLimits.like(spec.limits)))
         if res.status == "solved":
             paths[log] = np.column_stack([res.states["x"], res.states["y"]])
         elif say is not None:
