@@ -546,15 +546,15 @@ def test_replay_logs_names_its_arguments_in_the_callers_words(
     no log, and ``worst`` without one batch folder, are errors naming the argument as the
     caller wrote it (the keyword for the API, the option for the command line, which
     translates the keyword)."""
-    from wmr.apps.replay import replay_logs
+    from wmr.apps.replay import ReplayRequest, replay_logs
     from wmr.infra.errors import ConfigError
 
     with pytest.raises(ConfigError) as err:
-        replay_logs()
+        replay_logs(ReplayRequest())
     assert err.value.field == "logs" and "no log given" in str(err.value)
     assert main(["replay"]) == 1
     assert capsys.readouterr().err.startswith("wmr: error: FILE.mcap|DIR: no log given")
     (tmp_path / "a.mcap").write_bytes(b"")
     with pytest.raises(ConfigError) as err:
-        replay_logs([tmp_path / "a.mcap"], worst=3)
+        replay_logs(ReplayRequest([tmp_path / "a.mcap"], worst=3))
     assert err.value.field == "worst" and "batch folder" in str(err.value)
