@@ -280,11 +280,11 @@ def test_wmr_ssp_check_of_a_package_of_another_tool_s_robot_uses_only_its_map(
     from wmr.adapters.ssp.agreement import deviation, libcosim_path, wmr_run_path
     from wmr.adapters.ssp.export import export_ssp
     from wmr.apps.ssp_check import check_package
-    from wmr.config.scenario import load_scenario, with_overrides
+    from wmr.config.scenario import Overrides, load_scenario, with_overrides
     from wmr.core.plant import Pose
 
     base = next(iter(load_scenario("fig11").runs))
-    spec = replace(with_overrides(base, goal=Pose(1.0, 0.5, math.radians(30.0))),
+    spec = replace(with_overrides(base, Overrides(goal=Pose(1.0, 0.5, math.radians(30.0)))),
                    name="uni-short")
     var_map = load_map(MAP)
     package = export_ssp(spec, tmp_path / "uni.ssp", unicycle_fmu, built.controllers[2],

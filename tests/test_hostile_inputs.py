@@ -24,7 +24,7 @@ from wmr.adapters.mcap import read_run
 from wmr.apps.batch import BatchOptions, load_batch, parse_batch, run_batch
 from wmr.cli import MAX_LINE_CHARS, main
 from wmr.config.naming import default_log_path, file_stem
-from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, parse_scenario, with_overrides
 from wmr.infra.errors import ConfigError, WmrError
 
 FIG11 = 'name = "h"\nstart = [0.0, 0.0, 0.0]\ngoal = [2.0, 1.0, 0.0]\n'
@@ -38,7 +38,7 @@ def test_a_huge_length_is_a_config_error_by_every_route(name: str, route: str) -
     """``params.r = 1e308`` used to raise OverflowError from ``r**2`` in the mass matrix."""
     with pytest.raises(ConfigError) as err:
         if route == "flag":
-            with_overrides(load_scenario("fig11").runs[0], params={name: 1e308})
+            with_overrides(load_scenario("fig11").runs[0], Overrides(params={name: 1e308}))
         elif route == "file":
             parse_scenario(tomllib.loads(FIG11 + f"[params]\n{name} = 1e308\n"))
         elif route == "grid":
@@ -54,7 +54,7 @@ def test_a_huge_length_is_a_config_error_by_every_route(name: str, route: str) -
 def test_products_that_overflow_name_the_extreme_parameter() -> None:
     """Each value finite and its square too, but m l^2 is not."""
     with pytest.raises(ConfigError) as err:
-        with_overrides(load_scenario("fig11").runs[0], params={"m": 1e300, "l": 1e10})
+        with_overrides(load_scenario("fig11").runs[0], Overrides(params={"m": 1e300, "l": 1e10}))
     assert err.value.field == "params.m"
 
 

@@ -29,7 +29,7 @@ from wmr.adapters.rerun.replay import (
 )
 from wmr.apps.run import run_to_log
 from wmr.cli import main
-from wmr.config.scenario import load_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.runspec import RunSpec
@@ -234,7 +234,7 @@ def test_folder_of_runs_is_one_recording(fig11_log: Path, spec: RunSpec, fmu_pla
     (batch / "a").mkdir(parents=True)
     (batch / "b").mkdir()
     (batch / "a" / "fig11.mcap").write_bytes(fig11_log.read_bytes())
-    short = with_overrides(spec, start=(10.0, 10.0, 90.0), name="short")
+    short = with_overrides(spec, Overrides(start=(10.0, 10.0, 90.0), name="short"))
     run_to_log(short, batch / "b" / "fig11.mcap", fmu_plant)  # same file name, other folder
     run_to_log(short, batch / "b" / "other+run.mcap", fmu_plant)
     logs = find_logs([batch])

@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 
 from wmr.config.scenario import (
+    Overrides,
     expand,
     load_scenario,
     parse_scenario,
@@ -121,20 +122,21 @@ def test_runs_inherit_and_override(tmp_path: Path) -> None:
 
 def test_with_overrides() -> None:
     (run,) = parse_scenario(BASE).runs
-    new = with_overrides(run, start=(1.0, 1.0, 90.0), goal=Pose(5.0, 5.0, 0.0),
-                         gains={"K_ps": 0.8}, limits={"torque_max_nm": 5.0},
-                         params={"m": 30.0}, t_max_s=60.0)
+    new = with_overrides(run,
+                         Overrides(start=(1.0, 1.0, 90.0), goal=Pose(5.0, 5.0, 0.0),
+                                   gains={"K_ps": 0.8}, limits={"torque_max_nm": 5.0},
+                                   params={"m": 30.0}, max_time_s=60.0))
     assert new.start.heading_rad == pytest.approx(math.pi / 2)
     assert new.goal == Pose(5.0, 5.0, 0.0)
     assert new.gains.K_ps == 0.8 and new.gains.K_ptheta == run.gains.K_ptheta
     assert new.limits.torque_max_nm == 5.0 and new.params.m == 30.0 and new.t_max_s == 60.0
     assert with_overrides(run) == run
     with pytest.raises(ConfigError, match=r"start\.x_m"):
-        with_overrides(run, start=(math.nan, 0.0, 0.0))
+        with_overrides(run, Overrides(start=(math.nan, 0.0, 0.0)))
     with pytest.raises(ConfigError, match=r"gains\.K_x"):
-        with_overrides(run, gains={"K_x": 1.0})
+        with_overrides(run, Overrides(gains={"K_x": 1.0}))
     with pytest.raises(ConfigError, match="control_period_s"):
-        with_overrides(run, period_s=-1.0)
+        with_overrides(run, Overrides(period_s=-1.0))
 
 
 def test_runspec_is_frozen_and_validated() -> None:

@@ -131,8 +131,9 @@ class OptimalRequest:
 
     def __post_init__(self) -> None:
         o = self.overrides
-        for name in ("gains", "period_s", "stop_radius_m", "max_time_s", "controller",
-                     "controller_gains", "sensors", "sensor"):
+        for name in ("name", "gains", "period_s", "stop_radius_m", "max_time_s",
+                     "heading_tolerance_deg", "controller", "controller_gains", "sensors",
+                     "sensor"):
             if getattr(o, name) not in (None, {}):
                 raise ConfigError(name, "has no meaning for the optimal manoeuvre",
                                   "give start, goal, params and limits only")
@@ -154,7 +155,7 @@ def optimal_command(request: OptimalRequest,
     from wmr.infra.outputs import check_output
 
     r, o = request, request.overrides
-    start, goal = o.start, o.goal
+    start, goal = (_degrees(p) if isinstance(p, Pose) else p for p in (o.start, o.goal))
     spec = None
     if r.scenario is not None or r.run is not None or o.params or o.limits:
         from wmr.apps.run import select_run
@@ -163,7 +164,7 @@ def optimal_command(request: OptimalRequest,
         base = (select_run(load_scenario(r.scenario), r.run) if r.scenario is not None
                 or r.run is not None else RunSpec(name="", start=Pose(0.0, 0.0, 0.0),
                                                   goal=Pose(0.0, 0.0, 0.0)))
-        spec = with_overrides(base, params=o.params, limits=o.limits)
+        spec = with_overrides(base, Overrides(params=o.params, limits=o.limits))
         if start is None and r.scenario is not None:
             start = _degrees(spec.start)
         if goal is None and r.scenario is not None:
