@@ -139,6 +139,30 @@ def test_with_overrides() -> None:
         with_overrides(run, Overrides(period_s=-1.0))
 
 
+def test_one_override_object_takes_poses_presets_and_typed_fields() -> None:
+    """``Overrides`` (issue 29: one object where with_overrides took 14 keywords): a Pose is
+    kept in rad, never read as degrees; a pose of non-numbers is a one-line error naming the
+    field; a sensor preset, then fields as a user typed them, go over the run's sensors in
+    that order (the step resolve_run did after with_overrides before).  Seen failing with
+    ``_sensors`` applying ``sensor`` before the preset, and with a Pose sent through
+    ``_pose`` (degrees)."""
+    from dataclasses import replace
+
+    from wmr.core.sensing import preset
+
+    (run,) = parse_scenario(BASE).runs
+    assert with_overrides(run, Overrides(goal=Pose(1.0, 2.0, 0.5))).goal == Pose(1.0, 2.0, 0.5)
+    for bad in (("a", 0.0, 0.0), 3.0):
+        with pytest.raises(ConfigError) as err:
+            Overrides(start=bad)  # type: ignore[arg-type]
+        assert err.value.field == "start"
+    gps = with_overrides(run, Overrides(sensors="gps", sensor={"gps_sigma_m": "0.5"}))
+    assert gps.sensors == replace(preset("gps"), gps_sigma_m=0.5)
+    assert with_overrides(gps, Overrides(sensors="off")).sensors is None
+    typed = with_overrides(run, Overrides(sensors={"seed": 3}))
+    assert typed.sensors is not None and typed.sensors.seed == 3
+
+
 def test_runspec_is_frozen_and_validated() -> None:
     spec = RunSpec("x", Pose(0, 0, 0), Pose(1, 1, 0))
     with pytest.raises(AttributeError):

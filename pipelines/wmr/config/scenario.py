@@ -369,7 +369,7 @@ def _pose_input(value: Pose | Sequence[float] | None, name: str) -> Pose | PoseD
     if value is None or isinstance(value, Pose):
         return value
     fix = "give three numbers: x and y in metres, the heading in degrees"
-    if isinstance(value, str | bytes) or len(value) != 3:
+    if isinstance(value, str | bytes) or not hasattr(value, "__len__") or len(value) != 3:
         raise ConfigError(name, f"must be (x_m, y_m, heading_deg), got {value!r}", fix)
     try:
         return (float(value[0]), float(value[1]), float(value[2]))
