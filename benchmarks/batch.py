@@ -53,7 +53,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from wmr.apps.batch import BatchSpec, load_batch, run_batch
+from wmr.apps.batch import BatchOptions, BatchSpec, load_batch, run_batch
 from wmr.apps.batch.spec import RunList
 from wmr.apps.run import LogPolicy, default_fmu
 from wmr.infra.paths import scenarios_dir
@@ -95,14 +95,16 @@ def executors(n_runs: int, repeats: int) -> None:
 
     def local(workers: int) -> Callable[[Path], None]:
         def go(out: Path) -> None:
-            result = run_batch(batch, out, workers=workers, fmu_path=fmu, progress=False)
+            result = run_batch(batch, out, BatchOptions(workers=workers, fmu_path=fmu),
+                               progress=False)
             assert len(result.executed) == n_runs
         return go
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster, Client(cluster) as client:
         def on_dask(out: Path) -> None:
-            result = run_batch(batch, out, client=client, fmu_path=fmu, progress=False)
+            result = run_batch(batch, out, BatchOptions(client=client, fmu_path=fmu),
+                               progress=False)
             assert len(result.executed) == n_runs
 
         configs = {"local, 1 worker": local(1), "local, 2 workers": local(2),
@@ -234,8 +236,9 @@ def policies(n_runs: int, names: list[str], with_dask: bool) -> None:
                 folder = Path(tempfile.mkdtemp(prefix="wmr-bench-policy-", dir=os.getcwd()))
                 try:
                     t0 = time.perf_counter()
-                    result = run_batch(batch, folder, fmu_path=fmu, progress=False,
-                                       log=LogPolicy(name), **how)
+                    result = run_batch(batch, folder,
+                                       BatchOptions(fmu_path=fmu, log=LogPolicy(name), **how),
+                                       progress=False)
                     wall = time.perf_counter() - t0
                     assert len(result.executed) == n_runs
                     rows.append((name, label, wall, n_runs / wall, _folder_bytes(folder),
@@ -274,7 +277,8 @@ def scaling(n_runs: int, with_dask: bool, repeats: int, policy: str,
             else batch
         for how in configs.values():  # imports, the forkserver, the Dask workers' FMU: once
             folder = Path(tempfile.mkdtemp(prefix="wmr-bench-warm-"))
-            run_batch(warm, folder, fmu_path=fmu, progress=False, log=LogPolicy(policy), **how)
+            run_batch(warm, folder, BatchOptions(fmu_path=fmu, log=LogPolicy(policy), **how),
+                      progress=False)
             shutil.rmtree(folder, ignore_errors=True)
         for _ in range(repeats):
             for name, how in configs.items():
@@ -282,8 +286,9 @@ def scaling(n_runs: int, with_dask: bool, repeats: int, policy: str,
                 try:
                     before = resource.getrusage(resource.RUSAGE_SELF)
                     t0 = time.perf_counter()
-                    result = run_batch(batch, folder, fmu_path=fmu, progress=False,
-                                       log=LogPolicy(policy), **how)
+                    result = run_batch(batch, folder,
+                                       BatchOptions(fmu_path=fmu, log=LogPolicy(policy), **how),
+                                       progress=False)
                     wall = time.perf_counter() - t0
                     after = resource.getrusage(resource.RUSAGE_SELF)
                     assert len(result.executed) == n_runs

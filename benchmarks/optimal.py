@@ -22,15 +22,26 @@ import math
 import statistics
 import time
 
-from wmr.adapters.ocp import DEFAULT_INTERVALS, DEFAULT_RK_SUBSTEPS, _nlp, fig9_cases, solve_optimal
+from wmr.adapters.ocp import (
+    DEFAULT_INTERVALS,
+    DEFAULT_RK_SUBSTEPS,
+    OptimalLimits,
+    OptimalProblem,
+    SolverOptions,
+    _nlp,
+    fig9_cases,
+    solve_optimal,
+)
+from wmr.core.plant import Pose
 
 
-def _median_solve(start: object, goal: object, warm: bool, repeats: int,
-                  limits: dict[str, float]) -> tuple[float, int, float, str]:
+def _median_solve(start: Pose, goal: Pose, warm: bool, repeats: int,
+                  limits: OptimalLimits) -> tuple[float, int, float, str]:
     """(median solve s, iterations, final time s, status) over ``repeats`` solves."""
     times, last = [], None
     for _ in range(repeats):
-        r = solve_optimal(start, goal, warm_start=warm, **limits)  # type: ignore[arg-type]
+        r = solve_optimal(OptimalProblem(start, goal, limits=limits),
+                          SolverOptions(warm_start=warm))
         times.append(r.solve_time_s)
         last = r
     assert last is not None
@@ -39,7 +50,6 @@ def _median_solve(start: object, goal: object, warm: bool, repeats: int,
 
 def _batch(spec_name: str, n_runs: int) -> None:
     """The per-run cost of the optimum beside a batch's runs (``--batch``)."""
-    from wmr.adapters.ocp import OptimalLimits
     from wmr.apps.batch import load_batch
 
     runs = [r.spec for r in load_batch(spec_name).runs[:n_runs]]
@@ -51,8 +61,9 @@ def _batch(spec_name: str, n_runs: int) -> None:
         times, iters, status, previous = [], [], [], None
         for spec in runs:
             t0 = time.perf_counter()
-            r = solve_optimal(spec.start, spec.goal, spec.params, warm_start=warm,
-                              limits=OptimalLimits.like(spec.limits),
+            r = solve_optimal(OptimalProblem(spec.start, spec.goal, spec.params,
+                                             limits=OptimalLimits.like(spec.limits)),
+                              SolverOptions(warm_start=warm),
                               previous=previous if chain else None)
             times.append(time.perf_counter() - t0)  # the integrals after IPOPT included
             iters.append(r.iterations)
@@ -78,15 +89,15 @@ def main() -> None:
     if args.batch:
         _batch(args.batch, args.runs)
         return
-    limits: dict[str, float] = {}
+    limits = OptimalLimits()
     if args.closed_loop_limits:
-        limits = {"torque_limit_nm": 8.0, "wheel_speed_limit_radps": 10.0,
-                  "speed_limit_mps": 1.0, "omega_limit_radps": 1.5}
+        limits = OptimalLimits(torque_max_nm=8.0, wheel_speed_max_radps=10.0, v_max_mps=1.0,
+                               omega_max_radps=1.5)
     t0 = time.perf_counter()
     _nlp(DEFAULT_INTERVALS, DEFAULT_RK_SUBSTEPS, 1000, 60.0)
     build = time.perf_counter() - t0
     print(f"minimum time, Fig. 9 goals, N = {DEFAULT_INTERVALS}, RK4 x {DEFAULT_RK_SUBSTEPS}, "
-          f"limits {limits or 'torque 10 N.m'}; NLP build (once per process) {build:.2f} s; "
+          f"limits {limits}; NLP build (once per process) {build:.2f} s; "
           f"median of {args.repeats} solves")
     head = (f"{'case':<18} {'warm ms':>8} {'it':>4} {'T warm s':>9} {'cold ms':>8} {'it':>4} "
             f"{'T cold s':>9} {'cold/warm':>9}")

@@ -35,7 +35,7 @@ from wmr.adapters.rerun.replay import (
     send_run_columns,
 )
 from wmr.apps.run import default_fmu, run_to_log
-from wmr.config.scenario import load_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, with_overrides
 from wmr.core.closedloop import BLOCK_ROWS
 from wmr.core.signals import COLUMN
 
@@ -45,8 +45,8 @@ NAME = "long"
 
 def make_log(folder: Path) -> Path:
     """A run that times out at 60 s: the fig11 robot sent to a goal 80 m away."""
-    spec = with_overrides(load_scenario("fig11").runs[0], goal=(80.0, 0.0, 0.0), t_max_s=60.0,
-                          name=NAME)
+    spec = with_overrides(load_scenario("fig11").runs[0],
+                          Overrides(goal=(80.0, 0.0, 0.0), max_time_s=60.0, name=NAME))
     path = folder / f"{NAME}.mcap"
     with FmuPlant(default_fmu()) as plant:
         record = run_to_log(spec, path, plant)

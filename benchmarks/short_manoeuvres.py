@@ -17,7 +17,14 @@ import math
 import statistics
 import time
 
-from wmr.adapters.ocp import DEFAULT_INTERVALS, DEFAULT_RK_SUBSTEPS, _nlp, solve_optimal
+from wmr.adapters.ocp import (
+    DEFAULT_INTERVALS,
+    DEFAULT_RK_SUBSTEPS,
+    OptimalProblem,
+    SolverOptions,
+    _nlp,
+    solve_optimal,
+)
 from wmr.apps.optimal import optimal_limits
 from wmr.core.plant import Pose
 
@@ -50,7 +57,8 @@ def main() -> None:
     grid = goals(args.quick)
     for goal in grid:
         t0 = time.perf_counter()
-        r = solve_optimal(start, goal, limits=limits, max_cpu_time_s=args.max_cpu_time)
+        r = solve_optimal(OptimalProblem(start, goal, limits=limits),
+                          SolverOptions(max_cpu_time_s=args.max_cpu_time))
         wall = time.perf_counter() - t0
         times.append(wall)
         ipopt.append(r.solve_time_s)

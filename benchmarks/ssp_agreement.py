@@ -50,7 +50,7 @@ from wmr.adapters.ssp.ecos import simulate_ecos
 from wmr.adapters.ssp.export import DEFAULT_STEPS_PER_PERIOD, export_ssp
 from wmr.build.fmus import BuildResult, build_fmus
 from wmr.config.naming import run_name
-from wmr.config.scenario import load_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, with_overrides
 from wmr.core.runspec import RunSpec
 
 #: Non-paper start and goal poses ``(x_m, y_m, heading_deg)`` on Fig. 11's run: the first is
@@ -77,8 +77,8 @@ def cases(names: list[str]) -> list[RunSpec]:
             continue
         base = load_scenario("fig11").runs[0]
         for start, goal in VARIANTS:
-            spec = with_overrides(base, start=start, goal=goal)
-            runs.append(with_overrides(spec, name=run_name(base, spec)))
+            spec = with_overrides(base, Overrides(start=start, goal=goal))
+            runs.append(with_overrides(spec, Overrides(name=run_name(base, spec))))
     return runs
 
 

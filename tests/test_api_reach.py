@@ -74,9 +74,9 @@ TEST_HOOKS = ("faults", "stop_after")
 
 
 def test_no_public_batch_signature_carries_a_test_hook() -> None:
-    from wmr.apps.batch import run_batch
+    from wmr.apps.batch import BatchOptions, run_batch
 
-    for function in (run_batch, wmr.batch):
+    for function in (run_batch, BatchOptions, wmr.batch):
         hooks = set(TEST_HOOKS) & set(inspect.signature(function).parameters)
         assert not hooks, f"{function.__qualname__} has test hooks {sorted(hooks)}"
 

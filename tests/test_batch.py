@@ -28,7 +28,7 @@ from hypothesis import strategies as st
 
 import wmr.apps.batch.runner as runner_module
 from wmr.adapters.mcap import read_run
-from wmr.apps.batch import BatchSpec, load_batch, parse_batch, run_batch
+from wmr.apps.batch import BatchOptions, BatchSpec, load_batch, parse_batch, run_batch
 from wmr.apps.batch.journal import Journal, line_check, log_complete
 from wmr.apps.batch.report import write_report
 from wmr.apps.batch.runner import _test_hooks
@@ -237,14 +237,14 @@ def test_a_run_invalid_only_in_combination_stops_its_batch_and_the_fix_resumes(
     assert main(["batch", str(spec), "--check", "--no-progress"]) == 1
     assert "grid.control_period_s" in capsys.readouterr().err
     with pytest.raises(ConfigError, match=r"grid\.control_period_s.*run 3, combo-0003") as info:
-        run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+        run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert "rerun the same command" in info.value.fix
     assert len(_journal_ids(out)) == 3  # the runs before it are kept ...
     assert pq.read_table(out / "summary.parquet").num_rows == 3  # ... and summarised
     spec.write_text(text.replace("K_pw = [7.0, 14.0]", "K_pw = [7.0, 10.0]"), encoding="utf-8")
     assert main(["batch", str(spec), "--check", "--no-progress"]) == 0
     assert "4 runs, all valid" in capsys.readouterr().err
-    again = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert again.skipped == 2 and len(again.executed) == 2 and again.finished == 4
 
 
@@ -317,7 +317,8 @@ def spec20(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def reference(spec20: Path, fmu3: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The 20-run batch on one worker."""
     out = tmp_path_factory.mktemp("ref")
-    result = run_batch(load_batch(spec20), out, workers=1, fmu_path=fmu3, progress=False)
+    result = run_batch(load_batch(spec20), out, BatchOptions(workers=1, fmu_path=fmu3),
+                       progress=False)
     assert not result.interrupted and len(result.executed) == 20
     return out
 
@@ -369,8 +370,9 @@ def test_workers_drawing_their_ranges_write_the_summary_of_before(fmu3: Path,
                                        LogPolicy("failed"), "f")
         assert blocks.block_runs(workers) == 6 // workers  # ranges, not runs one by one
         out = tmp_path / f"w{workers}"
-        result = run_batch(batch, out, workers=workers, fmu_path=fmu3, progress=False,
-                           log=LogPolicy("failed"))
+        result = run_batch(batch, out,
+                           BatchOptions(workers=workers, fmu_path=fmu3, log=LogPolicy("failed")),
+                           progress=False)
         assert result.counts == {"converged": 42, "timeout": 6, "failed": 0}
         assert (out / "summary.csv").read_bytes() == REFERENCE_MC_CSV.read_bytes()
         assert result.logs_kept == 6 and all(
@@ -391,7 +393,7 @@ def test_a_range_whose_worker_dies_costs_only_its_run_and_holes_resume(
     batch = load_batch(spec20)
     dead, once = batch.runs[5].run_id, batch.runs[9].run_id  # 2nd run of their ranges
     with _test_hooks(faults={dead: "crash", once: "crash-once"}):
-        result = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False)
+        result = run_batch(batch, tmp_path, BatchOptions(workers=2, fmu_path=fmu3), progress=False)
     assert len(result.executed) == 20 and result.counts["failed"] == 1
     rows = {r["run_id"]: r for r in pq.read_table(tmp_path / "summary.parquet").to_pylist()}
     ref = {r["run_id"]: r for r in pq.read_table(reference / "summary.parquet").to_pylist()}
@@ -410,14 +412,15 @@ def test_a_range_whose_worker_dies_costs_only_its_run_and_holes_resume(
         return real(self, indices)
 
     monkeypatch.setattr(runner_module._Blocks, "_block", seen)
-    again = run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(batch, tmp_path, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert sorted(again.executed) == sorted(holes) and blocks == [[2, 7, 8, 13]]
     assert pq.read_table(tmp_path / "summary.parquet").to_pylist() == list(rows.values())
 
 
 def test_two_workers_give_the_same_summary_bit_for_bit(reference: Path, spec20: Path,
                                                        fmu3: Path, tmp_path: Path) -> None:
-    result = run_batch(load_batch(spec20), tmp_path, workers=2, fmu_path=fmu3, progress=False)
+    result = run_batch(load_batch(spec20), tmp_path, BatchOptions(workers=2, fmu_path=fmu3),
+                       progress=False)
     assert len(result.executed) == 20
     assert {j.get("worker") for j in map(json.loads, (tmp_path / "journal.jsonl")
                                          .read_text().splitlines())} != {""}
@@ -431,8 +434,9 @@ def test_dask_gives_the_same_summary_and_logs(reference: Path, spec20: Path, fmu
 
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
                       dashboard_address=None) as cluster, Client(cluster) as client:
-        result = run_batch(load_batch(spec20), tmp_path, client=client, fmu_path=fmu3,
-                           progress=False, dask_ship_logs=ship_logs)
+        result = run_batch(load_batch(spec20), tmp_path,
+                           BatchOptions(client=client, dask_ship_logs=ship_logs, fmu_path=fmu3),
+                           progress=False)
     assert len(result.executed) == 20 and result.counts["converged"] == 20
     assert _summary_bytes(tmp_path) == _summary_bytes(reference)
     # every log: the worker's two threads share the process's row encoder (a thread's rows
@@ -467,7 +471,7 @@ def test_interrupted_batch_resumes_with_only_the_missing_runs(reference: Path, s
                                                               fmu3: Path, tmp_path: Path) -> None:
     batch = load_batch(spec20)
     with _test_hooks(stop_after=7):
-        first = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False)
+        first = run_batch(batch, tmp_path, BatchOptions(workers=2, fmu_path=fmu3), progress=False)
     assert first.interrupted and len(first.executed) == 7
     assert pq.read_table(tmp_path / "summary.parquet").num_rows == 7
     # a run killed mid-write: a half log without its journal line; and a finished run whose
@@ -477,11 +481,11 @@ def test_interrupted_batch_resumes_with_only_the_missing_runs(reference: Path, s
     half.write_bytes((reference / "runs" / half.name).read_bytes()[:3000])
     cut = tmp_path / "runs" / f"{first.executed[0]}.mcap"
     cut.write_bytes(cut.read_bytes()[:-100])
-    second = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False)
+    second = run_batch(batch, tmp_path, BatchOptions(workers=2, fmu_path=fmu3), progress=False)
     assert not second.interrupted and second.skipped == 6
     assert sorted(second.executed) == sorted([*todo, first.executed[0]])
     assert _summary_bytes(tmp_path) == _summary_bytes(reference)
-    third = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False)
+    third = run_batch(batch, tmp_path, BatchOptions(workers=2, fmu_path=fmu3), progress=False)
     assert third.executed == [] and third.skipped == 20
     assert len(Journal(tmp_path / "journal.jsonl").load()) == 20
     ids = _journal_ids(tmp_path)
@@ -492,11 +496,11 @@ def test_a_cut_journal_line_is_ignored_and_redone(spec20: Path, fmu3: Path,
                                                   tmp_path: Path) -> None:
     batch = load_batch(spec20)
     with _test_hooks(stop_after=3):
-        run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False)
+        run_batch(batch, tmp_path, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     journal = tmp_path / "journal.jsonl"
     journal.write_bytes(journal.read_bytes()[:-40])  # the third line is cut
     assert len(Journal(journal).load()) == 2
-    again = run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(batch, tmp_path, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert len(again.executed) == 18 and again.finished == 20
     assert len(Journal(journal).load()) == 20
 
@@ -529,7 +533,8 @@ def test_the_summary_is_read_back_from_the_journal_in_blocks(
     for name in ("summary.csv", "summary.parquet"):
         (out / name).unlink()
     monkeypatch.setattr(runner_module, "SUMMARY_BLOCK", 3)
-    again = run_batch(load_batch(spec20), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec20), out, BatchOptions(workers=1, fmu_path=fmu3),
+                      progress=False)
     assert again.executed == [] and again.skipped == 20 and again.counts["converged"] == 20
     assert (out / "summary.csv").read_bytes() == (reference / "summary.csv").read_bytes()
     assert pq.read_table(out / "summary.parquet").equals(
@@ -550,7 +555,7 @@ def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
     now = tmp_path / "now"
     shutil.copytree(reference, now, copy_function=shutil.copy2)
     capsys.readouterr()
-    again = run_batch(batch, now, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(batch, now, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert again.skipped == 20 and again.executed == []
     table = pq.read_table(now / "summary.parquet")
     assert table.column("max_time_s").to_pylist() == [15.0] * 20
@@ -565,7 +570,7 @@ def test_an_edit_that_keeps_the_runs_keeps_them_and_fills_the_new_column(
         line["row"] = runner_module._row_json(runs[int(line["run_id"][:4])])
         line["check"] = line_check(line)
     journal.write_text("".join(json.dumps(line) + "\n" for line in before))
-    again = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(batch, out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert again.skipped == 20 and again.executed == []
     table = pq.read_table(out / "summary.parquet")
     assert table.column("max_time_s").to_pylist() == [15.0] * 20
@@ -594,13 +599,13 @@ def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
     journal_of_before(out, batch.runs)  # lines of before hold their log's stamp
     with monkeypatch.context() as m:
         m.setattr(mcap.reader, "make_reader", lambda *a, **k: pytest.fail("a log was parsed"))
-        again = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
+        again = run_batch(batch, out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert again.skipped == 20 and again.executed == []
     victim = out / "runs" / f"{batch.runs[4].run_id}.mcap"
     st = victim.stat()
     victim.write_bytes(bytes(st.st_size))
     os.utime(victim, ns=(st.st_atime_ns, st.st_mtime_ns))
-    third = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
+    third = run_batch(batch, out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert third.executed == [batch.runs[4].run_id] and third.skipped == 19
     assert _summary_bytes(out) == _summary_bytes(reference)
     touched = out / "runs" / f"{batch.runs[6].run_id}.mcap"
@@ -610,7 +615,8 @@ def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
     at = next(i for i, line in enumerate(lines) if batch.runs[6].run_id in line)
     lines[at] = lines[at].replace('"check":"', '"check":"0')  # the seal broken
     journal.write_text("\n".join(lines) + "\n")
-    assert run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False).skipped == 20
+    one = BatchOptions(workers=1, fmu_path=fmu3)
+    assert run_batch(batch, out, one, progress=False).skipped == 20
     real = mcap.reader.make_reader
 
     def not_the_touched_log(stream: Any, *args: Any, **kwargs: Any) -> Any:
@@ -620,7 +626,7 @@ def test_resume_trusts_a_stamped_log_only_while_it_is_unchanged(
 
     with monkeypatch.context() as m:
         m.setattr(mcap.reader, "make_reader", not_the_touched_log)
-        assert run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False).skipped == 20
+        assert run_batch(batch, out, one, progress=False).skipped == 20
 
 
 def test_a_batch_stopped_before_its_first_run_writes_an_empty_summary(
@@ -826,8 +832,8 @@ def test_failures_timeouts_hangs_and_crashes_are_rows(fmu3: Path, tmp_path: Path
     # 2 s of wall clock: the short runs finish well inside it on a loaded machine, "slow" (3 million
     # steps) cannot
     with _test_hooks(faults={by_variant["hang"]: "hang", by_variant["crash"]: "crash"}):
-        result = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False,
-                           run_timeout_s=2.0)
+        result = run_batch(batch, out, BatchOptions(workers=2, run_timeout_s=2.0, fmu_path=fmu3),
+                           progress=False)
     assert not result.interrupted and result.finished == 7
     table = pq.read_table(out / "summary.parquet").to_pylist()
     rows = {row["variant"]: row for row in table}
@@ -845,7 +851,8 @@ def test_failures_timeouts_hangs_and_crashes_are_rows(fmu3: Path, tmp_path: Path
     assert rows["crash"]["time_to_goal_s"] is None
     assert result.counts == {"converged": 2, "timeout": 3, "failed": 2}
     # killed runs are final: a rerun does nothing
-    again = run_batch(batch, out, workers=2, fmu_path=fmu3, progress=False, run_timeout_s=2.0)
+    again = run_batch(batch, out, BatchOptions(workers=2, run_timeout_s=2.0, fmu_path=fmu3),
+                      progress=False)
     assert again.executed == []
 
 
@@ -928,7 +935,7 @@ def test_each_batch_log_attaches_its_own_run_not_the_spec(reference: Path, spec2
 _KILLED_BETWEEN_WRITES = """
 import os, signal, sys
 from pathlib import Path
-from wmr.apps.batch import load_batch, run_batch
+from wmr.apps.batch import BatchOptions, load_batch, run_batch
 from wmr.apps.batch.runner import _test_hooks
 
 calls = []
@@ -939,8 +946,8 @@ def kill_at_the_third_range(run_ids):
         os.kill(os.getpid(), signal.SIGKILL)
 
 with _test_hooks(between_writes=kill_at_the_third_range):
-    run_batch(load_batch(sys.argv[1]), sys.argv[2], workers=1, fmu_path=sys.argv[3],
-              progress=False)
+    run_batch(load_batch(sys.argv[1]), sys.argv[2],
+              BatchOptions(workers=1, fmu_path=sys.argv[3]), progress=False)
 """
 
 
@@ -971,7 +978,8 @@ def test_a_batch_killed_between_a_ranges_rows_and_its_lines_resumes_to_the_same_
     assert set(journalled) <= on_disk, "a journalled run without its summary row on disk"
     assert len(journalled) == 4 and len(on_disk) == 6
     capsys.readouterr()
-    again = run_batch(load_batch(spec20), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec20), out, BatchOptions(workers=1, fmu_path=fmu3),
+                      progress=False)
     assert again.skipped == len(journalled) and len(again.executed) == 20 - len(journalled)
     assert not set(again.executed) & set(journalled)
     assert capsys.readouterr().err == ""
@@ -992,7 +1000,8 @@ def test_a_part_lost_after_its_journal_lines_reruns_its_runs_saying_so(
     (lost,) = [p for p in (out / ".parts").glob("*.arrow") if p.name.startswith("0-")]
     lost.unlink()  # the part of runs 0 and 1
     capsys.readouterr()
-    again = run_batch(load_batch(spec20), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec20), out, BatchOptions(workers=1, fmu_path=fmu3),
+                      progress=False)
     assert again.skipped == len(journalled) - 2
     assert set(journalled[:2]) <= set(again.executed)
     assert capsys.readouterr().err == (

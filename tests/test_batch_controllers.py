@@ -12,7 +12,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from wmr.apps.batch import BatchSpec, load_batch, parse_batch, run_batch
+from wmr.apps.batch import BatchOptions, BatchSpec, load_batch, parse_batch, run_batch
 from wmr.cli import main
 from wmr.infra.errors import ConfigError
 
@@ -184,7 +184,8 @@ def test_a_batch_of_pi_and_astolfi_on_the_same_draws(fmu3: Path, tmp_path: Path)
     spec.write_text(BASE.format(head="", n=3) + '[grid]\ncontroller = ["pi", "astolfi"]\n',
                     encoding="utf-8")
     out = tmp_path / "out"
-    result = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    result = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3),
+                       progress=False)
     assert len(result.executed) == 6 and result.counts["converged"] == 6
     table = pq.read_table(out / "summary.parquet").to_pylist()
     assert [(r["controller"], r["draw"]) for r in table] == [
@@ -203,7 +204,7 @@ def test_a_batch_of_pi_and_astolfi_on_the_same_draws(fmu3: Path, tmp_path: Path)
     assert [(r["controller"], r["draw"]) for r in rows] == [
         (r["controller"], str(r["draw"])) for r in table]
     before = (out / "summary.csv").read_bytes(), (out / "summary.parquet").read_bytes()
-    again = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert again.executed == [] and again.skipped == 6
     assert ((out / "summary.csv").read_bytes(), (out / "summary.parquet").read_bytes()) == before
 
@@ -212,7 +213,8 @@ def test_the_summary_names_the_controller_when_it_is_not_varied(fmu3: Path,
                                                                 tmp_path: Path) -> None:
     spec = tmp_path / "one.toml"
     spec.write_text(BASE.format(head='controller = "astolfi"', n=2), encoding="utf-8")
-    run_batch(load_batch(spec), tmp_path / "out", workers=1, fmu_path=fmu3, progress=False)
+    run_batch(load_batch(spec), tmp_path / "out", BatchOptions(workers=1, fmu_path=fmu3),
+              progress=False)
     table = pq.read_table(tmp_path / "out" / "summary.parquet")
     assert table.column("controller").to_pylist() == ["astolfi", "astolfi"]
     assert table.column("draw").to_pylist() == [0, 1]

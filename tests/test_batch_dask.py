@@ -27,7 +27,7 @@ from distributed.client import ClosedClientError, FutureCancelledError
 from distributed.comm.core import CommClosedError
 from distributed.scheduler import KilledWorker
 
-from wmr.apps.batch import dask_exec, load_batch, run_batch
+from wmr.apps.batch import BatchOptions, dask_exec, load_batch, run_batch
 from wmr.apps.batch.dask_exec import task_failure
 from wmr.apps.batch.runner import _test_hooks
 from wmr.cli import main
@@ -301,7 +301,7 @@ def test_a_scheduler_killed_mid_batch_stops_it_and_the_resume_runs_the_missing(
         capfd: pytest.CaptureFixture[str]) -> None:
     batch = load_batch(spec40)
     local = tmp_path / "local"
-    run_batch(batch, local, workers=2, fmu_path=fmu3, progress=False)
+    run_batch(batch, local, BatchOptions(workers=2, fmu_path=fmu3), progress=False)
     out = tmp_path / "dask"
     cluster.start_scheduler()
     cluster.start_worker()
@@ -386,7 +386,7 @@ def test_a_worker_killed_mid_batch_ends_in_the_local_summary(
     spec.write_text(text, encoding="utf-8")
     batch = load_batch(spec)
     local = tmp_path / "local"
-    run_batch(batch, local, workers=2, fmu_path=fmu3, progress=False)
+    run_batch(batch, local, BatchOptions(workers=2, fmu_path=fmu3), progress=False)
     cluster.start_scheduler()
     cluster.start_worker()
     out = tmp_path / "dask"
@@ -402,7 +402,8 @@ def test_a_worker_killed_mid_batch_ends_in_the_local_summary(
 
     thread = threading.Thread(target=killer)
     thread.start()
-    result = run_batch(batch, out, scheduler=cluster.address, fmu_path=fmu3, progress=False)
+    result = run_batch(batch, out, BatchOptions(scheduler=cluster.address, fmu_path=fmu3),
+                       progress=False)
     thread.join(timeout=60)
     assert killed_at and killed_at[0] < len(batch.runs), "killed before the batch ended"
     assert len(result.executed) == len(batch.runs) and result.counts["converged"] == 80
@@ -420,7 +421,7 @@ def test_workers_all_gone_mid_batch_stop_it_in_bounded_time_and_it_resumes(
     monkeypatch.setattr(dask_exec, "WORKER_POLL_S", 0.2)
     batch = load_batch(spec40)
     local = tmp_path / "local"
-    run_batch(batch, local, workers=2, fmu_path=fmu3, progress=False)
+    run_batch(batch, local, BatchOptions(workers=2, fmu_path=fmu3), progress=False)
     cluster.start_scheduler()
     cluster.start_worker()
     out = tmp_path / "dask"

@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from wmr.apps.batch import load_batch
-from wmr.apps.batch.runner import _test_hooks, run_batch
+from wmr.apps.batch.runner import BatchOptions, _test_hooks, run_batch
 from wmr.apps.batch.summary import OPTIMUM_RESULT_COLUMNS, RESULT_COLUMNS, SUMMARY_PARQUET
 from wmr.infra.errors import ConfigError
 
@@ -58,7 +58,8 @@ def test_a_batch_with_the_optimum_has_its_columns_and_records_a_failure(
     spec = tmp_path / "opt.toml"
     spec.write_text(SPEC)
     out = tmp_path / "out"
-    result = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    result = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3),
+                       progress=False)
     assert result.finished == 4
     table = pq.read_table(out / SUMMARY_PARQUET)
     assert table.column_names[-len(OPTIMUM_RESULT_COLUMNS) - 1:] == \
@@ -86,7 +87,7 @@ def test_a_spec_without_optimal_has_no_optimum_columns(fmu3: Path, tmp_path: Pat
     spec = tmp_path / "plain.toml"
     spec.write_text(SPEC.replace('optimal = "time"\n', "").split("[[list]]\nname = \"far\"")[0])
     out = tmp_path / "out"
-    run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     names = pq.read_table(out / SUMMARY_PARQUET).column_names
     assert names[-len(RESULT_COLUMNS):] == list(RESULT_COLUMNS)
     assert not set(OPTIMUM_RESULT_COLUMNS) & set(names)
@@ -100,20 +101,22 @@ def test_a_resumed_batch_does_not_solve_again(fmu3: Path, tmp_path: Path) -> Non
     spec = tmp_path / "opt.toml"
     spec.write_text(text.replace('optimal = "time"\n', ""))
     out = tmp_path / "out"
-    run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     spec.write_text(text)
     with _test_hooks(stop_after=2):
-        first = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+        first = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3),
+                          progress=False)
     assert len(first.executed) == 2  # the runs without an optimum were run again
     before = _summary(out)
-    resumed = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    resumed = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3),
+                        progress=False)
     assert resumed.skipped == 2 and len(resumed.executed) == 1
     after = _summary(out)
     assert all(r["optimal_status"] == "solved" for r in after.values())
     for name, row in before.items():
         if row["optimal_status"] == "solved":
             assert after[name]["optimal_time_s"] == row["optimal_time_s"]
-    again = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert again.executed == [] and _summary(out) == after
 
 
@@ -128,22 +131,23 @@ def test_an_unknown_objective_is_refused_naming_the_field(tmp_path: Path) -> Non
 def test_the_previous_solution_warm_starts_the_same_manoeuvre_only() -> None:
     """A worker's previous optimum starts IPOPT when the new run is the same manoeuvre
     relative to its start (another robot); for another manoeuvre the kinematic path does."""
-    from wmr.adapters.ocp import OptimalLimits, solve_optimal
+    from wmr.adapters.ocp import OptimalLimits, OptimalProblem, solve_optimal
     from wmr.core.control import Limits
     from wmr.core.plant import Pose, RobotParams
 
     limits = OptimalLimits.like(Limits())
     goal = Pose(0.0, 0.0, math.pi)
-    first = solve_optimal(Pose(3.0, 0.0, 0.0), goal, limits=limits)
+    first = solve_optimal(OptimalProblem(Pose(3.0, 0.0, 0.0), goal, limits=limits))
     assert first.extra["guess"] == "kinematic"
     # the same manoeuvre turned by -90 deg about the goal, on a heavier robot
-    same = solve_optimal(Pose(0.0, -3.0, -math.pi / 2), Pose(0.0, 0.0, math.pi / 2),
-                         RobotParams(m=40.0), limits=limits, previous=first)
+    turned = OptimalProblem(Pose(0.0, -3.0, -math.pi / 2), Pose(0.0, 0.0, math.pi / 2),
+                            RobotParams(m=40.0), limits=limits)
+    same = solve_optimal(turned, previous=first)
     assert same.solved and same.extra["guess"] == "previous"
-    fresh = solve_optimal(Pose(0.0, -3.0, -math.pi / 2), Pose(0.0, 0.0, math.pi / 2),
-                          RobotParams(m=40.0), limits=limits)
+    fresh = solve_optimal(turned)
     assert same.final_time_s == pytest.approx(fresh.final_time_s, rel=1e-6)
-    other = solve_optimal(Pose(2.0, 1.0, 0.0), goal, limits=limits, previous=first)
+    other = solve_optimal(OptimalProblem(Pose(2.0, 1.0, 0.0), goal, limits=limits),
+                          previous=first)
     assert other.solved and other.extra["guess"] == "kinematic"
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from wmr.config.scenario import expand, load_scenario, with_overrides
+from wmr.config.scenario import Overrides, expand, load_scenario, with_overrides
 from wmr.core.closedloop import BLOCK_ROWS, run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.physics import ReferencePlant
@@ -138,8 +138,10 @@ def test_keyboard_interrupt_goes_through() -> None:
 
 def test_parameter_overrides_reach_the_plant() -> None:
     (spec,) = expand(load_scenario("fig11"))
-    spec = with_overrides(spec, goal=(3.0, 0.0, 0.0), params={"m": 40.0, "b_f": 0.02,
-                                                               "tau_c": 0.1})
+    spec = with_overrides(spec,
+                          Overrides(goal=(3.0, 0.0, 0.0),
+                                    params={"m": 40.0, "b_f": 0.02,
+                                                               "tau_c": 0.1}))
     assert spec.params == RobotParams(m=40.0, b_f=0.02, tau_c=0.1)
     _assert_converged(spec)
 

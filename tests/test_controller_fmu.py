@@ -564,7 +564,7 @@ def test_the_variables_table_of_docs_control_md_matches_the_code() -> None:
 
 def test_a_batch_with_the_controller_fmu_key_logs_the_python_paths(tmp_path: Path,
                                                                    built: BuildResult) -> None:
-    from wmr.apps.batch import load_batch, run_batch
+    from wmr.apps.batch import BatchOptions, load_batch, run_batch
 
     spec = ('name = "b"\nstart = [0.0, 0.0, 0.0]\ngoal = [1.5, 0.5, 20.0]\n{key}'
             '[grid]\ngoal = [[1.5, 0.5, 20.0], [-1.0, 1.0, 90.0]]\n')
@@ -574,7 +574,8 @@ def test_a_batch_with_the_controller_fmu_key_logs_the_python_paths(tmp_path: Pat
         path.write_text(spec.format(key=key))
         batch = load_batch(path)
         out = tmp_path / label
-        result = run_batch(batch, out, workers=1, fmu_path=built.fmus[3], progress=False)
+        result = run_batch(batch, out, BatchOptions(workers=1, fmu_path=built.fmus[3]),
+                           progress=False)
         assert result.counts["converged"] == 2 == result.total
         logs[label] = [read_run(out / "runs" / f"{r.run_id}.mcap") for r in batch.runs]
     for ref, got in zip(logs["py"], logs["fmu"], strict=True):

@@ -24,7 +24,7 @@ from wmr.adapters.fmi.controller import FmuController
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.apps.run import run_to_log
 from wmr.build.fmus import BuildResult, build_stepper
-from wmr.config.scenario import load_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, with_overrides
 from wmr.core.closedloop import Controller, LoopOutcome, run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.runspec import RunSpec
@@ -39,7 +39,7 @@ def fresh_stepper(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
 
 
 def _fig11(**overrides: Any) -> RunSpec:
-    return with_overrides(load_scenario("fig11").runs[0], **overrides)
+    return with_overrides(load_scenario("fig11").runs[0], Overrides(**overrides))
 
 
 def _bits(result: LoopOutcome) -> dict[str, Any]:
@@ -118,7 +118,7 @@ def test_controller_fmu_converged_run_is_bit_identical_and_its_log_byte_identica
 @pytest.mark.parametrize("controller", ["pi", "fmu", "astolfi"])
 def test_timeout_in_the_middle_of_a_block_is_bit_identical(
         monkeypatch: pytest.MonkeyPatch, built: BuildResult, controller: str) -> None:
-    spec = _fig11(t_max_s=2.555)  # 256 steps: the last block is not full
+    spec = _fig11(max_time_s=2.555)  # 256 steps: the last block is not full
     if controller == "astolfi":
         spec = dataclasses.replace(spec, controller="astolfi")
     *_, fast, slow = _both(monkeypatch, built.fmus[3], spec, None,
@@ -129,7 +129,7 @@ def test_timeout_in_the_middle_of_a_block_is_bit_identical(
 
 def test_run_with_sensors_is_bit_identical(monkeypatch: pytest.MonkeyPatch,
                                            built: BuildResult) -> None:
-    spec = _fig11(t_max_s=3.0, sensors={"gps_sigma_m": 0.2})
+    spec = _fig11(max_time_s=3.0, sensors={"gps_sigma_m": 0.2})
     compiled, fast, slow = _both(monkeypatch, built.fmus[2], spec, None)
     assert compiled == fast == slow
 
@@ -170,7 +170,7 @@ def test_without_a_compiler_the_python_path_runs(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setattr(wmr.build.fmus, "build_stepper", lambda *a, **k: None)
     assert stepper.load_stepper() is None
     with FmuPlant(built.fmus[3]) as plant:
-        result = run_closed_loop(_fig11(t_max_s=1.0), plant, controller=SpecController())
+        result = run_closed_loop(_fig11(max_time_s=1.0), plant, controller=SpecController())
         assert plant.stepper() is None
     assert result.status == "timeout" and result.steps == 101
 

@@ -173,7 +173,7 @@ def test_the_documented_map_is_the_tested_one() -> None:
 
 def test_a_batch_spec_names_the_fmu_and_its_map(tmp_path: Path, unicycle_fmu: Path) -> None:
     """The same keys in a batch spec: every run of the batch drives the mapped FMU."""
-    from wmr.apps.batch import load_batch, run_batch
+    from wmr.apps.batch import BatchOptions, load_batch, run_batch
 
     shutil.copy(unicycle_fmu, tmp_path / "robot.fmu")
     shutil.copy(MAP, tmp_path / "robot.toml")
@@ -182,7 +182,7 @@ def test_a_batch_spec_names_the_fmu_and_its_map(tmp_path: Path, unicycle_fmu: Pa
                     'fmu = "robot.fmu"\nfmu_map = "robot.toml"\n'
                     '[[list]]\nname = "a"\ngoal = [2.0, 1.0, 0.0]\n'
                     '[[list]]\nname = "b"\ngoal = [1.0, -2.0, 90.0]\n')
-    result = run_batch(load_batch(spec), tmp_path / "out", workers=1, progress=False)
+    result = run_batch(load_batch(spec), tmp_path / "out", BatchOptions(workers=1), progress=False)
     assert result.counts["converged"] == 2
     for log in (tmp_path / "out" / "runs").glob("*.mcap"):
         meta = read_run(log).metadata["run"]
@@ -273,11 +273,11 @@ def test_wmr_ssp_check_of_a_package_of_another_tool_s_robot_uses_only_its_map(
     from wmr.adapters.ssp.agreement import deviation, libcosim_path, wmr_run_path
     from wmr.adapters.ssp.export import export_ssp
     from wmr.apps.ssp_check import check_package
-    from wmr.config.scenario import load_scenario, with_overrides
+    from wmr.config.scenario import Overrides, load_scenario, with_overrides
     from wmr.core.plant import Pose
 
     base = next(iter(load_scenario("fig11").runs))
-    spec = replace(with_overrides(base, goal=Pose(1.0, 0.5, math.radians(30.0))),
+    spec = replace(with_overrides(base, Overrides(goal=Pose(1.0, 0.5, math.radians(30.0)))),
                    name="uni-short")
     var_map = load_map(MAP)
     package = export_ssp(spec, tmp_path / "uni.ssp", unicycle_fmu, built.controllers[2],

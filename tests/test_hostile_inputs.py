@@ -21,10 +21,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from wmr.adapters.mcap import read_run
-from wmr.apps.batch import load_batch, parse_batch, run_batch
+from wmr.apps.batch import BatchOptions, load_batch, parse_batch, run_batch
 from wmr.cli import MAX_LINE_CHARS, main
 from wmr.config.naming import default_log_path, file_stem
-from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, parse_scenario, with_overrides
 from wmr.infra.errors import ConfigError, WmrError
 
 FIG11 = 'name = "h"\nstart = [0.0, 0.0, 0.0]\ngoal = [2.0, 1.0, 0.0]\n'
@@ -38,7 +38,7 @@ def test_a_huge_length_is_a_config_error_by_every_route(name: str, route: str) -
     """``params.r = 1e308`` used to raise OverflowError from ``r**2`` in the mass matrix."""
     with pytest.raises(ConfigError) as err:
         if route == "flag":
-            with_overrides(load_scenario("fig11").runs[0], params={name: 1e308})
+            with_overrides(load_scenario("fig11").runs[0], Overrides(params={name: 1e308}))
         elif route == "file":
             parse_scenario(tomllib.loads(FIG11 + f"[params]\n{name} = 1e308\n"))
         elif route == "grid":
@@ -54,7 +54,7 @@ def test_a_huge_length_is_a_config_error_by_every_route(name: str, route: str) -
 def test_products_that_overflow_name_the_extreme_parameter() -> None:
     """Each value finite and its square too, but m l^2 is not."""
     with pytest.raises(ConfigError) as err:
-        with_overrides(load_scenario("fig11").runs[0], params={"m": 1e300, "l": 1e10})
+        with_overrides(load_scenario("fig11").runs[0], Overrides(params={"m": 1e300, "l": 1e10}))
     assert err.value.field == "params.m"
 
 
@@ -244,8 +244,8 @@ def batch4(fmu3: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A finished 4-run batch (its folder is copied, never changed)."""
     folder = tmp_path_factory.mktemp("batch4")
     (folder / "t4.toml").write_text(SPEC4)
-    result = run_batch(load_batch(folder / "t4.toml"), folder / "out", workers=1,
-                       fmu_path=fmu3, progress=False)
+    result = run_batch(load_batch(folder / "t4.toml"), folder / "out",
+                       BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert result.counts["converged"] == 4
     return folder
 
@@ -291,7 +291,7 @@ def test_an_edited_journal_line_is_made_again_from_the_spec_and_the_log(
     lines[1]["check"] = line_check(lines[1])
     edit(lines[1])
     _rewrite(out, lines)
-    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, BatchOptions(workers=1, fmu_path=fmu3),
                       progress=False)
     assert again.executed == [] and again.counts["converged"] == 4  # nothing redone
     assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
@@ -299,7 +299,8 @@ def test_an_edited_journal_line_is_made_again_from_the_spec_and_the_log(
     assert f"1 line did not match the spec or the run's log (first: run {lines[1]['run_id']}, " \
            f"{field})" in err
     # the corrected line is sealed: the next resume trusts it, silently
-    run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3, progress=False)
+    run_batch(load_batch(batch4 / "t4.toml"), out, BatchOptions(workers=1, fmu_path=fmu3),
+              progress=False)
     assert "did not match" not in capsys.readouterr().err
 
 
@@ -312,7 +313,7 @@ def test_garbage_journal_lines_are_skipped(batch4: Path, fmu3: Path, tmp_path: P
     del lines[0]["check"]
     _rewrite(out, lines, '{"run_id": "' + "1" * 5000 + '-0a433d73", "record": {}}\n'
              + "[" * 100_000 + "\n" + '{"run_id": "' + "7" * 60 + '", "record": {}}\n')
-    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, BatchOptions(workers=1, fmu_path=fmu3),
                       progress=False)
     assert again.executed == [] and again.skipped == 4
     assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
@@ -326,7 +327,7 @@ def test_an_edited_line_of_a_killed_run_is_redone(
     out, lines = _copy(batch4, tmp_path, journal_of_before)
     lines[2].update(killed=True, record={**lines[2]["record"], "status": "timeout"})
     _rewrite(out, lines)
-    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, BatchOptions(workers=1, fmu_path=fmu3),
                       progress=False)
     assert again.executed == [lines[2]["run_id"]]
     assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
@@ -342,7 +343,7 @@ def test_an_edited_compact_line_is_run_again_saying_so(
     assert "record" not in lines[1] and lines[1]["status"] == "converged"
     lines[1]["status"] = "failed"
     _rewrite(out, lines)
-    again = run_batch(load_batch(batch4 / "t4.toml"), out, workers=1, fmu_path=fmu3,
+    again = run_batch(load_batch(batch4 / "t4.toml"), out, BatchOptions(workers=1, fmu_path=fmu3),
                       progress=False)
     assert again.executed == [lines[1]["run_id"]] and again.counts["converged"] == 4
     assert (out / "summary.csv").read_bytes() == (batch4 / "out" / "summary.csv").read_bytes()
@@ -364,14 +365,14 @@ def test_records_made_again_from_logs_are_the_journalled_ones(
                              "x_m = [1.0, 100.0]").replace("[grid.gains]\nK_ps = [0.25, 0.5]",
                                                            "[grid.gains]\nK_ps = [0.5]"))
     out = tmp_path / "out"
-    first = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False,
-                      run_timeout_s=0.02)
+    first = run_batch(load_batch(spec), out,
+                      BatchOptions(workers=1, run_timeout_s=0.02, fmu_path=fmu3), progress=False)
     assert first.counts["timeout"] >= 1
     journal_of_before(out, load_batch(spec).runs)  # lines that hold their records
     lines = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()]
     summary = (out / "summary.csv").read_bytes()
     _rewrite(out, [{k: v for k, v in x.items() if k != "check"} for x in lines])
-    again = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert again.executed == [] and (out / "summary.csv").read_bytes() == summary
     remade = [json.loads(x) for x in (out / "journal.jsonl").read_text().splitlines()][4:]
     assert [x["record"] for x in remade] == [x["record"] for x in lines]
@@ -423,8 +424,9 @@ def test_a_stopped_worker_s_run_has_a_null_log_not_a_missing_one(
             stopped.append(int(outcome.worker))
             os.kill(stopped[0], signal.SIGSTOP)
 
-    first = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False,
-                      run_timeout_s=1.0, on_outcome=stop_the_worker)
+    first = run_batch(load_batch(spec), out,
+                      BatchOptions(workers=1, run_timeout_s=1.0, fmu_path=fmu3), progress=False,
+                      on_outcome=stop_the_worker)
     assert first.counts["timeout"] >= 1 and len(first.executed) == 4
     killed = first.executed[1]
     rows = {r["run_id"]: r for r in pq.read_table(out / "summary.parquet").to_pylist()}
@@ -436,7 +438,7 @@ def test_a_stopped_worker_s_run_has_a_null_log_not_a_missing_one(
     assert next(r for r in csv_rows if r.startswith(killed)).endswith(",")  # empty cell
     assert main(["report", str(out)]) == 0
     summary = (out / "summary.csv").read_bytes()
-    again = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert again.executed == [] and (out / "summary.csv").read_bytes() == summary
     assert "did not match" not in capsys.readouterr().err
 
@@ -557,12 +559,12 @@ def test_a_worker_gone_while_a_helper_keeps_its_pipe_open_is_seen_dead(fmu3: Pat
     out = tmp_path / "out"
     script = (
         "import sys\n"
-        "from wmr.apps.batch import load_batch, run_batch\n"
+        "from wmr.apps.batch import BatchOptions, load_batch, run_batch\n"
         "from wmr.apps.batch.runner import _test_hooks\n"
         f"batch = load_batch({str(spec)!r})\n"
         "with _test_hooks(faults={batch.runs[0].run_id: 'crash-keeping-pipe'}):\n"
-        f"    r = run_batch(batch, {str(out)!r}, workers=1, fmu_path={str(fmu3)!r},\n"
-        "                  progress=False)\n"
+        f"    r = run_batch(batch, {str(out)!r},\n"
+        f"                  BatchOptions(workers=1, fmu_path={str(fmu3)!r}), progress=False)\n"
         "print(r.counts['failed'], r.counts['converged'])\n")
     err = tmp_path / "stderr.txt"
     try:  # files, not pipes: the helper keeps the forkserver, and its stderr, alive

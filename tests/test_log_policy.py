@@ -26,7 +26,7 @@ import wmr.apps.run as run_module
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import read_run
 from wmr.adapters.rerun.replay import find_logs
-from wmr.apps.batch import load_batch, run_batch
+from wmr.apps.batch import BatchOptions, load_batch, run_batch
 from wmr.apps.batch.journal import log_complete
 from wmr.apps.batch.report import write_report
 from wmr.apps.batch.runner import _test_hooks
@@ -88,8 +88,8 @@ def batches(spec8: Path, fmu3: Path, tmp_path_factory: pytest.TempPathFactory
     out = {}
     for name, policy in POLICIES.items():
         folder = tmp_path_factory.mktemp(name)
-        result = run_batch(load_batch(spec8), folder, workers=1, fmu_path=fmu3, progress=False,
-                           log=policy)
+        result = run_batch(load_batch(spec8), folder,
+                           BatchOptions(workers=1, fmu_path=fmu3, log=policy), progress=False)
         assert len(result.executed) == 8 and result.log == policy
         out[name] = folder
     return out
@@ -224,11 +224,12 @@ def test_a_sharded_batch_resumes_replays_and_reports(
         shards_of_3: None) -> None:
     batch = load_batch(spec8)
     with _test_hooks(stop_after=5):
-        first = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False,
-                          log=LogPolicy("full"))
+        first = run_batch(batch, tmp_path,
+                          BatchOptions(workers=2, fmu_path=fmu3, log=LogPolicy("full")),
+                          progress=False)
     assert first.interrupted
-    again = run_batch(batch, tmp_path, workers=2, fmu_path=fmu3, progress=False,
-                      log=LogPolicy("full"))
+    again = run_batch(batch, tmp_path,
+                      BatchOptions(workers=2, fmu_path=fmu3, log=LogPolicy("full")), progress=False)
     assert again.skipped == 5 and len(again.executed) == 3
     shards = sorted(p.name for p in (tmp_path / "runs").iterdir())
     assert shards == ["000", "001", "002"]
@@ -240,7 +241,7 @@ def test_a_sharded_batch_resumes_replays_and_reports(
     assert pq.read_table(tmp_path / "summary.parquet").drop(["mcap"]).equals(full)
     assert len(find_logs([tmp_path])) == 8  # wmr replay DIR
     write_report(tmp_path)
-    third = run_batch(batch, tmp_path, workers=1, fmu_path=fmu3, progress=False)
+    third = run_batch(batch, tmp_path, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert third.executed == [] and third.skipped == 8
 
 
@@ -258,7 +259,8 @@ def test_an_unsharded_batch_folder_of_before_still_resumes(
         del line["path"]
     (out / "journal.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
     (out / "summary.csv").unlink()
-    again = run_batch(load_batch(spec8), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec8), out, BatchOptions(workers=1, fmu_path=fmu3),
+                      progress=False)
     assert again.executed == [] and again.skipped == 8
     assert (out / "summary.csv").read_bytes() == \
         (batches["full"] / "summary.csv").read_bytes()
@@ -277,7 +279,8 @@ def test_a_journal_path_outside_runs_is_not_followed(
     lines[2]["path"] = f"runs/../../{out.name}/{lines[2]['path']}"
     lines[3]["path"] = f"../{out.name}/{lines[3]['path']}"
     (out / "journal.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
-    again = run_batch(load_batch(spec8), out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(load_batch(spec8), out, BatchOptions(workers=1, fmu_path=fmu3),
+                      progress=False)
     assert sorted(again.executed) == [lines[2]["run_id"], lines[3]["run_id"]]
 
 
@@ -322,7 +325,8 @@ def test_bad_log_options_are_named(spec8: Path, tmp_path: Path,
 def test_a_large_batch_keeps_the_logs_of_failed_runs_by_default(
         spec8: Path, fmu3: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(runner_module, "FULL_LOGS_MAX_RUNS", 7)
-    result = run_batch(load_batch(spec8), tmp_path, workers=1, fmu_path=fmu3, progress=False)
+    result = run_batch(load_batch(spec8), tmp_path, BatchOptions(workers=1, fmu_path=fmu3),
+                       progress=False)
     assert result.log == LogPolicy("failed") and result.logs_kept == 4
 
 
@@ -350,7 +354,8 @@ def test_resume_after_kill_9(name: str, fmu3: Path, tmp_path: Path) -> None:
     policy = POLICIES[name]
     spec = _spec(tmp_path, 25)
     ref = tmp_path / "ref"
-    run_batch(load_batch(spec), ref, workers=1, fmu_path=fmu3, progress=False, log=policy)
+    run_batch(load_batch(spec), ref, BatchOptions(workers=1, fmu_path=fmu3, log=policy),
+              progress=False)
     out = tmp_path / "o"
     options = ["--log", policy.keep, "--log-every", str(policy.every_k_steps)]
     cmd = [sys.executable, "-m", "wmr.cli", "batch", str(spec), "--out", str(out), "--fmu",

@@ -143,12 +143,13 @@ def test_an_optimal_log_holds_the_documented_record_and_the_scene(built: BuildRe
                                                                  tmp_path: Path) -> None:
     """``wmr optimal``'s record is the record of a run (its figures the FMU replay's), then
     its own fields; its log holds the record (but the ``limits`` table) and draws."""
-    from wmr.apps.optimal import optimal_to_log
+    from wmr.adapters.ocp import OptimalProblem
+    from wmr.apps.optimal import optimal_limits, optimal_to_log
 
     keys = _documented_record_keys()
     out = tmp_path / "o.mcap"
-    record = optimal_to_log(Pose(0.0, 0.0, 0.0), Pose(2.0, 1.0, 0.0), out, built.fmus[3],
-                            name="o")
+    problem = OptimalProblem(Pose(0.0, 0.0, 0.0), Pose(2.0, 1.0, 0.0), limits=optimal_limits())
+    record = optimal_to_log(problem, out, built.fmus[3], name="o")
     assert record["status"] == "solved"
     assert list(record)[:len(keys)] == keys
     logged = read_run(out).metadata["result"]

@@ -24,7 +24,9 @@ from wmr.adapters import ocp as optimal
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.ocp import (
     OptimalLimits,
+    OptimalProblem,
     OptimalResult,
+    SolverOptions,
     fig9_cases,
     fig10_cases,
     replay_open_loop,
@@ -38,20 +40,20 @@ START = Pose(0.0, 0.0, 0.0)
 FIG11_GOAL = Pose(20.0, 10.0, 0.0)
 #: The closed loop's limits (wmr.core.control.Limits defaults), so that the limited paths are
 #: tested.
-CLOSED_LOOP = {"torque_limit_nm": 8.0, "wheel_speed_limit_radps": 10.0, "speed_limit_mps": 1.0,
-               "omega_limit_radps": 1.5}
+CLOSED_LOOP = OptimalLimits(torque_max_nm=8.0, wheel_speed_max_radps=10.0, v_max_mps=1.0,
+                            omega_max_radps=1.5)
 P = RobotParams()
 M11 = P.m + 2 * P.Iwm / P.r**2
 
 
 @pytest.fixture(scope="module")
 def fig11() -> OptimalResult:
-    return solve_optimal(START, FIG11_GOAL)
+    return solve_optimal(OptimalProblem(START, FIG11_GOAL))
 
 
 @pytest.fixture(scope="module")
 def fig11_limited() -> OptimalResult:
-    return solve_optimal(START, FIG11_GOAL, **CLOSED_LOOP)
+    return solve_optimal(OptimalProblem(START, FIG11_GOAL, limits=CLOSED_LOOP))
 
 
 def _torque_sequence(n: int) -> np.ndarray:
@@ -155,15 +157,16 @@ def test_min_time_under_closed_loop_limits_honours_them(fig11_limited: OptimalRe
 
 
 def test_heading_180_and_minus_180_are_the_same_goal() -> None:
-    a = solve_optimal(Pose(10.0, 0.0, 0.0), Pose(0.0, 0.0, math.pi))
-    b = solve_optimal(Pose(10.0, 0.0, 0.0), Pose(0.0, 0.0, -math.pi))
+    a = solve_optimal(OptimalProblem(Pose(10.0, 0.0, 0.0), Pose(0.0, 0.0, math.pi)))
+    b = solve_optimal(OptimalProblem(Pose(10.0, 0.0, 0.0), Pose(0.0, 0.0, -math.pi)))
     assert a.status == b.status == "solved"
     assert a.final_time_s == pytest.approx(b.final_time_s, rel=1e-6)
 
 
 def test_energy_and_mix_objectives_trade_time_for_effort(fig11: OptimalResult) -> None:
-    energy = solve_optimal(START, FIG11_GOAL, objective="energy", final_time_s=8.0)
-    mix = solve_optimal(START, FIG11_GOAL, objective="mix")
+    energy = solve_optimal(OptimalProblem(START, FIG11_GOAL, objective="energy",
+                                          final_time_s=8.0))
+    mix = solve_optimal(OptimalProblem(START, FIG11_GOAL, objective="mix"))
     assert energy.status == mix.status == "solved"
     assert energy.final_time_s == 8.0 and _end(energy)[0] < 1e-6
     assert energy.effort_N2m2s < 0.5 * fig11.effort_N2m2s
@@ -174,8 +177,8 @@ def test_energy_and_mix_objectives_trade_time_for_effort(fig11: OptimalResult) -
 def test_forward_only_by_default_and_reversing_when_allowed() -> None:
     # facing away from the goal: reversing down the y axis is quicker than turning first
     start, goal = Pose(0.0, 10.0, math.pi / 2), Pose(0.0, 0.0, math.pi)
-    fwd = solve_optimal(start, goal)
-    rev = solve_optimal(start, goal, allow_reverse=True)
+    fwd = solve_optimal(OptimalProblem(start, goal))
+    rev = solve_optimal(OptimalProblem(start, goal, allow_reverse=True))
     assert fwd.status == rev.status == "solved"
     assert np.min(fwd.states["v"]) >= -1e-9
     assert np.min(rev.states["v"]) < -1.0
@@ -189,10 +192,11 @@ def test_turns_on_the_spot_solve_and_replay_on_the_fmu(heading_deg: float, fmu3:
     from wmr.adapters.ocp import SPOT_TURN_CREEP_MPS
 
     turn = math.radians(heading_deg)
-    r = solve_optimal(START, Pose(0.0, 0.0, turn), **CLOSED_LOOP)  # type: ignore[arg-type]
+    r = solve_optimal(OptimalProblem(START, Pose(0.0, 0.0, turn), limits=CLOSED_LOOP))
     assert r.status == "solved", r.message
     # no faster than turning at the omega limit, and at most the PI's 2.98 s for 90 deg
-    assert abs(turn) / CLOSED_LOOP["omega_limit_radps"] <= r.final_time_s
+    assert CLOSED_LOOP.omega_max_radps is not None
+    assert abs(turn) / CLOSED_LOOP.omega_max_radps <= r.final_time_s
     assert r.final_time_s < 2.98 * abs(turn) / (math.pi / 2) + 0.5
     assert np.min(r.states["v"]) >= -SPOT_TURN_CREEP_MPS - 1e-9
     assert np.max(np.hypot(r.states["x"], r.states["y"])) < 0.02  # it stays on the spot
@@ -203,7 +207,7 @@ def test_turns_on_the_spot_solve_and_replay_on_the_fmu(heading_deg: float, fmu3:
 
 def test_short_moves_stay_forward_only() -> None:
     """The creep is for turns on the spot only: a goal 0.5 m away keeps v >= 0."""
-    r = solve_optimal(START, Pose(0.0, 0.5, math.pi / 2), **CLOSED_LOOP)  # type: ignore[arg-type]
+    r = solve_optimal(OptimalProblem(START, Pose(0.0, 0.5, math.pi / 2), limits=CLOSED_LOOP))
     assert r.status == "solved"
     assert np.min(r.states["v"]) >= -1e-9
 
@@ -215,12 +219,13 @@ def test_a_solve_reports_its_progress(monkeypatch: pytest.MonkeyPatch) -> None:
 
     monkeypatch.setattr(transcription, "PROGRESS_INTERVAL_S", 0.0)
     lines: list[str] = []
-    r = solve_optimal(START, FIG11_GOAL, progress=lines.append)
+    r = solve_optimal(OptimalProblem(START, FIG11_GOAL), progress=lines.append)
     iterations = [line for line in lines if line.startswith("IPOPT: iteration ")]
     assert r.status == "solved" and len(iterations) >= r.iterations
     assert "T = " in iterations[-1]
     lines.clear()
-    solve_optimal(START, FIG11_GOAL)  # no receiver: silent, and the last one is forgotten
+    # no receiver: silent, and the last one is forgotten
+    solve_optimal(OptimalProblem(START, FIG11_GOAL))
     assert lines == []
 
 
@@ -248,7 +253,7 @@ def test_replay_under_limits_within_0_1_m_and_below_the_wheel_limit(
 
 
 def test_replay_refuses_an_unsolved_result(fmu3: Path) -> None:
-    bad = solve_optimal(START, FIG11_GOAL, torque_limit_nm=0.0)
+    bad = solve_optimal(OptimalProblem(START, FIG11_GOAL, limits=OptimalLimits(0.0)))
     with pytest.raises(ConfigError, match=r"result\.status"):
         replay_open_loop(bad, fmu3)
 
@@ -257,7 +262,7 @@ def test_replay_refuses_an_unsolved_result(fmu3: Path) -> None:
 
 
 def test_zero_torque_is_infeasible_at_once() -> None:
-    r = solve_optimal(START, FIG11_GOAL, torque_limit_nm=0.0)
+    r = solve_optimal(OptimalProblem(START, FIG11_GOAL, limits=OptimalLimits(0.0)))
     assert r.status == "infeasible"
     assert "torque" in r.message
     assert r.iterations == 0 and not math.isfinite(r.final_time_s)
@@ -266,15 +271,15 @@ def test_zero_torque_is_infeasible_at_once() -> None:
 
 def test_too_short_final_time_is_infeasible_not_a_hang() -> None:
     # the minimum time of this manoeuvre is about 4.5 s
-    r = solve_optimal(START, FIG11_GOAL, objective="energy", final_time_s=3.0,
-                      max_cpu_time_s=20.0)
+    r = solve_optimal(OptimalProblem(START, FIG11_GOAL, objective="energy", final_time_s=3.0),
+                      SolverOptions(max_cpu_time_s=20.0))
     assert r.status == "infeasible", r.message
     assert "final_time_s" in r.message
     assert r.solve_time_s < 20.0
 
 
 def test_start_equal_to_goal_is_trivial() -> None:
-    r = solve_optimal(Pose(1.0, 2.0, 0.5), Pose(1.0, 2.0, 0.5 + 2 * math.pi))
+    r = solve_optimal(OptimalProblem(Pose(1.0, 2.0, 0.5), Pose(1.0, 2.0, 0.5 + 2 * math.pi)))
     assert r.status == "solved"
     assert r.final_time_s == 0.0 and r.path_length_m == 0.0 and r.iterations == 0
     assert r.torques.shape == (0, 2)
@@ -283,25 +288,30 @@ def test_start_equal_to_goal_is_trivial() -> None:
 
 def test_energy_needs_a_final_time() -> None:
     with pytest.raises(ConfigError) as err:
-        solve_optimal(START, FIG11_GOAL, objective="energy")
+        solve_optimal(OptimalProblem(START, FIG11_GOAL, objective="energy"))
     assert err.value.field == "final_time_s"
     with pytest.raises(ConfigError) as err:
-        solve_optimal(START, FIG11_GOAL, objective="time", final_time_s=5.0)
+        solve_optimal(OptimalProblem(START, FIG11_GOAL, objective="time", final_time_s=5.0))
     assert err.value.field == "final_time_s"
 
 
-@pytest.mark.parametrize(("kwargs", "field"), [
-    ({"goal": Pose(math.nan, 10.0, 0.0)}, "goal.x_m"),
-    ({"start": Pose(0.0, 0.0, math.inf)}, "start.heading_rad"),
-    ({"torque_limit_nm": -1.0}, "torque_limit_nm"),
-    ({"wheel_speed_limit_radps": math.nan}, "wheel_speed_limit_radps"),
-    ({"objective": "fast"}, "objective"),
-    ({"n_intervals": 1}, "n_intervals"),
+@pytest.mark.parametrize(("problem", "options", "field"), [
+    ({"goal": Pose(math.nan, 10.0, 0.0)}, {}, "goal.x_m"),
+    ({"start": Pose(0.0, 0.0, math.inf)}, {}, "start.heading_rad"),
+    ({"limits": {"torque_max_nm": -1.0}}, {}, "limits.torque_max_nm"),
+    ({"limits": {"wheel_speed_max_radps": math.nan}}, {}, "limits.wheel_speed_max_radps"),
+    ({"objective": "fast"}, {}, "objective"),
+    ({"mix_weight": -1.0}, {}, "mix_weight"),
+    ({}, {"n_intervals": 1}, "n_intervals"),
+    ({}, {"max_iter": 0}, "max_iter"),
 ])
-def test_bad_input_names_the_field(kwargs: dict[str, object], field: str) -> None:
-    args: dict[str, object] = {"start": START, "goal": FIG11_GOAL, **kwargs}
+def test_bad_input_names_the_field(problem: dict[str, object], options: dict[str, object],
+                                   field: str) -> None:
+    args: dict[str, object] = {"start": START, "goal": FIG11_GOAL, **problem}
     with pytest.raises(ConfigError) as err:
-        solve_optimal(**args)  # type: ignore[arg-type]
+        if isinstance(args.get("limits"), dict):
+            args["limits"] = OptimalLimits(**args["limits"])  # type: ignore[arg-type]
+        solve_optimal(OptimalProblem(**args), SolverOptions(**options))  # type: ignore[arg-type]
     assert err.value.field == field
 
 
@@ -341,14 +351,15 @@ def test_kinematic_guess_joins_start_and_goal(x0: float, y0: float, h0: float, x
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("limits", [{}, CLOSED_LOOP], ids=["torque-only", "closed-loop"])
-def test_warm_start_solves_every_fig9_and_fig10_case(limits: dict[str, float],
+@pytest.mark.parametrize("limits", [OptimalLimits(), CLOSED_LOOP],
+                         ids=["torque-only", "closed-loop"])
+def test_warm_start_solves_every_fig9_and_fig10_case(limits: OptimalLimits,
                                                      fmu3: Path) -> None:
     cases = fig9_cases() + fig10_cases((0.0, 90.0, 180.0, -90.0))
     failed, far = [], []
     with FmuPlant(fmu3) as plant:
         for name, start, goal in cases:
-            r = solve_optimal(start, goal, **limits)  # type: ignore[arg-type]
+            r = solve_optimal(OptimalProblem(start, goal, limits=limits))
             if r.status != "solved":
                 failed.append(f"{name}: {r.message}")
                 continue
@@ -366,7 +377,7 @@ def test_the_optimal_record_has_one_effort_and_an_absolute_heading_error(
     and a duplicate effort_N2m2s)."""
     import dataclasses
 
-    from wmr.apps.optimal import optimal_to_log
+    from wmr.apps.optimal import optimal_limits, optimal_to_log
 
     real = optimal.replay_open_loop
 
@@ -375,7 +386,8 @@ def test_the_optimal_record_has_one_effort_and_an_absolute_heading_error(
         return dataclasses.replace(rp, final_heading_error_rad=-0.01)
 
     monkeypatch.setattr(optimal, "replay_open_loop", tilted)
-    record = optimal_to_log(START, Pose(2.0, 1.0, 0.0), tmp_path / "o.mcap", fmu3, name="t")
+    record = optimal_to_log(OptimalProblem(START, Pose(2.0, 1.0, 0.0), limits=optimal_limits()),
+                            tmp_path / "o.mcap", fmu3, name="t")
     assert record["status"] == "solved"
     assert record["final_heading_error_rad"] == pytest.approx(0.01)
     assert "effort_N2m2s" not in record and record["torque_sq_integral_n2m2s"] > 0.0
@@ -396,7 +408,8 @@ def test_a_trivial_result_is_the_start_at_rest_at_no_cost() -> None:
     inputs carried through (a robot and a torque limit of its own)."""
     params = replace(RobotParams(), m=30.0)
     start = Pose(1.0, 2.0, 0.5)
-    r = solve_optimal(start, Pose(1.0, 2.0, 0.5 + 2 * math.pi), params, torque_limit_nm=7.0)
+    r = solve_optimal(OptimalProblem(start, Pose(1.0, 2.0, 0.5 + 2 * math.pi), params,
+                                     limits=OptimalLimits(7.0)))
     assert (r.status, r.objective, r.start, r.params) == ("solved", "time", start, params)
     assert r.goal == Pose(1.0, 2.0, 0.5 + 2 * math.pi)
     assert r.limits.torque_max_nm == 7.0
@@ -418,8 +431,8 @@ def test_a_trivial_result_is_the_start_at_rest_at_no_cost() -> None:
 
 def test_an_infeasible_result_has_no_trajectory_and_no_numbers() -> None:
     """Zero torque: no node, no state, every cost NaN (None in JSON), nothing solved."""
-    r = solve_optimal(START, FIG11_GOAL, objective="energy", torque_limit_nm=0.0,
-                      final_time_s=5.0)
+    r = solve_optimal(OptimalProblem(START, FIG11_GOAL, objective="energy",
+                                     limits=OptimalLimits(0.0), final_time_s=5.0))
     assert (r.status, r.objective, r.start, r.goal) == ("infeasible", "energy", START,
                                                         FIG11_GOAL)
     assert r.params == RobotParams() and r.limits.torque_max_nm == 0.0

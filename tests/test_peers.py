@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from wmr.adapters.fmi.robot import FmuPlant
-from wmr.config.scenario import load_scenario, parse_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, parse_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control import Limits, ServoedController
 from wmr.core.control.from_spec import SpecController
@@ -130,7 +130,7 @@ def test_scenario_selects_a_peer_and_overrides_switch_it() -> None:
     c = make_controller(spec)
     assert isinstance(c, ServoedController) and isinstance(c.stabiliser, GracefulStabiliser)
     assert c.stabiliser.k_phi == 1.5
-    a = with_overrides(spec, controller="astolfi")
+    a = with_overrides(spec, Overrides(controller="astolfi"))
     assert a.controller == "astolfi" and a.controller_gains == ()
     with pytest.raises(ConfigError):
         parse_scenario({"name": "t", "start": [0, 0, 0], "goal": [5, 0, 0],

@@ -23,7 +23,7 @@ import pytest
 from mcap.reader import make_reader
 
 from wmr.adapters.mcap import read_run
-from wmr.apps.batch import BatchSpec, load_batch, run_batch
+from wmr.apps.batch import BatchOptions, BatchSpec, load_batch, run_batch
 from wmr.apps.batch.journal import log_complete, run_digest
 from wmr.apps.batch.runner import BatchOutcome
 
@@ -64,18 +64,18 @@ def test_resume_redoes_every_run_when_the_fmu_changed(fmu3: Path, tmp_path: Path
     spec.write_text(TWO_RUNS)
     batch = load_batch(spec)
     out = tmp_path / "out"
-    first = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
+    first = run_batch(batch, out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert len(first.executed) == 2
-    again = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
+    again = run_batch(batch, out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert again.executed == [] and again.skipped == 2  # same FMU: nothing to do
     other = _other_fmu(fmu3, tmp_path)
-    changed = run_batch(batch, out, workers=1, fmu_path=other, progress=False)
+    changed = run_batch(batch, out, BatchOptions(workers=1, fmu_path=other), progress=False)
     assert changed.skipped == 0
     assert sorted(changed.executed) == sorted(first.executed)
     last = {str(line["run_id"]): line["digest"] for line in _journal(out)}
     assert last == {run.run_id: run_digest(run.digest, file_sha256(other)) for run in batch.runs}
     # and back to the first FMU: its old lines were superseded, so every run is redone again
-    back = run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False)
+    back = run_batch(batch, out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     assert back.skipped == 0 and len(back.executed) == 2
 
 
@@ -137,8 +137,8 @@ def _batch_killed_mid_log(batch: BatchSpec, out: Path, fmu: Path) -> tuple[Batch
     killer = _KillMidLog(log.with_name(log.name + ".partial"), 200_000, times=2)
     killer.start()
     try:
-        result = run_batch(batch, out, workers=1, fmu_path=fmu, progress=False,
-                           run_timeout_s=600.0)
+        result = run_batch(batch, out, BatchOptions(workers=1, run_timeout_s=600.0, fmu_path=fmu),
+                           progress=False)
     finally:
         killer.done.set()
         killer.join()
@@ -171,7 +171,8 @@ def test_a_worker_killed_mid_log_leaves_its_run_recovered(fmu3: Path, tmp_path: 
     assert data.signals["x_m"][0] == 1.0  # the run's own start
     assert not list(log.parent.glob("*.partial")) and not list(log.parent.glob("*.killed"))
     # killed runs are final: the same command redoes nothing
-    assert run_batch(batch, out, workers=1, fmu_path=fmu3, progress=False).executed == []
+    again = run_batch(batch, out, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
+    assert again.executed == []
 
 
 @pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs Linux /proc")

@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from wmr.config.scenario import expand, load_scenario, with_overrides
+from wmr.config.scenario import Overrides, expand, load_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.control.stabiliser import Gains, Limits, PointStabiliser
@@ -43,7 +43,7 @@ def replay_torques(plant: Plant, params: RobotParams, spec: RunSpec,
 
 def _short_fig11(**params: float) -> RunSpec:
     (spec,) = expand(load_scenario("fig11"))
-    return with_overrides(spec, goal=(3.0, 0.0, 0.0), t_max_s=4.0, params=params)
+    return with_overrides(spec, Overrides(goal=(3.0, 0.0, 0.0), max_time_s=4.0, params=params))
 
 
 # -- gap 2: parameter overrides reach the plant ----------------------------------------------
@@ -72,7 +72,7 @@ def test_parameter_overrides_drive_the_plant_not_just_the_spec() -> None:
 @pytest.mark.parametrize("period_s", [0.01, 0.02])
 def test_the_effort_is_the_integral_of_the_logged_torques_squared(period_s: float) -> None:
     (spec,) = expand(load_scenario("fig11"))
-    spec = with_overrides(spec, goal=(3.0, 1.0, 0.0), period_s=period_s)
+    spec = with_overrides(spec, Overrides(goal=(3.0, 1.0, 0.0), period_s=period_s))
     rec = MemoryLog()
     res = run_closed_loop(spec, ReferencePlant(), rec, controller=SpecController())
     assert res.status == "converged", res.message

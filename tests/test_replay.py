@@ -28,7 +28,7 @@ from wmr.adapters.rerun.replay import (
 )
 from wmr.apps.run import run_to_log
 from wmr.cli import main
-from wmr.config.scenario import load_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.runlog import MemoryLog
@@ -219,7 +219,7 @@ def test_folder_of_runs_is_one_recording(fig11_log: Path, spec: RunSpec, fmu3_pl
     (batch / "a").mkdir(parents=True)
     (batch / "b").mkdir()
     (batch / "a" / "fig11.mcap").write_bytes(fig11_log.read_bytes())
-    short = with_overrides(spec, start=(10.0, 10.0, 90.0), name="short")
+    short = with_overrides(spec, Overrides(start=(10.0, 10.0, 90.0), name="short"))
     run_to_log(short, batch / "b" / "fig11.mcap", fmu3_plant)  # same file name, other folder
     run_to_log(short, batch / "b" / "other+run.mcap", fmu3_plant)
     logs = find_logs([batch])
@@ -519,15 +519,15 @@ def test_replay_logs_names_its_arguments_in_the_callers_words(
     no log, and ``worst`` without one batch folder, are errors naming the argument as the
     caller wrote it (the keyword for the API, the option for the command line, which
     translates the keyword)."""
-    from wmr.apps.replay import replay_logs
+    from wmr.apps.replay import ReplayRequest, replay_logs
     from wmr.infra.errors import ConfigError
 
     with pytest.raises(ConfigError) as err:
-        replay_logs()
+        replay_logs(ReplayRequest())
     assert err.value.field == "logs" and "no log given" in str(err.value)
     assert main(["replay"]) == 1
     assert capsys.readouterr().err.startswith("wmr: error: FILE.mcap|DIR: no log given")
     (tmp_path / "a.mcap").write_bytes(b"")
     with pytest.raises(ConfigError) as err:
-        replay_logs([tmp_path / "a.mcap"], worst=3)
+        replay_logs(ReplayRequest([tmp_path / "a.mcap"], worst=3))
     assert err.value.field == "worst" and "batch folder" in str(err.value)

@@ -12,7 +12,7 @@ import pytest
 import rerun.chunk as rrc
 
 from wmr.adapters.rerun.replay import OPTIMAL_ENTITY, run_entity
-from wmr.apps.batch import load_batch, run_batch
+from wmr.apps.batch import BatchOptions, load_batch, run_batch
 from wmr.apps.batch.rerun import pick_runs
 from wmr.apps.run import LogPolicy
 from wmr.cli import main
@@ -56,8 +56,8 @@ def test_replay_worst_draws_the_optimal_path_beside_each_run_when_the_batch_has_
     spec.write_text(SPEC if optimal else SPEC.replace('optimal = "time"\n', ""),
                     encoding="utf-8")
     out = tmp_path / "batch"
-    run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False,
-              log=LogPolicy("full"))
+    run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3, log=LogPolicy("full")),
+              progress=False)
     rrd = tmp_path / "worst.rrd"
     assert main(["replay", str(out), "--worst", "2", "--no-viewer", "--rrd", str(rrd)]) == 0
     capsys.readouterr()

@@ -412,14 +412,15 @@ def test_a_real_2d_grid_batch_reports_its_own_summary(fmu3: Path, tmp_path: Path
     pandas reads from the batch's summary, the design is a grid ranked by main effects, and
     the report draws the grid's map."""
     from wmr.apps.batch import load_batch
-    from wmr.apps.batch.runner import run_batch
+    from wmr.apps.batch.runner import BatchOptions, run_batch
 
     spec = tmp_path / "g6.toml"
     spec.write_text('name = "g6"\nstart = [1.0, 0.0, 0.0]\ngoal = [0.0, 0.0, 180.0]\n'
                     "max_time_s = 15.0\n[grid.gains]\nK_ps = [0.3, 0.5, 0.8]\n"
                     "[grid.params]\nm = [20.0, 30.0]\n")
     out = tmp_path / "out"
-    result = run_batch(load_batch(spec), out, workers=1, fmu_path=fmu3, progress=False)
+    result = run_batch(load_batch(spec), out, BatchOptions(workers=1, fmu_path=fmu3),
+                       progress=False)
     assert result.finished == 6
     data = _json(out, capsys)
     df = pq.read_table(out / SUMMARY_PARQUET).to_pandas()

@@ -13,7 +13,7 @@ import pytest
 
 import wmr.apps.batch.summary as summary_module
 from wmr.api import BatchResult, read_log
-from wmr.apps.batch import load_batch, run_batch
+from wmr.apps.batch import BatchOptions, load_batch, run_batch
 from wmr.apps.batch.rerun import pick_runs, rerun_run
 from wmr.apps.batch.summary import RESULT_COLUMNS
 from wmr.apps.run import LogPolicy
@@ -89,18 +89,18 @@ def batches(tmp_path_factory: pytest.TempPathFactory, fmu3: Path) -> dict[str, P
         m.setattr(summary_module, "SHARD_RUNS", 3)
         for keep in KEEPS:
             out[keep] = root / keep
-            run_batch(load_batch(spec), out[keep], workers=1, fmu_path=fmu3, progress=False,
-                      log=LogPolicy(keep))
+            run_batch(load_batch(spec), out[keep],
+                      BatchOptions(workers=1, fmu_path=fmu3, log=LogPolicy(keep)), progress=False)
     sensors = root / "rs.toml"
     sensors.write_text(SENSORS, encoding="utf-8")
     out["sensors"] = root / "sensors"
-    run_batch(load_batch(sensors), out["sensors"], workers=1, fmu_path=fmu3, progress=False,
-              log=LogPolicy("full"))
+    run_batch(load_batch(sensors), out["sensors"],
+              BatchOptions(workers=1, fmu_path=fmu3, log=LogPolicy("full")), progress=False)
     controllers = root / "rc.toml"
     controllers.write_text(CONTROLLERS, encoding="utf-8")
     out["controllers"] = root / "controllers"
-    run_batch(load_batch(controllers), out["controllers"], workers=1, fmu_path=fmu3,
-              progress=False, log=LogPolicy("failed"))
+    run_batch(load_batch(controllers), out["controllers"],
+              BatchOptions(workers=1, fmu_path=fmu3, log=LogPolicy("failed")), progress=False)
     return out
 
 

@@ -30,7 +30,7 @@ from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.fmi.slave import remove_stale_folders
 from wmr.adapters.mcap import read_run
 from wmr.adapters.mcap.recover import recover_log
-from wmr.apps.batch import load_batch, parse_batch, run_batch
+from wmr.apps.batch import BatchOptions, load_batch, parse_batch, run_batch
 from wmr.apps.batch.journal import Journal
 from wmr.apps.batch.local import DIED_TWICE
 from wmr.apps.batch.runner import _test_hooks
@@ -234,12 +234,12 @@ def _processes_with(marker: str) -> list[int]:
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and PR_SET_PDEATHSIG")
 def test_workers_die_with_a_killed_batch(tmp_path: Path, fmu3: Path) -> None:
     marker = f"WMR_TEST_{uuid.uuid4().hex}"
-    code = ("from wmr.apps.batch import load_batch, run_batch\n"
+    code = ("from wmr.apps.batch import BatchOptions, load_batch, run_batch\n"
             "from wmr.apps.batch.runner import _test_hooks\n"
             f"b = load_batch({str(_spec(tmp_path))!r})\n"
             "with _test_hooks(faults={r.run_id: 'hang' for r in b.runs}):\n"
-            f"    run_batch(b, {str(tmp_path / 'o')!r}, workers=2, fmu_path={str(fmu3)!r},\n"
-            "              progress=False)\n")
+            f"    run_batch(b, {str(tmp_path / 'o')!r},\n"
+            f"              BatchOptions(workers=2, fmu_path={str(fmu3)!r}), progress=False)\n")
     proc = subprocess.Popen([sys.executable, "-c", code], env=_env(**{marker: "1"}))
     logs = [tmp_path / "o" / "logs" / f"worker-{i}.log" for i in (0, 1)]
     _wait_for(lambda: all(log.exists() for log in logs))  # each worker opens its own
@@ -460,7 +460,8 @@ def test_a_dead_worker_gets_its_run_once_more(tmp_path: Path, fmu3: Path) -> Non
     batch = load_batch(_spec(tmp_path, SPEC.replace("max_time_s = 60.0", "max_time_s = 2.0")))
     first, second = batch.runs[0].run_id, batch.runs[1].run_id
     with _test_hooks(faults={first: "crash-once", second: "crash"}):
-        result = run_batch(batch, tmp_path / "o", workers=1, fmu_path=fmu3, progress=False)
+        result = run_batch(batch, tmp_path / "o", BatchOptions(workers=1, fmu_path=fmu3),
+                           progress=False)
     rows = {r["run_id"]: r for r in pq.read_table(tmp_path / "o" / "summary.parquet").to_pylist()}
     assert rows[first]["status"] == "timeout", "the retry ran it"
     assert rows[second]["status"] == "failed" and rows[second]["message"] == DIED_TWICE
@@ -476,11 +477,12 @@ def test_dask_retries_a_dead_worker_s_run_like_the_local_pool(tmp_path: Path,
     batch = load_batch(_spec(tmp_path, SPEC.replace("max_time_s = 60.0", "max_time_s = 2.0")))
     faults = {batch.runs[0].run_id: "crash-once", batch.runs[1].run_id: "crash"}
     with _test_hooks(faults=faults):
-        run_batch(batch, tmp_path / "local", workers=1, fmu_path=fmu3, progress=False)
+        run_batch(batch, tmp_path / "local", BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster, Client(cluster) as client, \
             _test_hooks(faults=faults):
-        run_batch(batch, tmp_path / "dask", client=client, fmu_path=fmu3, progress=False)
+        run_batch(batch, tmp_path / "dask", BatchOptions(client=client, fmu_path=fmu3),
+                  progress=False)
     local, dask = ((tmp_path / d / "summary.csv").read_bytes() for d in ("local", "dask"))
     assert dask == local, "the same summary whichever executor ran it"
 
@@ -497,7 +499,7 @@ def test_dask_redoes_a_run_whose_result_was_lost(tmp_path: Path, fmu3: Path,
     from wmr.apps.batch import dask_exec
 
     batch = load_batch(_spec(tmp_path, SPEC.replace("max_time_s = 60.0", "max_time_s = 2.0")))
-    run_batch(batch, tmp_path / "local", workers=1, fmu_path=fmu3, progress=False)
+    run_batch(batch, tmp_path / "local", BatchOptions(workers=1, fmu_path=fmu3), progress=False)
     lost_key = f"wmr-runs-{run_index(batch.runs[2].run_id)}-"  # a task's key: its first run
     asked: list[str] = []
     real = Future.result
@@ -513,7 +515,8 @@ def test_dask_redoes_a_run_whose_result_was_lost(tmp_path: Path, fmu3: Path,
     monkeypatch.setattr(dask_exec, "RESULT_WAIT_S", 5.0)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster, Client(cluster) as client:
-        run_batch(batch, tmp_path / "dask", client=client, fmu_path=fmu3, progress=False)
+        run_batch(batch, tmp_path / "dask", BatchOptions(client=client, fmu_path=fmu3),
+                  progress=False)
     assert any(k.startswith(lost_key) and k.endswith("-retry") for k in asked), asked
     local, dask = ((tmp_path / d / "summary.csv").read_bytes() for d in ("local", "dask"))
     assert dask == local

@@ -221,14 +221,15 @@ def test_a_record_holds_json_numbers_only() -> None:
     refuses ``NaN``), finite figures stay as they are, the keys are docs/results.md's.
     Seen failing with ``jsonable`` returning its value unchanged."""
 
-    from wmr.core.record import jsonable, record
+    from wmr.core.record import RunFigures, jsonable, record
 
     assert jsonable(math.nan) is None and jsonable(math.inf) is None and jsonable(None) is None
     assert jsonable(2.5) == 2.5
-    rec = record(name="r", status="timeout", message="m", final_position_error_m=1.5,
-                 final_heading_error_rad=math.nan, time_to_goal_s=None, path_length_m=2.0,
-                 energy_net_j=-math.inf, energy_positive_j=1.0, energy_abs_j=1.0,
-                 torque_sq_integral_n2m2s=0.5, peak_torque_nm=8.0, steps=3)
+    rec = record(RunFigures(
+        name="r", status="timeout", message="m", final_position_error_m=1.5,
+        final_heading_error_rad=math.nan, time_to_goal_s=None, path_length_m=2.0,
+        energy_net_j=-math.inf, energy_positive_j=1.0, energy_abs_j=1.0,
+        torque_sq_integral_n2m2s=0.5, peak_torque_nm=8.0, steps=3))
     assert json.loads(json.dumps(rec, allow_nan=False)) == rec
     assert rec["final_heading_error_rad"] is None and rec["energy_net_j"] is None
     assert rec["final_position_error_m"] == 1.5 and rec["steps"] == 3

@@ -13,7 +13,7 @@ import pytest
 from wmr.adapters.mcap import read_run
 from wmr.cli import main
 from wmr.config.naming import MAX_NAME_CHARS, fmu_tokens, run_name
-from wmr.config.scenario import load_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, with_overrides
 from wmr.config.scenario_file import run_spec_toml
 
 
@@ -29,7 +29,7 @@ def _run_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict
     ({"limits": {"torque_max_nm": 6.0}}, "torque_max_nm=6"),
     ({"period_s": 0.02}, "period=0.02"),
     ({"stop_radius_m": 0.1}, "stop=0.1"),
-    ({"t_max_s": 60.0}, "tmax=60"),
+    ({"max_time_s": 60.0}, "tmax=60"),
     ({"heading_tolerance_deg": 1.0}, "htol=1deg"),
     ({"start": (1.0, 2.0, 45.0)}, "from_1_2_45deg"),
     ({"goal": (5.0, 5.0, 30.0)}, "to_5_5_30deg"),
@@ -37,18 +37,19 @@ def _run_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict
 ])
 def test_every_override_names_the_run(override: dict[str, object], token: str) -> None:
     base = load_scenario("fig11").runs[0]
-    spec = with_overrides(base, **override)  # type: ignore[arg-type]
+    spec = with_overrides(base, Overrides(**override))  # type: ignore[arg-type]
     assert run_name(base, spec) == f"fig11-{token}"
 
 
 def test_an_unchanged_run_keeps_its_name_and_long_names_stay_apart() -> None:
     base = load_scenario("fig11").runs[0]
-    assert run_name(base, with_overrides(base, goal=(20.0, 10.0, 0.0))) == "fig11"
+    assert run_name(base, with_overrides(base, Overrides(goal=(20.0, 10.0, 0.0)))) == "fig11"
     assert run_name(base, base, fmu_tokens(2, None)) == "fig11-fmi2"  # (wmr run: file only)
     assert run_name(base, base, fmu_tokens(3, "other/plant.fmu")) == "fig11-fmu_plant"
-    a = with_overrides(base, gains={k: 0.123456789 for k in base.gains.as_dict()},
-                       limits={"torque_max_nm": 5.0}, params={"m": 30.0})
-    b = with_overrides(a, params={"m": 31.0})
+    a = with_overrides(base,
+                       Overrides(gains={k: 0.123456789 for k in base.gains.as_dict()},
+                                 limits={"torque_max_nm": 5.0}, params={"m": 30.0}))
+    b = with_overrides(a, Overrides(params={"m": 31.0}))
     na, nb = run_name(base, a), run_name(base, b)
     assert len(na) <= MAX_NAME_CHARS and len(nb) <= MAX_NAME_CHARS and na != nb
 
@@ -100,8 +101,9 @@ def test_the_effective_scenario_reads_back_into_the_same_run_for_every_shipped_r
     specs += [r.spec for r in load_batch("sensing_fig10").runs[:4]]  # runs with [sensors]
     assert any(s.sensors is not None for s in specs)
     for spec in specs:
-        peer = replace(with_overrides(spec, controller="graceful",
-                                      heading_tolerance_deg=0.3), name=spec.name + " \"q\"")
+        peer = replace(with_overrides(spec, Overrides(controller="graceful",
+                                                      heading_tolerance_deg=0.3)),
+                       name=spec.name + " \"q\"")
         for s in (spec, peer):
             back = parse_scenario(tomllib.loads(run_spec_toml(s))).runs
             assert back == (s,)

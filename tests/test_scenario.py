@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 
 from wmr.config.scenario import (
+    Overrides,
     expand,
     load_scenario,
     parse_scenario,
@@ -121,20 +122,45 @@ def test_runs_inherit_and_override(tmp_path: Path) -> None:
 
 def test_with_overrides() -> None:
     (run,) = parse_scenario(BASE).runs
-    new = with_overrides(run, start=(1.0, 1.0, 90.0), goal=Pose(5.0, 5.0, 0.0),
-                         gains={"K_ps": 0.8}, limits={"torque_max_nm": 5.0},
-                         params={"m": 30.0}, t_max_s=60.0)
+    new = with_overrides(run,
+                         Overrides(start=(1.0, 1.0, 90.0), goal=Pose(5.0, 5.0, 0.0),
+                                   gains={"K_ps": 0.8}, limits={"torque_max_nm": 5.0},
+                                   params={"m": 30.0}, max_time_s=60.0))
     assert new.start.heading_rad == pytest.approx(math.pi / 2)
     assert new.goal == Pose(5.0, 5.0, 0.0)
     assert new.gains.K_ps == 0.8 and new.gains.K_ptheta == run.gains.K_ptheta
     assert new.limits.torque_max_nm == 5.0 and new.params.m == 30.0 and new.t_max_s == 60.0
     assert with_overrides(run) == run
     with pytest.raises(ConfigError, match=r"start\.x_m"):
-        with_overrides(run, start=(math.nan, 0.0, 0.0))
+        with_overrides(run, Overrides(start=(math.nan, 0.0, 0.0)))
     with pytest.raises(ConfigError, match=r"gains\.K_x"):
-        with_overrides(run, gains={"K_x": 1.0})
+        with_overrides(run, Overrides(gains={"K_x": 1.0}))
     with pytest.raises(ConfigError, match="control_period_s"):
-        with_overrides(run, period_s=-1.0)
+        with_overrides(run, Overrides(period_s=-1.0))
+
+
+def test_one_override_object_takes_poses_presets_and_typed_fields() -> None:
+    """``Overrides`` (issue 29: one object where with_overrides took 14 keywords): a Pose is
+    kept in rad, never read as degrees; a pose of non-numbers is a one-line error naming the
+    field; a sensor preset, then fields as a user typed them, go over the run's sensors in
+    that order (the step resolve_run did after with_overrides before).  Seen failing with
+    ``_sensors`` applying ``sensor`` before the preset, and with a Pose sent through
+    ``_pose`` (degrees)."""
+    from dataclasses import replace
+
+    from wmr.core.sensing import preset
+
+    (run,) = parse_scenario(BASE).runs
+    assert with_overrides(run, Overrides(goal=Pose(1.0, 2.0, 0.5))).goal == Pose(1.0, 2.0, 0.5)
+    for bad in (("a", 0.0, 0.0), 3.0):
+        with pytest.raises(ConfigError) as err:
+            Overrides(start=bad)  # type: ignore[arg-type]
+        assert err.value.field == "start"
+    gps = with_overrides(run, Overrides(sensors="gps", sensor={"gps_sigma_m": "0.5"}))
+    assert gps.sensors == replace(preset("gps"), gps_sigma_m=0.5)
+    assert with_overrides(gps, Overrides(sensors="off")).sensors is None
+    typed = with_overrides(run, Overrides(sensors={"seed": 3}))
+    assert typed.sensors is not None and typed.sensors.seed == 3
 
 
 def test_runspec_is_frozen_and_validated() -> None:

@@ -13,7 +13,7 @@ from scipy import stats
 
 from wmr.apps.batch.spec import load_batch, parse_batch
 from wmr.apps.batch.summary import summary_table
-from wmr.config.scenario import expand, load_scenario, parse_scenario, with_overrides
+from wmr.config.scenario import Overrides, expand, load_scenario, parse_scenario, with_overrides
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.control.from_spec import SpecController
 from wmr.core.physics import ReferencePlant
@@ -72,10 +72,10 @@ def test_scenario_sensors_table_and_overrides() -> None:
     assert spec.sensors == SensorConfig(estimator="ekf", gps_sigma_m=0.03)
     (plain,) = parse_scenario({"start": [0, 0, 0], "goal": [1, 0, 0]}).runs
     assert plain.sensors is None
-    assert with_overrides(plain, sensors={"gps_sigma_m": 0.5}).sensors == SensorConfig(
+    assert with_overrides(plain, Overrides(sensors={"gps_sigma_m": 0.5})).sensors == SensorConfig(
         gps_sigma_m=0.5)
     with pytest.raises(ConfigError, match=r"sensors\.gps_rate_hz"):
-        with_overrides(plain, period_s=0.5, sensors={"gps_rate_hz": 10.0})
+        with_overrides(plain, Overrides(period_s=0.5, sensors={"gps_rate_hz": 10.0}))
 
 
 # -- sensor models ---------------------------------------------------------------------------
@@ -342,7 +342,7 @@ def test_sensors_off_is_bit_identical_and_reports_true_errors() -> None:
     assert res.estimated_final_heading_error_rad == res.final_heading_error_rad
     exact = SensorConfig(gps_rate_hz=100.0, compass_rate_hz=100.0)
     rec2 = MemoryLog()
-    res2 = run_closed_loop(with_overrides(spec, sensors=exact), ReferencePlant(), rec2,
+    res2 = run_closed_loop(with_overrides(spec, Overrides(sensors=exact)), ReferencePlant(), rec2,
                            controller=SpecController())
     assert np.array_equal(rec.block, rec2.block)
     assert res2.final_pose == res.final_pose
@@ -444,10 +444,10 @@ def test_wmr_run_sensors_gps_logs_fixes_and_estimate(tmp_path: Path) -> None:
 
 def test_noisy_run_is_reproducible_and_seeded() -> None:
     (spec,) = expand(load_scenario("fig11"))
-    spec = with_overrides(replace(spec, t_max_s=5.0), sensors=preset("gps"))
+    spec = with_overrides(replace(spec, t_max_s=5.0), Overrides(sensors=preset("gps")))
     a = run_closed_loop(spec, ReferencePlant(), controller=SpecController())
     b = run_closed_loop(spec, ReferencePlant(), controller=SpecController())
-    c = run_closed_loop(with_overrides(spec, sensors={"seed": 1}), ReferencePlant(),
+    c = run_closed_loop(with_overrides(spec, Overrides(sensors={"seed": 1})), ReferencePlant(),
                         controller=SpecController())
     assert a.sensing is not None and b.sensing is not None and c.sensing is not None
     assert np.array_equal(a.sensing.est_pose, b.sensing.est_pose)
@@ -475,8 +475,8 @@ def test_a_gains_variant_sees_the_noise_of_its_trip_not_of_its_name() -> None:
     from wmr.config.naming import run_name
 
     (base,) = expand(load_scenario("fig11"))
-    base = with_overrides(replace(base, t_max_s=3.0), sensors=preset("gps"))
-    tuned = with_overrides(base, gains={"K_ptheta": 17.0})
+    base = with_overrides(replace(base, t_max_s=3.0), Overrides(sensors=preset("gps")))
+    tuned = with_overrides(base, Overrides(gains={"K_ptheta": 17.0}))
     tuned = replace(tuned, name=run_name(base, tuned))
     assert tuned.name == "fig11-K_ptheta=17"
     (e_base, path_base), (e_tuned, path_tuned) = _fix_errors(base), _fix_errors(tuned)
@@ -511,7 +511,7 @@ def test_batch_runs_share_noise_per_trip_and_random_starts_do_not() -> None:
 def test_fig11_converges_with_2cm_gps_at_10hz_and_50ms() -> None:
     """The issue's acceptance case, on the estimate; the true errors beside it."""
     (spec,) = expand(load_scenario("fig11"))
-    res = run_closed_loop(with_overrides(spec, sensors=preset("gps")), ReferencePlant(),
+    res = run_closed_loop(with_overrides(spec, Overrides(sensors=preset("gps"))), ReferencePlant(),
                           controller=SpecController())
     assert res.status == "converged", res.message
     assert res.estimated_final_position_error_m <= spec.stop_radius_m
@@ -561,7 +561,7 @@ def test_controller_fmu_acts_on_the_estimate_as_python_does(built: Any) -> None:
     from wmr.adapters.fmi.controller import FmuController
 
     (spec,) = expand(load_scenario("fig11"))
-    spec = with_overrides(replace(spec, t_max_s=10.0), sensors=preset("gps"))
+    spec = with_overrides(replace(spec, t_max_s=10.0), Overrides(sensors=preset("gps")))
     py_rows, c_rows = MemoryLog(), MemoryLog()
     py = run_closed_loop(spec, ReferencePlant(), py_rows, controller=SpecController())
     with FmuController(built.controllers[3]) as ctrl:

@@ -276,11 +276,12 @@ def test_fmpy_simulate_ssp_traces_wmr_run_one_step_late(built: BuildResult, ssp_
 def _issue_variant_spec() -> RunSpec:
     """Issue 32's non-paper case: ``wmr ssp export fig11 --start 3 -2 170 --goal -4 5 -60``
     (it begins with a turn, away from the origin)."""
-    from wmr.config.scenario import with_overrides
+    from wmr.config.scenario import Overrides, with_overrides
     from wmr.core.plant import Pose
 
-    spec = with_overrides(_spec("fig11", None), start=Pose(3.0, -2.0, math.radians(170.0)),
-                          goal=Pose(-4.0, 5.0, math.radians(-60.0)))
+    spec = with_overrides(_spec("fig11", None),
+                          Overrides(start=Pose(3.0, -2.0, math.radians(170.0)),
+                                    goal=Pose(-4.0, 5.0, math.radians(-60.0))))
     return replace(spec, name="issue32-variant")
 
 
@@ -549,13 +550,13 @@ def test_a_variant_package_is_named_and_documented_as_its_own_run(
     import tomllib
 
     from wmr.config.naming import run_name
-    from wmr.config.scenario import parse_scenario, with_overrides
+    from wmr.config.scenario import Overrides, parse_scenario, with_overrides
     from wmr.core.plant import Pose
 
     monkeypatch.chdir(tmp_path)
     assert main(["ssp", "export", "fig11", "--goal", "5", "5", "30"]) == 0
     base = _spec("fig11", None)
-    variant = with_overrides(base, goal=Pose(5.0, 5.0, math.radians(30.0)))
+    variant = with_overrides(base, Overrides(goal=Pose(5.0, 5.0, math.radians(30.0))))
     name = run_name(base, variant)
     assert name != "fig11"
     out = Path(capsys.readouterr().out.strip())
@@ -627,10 +628,10 @@ def _turn_first_spec() -> RunSpec:
     """Issue 32's non-paper case: ``wmr ssp export fig11 --start 3 -2 170 --goal -4 5 -60``,
     a run that begins with a turn at saturated torque (about 22 s)."""
     from wmr.config.naming import run_name
-    from wmr.config.scenario import with_overrides
+    from wmr.config.scenario import Overrides, with_overrides
 
     base = _spec("fig11", None)
-    spec = with_overrides(base, start=(3.0, -2.0, 170.0), goal=(-4.0, 5.0, -60.0))
+    spec = with_overrides(base, Overrides(start=(3.0, -2.0, 170.0), goal=(-4.0, 5.0, -60.0)))
     return replace(spec, name=run_name(base, spec))
 
 
@@ -799,11 +800,11 @@ def _short_spec() -> RunSpec:
     """Fig. 11's robot and gains to a near goal (1, 0.5, 30 deg): about 6 s, 585 steps; a stop
     time of 12 s (fmpy runs a package to its stop time: at a quarter of the period, 120 s
     were 48000 steps)."""
-    from wmr.config.scenario import with_overrides
+    from wmr.config.scenario import Overrides, with_overrides
     from wmr.core.plant import Pose
 
-    spec = with_overrides(_spec("fig11", None), goal=Pose(1.0, 0.5, math.radians(30.0)),
-                          t_max_s=12.0)
+    spec = with_overrides(_spec("fig11", None),
+                          Overrides(goal=Pose(1.0, 0.5, math.radians(30.0)), max_time_s=12.0))
     return replace(spec, name="short")
 
 
@@ -923,11 +924,12 @@ def test_wmr_ssp_check_json_prints_the_json_line_alone(built: BuildResult,
 
 def _variant_spec() -> RunSpec:
     """A short run that is not the FMUs' compiled-in one (Fig. 11): another start and goal."""
-    from wmr.config.scenario import with_overrides
+    from wmr.config.scenario import Overrides, with_overrides
     from wmr.core.plant import Pose
 
-    spec = with_overrides(_spec("fig11", None), start=Pose(0.5, -0.3, math.radians(170.0)),
-                          goal=Pose(-1.0, 0.5, math.radians(-60.0)))
+    spec = with_overrides(_spec("fig11", None),
+                          Overrides(start=Pose(0.5, -0.3, math.radians(170.0)),
+                                    goal=Pose(-1.0, 0.5, math.radians(-60.0))))
     return replace(spec, name="variant")
 
 

@@ -24,7 +24,7 @@ from wmr.adapters.ssp.agreement import deviation, wmr_run
 from wmr.adapters.ssp.export import export_ssp
 from wmr.adapters.ssp.package import ROBOT, unpacked_package
 from wmr.build.fmus import BuildResult
-from wmr.config.scenario import load_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, with_overrides
 from wmr.core.plant import Pose
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
@@ -47,7 +47,8 @@ def _spec(start: Pose | None = None, goal: Pose = _NEAR_GOAL, t_max_s: float = 1
           ) -> RunSpec:
     """Fig. 11's robot and gains to a near goal (about 6 s), stopped at ``t_max_s``."""
     spec = next(iter(load_scenario("fig11").runs))
-    return replace(with_overrides(spec, start=start, goal=goal, t_max_s=t_max_s), name="oms")
+    return replace(with_overrides(spec, Overrides(start=start, goal=goal, max_time_s=t_max_s)),
+                   name="oms")
 
 
 def _package(built: BuildResult, spec: RunSpec, folder: Path, fmi: int = 2) -> Path:

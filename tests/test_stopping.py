@@ -255,7 +255,7 @@ def test_supervise_returns_the_childs_status_and_a_record_for_a_child_that_died(
     record (docs/results.md's keys, every figure null) that names the signal, not a status.
     Seen failing with ``WTERMSIG`` read as an exit status (``_watch`` returning ``status``)."""
     from wmr.apps.supervise import Abandoned, RunChannel, supervise
-    from wmr.core.record import record
+    from wmr.core.record import RunFigures, record
 
     def returns(channel: RunChannel) -> int:
         return 7
@@ -273,10 +273,11 @@ def test_supervise_returns_the_childs_status_and_a_record_for_a_child_that_died(
     assert isinstance(out, Abandoned) and out.stop_signal is None
     assert out.record["status"] == "failed" and out.record["mcap"] is None
     assert "died of SIGKILL" in out.record["message"]
-    keys = record(name="", status="failed", message="", final_position_error_m=None,
-                  final_heading_error_rad=None, time_to_goal_s=None, path_length_m=None,
-                  energy_net_j=None, energy_positive_j=None, energy_abs_j=None,
-                  torque_sq_integral_n2m2s=None, peak_torque_nm=None, steps=0).keys()
+    keys = record(RunFigures(
+        name="", status="failed", message="", final_position_error_m=None,
+        final_heading_error_rad=None, time_to_goal_s=None, path_length_m=None, energy_net_j=None,
+        energy_positive_j=None, energy_abs_j=None, torque_sq_integral_n2m2s=None,
+        peak_torque_nm=None, steps=0)).keys()
     assert out.record.keys() == keys
     assert all(out.record[k] is None for k in keys
                if k not in ("name", "status", "message", "steps"))

@@ -484,8 +484,9 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
     ``WMR_READ_LIMIT_MIB``, else 1536), ``pose_topic`` (``--pose-topic``: the topic of a
     real robot's poses in a log that is not ours, when it has several; such a log replayed
     with one of ours is aligned to it at the start of motion, the distance between the two
-    paths plotted: ``.aligned`` of the result says how).  Both check their inputs in
-    :func:`wmr.apps.replay.replay_logs`: the same one-line errors.
+    paths plotted: ``.aligned`` of the result says how).  Both build the same
+    :class:`wmr.apps.replay.ReplayRequest`, checked in :func:`wmr.apps.replay.replay_logs`:
+    the same one-line errors.
 
     ``notebook=True`` (no option of the command: a notebook's own) shows the same recording
     and blueprint inline, in the cell's output, through rerun-notebook (``pip install
@@ -499,7 +500,7 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
         ``.runs``, ``.steps``, ``.rrd`` (None when only a viewer got it), ``.spawned``,
         ``.warnings``, ``.viewer`` (``notebook=True``); or the blueprint(s) written.
     """
-    from wmr.apps.replay import replay_logs
+    from wmr.apps.replay import ReplayRequest, replay_logs
 
     inputs = [logs] if isinstance(logs, str | Path) else list(logs)
     def say(line: str) -> None:
@@ -510,9 +511,10 @@ def replay(logs: str | Path | Sequence[str | Path] = (), *, rrd: str | Path | No
     from wmr.adapters.mcap.reader import read_limit
 
     with read_limit(read_limit_mib):
-        return replay_logs(inputs, rrd=rrd, blueprint=blueprint, blueprint_for=blueprint_for,
-                           viewer=viewer, worst=worst, by=by, status=status, say=say,
-                           notebook=notebook, pose_topic=pose_topic)
+        return replay_logs(ReplayRequest(inputs, rrd=rrd, blueprint=blueprint,
+                                         blueprint_for=blueprint_for, viewer=viewer,
+                                         worst=worst, by=by, status=status, notebook=notebook,
+                                         pose_topic=pose_topic), say=say)
 
 
 __all__ = ["BatchResult", "Log", "RunResult", "batch", "load_scenario", "optimal",

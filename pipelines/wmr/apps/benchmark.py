@@ -339,11 +339,11 @@ def run_optimal(spec: RunSpec, plant: FmuPlant, mcap: Path | None) -> OptimalRun
 
     A failed or infeasible solve is recorded, never raised.
     """
-    from wmr.adapters.ocp import OptimalLimits, replay_open_loop, solve_optimal
+    from wmr.adapters.ocp import OptimalLimits, OptimalProblem, replay_open_loop, solve_optimal
 
     limits = OptimalLimits.like(spec.limits)
     try:
-        res = solve_optimal(spec.start, spec.goal, spec.params, objective="time", limits=limits)
+        res = solve_optimal(OptimalProblem(spec.start, spec.goal, spec.params, limits=limits))
     except Exception as exc:  # a solver failure is one row, not the end of the benchmark
         return OptimalRun("failed", f"{type(exc).__name__}: {exc}", None)
     if res.status != "solved":

@@ -370,7 +370,7 @@ def compute_roa(plant: Plant, base: RunSpec, *, grid: int = ROA_GRID,
     RoaResult
         Times to goal and statuses on the grid.
     """
-    from wmr.config.scenario import with_overrides
+    from wmr.config.scenario import Overrides, with_overrides
     from wmr.core.closedloop import run_closed_loop
     from wmr.core.control.from_spec import SpecController
 
@@ -388,9 +388,9 @@ def compute_roa(plant: Plant, base: RunSpec, *, grid: int = ROA_GRID,
     for k, th in enumerate(ths):
         for i, y in enumerate(ys):
             for j, x in enumerate(xs):
-                spec = with_overrides(base, start=Pose(float(x), float(y), float(th)), goal=goal,
-                                      name=f"roa x={x:g} y={y:g} th={math.degrees(th):g}",
-                                      t_max_s=t_max_s)
+                spec = with_overrides(base, Overrides(
+                    start=Pose(float(x), float(y), float(th)), goal=goal,
+                    name=f"roa x={x:g} y={y:g} th={math.degrees(th):g}", max_time_s=t_max_s))
                 res = run_closed_loop(spec, plant, controller=SpecController())
                 status[k, i, j] = res.status
                 if res.status == "converged" and res.time_to_goal_s is not None:

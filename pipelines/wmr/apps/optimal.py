@@ -5,16 +5,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 from wmr.apps.request import Overrides
 from wmr.core.control import Limits
 from wmr.core.plant import Pose, RobotParams
-from wmr.core.record import RECORD_KEYS, record
+from wmr.core.record import RECORD_KEYS, RunFigures, record
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
+
+if TYPE_CHECKING:
+    from wmr.adapters.ocp import OptimalProblem
 
 #: The advice of a failed solve, for users of this function and of the command line (who
 #: have no n_intervals, warm_start or max_iter to change).
@@ -128,8 +131,9 @@ class OptimalRequest:
 
     def __post_init__(self) -> None:
         o = self.overrides
-        for name in ("gains", "period_s", "stop_radius_m", "max_time_s", "controller",
-                     "controller_gains", "sensors", "sensor"):
+        for name in ("name", "gains", "period_s", "stop_radius_m", "max_time_s",
+                     "heading_tolerance_deg", "controller", "controller_gains", "sensors",
+                     "sensor"):
             if getattr(o, name) not in (None, {}):
                 raise ConfigError(name, "has no meaning for the optimal manoeuvre",
                                   "give start, goal, params and limits only")
@@ -151,7 +155,7 @@ def optimal_command(request: OptimalRequest,
     from wmr.infra.outputs import check_output
 
     r, o = request, request.overrides
-    start, goal = o.start, o.goal
+    start, goal = (_degrees(p) if isinstance(p, Pose) else p for p in (o.start, o.goal))
     spec = None
     if r.scenario is not None or r.run is not None or o.params or o.limits:
         from wmr.apps.run import select_run
@@ -160,7 +164,7 @@ def optimal_command(request: OptimalRequest,
         base = (select_run(load_scenario(r.scenario), r.run) if r.scenario is not None
                 or r.run is not None else RunSpec(name="", start=Pose(0.0, 0.0, 0.0),
                                                   goal=Pose(0.0, 0.0, 0.0)))
-        spec = with_overrides(base, params=o.params, limits=o.limits)
+        spec = with_overrides(base, Overrides(params=o.params, limits=o.limits))
         if start is None and r.scenario is not None:
             start = _degrees(spec.start)
         if goal is None and r.scenario is not None:
@@ -182,13 +186,17 @@ def optimal_command(request: OptimalRequest,
                           "drop final_time_s or use objective=energy")
     start_pose, goal_pose = (Pose(x, y, math.radians(h)) for x, y, h in (start_deg, goal_deg))
     try:
-        return optimal_to_log(start_pose, goal_pose, path,
+        from wmr.adapters.ocp import OptimalProblem
+
+        limits = optimal_limits(r.torque_limit_nm, r.torque_only,
+                                None if spec is None else spec.limits)
+        problem = OptimalProblem(start_pose, goal_pose,
+                                 RobotParams() if spec is None else spec.params,
+                                 objective=r.objective,  # type: ignore[arg-type]
+                                 limits=limits, final_time_s=r.final_time_s)
+        return optimal_to_log(problem, path,
                               Path(r.fmu) if r.fmu is not None else default_fmu(r.fmi),
-                              name=name, objective=r.objective,
-                              torque_limit_nm=r.torque_limit_nm, torque_only=r.torque_only,
-                              final_time_s=r.final_time_s, period_s=r.period_s,
-                              progress=progress, params=None if spec is None else spec.params,
-                              pi_limits=None if spec is None else spec.limits)
+                              name=name, period_s=r.period_s, progress=progress)
     except ConfigError as exc:
         # solve_optimal's advice, for a caller who has no n_intervals to raise
         raise ConfigError(exc.field, exc.problem, exc.fix.replace(
@@ -196,24 +204,34 @@ def optimal_command(request: OptimalRequest,
             "(wmr.adapters.ocp.solve_optimal)")) from None
 
 
-def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: str,
-                   objective: str = "time", torque_limit_nm: float | None = None,
-                   torque_only: bool = False, final_time_s: float | None = None,
+def optimal_to_log(problem: OptimalProblem, out: Path, fmu_path: Path, *, name: str,
                    period_s: float = 0.01,
-                   params: RobotParams | None = None,
-                   progress: Callable[[str], None] | None = None,
-                   pi_limits: Limits | None = None) -> dict[str, Any]:
-    """Solve, replay on the FMU at ``fmu_path`` and log to ``out``; return the result record.
+                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Solve ``problem``, replay on the FMU at ``fmu_path`` and log to ``out``; return the
+    result record.
 
-    ``objective="energy"`` without ``final_time_s`` takes 1.5 times the minimum time.  The
+    The energy objective without a ``final_time_s`` takes 1.5 times the minimum time.  The
     record is the record of a run (:data:`wmr.core.record.RECORD_KEYS`, ``docs/results.md``)
     of the open-loop FMU replay (``status`` the solver's, ``time_to_goal_s`` the optimum's
     final time), then the optimal's own fields (``objective``, ``final_time_s``, the
     optimiser's ``ocp_*`` estimates, ``solve_time_s``, ``iterations``, ``limits``,
     ``time_to_radius_s``, ``final_speed_mps``); the log, with the scene topics
     (:mod:`wmr.adapters.mcap.scene`), is written only when the solve succeeded.
-    ``progress`` receives a line at least every few seconds while IPOPT iterates
-    (:func:`wmr.adapters.ocp.solve_optimal`).
+
+    Parameters
+    ----------
+    problem
+        The manoeuvre (:class:`~wmr.adapters.ocp.OptimalProblem`; the PI's limits:
+        :func:`optimal_limits`).
+    out, fmu_path
+        The log to write and the robot FMU of the replay.
+    name
+        The run's name in the record and the log.
+    period_s
+        The longest FMU step of the replay, s.
+    progress
+        Receives a line at least every few seconds while IPOPT iterates
+        (:func:`wmr.adapters.ocp.solve_optimal`).
     """
     from wmr.adapters.fmi.robot import FmuPlant
     from wmr.adapters.ocp import FAILED_ADVICE, replay_open_loop, solve_optimal
@@ -224,19 +242,17 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
         write_optimal_log,
     )
 
-    params = RobotParams() if params is None else params
-    limits = optimal_limits(torque_limit_nm, torque_only, pi_limits)
+    start, goal, params, limits = problem.start, problem.goal, problem.params, problem.limits
+    objective = problem.objective
     note = ""
-    if objective == "energy" and final_time_s is None:
-        t_min = solve_optimal(start, goal, params, objective="time", limits=limits,
-                              progress=progress)
+    if objective == "energy" and problem.final_time_s is None:
+        t_min = solve_optimal(replace(problem, objective="time"), progress=progress)
         if t_min.status != "solved":
             raise ConfigError("final_time_s", "no minimum time to base the energy run on "
                               f"({t_min.status}: {t_min.message})", "give the final time")
-        final_time_s = 1.5 * t_min.final_time_s
+        problem = replace(problem, final_time_s=1.5 * t_min.final_time_s)
         note = f"final time 1.5 x the minimum time {t_min.final_time_s:.3f} s"
-    res = solve_optimal(start, goal, params, objective=objective,  # type: ignore[arg-type]
-                        limits=limits, final_time_s=final_time_s, progress=progress)
+    res = solve_optimal(problem, progress=progress)
     res.message = res.message.replace(FAILED_ADVICE, _CASE_ADVICE)
     message = res.message + (f"; {note}" if note else "")
     own: dict[str, Any] = {
@@ -255,19 +271,19 @@ def optimal_to_log(start: Pose, goal: Pose, out: Path, fmu_path: Path, *, name: 
                                   control_period_s=period_s)
         figures = replay_figures(replay, goal, 0.05)
         # an open-loop replay has no stabiliser: what it "believed" is the truth
-        done = {**record(name=name, status=res.status, message=message,
-                         final_position_error_m=figures["final_position_error_m"],
-                         final_heading_error_rad=figures["final_heading_error_rad"],
-                         time_to_goal_s=res.final_time_s,
-                         path_length_m=figures["path_length_m"],
-                         energy_net_j=figures["energy_net_j"],
-                         energy_positive_j=figures["energy_positive_j"],
-                         energy_abs_j=figures["energy_abs_j"],
-                         torque_sq_integral_n2m2s=figures["torque_sq_integral_n2m2s"],
-                         peak_torque_nm=figures["peak_torque_nm"], steps=len(replay.t_s),
-                         estimated_final_position_error_m=figures["final_position_error_m"],
-                         estimated_final_heading_error_rad=figures["final_heading_error_rad"],
-                         mcap=str(out)),
+        done = {**record(RunFigures(
+                    name=name, status=res.status, message=message,
+                    final_position_error_m=figures["final_position_error_m"],
+                    final_heading_error_rad=figures["final_heading_error_rad"],
+                    time_to_goal_s=res.final_time_s, path_length_m=figures["path_length_m"],
+                    energy_net_j=figures["energy_net_j"],
+                    energy_positive_j=figures["energy_positive_j"],
+                    energy_abs_j=figures["energy_abs_j"],
+                    torque_sq_integral_n2m2s=figures["torque_sq_integral_n2m2s"],
+                    peak_torque_nm=figures["peak_torque_nm"], steps=len(replay.t_s),
+                    estimated_final_position_error_m=figures["final_position_error_m"],
+                    estimated_final_heading_error_rad=figures["final_heading_error_rad"],
+                    mcap=str(out))),
                 **own, "time_to_radius_s": figures["time_to_radius_s"],
                 "final_speed_mps": replay.final_speed_mps}
         write_optimal_log(out, res, replay, plant,
@@ -308,20 +324,19 @@ def optimum_fields(spec: RunSpec, objective: str, record: dict[str, Any],
     ``energy_gap`` are the run's over the optimum's, for a converged run; a solver that fails
     is ``optimal_status`` ``failed`` or ``infeasible`` with its message, never a bare NaN.
     """
-    from wmr.adapters.ocp import FAILED_ADVICE, OptimalLimits, solve_optimal
+    from wmr.adapters.ocp import FAILED_ADVICE, OptimalLimits, OptimalProblem, solve_optimal
 
     out: dict[str, Any] = dict.fromkeys(OPTIMUM_COLUMNS)
-    limits = OptimalLimits.like(spec.limits)
+    problem = OptimalProblem(spec.start, spec.goal, spec.params,
+                             limits=OptimalLimits.like(spec.limits))
     try:
-        res = solve_optimal(spec.start, spec.goal, spec.params, objective="time",
-                            limits=limits, previous=previous)
+        res = solve_optimal(problem, previous=previous)
         t_min = res.final_time_s
         if res.status == "solved" and objective == "energy":
             t_run = record.get("time_to_goal_s") if record.get("status") == "converged" else None
             t_fixed = t_run if isinstance(t_run, float) and t_run >= t_min > 0.0 \
                 else 1.5 * t_min
-            res = solve_optimal(spec.start, spec.goal, spec.params, objective="energy",
-                                limits=limits, final_time_s=t_fixed)
+            res = solve_optimal(replace(problem, objective="energy", final_time_s=t_fixed))
     except Exception as exc:  # the solver's failure is the row's, not the batch's
         out.update(optimal_status="failed", optimal_message=f"{type(exc).__name__}: {exc}")
         return out, None

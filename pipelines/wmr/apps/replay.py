@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,19 +19,12 @@ from wmr.infra.errors import ConfigError
 if TYPE_CHECKING:
     from wmr.adapters.rerun.replay import ReplayResult
 
-def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
-                rrd: str | os.PathLike[str] | None = None,
-                blueprint: str | os.PathLike[str] | None = None, blueprint_for: bool = False,
-                viewer: bool | None = None, worst: int | None = None,
-                by: str = "time_to_goal_s", status: str | None = None,
-                say: Callable[[str], None] | None = None, notebook: bool = False,
-                pose_topic: str | None = None
-                ) -> ReplayResult | Path | list[Path]:
-    """Replay ``logs`` (files and folders of them) in one Rerun recording, or, with
-    ``blueprint``, write that blueprint file (looking straight down on ``logs``, if given)
-    and replay nothing.
+@dataclass(frozen=True)
+class ReplayRequest:
+    """A replay, as ``wmr replay`` and :func:`wmr.replay` ask for it (their options and
+    keywords, ``docs/replay.md``); errors name its fields.
 
-    Parameters
+    Attributes
     ----------
     logs
         ``.mcap`` run logs and folders searched recursively for them.
@@ -49,9 +43,9 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         With one batch folder in ``logs``: replay its ``worst`` runs by the summary column
         ``by`` (the failed and timed-out runs first), or every run of ``status``
         (``failed``, ``timeout``); a run whose log the batch did not keep is made again with
-        a full log into ``DIR/rerun/`` (:func:`wmr.apps.batch.rerun.batch_logs`), and ``say``
-        is told so.  When the batch's spec has ``optimal``, each chosen run's minimum-time
-        path is solved again and drawn beside it, labelled ``optimal``.
+        a full log into ``DIR/rerun/`` (:func:`wmr.apps.batch.rerun.batch_logs`).  When the
+        batch's spec has ``optimal``, each chosen run's minimum-time path is solved again and
+        drawn beside it, labelled ``optimal``.
     notebook
         Show the recording in the notebook's inline viewer (rerun-notebook) instead of a
         viewer or an ``.rrd``; refused before any run is read or made again where it cannot
@@ -60,6 +54,33 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         The topic of a real robot's poses in a log that is not ours, when it holds several
         (:func:`wmr.adapters.mcap.read_run`); such a log replayed with one of ours is
         aligned to it at the start of motion (:mod:`wmr.adapters.rerun.overlay`).
+    """
+
+    logs: Sequence[str | os.PathLike[str]] = ()
+    rrd: str | os.PathLike[str] | None = None
+    blueprint: str | os.PathLike[str] | None = None
+    blueprint_for: bool = False
+    viewer: bool | None = None
+    worst: int | None = None
+    by: str = "time_to_goal_s"
+    status: str | None = None
+    notebook: bool = False
+    pose_topic: str | None = None
+
+
+def replay_logs(request: ReplayRequest, say: Callable[[str], None] | None = None
+                ) -> ReplayResult | Path | list[Path]:
+    """Replay the request's logs (files and folders of them) in one Rerun recording, or, with
+    ``blueprint``, write that blueprint file (looking straight down on the logs, if given)
+    and replay nothing.
+
+    Parameters
+    ----------
+    request
+        What to replay and how (:class:`ReplayRequest`).
+    say
+        Told of each run of a batch made again because the batch kept no log of it, and of a
+        chosen run whose optimum is not solved.
 
     Returns
     -------
@@ -69,13 +90,15 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
     Raises
     ------
     ConfigError
-        No log given, or an output that cannot be written (named by the keywords).
+        No log given, or an output that cannot be written (named by the request's fields).
     LogError
         A log that cannot be read.
     """
+    logs, rrd, blueprint, viewer = request.logs, request.rrd, request.blueprint, request.viewer
+    worst, status, notebook = request.worst, request.status, request.notebook
     from wmr.infra.outputs import check_output
 
-    if blueprint_for:
+    if request.blueprint_for:
         from wmr.adapters.rerun.blueprint import log_blueprint_path, write_log_blueprint
         from wmr.adapters.rerun.replay import find_logs, raw_view
 
@@ -112,7 +135,7 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
         check_notebook(rrd, viewer)
     optimal_paths: dict[Path, NDArray[np.float64]] = {}
     if worst is not None or status is not None:
-        chosen = _chosen_runs(logs, worst, by, status, say)
+        chosen = _chosen_runs(logs, worst, request.by, status, say)
         optimal_paths = _optimal_paths(Path(logs[0]), chosen, say)
         logs = [log for _, log in chosen]
     else:
@@ -122,7 +145,7 @@ def replay_logs(logs: Sequence[str | os.PathLike[str]] = (), *,
     from wmr.adapters.rerun.replay import replay
 
     return replay(logs, rrd=rrd, spawn=viewer, notebook=notebook, optimal_paths=optimal_paths,
-                  pose_topic=pose_topic)
+                  pose_topic=request.pose_topic)
 
 
 def _optimal_paths(out: Path, chosen: Sequence[tuple[str, Path]],
@@ -140,13 +163,13 @@ def _optimal_paths(out: Path, chosen: Sequence[tuple[str, Path]],
     folder = open_batch(out)
     if folder.spec.optimal is None:
         return {}
-    from wmr.adapters.ocp import OptimalLimits, solve_optimal
+    from wmr.adapters.ocp import OptimalLimits, OptimalProblem, solve_optimal
 
     paths: dict[Path, NDArray[np.float64]] = {}
     for run_id, log in chosen:
         spec = folder.run(run_id).spec
-        res = solve_optimal(spec.start, spec.goal, spec.params, objective="time",
-                            limits=OptimalLimits.like(spec.limits))
+        res = solve_optimal(OptimalProblem(spec.start, spec.goal, spec.params,
+                                           limits=OptimalLimits.like(spec.limits)))
         if res.status == "solved":
             paths[log] = np.column_stack([res.states["x"], res.states["y"]])
         elif say is not None:
@@ -189,4 +212,4 @@ def _kept_logs(logs: Sequence[str | os.PathLike[str]]) -> None:
                           f"status=failed|timeout, or wmr rerun {folder} RUN_ID")
 
 
-__all__ = ["replay_logs"]
+__all__ = ["ReplayRequest", "replay_logs"]

@@ -10,83 +10,11 @@ front doors knows which door it was called from.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from wmr.config.scenario import Overrides, PoseDeg
 from wmr.infra.errors import ConfigError
-
-#: ``(x_m, y_m, heading_deg)``, as on the command line.
-PoseDeg = tuple[float, float, float]
-
-
-def _pose(value: Sequence[float] | None, name: str) -> PoseDeg | None:
-    if value is None:
-        return None
-    if isinstance(value, str | bytes) or len(value) != 3:
-        raise ConfigError(name, f"must be (x_m, y_m, heading_deg), got {value!r}",
-                          "give three numbers: x and y in metres, the heading in degrees")
-    return (float(value[0]), float(value[1]), float(value[2]))
-
-
-def _by_name(value: Mapping[str, float] | None, name: str) -> dict[str, float] | None:
-    if value is None:
-        return None
-    if not isinstance(value, Mapping):
-        raise ConfigError(name, f"must map names to numbers, got {type(value).__name__}",
-                          f"give e.g. {name}={{'NAME': VALUE}}")
-    return dict(value)
-
-
-@dataclass(frozen=True)
-class Overrides:
-    """What a request changes of its scenario's run; ``None`` keeps the scenario's.
-
-    Attributes
-    ----------
-    start, goal
-        ``(x_m, y_m, heading_deg)``.
-    params, gains, limits
-        Robot parameters, PI gains and limits by name.
-    period_s, stop_radius_m, max_time_s
-        The control period, the stop radius epsilon and the run's time limit, s and m.
-    controller, controller_gains
-        The controller by its registered name, and its own gains by name.
-    sensors, sensor
-        A sensor preset (``gps``, ``raw``) or ``off``, and fields of the ``[sensors]`` table
-        over it (``docs/sensing.md``).
-    """
-
-    start: Sequence[float] | None = None
-    goal: Sequence[float] | None = None
-    params: Mapping[str, float] | None = None
-    gains: Mapping[str, float] | None = None
-    limits: Mapping[str, float] | None = None
-    period_s: float | None = None
-    stop_radius_m: float | None = None
-    max_time_s: float | None = None
-    controller: str | None = None
-    controller_gains: Mapping[str, float] | None = None
-    sensors: str | None = None
-    sensor: Mapping[str, float | str] | None = None
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "start", _pose(self.start, "start"))
-        object.__setattr__(self, "goal", _pose(self.goal, "goal"))
-        for name in ("params", "gains", "limits", "controller_gains"):
-            object.__setattr__(self, name, _by_name(getattr(self, name), name))
-        if self.sensor is not None and not isinstance(self.sensor, Mapping):
-            raise ConfigError("sensor", f"must map [sensors] fields to values, got "
-                              f"{type(self.sensor).__name__}",
-                              "give e.g. sensor={'gps_sigma_m': 0.05}")
-        for name in ("period_s", "stop_radius_m", "max_time_s"):
-            value = getattr(self, name)
-            if value is not None and (isinstance(value, bool)
-                                      or not isinstance(value, int | float)
-                                      or not math.isfinite(value)):
-                raise ConfigError(name, f"must be a finite number, got {value!r}",
-                                  "give a number in the unit its name ends in")
 
 
 @dataclass(frozen=True)
@@ -98,7 +26,8 @@ class RunRequest:
     scenario, run
         A scenario's name or file (default ``fig11``) and one of its runs by name.
     overrides
-        What changes of that run (:class:`Overrides`).
+        What changes of that run (:class:`wmr.config.scenario.Overrides`, also importable
+        from here).
     controller_fmu
         ``True``: the law in the built controller FMU; a path: in that FMU; ``False``: the
         Python law although the scenario names an FMU; ``None``: as the scenario says.

@@ -29,6 +29,7 @@ from wmr.adapters.mcap import McapOpener
 from wmr.apps.request import RunRequest
 from wmr.config.scenario_file import run_spec_toml
 from wmr.core.closedloop import BlockSink, Controller, Progress, run_closed_loop
+from wmr.core.plant import Pose
 from wmr.core.record import result_record
 from wmr.core.runlog import LogHeader, LogOpener, RunLog
 from wmr.core.runspec import RunSpec
@@ -402,25 +403,19 @@ def resolve_run(request: RunRequest,
     inputs that run as given but look wrong (a heading in radians)."""
     from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
     from wmr.config.scenario import heading_looks_like_radians, load_scenario, with_overrides
-    from wmr.core.sensing.config import override_sensors
     from wmr.infra.outputs import check_output
 
     o = request.overrides
     for name, pose in (("start", o.start), ("goal", o.goal)):
-        as_pi = None if pose is None else heading_looks_like_radians(pose[2])
-        if pose is not None and as_pi is not None:  # run as given (it may be meant), said
+        if pose is None or isinstance(pose, Pose):  # a Pose's heading is in rad
+            continue
+        as_pi = heading_looks_like_radians(pose[2])
+        if as_pi is not None:  # run as given (it may be meant), said
             warn(name, f"heading {pose[2]:g} is in degrees but looks like {as_pi} rad: give "
                        f"{math.degrees(pose[2]):.4g} if you meant {as_pi} rad")
     sc = load_scenario(request.scenario)
     base = select_run(sc, request.run)
-    spec = with_overrides(base, start=None if o.start is None else list(o.start),
-                          goal=None if o.goal is None else list(o.goal), gains=o.gains,
-                          limits=o.limits, params=o.params, period_s=o.period_s,
-                          stop_radius_m=o.stop_radius_m, t_max_s=o.max_time_s,
-                          controller=o.controller, controller_gains=o.controller_gains)
-    if o.sensors is not None or o.sensor:
-        spec = replace(spec, sensors=override_sensors(
-            spec.sensors, o.sensors, [f"{k}={v}" for k, v in (o.sensor or {}).items()]))
+    spec = with_overrides(base, o)
     choice = request.controller_fmu
     ctrl_choice = (None if choice is False else "" if choice is True
                    else spec.controller_fmu if choice is None else str(choice))

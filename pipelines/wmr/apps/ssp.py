@@ -35,13 +35,12 @@ def export_package(scenario: str | Path | None = None, *, run: str | None = None
     from wmr.apps.run import select_run
     from wmr.build.fmus import build_fmus
     from wmr.config.naming import default_log_path, fmu_tokens, run_name, variant_name
-    from wmr.config.scenario import load_scenario, with_overrides
+    from wmr.config.scenario import Overrides, load_scenario, with_overrides
     from wmr.infra.outputs import check_output
 
     sc = load_scenario(scenario)
     base = select_run(sc, run)
-    spec = with_overrides(base, start=None if start is None else list(start),
-                          goal=None if goal is None else list(goal))
+    spec = with_overrides(base, Overrides(start=start, goal=goal))
     # the scenario file is the provenance of its own run only: a variant's package carries
     # its effective scenario instead (export_ssp), as a variant's log of 'wmr run' does
     scenario_file = sc.path if spec == base else None

@@ -210,16 +210,16 @@ def _finish_log(log: dict[str, str], message: str) -> dict[str, Any]:
     from wmr.adapters.fmi.slave import remove_stale_folders
     from wmr.adapters.mcap import read_run
     from wmr.adapters.mcap.recover import recover_log
-    from wmr.core.record import record
+    from wmr.core.record import RunFigures, record
     from wmr.infra.durable import partial_path
 
     remove_stale_folders()  # the dead run's: its lock died with it
-    result = record(name=log.get("name", ""), status="failed", message=message,
-                    final_position_error_m=None, final_heading_error_rad=None,
-                    time_to_goal_s=None, path_length_m=None, energy_net_j=None,
-                    energy_positive_j=None, energy_abs_j=None, torque_sq_integral_n2m2s=None,
-                    peak_torque_nm=None, steps=0, estimated_final_position_error_m=None,
-                    estimated_final_heading_error_rad=None)
+    result = record(RunFigures(
+        name=log.get("name", ""), status="failed", message=message, final_position_error_m=None,
+        final_heading_error_rad=None, time_to_goal_s=None, path_length_m=None, energy_net_j=None,
+        energy_positive_j=None, energy_abs_j=None, torque_sq_integral_n2m2s=None,
+        peak_torque_nm=None, steps=0, estimated_final_position_error_m=None,
+        estimated_final_heading_error_rad=None))
     path = Path(log["log"]) if "log" in log else None
     if path is None or not partial_path(path).exists():
         return result

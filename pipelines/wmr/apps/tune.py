@@ -40,7 +40,7 @@ from typing import Any, Final
 import numpy as np
 from scipy.optimize import minimize
 
-from wmr.config.scenario import load_scenario, with_overrides
+from wmr.config.scenario import Overrides, load_scenario, with_overrides
 from wmr.core.closedloop import LoopOutcome, run_closed_loop
 from wmr.core.control import registry
 from wmr.core.control.from_spec import SpecController
@@ -143,8 +143,8 @@ def with_gains(spec: RunSpec, controller: str, gains: Mapping[str, float]) -> Ru
     """
     if registry.get(controller).gains_table == registry.RUN_GAINS:  # the PI's: [gains]
         return with_overrides(replace(spec, controller=controller, controller_gains=()),
-                              gains=dict(gains))
-    return with_overrides(spec, controller=controller, controller_gains=dict(gains))
+                              Overrides(gains=dict(gains)))
+    return with_overrides(spec, Overrides(controller=controller, controller_gains=dict(gains)))
 
 
 def case_cost(result: LoopOutcome, spec: RunSpec) -> float:

@@ -24,17 +24,17 @@ REPLAY_OPTIONS: dict[str, str] = {
 
 def _cmd_replay(args: argparse.Namespace) -> int:
     from wmr.adapters.mcap.reader import read_limit
-    from wmr.apps.replay import replay_logs
+    from wmr.apps.replay import ReplayRequest, replay_logs
 
     try:
         with errors_as_options(REPLAY_OPTIONS), read_limit(args.read_limit):
-            result = replay_logs(args.logs, rrd=args.rrd, blueprint=args.blueprint,
-                                 blueprint_for=args.blueprint_for,
-                                 viewer=False if args.no_viewer else None, worst=args.worst,
-                                 by=args.by, status=args.status,
-                                 pose_topic=args.pose_topic,
-                                 say=lambda line: print(f"wmr: {line}", file=sys.stderr,
-                                                        flush=True))
+            request = ReplayRequest(args.logs, rrd=args.rrd, blueprint=args.blueprint,
+                                    blueprint_for=args.blueprint_for,
+                                    viewer=False if args.no_viewer else None,
+                                    worst=args.worst, by=args.by, status=args.status,
+                                    pose_topic=args.pose_topic)
+            result = replay_logs(request, say=lambda line: print(f"wmr: {line}",
+                                                                 file=sys.stderr, flush=True))
     except ConfigError as exc:
         if exc.field != "--blueprint-for" or exc.problem != "no log given":
             raise

@@ -58,7 +58,7 @@ from wmr.core.runspec import (
     check_finite,
     check_positive,
 )
-from wmr.core.sensing.config import SensorConfig, sensor_config
+from wmr.core.sensing.config import SensorConfig, override_sensors, sensor_config
 from wmr.infra.errors import ConfigError
 from wmr.infra.inputs import MAX_TOML_BYTES, read_input
 from wmr.infra.paths import scenarios_dir
@@ -360,74 +360,165 @@ def expand(scenario: Scenario) -> list[RunSpec]:
     return list(scenario.runs)
 
 
-def _pose_override(value: Pose | tuple[float, float, float] | list[float] | None,
-                   field: str) -> Pose | None:
-    """A Pose as is; a sequence as ``(x_m, y_m, heading_deg)`` (the command line's form)."""
+#: ``(x_m, y_m, heading_deg)``, as on the command line.
+PoseDeg = tuple[float, float, float]
+
+
+def _pose_input(value: Pose | Sequence[float] | None, name: str) -> Pose | PoseDeg | None:
+    """A Pose as is (heading in rad); a sequence as ``(x_m, y_m, heading_deg)`` floats."""
     if value is None or isinstance(value, Pose):
         return value
-    return _pose(list(value), field)
+    fix = "give three numbers: x and y in metres, the heading in degrees"
+    if isinstance(value, str | bytes) or not hasattr(value, "__len__") or len(value) != 3:
+        raise ConfigError(name, f"must be (x_m, y_m, heading_deg), got {value!r}", fix)
+    try:
+        return (float(value[0]), float(value[1]), float(value[2]))
+    except (TypeError, ValueError):
+        raise ConfigError(name, f"must be (x_m, y_m, heading_deg), got {value!r}",
+                          fix) from None
 
 
-def with_overrides(spec: RunSpec, start: Pose | tuple[float, float, float] | list[float] | None
-                   = None, goal: Pose | tuple[float, float, float] | list[float] | None = None,
-                   *, name: str | None = None, gains: Mapping[str, float] | None = None,
-                   limits: Mapping[str, float] | None = None,
-                   params: Mapping[str, float] | None = None, period_s: float | None = None,
-                   stop_radius_m: float | None = None, t_max_s: float | None = None,
-                   heading_tolerance_deg: float | None = None, controller: str | None = None,
-                   controller_gains: Mapping[str, float] | None = None,
-                   sensors: Mapping[str, Any] | SensorConfig | None = None) -> RunSpec:
-    """Merge command-line overrides into a run.
+def _by_name(value: Mapping[str, Any] | None, name: str) -> dict[str, Any] | None:
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise ConfigError(name, f"must map names to numbers, got {type(value).__name__}",
+                          f"give e.g. {name}={{'NAME': VALUE}}")
+    return dict(value)
 
-    ``start`` and ``goal`` are a :class:`~wmr.core.plant.Pose` (heading in rad) or a sequence
-    ``(x_m, y_m, heading_deg)`` as typed on the command line; ``gains``, ``limits`` and
-    ``params`` replace the named fields only; ``controller`` selects another controller
-    (its ``controller_gains`` then start from its defaults), ``controller_gains`` replace the
-    named gains of the (new) controller; ``sensors`` is a whole
-    :class:`~wmr.core.sensing.config.SensorConfig` or fields replacing the run's (or the defaults',
-    when the run has none).  ``None`` keeps the run's value.
+
+@dataclass(frozen=True)
+class Overrides:
+    """What changes of a scenario's run (:func:`with_overrides`); ``None`` keeps the run's.
+    Checked when made, each error naming its field; the values are checked against the run
+    by :func:`with_overrides`.
+
+    Attributes
+    ----------
+    start, goal
+        A :class:`~wmr.core.plant.Pose` (heading in rad), or ``(x_m, y_m, heading_deg)`` as
+        typed on the command line.
+    name
+        The run's new name.
+    params, gains, limits
+        Robot parameters, PI gains and limits by name: they replace the named fields only.
+    period_s, stop_radius_m, max_time_s, heading_tolerance_deg
+        The control period, the stop radius epsilon and the run's time limit, s and m; the
+        heading tolerance, deg.
+    controller, controller_gains
+        The controller by its registered name (its gains then start from its defaults), and
+        its own gains by name (replacing the named gains of the (new) controller).
+    sensors
+        A sensor preset (``gps``, ``raw``) or ``off`` (``docs/sensing.md``), a whole
+        :class:`~wmr.core.sensing.config.SensorConfig`, or fields of the ``[sensors]`` table
+        by name with their values (over the run's sensors, or the defaults').
+    sensor
+        Fields of the ``[sensors]`` table over those, as typed by a user (``wmr run --sensor
+        NAME=VALUE``: a number may be text); errors name ``sensor NAME``.
     """
+
+    start: Pose | Sequence[float] | None = None
+    goal: Pose | Sequence[float] | None = None
+    name: str | None = None
+    params: Mapping[str, float] | None = None
+    gains: Mapping[str, float] | None = None
+    limits: Mapping[str, float] | None = None
+    period_s: float | None = None
+    stop_radius_m: float | None = None
+    max_time_s: float | None = None
+    heading_tolerance_deg: float | None = None
+    controller: str | None = None
+    controller_gains: Mapping[str, float] | None = None
+    sensors: str | SensorConfig | Mapping[str, Any] | None = None
+    sensor: Mapping[str, float | str] | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start", _pose_input(self.start, "start"))
+        object.__setattr__(self, "goal", _pose_input(self.goal, "goal"))
+        for name in ("params", "gains", "limits", "controller_gains"):
+            object.__setattr__(self, name, _by_name(getattr(self, name), name))
+        if self.sensors is not None and not isinstance(self.sensors,
+                                                       str | SensorConfig | Mapping):
+            raise ConfigError("sensors", "must be a preset's name, off, a SensorConfig or "
+                              f"[sensors] fields by name, got {type(self.sensors).__name__}",
+                              "give e.g. sensors='gps'")
+        if self.sensor is not None and not isinstance(self.sensor, Mapping):
+            raise ConfigError("sensor", f"must map [sensors] fields to values, got "
+                              f"{type(self.sensor).__name__}",
+                              "give e.g. sensor={'gps_sigma_m': 0.05}")
+        for name in ("period_s", "stop_radius_m", "max_time_s", "heading_tolerance_deg"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool)
+                                      or not isinstance(value, int | float)
+                                      or not math.isfinite(value)):
+                raise ConfigError(name, f"must be a finite number, got {value!r}",
+                                  "give a number in the unit its name ends in")
+
+
+def _sensors(current: SensorConfig | None, o: Overrides) -> SensorConfig | None:
+    """The run's sensors ``current`` with the overrides' ``sensors``, then ``sensor``, over
+    them."""
+    cfg = current
+    if isinstance(o.sensors, SensorConfig):
+        cfg = o.sensors
+    elif isinstance(o.sensors, str):
+        cfg = override_sensors(cfg, o.sensors, None)
+    elif o.sensors:
+        cfg = sensor_config(o.sensors, cfg)
+    if o.sensor:
+        cfg = override_sensors(cfg, None, [f"{k}={v}" for k, v in o.sensor.items()])
+    return cfg
+
+
+def with_overrides(spec: RunSpec, overrides: Overrides | None = None) -> RunSpec:
+    """The run ``spec`` with ``overrides`` (:class:`Overrides`) merged in, checked.
+
+    Raises
+    ------
+    ConfigError
+        A value the run cannot take, naming its field (``start.x_m``, ``gains.K_x``,
+        ``control_period_s``, ``sensors.gps_rate_hz``).
+    """
+    o = Overrides() if overrides is None else overrides
     changes: dict[str, Any] = {}
-    new_start = _pose_override(start, "start")
-    new_goal = _pose_override(goal, "goal")
-    if new_start is not None:
-        changes["start"] = new_start
-    if new_goal is not None:
-        changes["goal"] = new_goal
-    if name is not None:
-        changes["name"] = name
-    if gains:
-        changes["gains"] = _build(Gains, gains, "gains", spec.gains)
-    if limits:
-        changes["limits"] = _build(Limits, limits, "limits", spec.limits)
-    if params:
-        changes["params"] = _build(RobotParams, params, "params", spec.params)
-    if period_s is not None:
-        changes["period_s"] = check_positive("control_period_s", period_s)
-    if stop_radius_m is not None:
-        changes["stop_radius_m"] = check_positive("stop_radius_m", stop_radius_m)
-    if t_max_s is not None:
-        changes["t_max_s"] = check_positive("max_time_s", t_max_s)
-    if heading_tolerance_deg is not None:
+    for field in ("start", "goal"):
+        pose = getattr(o, field)
+        if pose is not None:
+            changes[field] = pose if isinstance(pose, Pose) else _pose(list(pose), field)
+    if o.name is not None:
+        changes["name"] = o.name
+    if o.gains:
+        changes["gains"] = _build(Gains, o.gains, "gains", spec.gains)
+    if o.limits:
+        changes["limits"] = _build(Limits, o.limits, "limits", spec.limits)
+    if o.params:
+        changes["params"] = _build(RobotParams, o.params, "params", spec.params)
+    if o.period_s is not None:
+        changes["period_s"] = check_positive("control_period_s", o.period_s)
+    if o.stop_radius_m is not None:
+        changes["stop_radius_m"] = check_positive("stop_radius_m", o.stop_radius_m)
+    if o.max_time_s is not None:
+        changes["t_max_s"] = check_positive("max_time_s", o.max_time_s)
+    if o.heading_tolerance_deg is not None:
         changes["heading_tolerance_rad"] = math.radians(
-            check_positive("heading_tolerance_deg", heading_tolerance_deg))
-    if controller is not None and controller != spec.controller:
-        changes["controller"] = controller
+            check_positive("heading_tolerance_deg", o.heading_tolerance_deg))
+    if o.controller is not None and o.controller != spec.controller:
+        changes["controller"] = o.controller
         changes["controller_gains"] = ()
-    if controller_gains:
+    if o.controller_gains:
         base = dict(() if "controller_gains" in changes else spec.controller_gains)
-        base.update(controller_gains)
+        base.update(o.controller_gains)
         changes["controller_gains"] = _peer_gains(changes.get("controller", spec.controller),
                                                   base)
-    if isinstance(sensors, SensorConfig):
-        changes["sensors"] = sensors
-    elif sensors:
-        changes["sensors"] = sensor_config(sensors, spec.sensors)
+    if o.sensors is not None or o.sensor:
+        changes["sensors"] = _sensors(spec.sensors, o)
     return replace(spec, **changes)
 
 
 __all__ = [
     "DEFAULT_SCENARIO",
+    "Overrides",
+    "PoseDeg",
     "Scenario",
     "expand",
     "heading_looks_like_radians",

@@ -1,5 +1,6 @@
 """The optimal control problem's inputs: objectives, constants, the paper's cases, the
-limits (:class:`OptimalLimits`) and the argument checks."""
+limits (:class:`OptimalLimits`), the problem (:class:`OptimalProblem`), the solver's options
+(:class:`SolverOptions`) and the argument checks."""
 
 from __future__ import annotations
 
@@ -157,3 +158,71 @@ class OptimalLimits:
             if getattr(self, name) == 0.0:
                 return name
         return None
+
+
+@dataclass(frozen=True)
+class OptimalProblem:
+    r"""One rest-to-rest manoeuvre to optimise: what :func:`~wmr.adapters.ocp.solve_optimal`
+    solves.  Checked by the solve, each error naming its field (``goal.x_m`` for a NaN goal).
+
+    Attributes
+    ----------
+    start, goal
+        Poses of B (m, m, rad); the robot starts and ends at rest.  The goal heading is met
+        modulo :math:`2\pi` (180 deg and -180 deg are the same goal).
+    params
+        Robot parameters (the model's defaults are the paper's).
+    objective
+        ``"time"``: minimum final time T.  ``"energy"``: minimum effort
+        :math:`\int (\tau_r^2 + \tau_l^2) dt` in the given ``final_time_s``.  ``"mix"``:
+        minimum :math:`T + w \int (\tau_r^2 + \tau_l^2) dt` with ``w = mix_weight``.
+    limits
+        The torque, wheel speed, speed and turn rate limits (default a torque limit of
+        10 N.m alone; ``OptimalLimits.like(closed_loop_limits)`` for the PI's).
+    final_time_s
+        The fixed duration, s; required for ``"energy"``, not allowed otherwise.
+    allow_reverse
+        Allow :math:`v < 0`.  Off by default: the PI stabiliser drives forward only, and with
+        the centre of gravity ahead of the axle (``l > 0``) driving backward is open-loop
+        unstable (:math:`\dot\omega = m l |v| \omega / J_B + \dots`), so a replay of a
+        reversing optimum on the FMU drifts away from the goal.
+        A turn on the spot (goal within :data:`SPOT_TURN_RADIUS_M` of the start) may still
+        reverse at up to :data:`SPOT_TURN_CREEP_MPS`: with v >= 0 its optimum sits on the bound
+        at every node and IPOPT does not converge.
+    mix_weight
+        Weight w of the effort in the ``"mix"`` objective, 1/(N^2 m^2).
+    """
+
+    start: Pose
+    goal: Pose
+    params: RobotParams = DEFAULT_PARAMS
+    objective: Objective = "time"
+    limits: OptimalLimits = OptimalLimits()
+    final_time_s: float | None = None
+    allow_reverse: bool = False
+    mix_weight: float = 0.005
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """How :func:`~wmr.adapters.ocp.solve_optimal` transcribes and solves a problem.  Checked
+    by the solve, each error naming its field.
+
+    Attributes
+    ----------
+    n_intervals
+        Shooting intervals N (torques are constant over T / N).
+    warm_start
+        Start IPOPT from the kinematic rotate-translate-rotate path (True) or from the straight
+        interpolation of the poses at rest with zero torques and T = 10 s (False).
+    rk_substeps
+        RK4 steps per interval.
+    max_iter, max_cpu_time_s
+        IPOPT's iteration and CPU-time limits: a solve never hangs.
+    """
+
+    n_intervals: int = DEFAULT_INTERVALS
+    warm_start: bool = True
+    rk_substeps: int = DEFAULT_RK_SUBSTEPS
+    max_iter: int = 1000
+    max_cpu_time_s: float = 60.0

@@ -10,9 +10,6 @@ import numpy as np
 
 from wmr.adapters.ocp.model import _initial_state, _model
 from wmr.adapters.ocp.problem import (
-    DEFAULT_INTERVALS,
-    DEFAULT_PARAMS,
-    DEFAULT_RK_SUBSTEPS,
     MAX_FINAL_TIME_S,
     MAX_INTERVAL_S,
     MIN_FINAL_TIME_S,
@@ -21,11 +18,11 @@ from wmr.adapters.ocp.problem import (
     SPOT_TURN_CREEP_MPS,
     SPOT_TURN_RADIUS_M,
     FloatArray,
-    Objective,
     OptimalLimits,
+    OptimalProblem,
+    SolverOptions,
     _check_pose,
     _finite,
-    _optional_limit,
 )
 from wmr.adapters.ocp.result import OptimalResult, _empty_result
 from wmr.adapters.ocp.transcription import _Nlp, _nlp, _nlp_built, _solve_nlp
@@ -83,56 +80,41 @@ def _check_resolvable(start: Pose, goal: Pose, params: RobotParams, limits: Opti
                           "start, or raise n_intervals")
 
 
-def _check_arguments(start: Pose, goal: Pose, params: RobotParams, objective: Objective,
-                     torque_limit_nm: float, wheel_speed_limit_radps: float | None,
-                     speed_limit_mps: float | None, final_time_s: float | None,
-                     n_intervals: int, omega_limit_radps: float | None,
-                     limits: OptimalLimits | None, mix_weight: float, rk_substeps: int,
-                     max_iter: int, max_cpu_time_s: float,
-                     ) -> tuple[Pose, Pose, OptimalLimits]:
-    """The arguments of :func:`solve_optimal` checked, each error naming its argument; the
-    poses as Poses and the limits as one :class:`OptimalLimits`."""
-    start = _check_pose("start", start)
-    goal = _check_pose("goal", goal)
-    if not isinstance(params, RobotParams):
+def _check_arguments(problem: OptimalProblem, options: SolverOptions) -> None:
+    """The problem and the options of :func:`solve_optimal` checked, each error naming its
+    field."""
+    pr, op = problem, options
+    _check_pose("start", pr.start)
+    _check_pose("goal", pr.goal)
+    if not isinstance(pr.params, RobotParams):
         raise ConfigError("params", "must be a wmr.core.plant.RobotParams, "
-                          f"got {type(params).__name__}")
-    if objective not in OBJECTIVES:
-        raise ConfigError("objective", f"must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+                          f"got {type(pr.params).__name__}")
+    if pr.objective not in OBJECTIVES:
+        raise ConfigError("objective",
+                          f"must be one of {', '.join(OBJECTIVES)}, got {pr.objective!r}")
+    n_intervals, rk_substeps, max_iter = op.n_intervals, op.rk_substeps, op.max_iter
     if isinstance(n_intervals, bool) or not isinstance(n_intervals, int) or n_intervals < 2:
         raise ConfigError("n_intervals", f"must be an integer >= 2, got {n_intervals!r}")
     if isinstance(rk_substeps, bool) or not isinstance(rk_substeps, int) or rk_substeps < 1:
         raise ConfigError("rk_substeps", f"must be an integer >= 1, got {rk_substeps!r}")
-    if objective == "energy":
-        if final_time_s is None:
+    if pr.objective == "energy":
+        if pr.final_time_s is None:
             raise ConfigError("final_time_s", "is required for the energy objective",
                               "give the duration of the manoeuvre in s")
-        if _finite("final_time_s", final_time_s) <= 0.0:
-            raise ConfigError("final_time_s", f"must be > 0, got {final_time_s!r}")
-    elif final_time_s is not None:
-        raise ConfigError("final_time_s", f"the {objective} objective leaves T free",
+        if _finite("final_time_s", pr.final_time_s) <= 0.0:
+            raise ConfigError("final_time_s", f"must be > 0, got {pr.final_time_s!r}")
+    elif pr.final_time_s is not None:
+        raise ConfigError("final_time_s", f"the {pr.objective} objective leaves T free",
                           "drop final_time_s, or use objective 'energy'")
-    if _finite("mix_weight", mix_weight) < 0.0:
-        raise ConfigError("mix_weight", f"must be >= 0, got {mix_weight!r}")
-    if _finite("max_cpu_time_s", max_cpu_time_s) <= 0.0:
-        raise ConfigError("max_cpu_time_s", f"must be > 0, got {max_cpu_time_s!r}")
+    if _finite("mix_weight", pr.mix_weight) < 0.0:
+        raise ConfigError("mix_weight", f"must be >= 0, got {pr.mix_weight!r}")
+    if _finite("max_cpu_time_s", op.max_cpu_time_s) <= 0.0:
+        raise ConfigError("max_cpu_time_s", f"must be > 0, got {op.max_cpu_time_s!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
         raise ConfigError("max_iter", f"must be an integer >= 1, got {max_iter!r}")
-    if limits is None:
-        tl = _finite("torque_limit_nm", torque_limit_nm)
-        if tl < 0.0:
-            raise ConfigError("torque_limit_nm", f"must be >= 0, got {torque_limit_nm!r}")
-        limits = OptimalLimits(
-            torque_max_nm=tl,
-            wheel_speed_max_radps=_optional_limit("wheel_speed_limit_radps",
-                                                  wheel_speed_limit_radps),
-            v_max_mps=_optional_limit("speed_limit_mps", speed_limit_mps),
-            omega_max_radps=_optional_limit("omega_limit_radps", omega_limit_radps))
-    elif not isinstance(limits, OptimalLimits):
-        raise ConfigError("limits", f"must be an OptimalLimits, got {type(limits).__name__}",
-                          "use OptimalLimits.like(other_limits)")
-
-    return start, goal, limits
+    if not isinstance(pr.limits, OptimalLimits):
+        raise ConfigError("limits", f"must be an OptimalLimits, got {type(pr.limits).__name__}",
+                          "use OptimalLimits(...) or OptimalLimits.like(other_limits)")
 
 
 def _reverse_creep_mps(start: Pose, goal: Pose, allow_reverse: bool) -> float:
@@ -183,73 +165,19 @@ def _bounds(nlp: _Nlp, start: Pose, goal: Pose, params: RobotParams, limits: Opt
     return lbx, ubx, lbg, ubg
 
 
-def solve_optimal(
-    start: Pose,
-    goal: Pose,
-    params: RobotParams = DEFAULT_PARAMS,
-    objective: Objective = "time",
-    torque_limit_nm: float = 10.0,
-    wheel_speed_limit_radps: float | None = None,
-    speed_limit_mps: float | None = None,
-    final_time_s: float | None = None,
-    n_intervals: int = DEFAULT_INTERVALS,
-    warm_start: bool = True,
-    *,
-    omega_limit_radps: float | None = None,
-    allow_reverse: bool = False,
-    limits: OptimalLimits | None = None,
-    mix_weight: float = 0.005,
-    rk_substeps: int = DEFAULT_RK_SUBSTEPS,
-    max_iter: int = 1000,
-    max_cpu_time_s: float = 60.0,
-    progress: Callable[[str], None] | None = None,
-    previous: OptimalResult | None = None,
-) -> OptimalResult:
-    r"""The optimal rest-to-rest manoeuvre from ``start`` to ``goal`` under the limits.
+def solve_optimal(problem: OptimalProblem, options: SolverOptions | None = None, *,
+                  progress: Callable[[str], None] | None = None,
+                  previous: OptimalResult | None = None) -> OptimalResult:
+    r"""The optimal rest-to-rest manoeuvre of ``problem`` (:class:`OptimalProblem`: from its
+    start to its goal under its limits), solved as ``options`` say (:class:`SolverOptions`).
 
     Parameters
     ----------
-    start, goal
-        Poses of B (m, m, rad); the robot starts and ends at rest.  The goal heading is met
-        modulo :math:`2\pi` (180 deg and -180 deg are the same goal).
-    params
-        Robot parameters (the model's defaults are the paper's).
-    objective
-        ``"time"``: minimum final time T.  ``"energy"``: minimum effort
-        :math:`\int (\tau_r^2 + \tau_l^2) dt` in the given ``final_time_s``.  ``"mix"``:
-        minimum :math:`T + w \int (\tau_r^2 + \tau_l^2) dt` with ``w = mix_weight``.
-    torque_limit_nm
-        :math:`|\tau_{r,l}|` limit per wheel, N.m (default 10).
-    wheel_speed_limit_radps
-        :math:`|\omega_{r,l}|` limit at the nodes, rad/s; None: no limit.
-    speed_limit_mps
-        :math:`|v|` limit, m/s; None: no limit.
-    final_time_s
-        The fixed duration, s; required for ``"energy"``, not allowed otherwise.
-    n_intervals
-        Shooting intervals N (torques are constant over T / N).
-    warm_start
-        Start IPOPT from the kinematic rotate-translate-rotate path (True) or from the straight
-        interpolation of the poses at rest with zero torques and T = 10 s (False).
-    omega_limit_radps
-        :math:`|\omega|` limit of the platform, rad/s; None: no limit.
-    allow_reverse
-        Allow :math:`v < 0`.  Off by default: the PI stabiliser drives forward only, and with
-        the centre of gravity ahead of the axle (``l > 0``) driving backward is open-loop
-        unstable (:math:`\dot\omega = m l |v| \omega / J_B + \dots`), so a replay of a
-        reversing optimum on the FMU drifts away from the goal.
-        A turn on the spot (goal within :data:`SPOT_TURN_RADIUS_M` of the start) may still
-        reverse at up to :data:`SPOT_TURN_CREEP_MPS`: with v >= 0 its optimum sits on the bound
-        at every node and IPOPT does not converge.
-    limits
-        All limits at once (e.g. ``OptimalLimits.like(closed_loop_limits)``); overrides the four
-        ``*_limit_*`` arguments.
-    mix_weight
-        Weight w of the effort in the ``"mix"`` objective, 1/(N^2 m^2).
-    rk_substeps
-        RK4 steps per interval.
-    max_iter, max_cpu_time_s
-        IPOPT's iteration and CPU-time limits: a solve never hangs.
+    problem
+        The manoeuvre, its objective and its limits.
+    options
+        The transcription (intervals, RK4 steps), the first guess and IPOPT's limits; None:
+        :class:`SolverOptions`' defaults.
     progress
         Called with a line (IPOPT's iteration, T, the objective) at least every
         :data:`~wmr.adapters.ocp.transcription.PROGRESS_INTERVAL_S` while IPOPT runs, and when
@@ -271,12 +199,17 @@ def solve_optimal(
     Raises
     ------
     ConfigError
-        A bad argument, naming it (e.g. ``goal.x_m`` for a NaN goal).
+        A bad field of ``problem`` or ``options``, naming it (e.g. ``goal.x_m`` for a NaN
+        goal).
     """
-    start, goal, limits = _check_arguments(
-        start, goal, params, objective, torque_limit_nm, wheel_speed_limit_radps,
-        speed_limit_mps, final_time_s, n_intervals, omega_limit_radps, limits, mix_weight,
-        rk_substeps, max_iter, max_cpu_time_s)
+    options = SolverOptions() if options is None else options
+    _check_arguments(problem, options)
+    start, goal, params, limits = problem.start, problem.goal, problem.params, problem.limits
+    objective, final_time_s, allow_reverse = (problem.objective, problem.final_time_s,
+                                              problem.allow_reverse)
+    n_intervals, rk_substeps, max_iter, max_cpu_time_s = (
+        options.n_intervals, options.rk_substeps, options.max_iter, options.max_cpu_time_s)
+    warm_start = options.warm_start
     T_fixed = float(final_time_s) if final_time_s is not None else None
     _check_resolvable(start, goal, params, limits, n_intervals, T_fixed)
     m = _model()
@@ -310,7 +243,8 @@ def solve_optimal(
     nlp = _nlp(n, rk_substeps, max_iter, float(max_cpu_time_s))
     p = m.param_vector(params, start)
     lbx, ubx, lbg, ubg = _bounds(nlp, start, goal, params, limits, allow_reverse, T_fixed)
-    w_t, w_e = {"time": (1.0, 0.0), "energy": (0.0, 1.0), "mix": (1.0, mix_weight)}[objective]
+    w_t, w_e = {"time": (1.0, 0.0), "energy": (0.0, 1.0),
+                "mix": (1.0, problem.mix_weight)}[objective]
     pn = np.concatenate([p, [goal.heading_rad, w_t, w_e]])
     # the guesses in order, each tried only when the one before failed: the earlier solution
     # (when given and near), the kinematic path, the cold start
@@ -331,8 +265,7 @@ def solve_optimal(
         if last is not None and progress is not None:
             progress(f"IPOPT: {last.return_status} from {_GUESS_NAMES[last.extra['guess']]} "
                      f"after {last.solve_time_s:.0f} s; retrying from {_GUESS_NAMES[label]}")
-        res = _solve_nlp(nlp, guess, lbx, ubx, lbg, ubg, pn, objective, start, goal, params,
-                         limits, rk_substeps, T_fixed, progress)
+        res = _solve_nlp(nlp, guess, (lbx, ubx, lbg, ubg), pn, problem, rk_substeps, progress)
         res.extra["guess"] = label
         if last is not None:
             res.solve_time_s += last.solve_time_s

@@ -19,13 +19,11 @@ from wmr.adapters.ocp.problem import (
     _IPOPT_SOLVED,
     FAILED_ADVICE,
     FloatArray,
-    Objective,
-    OptimalLimits,
+    OptimalProblem,
     Status,
 )
 from wmr.adapters.ocp.result import OptimalResult, _integrals
 from wmr.adapters.ocp.warmstart import _Guess
-from wmr.core.plant import Pose, RobotParams
 
 #: Longest silence of a solve, s: IPOPT's iteration, the final time and the objective are
 #: reported at least this often to the ``progress`` of :func:`wmr.adapters.ocp.solve_optimal`.
@@ -151,12 +149,15 @@ def _nlp(n: int, substeps: int, max_iter: int, max_cpu_time_s: float) -> _Nlp:
     return _Nlp(solver, report, n, nx, nu, nx * (n + 1), nu * n, nx * n)
 
 
-def _solve_nlp(nlp: _Nlp, guess: _Guess, lbx: FloatArray, ubx: FloatArray, lbg: FloatArray,
-               ubg: FloatArray, pn: FloatArray, objective: Objective, start: Pose, goal: Pose,
-               params: RobotParams, limits: OptimalLimits, rk_substeps: int,
-               T_fixed: float | None,
+def _solve_nlp(nlp: _Nlp, guess: _Guess,
+               bounds: tuple[FloatArray, FloatArray, FloatArray, FloatArray], pn: FloatArray,
+               problem: OptimalProblem, rk_substeps: int,
                progress: Callable[[str], None] | None = None) -> OptimalResult:
-    """One IPOPT run from ``guess``, classified; ``progress`` hears of it while it runs."""
+    """One IPOPT run of ``problem`` from ``guess`` within ``bounds`` (``lbx, ubx, lbg, ubg``)
+    and with the NLP's parameters ``pn``, classified; ``progress`` hears of it while it
+    runs."""
+    lbx, ubx, lbg, ubg = bounds
+    start, goal, params = problem.start, problem.goal, problem.params
     m = _model()
     n, nx = nlp.n, nlp.nx
     w0 = np.clip(guess.w0, lbx, ubx)
@@ -183,7 +184,8 @@ def _solve_nlp(nlp: _Nlp, guess: _Guess, lbx: FloatArray, ubx: FloatArray, lbg: 
         status = "infeasible"
         message = (f"IPOPT: {ret}: no trajectory meets the limits and the goal "
                    f"(constraint violation {viol:.3g}); relax the limits"
-                   + (" or give a longer final_time_s" if T_fixed is not None else ""))
+                   + (" or give a longer final_time_s" if problem.final_time_s is not None
+                      else ""))
     else:
         status = "failed"
         message = (f"IPOPT: {ret} after {iters} iterations (constraint violation {viol:.3g}); "
@@ -191,8 +193,8 @@ def _solve_nlp(nlp: _Nlp, guess: _Guess, lbx: FloatArray, ubx: FloatArray, lbg: 
     length, work, wmax, miss = _integrals(start, goal, params, us, T / n, rk_substeps)
     effort = float(T / n * np.sum(us**2))
     return OptimalResult(
-        status=status, message=message, objective=objective, start=start, goal=goal,
-        params=params, limits=limits, t_s=np.linspace(0.0, T, n + 1),
+        status=status, message=message, objective=problem.objective, start=start, goal=goal,
+        params=params, limits=problem.limits, t_s=np.linspace(0.0, T, n + 1),
         states={nm: xs[i].copy() for i, nm in enumerate(m.state_names)}, torques=us,
         final_time_s=T if status == "solved" else math.nan,
         path_length_m=length, energy_positive_j=work, effort_N2m2s=effort, solve_time_s=solve_time,

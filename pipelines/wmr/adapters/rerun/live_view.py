@@ -28,6 +28,7 @@ from wmr.adapters.rerun.replay import (
     RUN_COLORS,
     TIMELINE,
     Bounds,
+    RunView,
     has_screen,
     log_grid,
     log_run_static,
@@ -140,7 +141,7 @@ class LiveViewSink:
         self.reframed = 0
         log_grid(rec, self.bounds)
         log_run_static(rec, name, goal=goal_pose, path_xy=None, color=self._color,
-                       info=f"### {name}\n\nlive run", stop_radius_m=self._eps)
+                       view=RunView(info=f"### {name}\n\nlive run", stop_radius_m=self._eps))
 
     def write_block(self, t_ns: NDArray[np.int64], block: NDArray[np.float64]) -> None:
         """Send ``block`` (shape ``(n, len(SIGNALS))``) at times ``t_ns`` (ns)."""

@@ -823,14 +823,52 @@ def label_groups(points: Sequence[NDArray[np.float64] | None], min_gap_m: float
     return groups
 
 
+@dataclass(frozen=True)
+class RunView:
+    """How :func:`log_run_static` draws a run: its colours, labels and geometry.
+
+    Attributes
+    ----------
+    run_color
+        When several runs share the plots: the run's colour for its path and lines (None: the
+        path coloured by phase, the lines per signal).
+    half_track_m, wheel_radius_m
+        Robot geometry for the body drawing.
+    info
+        Kept for callers of the single-run API: Markdown of the run panel (the summary).
+    phase
+        The control phase per row of the path (colours the path of a single run).
+    start_label
+        Label at the start of the path (the run's number in a multi-run replay).
+    stop_radius_m
+        Radius of the ring drawn around the goal.
+    goal_label
+        The goal's label: ``""`` its pose ``goal (x, y, θ_d°)``, None none (a goal another
+        run already labelled), else this text.
+    arrow_m
+        Length of the robot's heading arrow, m (:func:`heading_arrow_m` of the view).
+    start_label_color
+        Colour of the start label's text; None: the run's colour darkened.
+    run_label
+        The run's name in its plot lines (``#3``); None: ``start_label``, else the run's name.
+    """
+
+    run_color: Rgb | None = None
+    half_track_m: float = 0.3
+    wheel_radius_m: float = 0.15
+    info: str | None = None
+    phase: NDArray[np.int8] | None = None
+    start_label: str | None = None
+    stop_radius_m: float | None = None
+    goal_label: str | None = ""
+    arrow_m: float = _ARROW_M
+    start_label_color: Rgb | None = None
+    run_label: str | None = None
+
+
 def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
                    path_xy: NDArray[np.float64] | None, color: Rgb,
-                   run_color: Rgb | None = None, half_track_m: float = 0.3,
-                   wheel_radius_m: float = 0.15, info: str | None = None,
-                   phase: NDArray[np.int8] | None = None, start_label: str | None = None,
-                   stop_radius_m: float | None = None, goal_label: str | None = "",
-                   arrow_m: float = _ARROW_M, start_label_color: Rgb | None = None,
-                   run_label: str | None = None) -> None:
+                   view: RunView | None = None) -> None:
     """Log the timeless part of a run once: frame flip, path, goal, robot shape, plot styles.
 
     Parameters
@@ -844,30 +882,13 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
     path_xy
         The whole path, shape ``(n, 2)``; None for a live run (logged block by block).
     color
-        Colour of the robot (and of the path when ``run_color`` is given).
-    run_color
-        When several runs share the plots: the run's colour for its path and lines (None: the
-        path coloured by phase, the lines per signal).
-    half_track_m, wheel_radius_m
-        Robot geometry for the body drawing.
-    info
-        Kept for callers of the single-run API: Markdown of the run panel (the summary).
-    phase
-        The control phase per row of ``path_xy`` (colours the path of a single run).
-    start_label
-        Label at the start of the path (the run's number in a multi-run replay).
-    stop_radius_m
-        Radius of the ring drawn around the goal.
-    goal_label
-        The goal's label: ``""`` its pose ``goal (x, y, θ_d°)``, None none (a goal another
-        run already labelled), else this text.
-    arrow_m
-        Length of the robot's heading arrow, m (:func:`heading_arrow_m` of the view).
-    start_label_color
-        Colour of the start label's text; None: the run's colour darkened.
-    run_label
-        The run's name in its plot lines (``#3``); None: ``start_label``, else ``name``.
+        Colour of the robot (and of the path when the view's ``run_color`` is given).
+    view
+        How to draw it (:class:`RunView`); None: its defaults.
     """
+    v = RunView() if view is None else view
+    run_color, phase, start_label = v.run_color, v.phase, v.start_label
+    half_track_m, wheel_radius_m, arrow_m = v.half_track_m, v.wheel_radius_m, v.arrow_m
     root = run_entity(name)
     world = f"{root}/world"
     # 2-D views draw y downwards: a mirror about the x axis puts y up, as in the paper's plots
@@ -886,7 +907,7 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
             # dark enough to read on the label's grey box
             rec.log(f"{world}/start",
                     rr.Points2D([start_label_point(path_xy)],
-                                colors=[start_label_color or _shade(color, LABEL_SHADE)],
+                                colors=[v.start_label_color or _shade(color, LABEL_SHADE)],
                                 radii=[-3.0], labels=[start_label],
                                 # above the robots' bodies and arrows: never hidden by them
                                 show_labels=bool(start_label), draw_order=45.0),
@@ -895,10 +916,10 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
         gx, gy, gth = goal
         vec = [_ARROW_M * math.cos(gth), _ARROW_M * math.sin(gth)]
         ring = []
-        if stop_radius_m and stop_radius_m > 0:
+        if v.stop_radius_m and v.stop_radius_m > 0:
             a = np.linspace(0.0, 2 * math.pi, 48)
-            ring = [np.column_stack([gx + stop_radius_m * np.cos(a),
-                                     gy + stop_radius_m * np.sin(a)])]
+            ring = [np.column_stack([gx + v.stop_radius_m * np.cos(a),
+                                     gy + v.stop_radius_m * np.sin(a)])]
         rec.log(f"{world}/goal",
                 rr.Arrows2D(origins=[[gx, gy]], vectors=[vec], colors=[GOAL_COLOR],
                             radii=[0.04], draw_order=20.0),
@@ -907,9 +928,9 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
         # the label apart from the arrow, in a neutral colour (red on red did not read)
         rec.log(f"{world}/goal/label",
                 rr.Points2D([[gx, gy - 0.45]], radii=[0.0], colors=[LABEL_COLOR],
-                            labels=[goal_label or f"goal ({gx:g}, {gy:g}, "
+                            labels=[v.goal_label or f"goal ({gx:g}, {gy:g}, "
                                                   f"{math.degrees(gth):.0f}°)"],
-                            show_labels=goal_label is not None, draw_order=21.0), static=True)
+                            show_labels=v.goal_label is not None, draw_order=21.0), static=True)
     # the robot in its own frame (B at the origin, x forward): chassis, two wheels, heading;
     # the heading arrow's colour is sent per step (the phase), so it is not static here
     chassis_len = 2.0 * half_track_m + 0.2
@@ -939,15 +960,15 @@ def log_run_static(rec: rr.RecordingStream, name: str, *, goal: Pose2D | None,
     rec.log(f"{world}/construction",
             rr.LineStrips2D.from_fields(colors=[D_COLOR, R_COLOR], radii=[0.012],
                                         draw_order=34.0), static=True)
-    label = run_label or (start_label if start_label is not None else name)
+    label = v.run_label or (start_label if start_label is not None else name)
     for panel in PANELS:
         rec.log(f"{root}/{panel.entity}", _series_style(panel, label, run_color), static=True)
     rec.log(f"{root}/{PHASE_ENTITY}",
             rr.SeriesLines(names=[f"{label}: phase" if run_color else "phase"],
                            colors=[run_color or _GREY], widths=[1.5],
                            aggregation_policy="minmax"), static=True)
-    if info:
-        rec.log(SUMMARY_ENTITY, rr.TextDocument(info, media_type=rr.MediaType.MARKDOWN),
+    if v.info:
+        rec.log(SUMMARY_ENTITY, rr.TextDocument(v.info, media_type=rr.MediaType.MARKDOWN),
                 static=True)
 
 
@@ -1634,8 +1655,7 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                     goals_labelled.add(key)
                     goal_label = (f"goal ({key[0]:g}, {key[1]:g}, θ_d "
                                   f"{' or '.join(headings[key])})" if many else "")
-            log_run_static(rec, log.name, goal=data.goal, path_xy=paths[k], color=color,
-                           run_color=color if many else None, half_track_m=half_track,
+            view = RunView(run_color=color if many else None, half_track_m=half_track,
                            wheel_radius_m=radius,
                            phase=phase[finite] if phase is not None else None,
                            start_label=start_text[k] if many else None,
@@ -1643,6 +1663,8 @@ def replay(inputs: Sequence[str | os.PathLike[str]], *, rrd: str | os.PathLike[s
                            run_label=labels[k] if many else None,
                            stop_radius_m=eps_all[k], goal_label=goal_label,
                            arrow_m=heading_arrow_m(bounds))
+            log_run_static(rec, log.name, goal=data.goal, path_xy=paths[k], color=color,
+                           view=view)
             optimum = optimal_by_log.get(log.path.resolve())
             if optimum is not None:
                 log_optimal_path(rec, log.name, optimum, color)
@@ -1685,6 +1707,7 @@ __all__ = [
     "RawView",
     "ReplayResult",
     "RunLog",
+    "RunView",
     "Series",
     "check_notebook",
     "default_rrd_path",

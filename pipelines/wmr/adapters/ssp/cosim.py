@@ -49,7 +49,7 @@ from wmr.adapters.ssp.package import CONTROLLER, ROBOT, SspPackage, unpacked_pac
 from wmr.build.controller_interface import SIGNAL_OUTPUTS
 from wmr.core.energy import ENERGY_KEYS, wheel_work
 from wmr.core.plant import OUTPUT_NAMES, RobotParams
-from wmr.core.record import record
+from wmr.core.record import RunFigures, record
 from wmr.core.runlog import LogHeader
 from wmr.core.signals import COLUMN, CONTROL_SIGNALS, PLANT_SIGNALS, SIGNALS
 from wmr.infra.errors import ConfigError, FmuError
@@ -391,19 +391,17 @@ def result_record(run: SspRunData, mcap: Path) -> dict[str, object]:
     held = run.held_torque_nm[:(b.shape[0] - 1) * run.steps_per_row]
     work = energies(run)
     return {
-        **record(name=run.package.name, status=run.status, message=run.message,
-                 final_position_error_m=position_error_m,
-                 final_heading_error_rad=heading_error_rad,
-                 time_to_goal_s=run.time_to_goal_s,
-                 path_length_m=float(np.hypot(np.diff(x), np.diff(y)).sum()),
-                 energy_net_j=work["energy_net_j"],
-                 energy_positive_j=work["energy_positive_j"],
-                 energy_abs_j=work["energy_abs_j"],
-                 torque_sq_integral_n2m2s=float(run.step_size_s * np.sum(held**2)),
-                 peak_torque_nm=float(np.max(np.abs(held))) if held.size else 0.0,
-                 steps=int(b.shape[0]),
-                 estimated_final_position_error_m=position_error_m,
-                 estimated_final_heading_error_rad=heading_error_rad, mcap=str(mcap)),
+        **record(RunFigures(
+            name=run.package.name, status=run.status, message=run.message,
+            final_position_error_m=position_error_m, final_heading_error_rad=heading_error_rad,
+            time_to_goal_s=run.time_to_goal_s,
+            path_length_m=float(np.hypot(np.diff(x), np.diff(y)).sum()),
+            energy_net_j=work["energy_net_j"], energy_positive_j=work["energy_positive_j"],
+            energy_abs_j=work["energy_abs_j"],
+            torque_sq_integral_n2m2s=float(run.step_size_s * np.sum(held**2)),
+            peak_torque_nm=float(np.max(np.abs(held))) if held.size else 0.0,
+            steps=int(b.shape[0]), estimated_final_position_error_m=position_error_m,
+            estimated_final_heading_error_rad=heading_error_rad, mcap=str(mcap))),
         "master": run.master,
     }
 

@@ -11,12 +11,13 @@ See ``docs/batch.md``.
 
 from __future__ import annotations
 
-from wmr.apps.batch.runner import DEFAULT_RUN_TIMEOUT_S, BatchOutcome, run_batch
+from wmr.apps.batch.runner import DEFAULT_RUN_TIMEOUT_S, BatchOptions, BatchOutcome, run_batch
 from wmr.apps.batch.spec import BatchRun, BatchSpec, load_batch, parse_batch, spec_digest
 from wmr.apps.batch.summary import read_summary
 
 __all__ = [
     "DEFAULT_RUN_TIMEOUT_S",
+    "BatchOptions",
     "BatchOutcome",
     "BatchRun",
     "BatchSpec",

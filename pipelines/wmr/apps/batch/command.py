@@ -17,7 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
-from wmr.apps.batch.runner import DEFAULT_RUN_TIMEOUT_S, BatchOutcome, run_batch
+from wmr.apps.batch.runner import (
+    DEFAULT_RUN_TIMEOUT_S,
+    BatchOptions,
+    BatchOutcome,
+    run_batch,
+)
 from wmr.apps.batch.spec import MAX_RUNS, BatchSpec, load_batch
 from wmr.infra.errors import ConfigError
 
@@ -153,11 +158,11 @@ def batch_command(request: BatchRequest, progress: bool | None = None,
     folder = check_output(r.out if r.out else Path("batches") / Path(r.spec).stem, "out",
                           "dir")
     policy = log_policy(r.log, r.log_every, batch.log)
-    result = run_batch(batch, folder, workers=r.workers, scheduler=address,
-                       run_timeout_s=limit_s, fmu_path=r.fmu, fmi_version=r.fmi,
-                       progress=progress,
-                       var_map=load_map(r.fmu_map) if r.fmu_map is not None else None,
-                       log=policy)
+    options = BatchOptions(workers=r.workers, scheduler=address, run_timeout_s=limit_s,
+                           fmu_path=r.fmu, fmi_version=r.fmi,
+                           var_map=load_map(r.fmu_map) if r.fmu_map is not None else None,
+                           log=policy)
+    result = run_batch(batch, folder, options, progress=progress)
     return folder, result
 
 

@@ -212,14 +212,46 @@ def _write_atomic(path: Path, data: bytes) -> None:
         out.abandon()
 
 
-def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
-              workers: int | None = None, scheduler: str | None = None, client: Any = None,
-              run_timeout_s: float | None = DEFAULT_RUN_TIMEOUT_S,
-              fmu_path: str | os.PathLike[str] | None = None, fmi_version: int = 3,
-              progress: bool | None = None, dask_ship_logs: bool = False,
-              var_map: VariableMap | None = None,
-              on_outcome: Callable[[Outcome], None] | None = None,
-              log: LogPolicy | None = None) -> BatchOutcome:
+@dataclass(frozen=True)
+class BatchOptions:
+    """Where and how :func:`run_batch` runs a batch: the executor, the FMU and the logs.
+
+    Attributes
+    ----------
+    workers
+        Local worker processes (default: one per core).  Ignored on Dask.
+    scheduler, client
+        A Dask scheduler address, or a :class:`distributed.Client`: run there.
+    dask_ship_logs
+        On Dask, have every worker send its logs back, as workers on other hosts do.
+    run_timeout_s
+        Wall-clock limit per run, s; a run past it is a ``timeout`` row ("wall-clock limit").
+        Local workers still busy ``max(1 s, 10 %)`` later are killed.  ``None``: no limit.
+    fmu_path, fmi_version
+        The FMU to drive; by default the spec's ``fmu``, else the project's own, built (or
+        reused) once, by :func:`run_batch`.
+    var_map
+        The FMU's variable map (:mod:`wmr.adapters.fmi.varmap`); by default the spec's
+        ``fmu_map``.
+    log
+        Which runs keep a log, and how much of it; by default the spec's ``[log]``, else
+        :func:`default_log_policy`.  Runs done earlier keep what they kept.
+    """
+
+    workers: int | None = None
+    scheduler: str | None = None
+    client: Any = None
+    dask_ship_logs: bool = False
+    run_timeout_s: float | None = DEFAULT_RUN_TIMEOUT_S
+    fmu_path: str | os.PathLike[str] | None = None
+    fmi_version: int = 3
+    var_map: VariableMap | None = None
+    log: LogPolicy | None = None
+
+
+def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str],
+              options: BatchOptions | None = None, *, progress: bool | None = None,
+              on_outcome: Callable[[Outcome], None] | None = None) -> BatchOutcome:
     """Run the runs of ``batch`` not done yet into ``out_dir``; write the summary.
 
     Parameters
@@ -228,29 +260,14 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
         The expanded spec (:func:`wmr.apps.batch.load_batch`).
     out_dir
         The batch folder (created).
-    workers
-        Local worker processes (default: one per core).  Ignored on Dask.
-    scheduler, client
-        A Dask scheduler address, or a :class:`distributed.Client`: run there.
-    run_timeout_s
-        Wall-clock limit per run, s; a run past it is a ``timeout`` row ("wall-clock limit").
-        Local workers still busy ``max(1 s, 10 %)`` later are killed.  ``None``: no limit.
-    fmu_path, fmi_version
-        The FMU to drive; by default the spec's ``fmu``, else the project's own, built (or
-        reused) once, here.
-    var_map
-        The FMU's variable map (:mod:`wmr.adapters.fmi.varmap`); by default the spec's ``fmu_map``.
+    options
+        The executor, the FMU and the log policy (:class:`BatchOptions`); None: its defaults.
     progress
         Progress on stderr (:func:`wmr.apps.progress.count_progress`): ``None`` a tqdm bar
         on a terminal, else a line every 10 s; ``True`` also a bar in a notebook; ``False``
         nothing.
-    dask_ship_logs
-        On Dask, have every worker send its logs back, as workers on other hosts do.
     on_outcome
         Called with each finished run (after its journal line is written).
-    log
-        Which runs keep a log, and how much of it; by default the spec's ``[log]``, else
-        :func:`default_log_policy`.  Runs done earlier keep what they kept.
 
     Returns
     -------
@@ -264,6 +281,10 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str], *,
     FmuError
         The workers cannot open the FMU.
     """
+    o = BatchOptions() if options is None else options
+    workers, scheduler, client, run_timeout_s = o.workers, o.scheduler, o.client, o.run_timeout_s
+    fmu_path, fmi_version, var_map, log = o.fmu_path, o.fmi_version, o.var_map, o.log
+    dask_ship_logs = o.dask_ship_logs
     from wmr.apps.run import default_fmu
 
     t0 = time.perf_counter()
@@ -1009,4 +1030,4 @@ def _finish(out: Path, chunks: Iterator[Any], result: BatchOutcome, batch: Batch
         raise storage_error(exc, out) from exc
 
 
-__all__ = ["DEFAULT_RUN_TIMEOUT_S", "BatchOutcome", "run_batch"]
+__all__ = ["DEFAULT_RUN_TIMEOUT_S", "BatchOptions", "BatchOutcome", "run_batch"]

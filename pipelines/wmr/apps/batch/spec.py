@@ -84,6 +84,7 @@ import numpy as np
 from wmr.apps.run import LOG_KEEPS, LogPolicy
 from wmr.config.scenario import (
     TOP_FIELDS,
+    Overrides,
     parse_scenario,
     read_toml,
     resolve_scenario_path,
@@ -550,14 +551,14 @@ def _resolve(base: RunSpec, values: Mapping[str, Value], name: str) -> RunSpec:
     if controller != "pi" and base.controller_fmu is not None:
         raise ConfigError(CONTROLLER, f"the controller FMU is the PI stabiliser, but "
                           f"controller = {controller!r}", "drop controller_fmu or vary only pi")
-    return with_overrides(
-        base, start=Pose(sx, sy, sh), goal=Pose(gx, gy, gh), name=name,
+    return with_overrides(base, Overrides(
+        start=Pose(sx, sy, sh), goal=Pose(gx, gy, gh), name=name,
         gains=group("gains"), limits=group("limits"), params=group("params"),
         period_s=opt("control_period_s"), stop_radius_m=opt("stop_radius_m"),
-        t_max_s=opt("max_time_s"), heading_tolerance_deg=opt("heading_tolerance_deg"),
+        max_time_s=opt("max_time_s"), heading_tolerance_deg=opt("heading_tolerance_deg"),
         sensors=sensors, controller=controller,
         # the gains of the run's own controller; those given for another are not its own
-        controller_gains=group(f"{CONTROLLER_GAINS}.{controller}"))
+        controller_gains=group(f"{CONTROLLER_GAINS}.{controller}")))
 
 
 def _canonical(value: Any) -> Any:
