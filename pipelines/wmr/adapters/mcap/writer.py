@@ -29,7 +29,6 @@ import os
 import struct
 import sys
 import threading
-import zlib
 from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from types import TracebackType
@@ -52,6 +51,7 @@ from mcap.records import (
     SummaryOffset,
 )
 from numpy.typing import ArrayLike, NDArray
+from zlib_ng.zlib_ng import crc32
 
 import wmr
 from wmr.adapters.mcap.readme import (
@@ -190,6 +190,8 @@ class McapFile:
         self._compression = compression
         self._compress = _compressor(compression, level)
         self._compression_bytes = compression.encode()
+        #: a Chunk record up to its data: the fields, the compression string, the data length
+        self._chunk_head = struct.Struct(f"{_CHUNK_HEAD.format}{len(self._compression_bytes)}sQ")
         self._rb = RecordBuilder()
         self._pos = 0
         self._schemas: list[bytes] = []  # the records, written again in the summary
@@ -210,7 +212,7 @@ class McapFile:
     def _write(self, data: bytes) -> None:
         self._stream.write(data)
         self._pos += len(data)
-        self._crc = zlib.crc32(data, self._crc)
+        self._crc = crc32(data, self._crc)
 
     def _flush_records(self) -> int:
         """Write the records built so far; return their length."""
@@ -277,7 +279,7 @@ class McapFile:
         index
             Channel id -> (log times in ns, byte offsets of the records in ``records``).
         uncompressed_crc
-            ``zlib.crc32(records)``, if the caller has it (computed here otherwise).
+            ``crc32(records)``, if the caller has it (computed here otherwise).
         """
         entries = [(cid, t, o) for cid, (t, o) in index.items() if len(t)]
         if not entries:
@@ -315,39 +317,44 @@ class McapFile:
                                [(cid, k * size, n) for k, cid in enumerate(channel_ids)])
 
     def add_indexed_chunk(self, records: bytes | memoryview, t_first: int, t_last: int,
-                          indexes: bytes, index_of: list[tuple[int, int, int]],
+                          indexes: bytes | memoryview, index_of: Sequence[tuple[int, int, int]],
                           uncompressed_crc: int | None = None) -> None:
         """The Chunk record and its Message Index records (``indexes``: channel id, offset in
         ``indexes`` and message count of each in ``index_of``), packed here as
         :meth:`mcap.records.Chunk.write` and ``MessageIndex.write`` pack them (checked
         against them by ``tests/test_mcaplog.py``) without their copies through a
-        ``BytesIO``: a chunk's header, its data and its indexes are one write."""
+        ``BytesIO``: a chunk's head, its data and its indexes are written as they are, then
+        handed to the OS at once; the Chunk Index record is one ``struct`` call."""
         size = len(records)  # bytes, or a view of uint8
         data = records if self._compress is None else self._compress(records)
         data_len = len(data)
         chunk_start = self._pos
-        head = _CHUNK_HEAD.pack(Opcode.CHUNK, _CHUNK_FIXED + len(self._compression_bytes)
-                                + data_len, t_first, t_last, size,
-                                zlib.crc32(records) if uncompressed_crc is None
-                                else uncompressed_crc,
-                                len(self._compression_bytes))
-        self._write(b"".join((head, self._compression_bytes, struct.pack("<Q", data_len), data,
-                              indexes)))
-        chunk_length = len(head) + len(self._compression_bytes) + 8 + data_len
+        comp = self._compression_bytes
+        head = self._chunk_head.pack(
+            Opcode.CHUNK, _CHUNK_FIXED + len(comp) + data_len, t_first, t_last, size,
+            crc32(records) if uncompressed_crc is None else uncompressed_crc, len(comp), comp,
+            data_len)
+        write = self._stream.write
+        write(head)
+        write(data)
+        write(indexes)
+        chunk_length = len(head) + data_len
         index_start = chunk_start + chunk_length
-        for cid, _, count in index_of:
-            self._counts[cid] += count
-        index_entries = b"".join(_INDEX_OFFSET.pack(cid, index_start + at)
-                                 for cid, at, _ in index_of)
-        self._chunk_indexes.append(b"".join((
-            _CHUNK_INDEX_HEAD.pack(Opcode.CHUNK_INDEX, _CHUNK_INDEX_FIXED + len(index_entries)
-                                   + len(self._compression_bytes), t_first, t_last,
-                                   chunk_start, chunk_length, len(index_entries)),
-            index_entries,
-            _CHUNK_INDEX_TAIL.pack(len(indexes), len(self._compression_bytes)),
-            self._compression_bytes,
-            _CHUNK_INDEX_SIZES.pack(data_len, size))))
-        n_messages = sum(count for _, _, count in index_of)
+        # the position and CRC only once every part is written: rollback() restores them
+        self._crc = crc32(indexes, crc32(data, crc32(head, self._crc)))
+        self._pos = index_start + len(indexes)
+        counts = self._counts
+        entries: list[int] = []
+        n_messages = 0
+        for cid, at, count in index_of:
+            counts[cid] += count
+            n_messages += count
+            entries += (cid, index_start + at)
+        self._chunk_indexes.append(_chunk_index_struct(len(index_of), len(comp)).pack(
+            Opcode.CHUNK_INDEX, _CHUNK_INDEX_FIXED + _INDEX_OFFSET.size * len(index_of)
+            + len(comp), t_first, t_last, chunk_start, chunk_length,
+            _INDEX_OFFSET.size * len(index_of), *entries, len(indexes), len(comp), comp,
+            data_len, size))
         if self._n_messages == 0:
             self._t_first = t_first
         self._t_first = min(self._t_first, t_first)
@@ -435,8 +442,8 @@ class McapFile:
         for off in offsets:
             off.write(rb)
         summary = rb.end()
-        crc = zlib.crc32(summary)
-        crc = zlib.crc32(
+        crc = crc32(summary)
+        crc = crc32(
             struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc
         )
         self._write(summary)
@@ -468,6 +475,23 @@ def metadata_record(name: str, data: Mapping[str, str]) -> bytes:
     entries = b"".join([_prefixed(k) + _prefixed(v) for k, v in data.items()])
     body = b"".join((_prefixed(name), _U32.pack(len(entries)), entries))
     return struct.pack("<BQ", Opcode.METADATA, len(body)) + body
+
+
+@functools.lru_cache(maxsize=64)
+def _row_index_of(channel_ids: tuple[int, ...], n: int) -> tuple[tuple[int, int, int], ...]:
+    """``index_of`` of :meth:`McapFile.add_indexed_chunk` for a chunk of ``n`` rows of the
+    per-step topics: channel id, offset and count of each channel's Message Index record
+    (``15 + 16 n`` bytes each, in channel order)."""
+    return tuple((cid, k * (15 + 16 * n), n) for k, cid in enumerate(channel_ids))
+
+
+@functools.lru_cache(maxsize=64)
+def _chunk_index_struct(n_indexes: int, n_compression: int) -> struct.Struct:
+    """A Chunk Index record with ``n_indexes`` Message Index offsets and a compression string
+    of ``n_compression`` bytes, as one ``struct`` (the layout of :data:`_CHUNK_INDEX_HEAD`)."""
+    return struct.Struct(f"{_CHUNK_INDEX_HEAD.format}{_INDEX_OFFSET.format[1:] * n_indexes}"
+                         f"{_CHUNK_INDEX_TAIL.format[1:]}{n_compression}s"
+                         f"{_CHUNK_INDEX_SIZES.format[1:]}")
 
 
 @functools.lru_cache(maxsize=64)
@@ -506,6 +530,21 @@ def _address(a: NDArray[Any]) -> int:
         return int(a.ctypes.data)
 
 
+class _Scratch:
+    """A thread's buffers for :meth:`_CRowEncoder.encode_chunk`: ``rows`` rows' records, their
+    Message Index records, the quaternion's two columns and half-angles, and the addresses the
+    C call takes."""
+
+    def __init__(self, rows: int, row_max: int, n_topics: int) -> None:
+        self.rows = rows
+        self.out = np.empty(rows * row_max, np.uint8)
+        self.index = np.empty(n_topics * (15 + 16 * rows), np.uint8)
+        self.extra = np.empty(2 * rows, np.float64)
+        self.half = np.empty(rows, np.float64)
+        self.out_at, self.index_at, self.extra_at = (int(a.ctypes.data)
+                                                     for a in (self.out, self.index, self.extra))
+
+
 class _CRowEncoder:
     """:class:`RowEncoder`'s bytes, written by the C stepper (``wmr_encode_rows``) one row
     after another instead of by numpy gathers of whole columns.
@@ -532,38 +571,40 @@ class _CRowEncoder:
         self._chunk_fun = lib.wmr_encode_chunk
         self._layout = Layout(len(SIGNALS), 2, self._n_topics, *self._args)
         self._layout_ref = ctypes.byref(self._layout)
-        # a chunk's output buffer, kept per thread (the encoder is shared by every log of a
-        # process, and a Dask worker may run logs in several threads): a new 70 kB buffer per
-        # chunk costs its page faults each time
+        self._theta = COLUMN["theta_rad"]
+        # a chunk's buffers, kept per thread (the encoder is shared by every log of a process,
+        # and a Dask worker may run logs in several threads): new ones per chunk cost their
+        # allocation and page faults each time
         self._buffers = threading.local()
 
     def encode_chunk(self, t_ns: NDArray[np.int64],
-                     block: NDArray[np.float64]) -> tuple[memoryview, bytes]:
+                     block: NDArray[np.float64]) -> tuple[memoryview, memoryview]:
         """A chunk's records (as :meth:`encode`) and its Message Index records, one per
         topic in topic order, as :mod:`mcap.records` packs them, in one C call.
 
-        The records are a view of this thread's buffer: valid until its next call."""
+        Both are views of this thread's buffers: valid until its next call."""
         n = t_ns.shape[0]
-        extra = np.empty((n, 2), np.float64)  # the heading quaternion, as RowEncoder has it
-        half = 0.5 * block[:, COLUMN["theta_rad"]]
-        extra[:, 0] = np.sin(half)
-        extra[:, 1] = np.cos(half)
+        buf = self._scratch(n)
+        # the heading quaternion as RowEncoder computes it (0.5 * theta, numpy's sin and
+        # cos of a contiguous array), written in place: z then w, a column each
+        half = np.multiply(block[:, self._theta], 0.5, out=buf.half[:n])
+        np.sin(half, out=buf.extra[:n])
+        np.cos(half, out=buf.extra[n:2 * n])
         x = np.ascontiguousarray(block, np.float64)
         t = np.ascontiguousarray(t_ns, np.int64)
-        out = self._buffer("records", n * self._row_max)
-        index = np.empty(self._n_topics * (15 + 16 * n), np.uint8)
-        size = self._chunk_fun(self._layout_ref, n,
-                               *[_address(a) for a in (t, x, extra, out, index)])
+        size = self._chunk_fun(self._layout_ref, n, _address(t), _address(x), buf.extra_at,
+                               buf.out_at, buf.index_at)
         if size < 0:  # more topics than the C encoder holds: never for STEP_TOPICS
             raise LogError(f"{self._n_topics} per-step topics: the C encoder takes at most 32")
-        return out[:size].data, index.tobytes()
+        return buf.out[:size].data, buf.index[:self._n_topics * (15 + 16 * n)].data
 
-    def _buffer(self, name: str, size: int) -> NDArray[np.uint8]:
-        """This thread's buffer ``name`` of at least ``size`` bytes."""
-        buf: NDArray[np.uint8] | None = getattr(self._buffers, name, None)
-        if buf is None or buf.size < size:
-            buf = np.empty(size, np.uint8)
-            setattr(self._buffers, name, buf)
+    def _scratch(self, n: int) -> Any:
+        """This thread's buffers for a chunk of ``n`` rows (and their addresses)."""
+        buf = getattr(self._buffers, "chunk", None)
+        if buf is None or buf.rows < n:
+            buf = _Scratch(max(n, 2 * buf.rows if buf is not None else 128), self._row_max,
+                           self._n_topics)
+            self._buffers.chunk = buf
         return buf
 
     def encode(self, t_ns: NDArray[np.int64],
@@ -900,10 +941,8 @@ class RunLogWriter:
             # handler below sees the whole step to undo
             self._pending, self._rows = rest, self._rows + len(t)
             if isinstance(self._encoder, _CRowEncoder):
-                size = len(indexes) // len(self._channel_ids)
-                self._file.add_indexed_chunk(
-                    records, int(t[0]), int(t[-1]), indexes,
-                    [(cid, k * size, len(t)) for k, cid in enumerate(self._channel_ids)])
+                self._file.add_indexed_chunk(records, int(t[0]), int(t[-1]), indexes,
+                                             _row_index_of(self._channel_ids, len(t)))
             else:
                 self._file.add_row_chunk(records_, t, offsets, self._channel_ids)
         except BaseException:
