@@ -27,6 +27,7 @@ from wmr.adapters.mcap.scene import (
     control_phases,
     phase_changes,
     read_cloud,
+    resample_path,
     robot_outline,
 )
 from wmr.core.control.registry import BUILTIN_NAMES, make_controller
@@ -86,6 +87,29 @@ def test_phase_changes_are_the_first_last_and_both_sides_of_each_change(
     pt, pv = phase_changes(t, phase)
     assert pt.tolist() == [int(t[i]) for i in sorted(want)]
     assert pv.tolist() == [phases[i] for i in sorted(want)]
+
+
+@given(st.lists(st.tuples(st.floats(-5, 5) | st.just(math.nan), st.floats(-5, 5)),
+                min_size=1, max_size=80),
+       st.sampled_from([0.01, 0.3, 1.0]))
+def test_the_path_keeps_a_row_per_spacing_of_its_arc_length(
+        xy: list[tuple[float, float]], spacing_m: float) -> None:
+    """Against the definition, step by step: the finite rows, their arc length summed from
+    ``np.linalg.norm`` of each step, the first row, each row entering a new multiple of the
+    spacing, and the last."""
+    pts = np.array(xy, np.float64).reshape(-1, 2)
+    ok = [i for i, (x, y) in enumerate(xy) if math.isfinite(x) and math.isfinite(y)]
+    want: list[int] = []
+    s, last_bin = 0.0, 0
+    for k, i in enumerate(ok):
+        if k:
+            dx, dy = np.diff(pts[[ok[k - 1], i]], axis=0)[0]
+            s += float(np.linalg.norm([dx, dy]))
+        b = math.floor(s / spacing_m)
+        if k == 0 or b != last_bin or k == len(ok) - 1:
+            want.append(i)
+        last_bin = b
+    assert resample_path(pts, spacing_m).tolist() == want
 
 
 def _log(path: Path, n: int = 300) -> tuple[np.ndarray, np.ndarray]:
