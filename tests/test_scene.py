@@ -65,6 +65,23 @@ def test_phases_are_the_stabilisers(name: str) -> None:
     np.testing.assert_array_equal(control_phases(np.array(dr), EPS_M), seen)
 
 
+@given(st.lists(st.sampled_from([0.0, 0.02, 0.025, 0.03, 0.1, 0.11, 5.0, math.nan]),
+                max_size=60), st.sampled_from([0, 1]))
+def test_phases_are_the_hysteresis_step_by_step(dr: list[float], start: int) -> None:
+    """Against the definition, one step at a time: into the alignment at ``dr <= eps / 2``,
+    back to the approach only at ``dr > 2 eps``, the phase kept in between and on NaN, from
+    ``start``; runs of kept steps at the start, the end, and between switches."""
+    want, phase = [], start
+    for d in dr:
+        if d <= 0.5 * EPS_M:
+            phase = 1
+        elif d > 2 * EPS_M:
+            phase = 0
+        want.append(phase)
+    got = control_phases(np.array(dr, np.float64), EPS_M, start_phase=start)
+    assert got.dtype == np.int8 and got.tolist() == want
+
+
 def test_phase_topic_is_a_step_at_each_change() -> None:
     t = np.arange(10, dtype=np.int64) * 10
     phase = np.array([0, 0, 0, 1, 1, 0, 0, 0, 1, 1], np.int8)

@@ -244,12 +244,18 @@ def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float,
     dr = np.asarray(dr_m, dtype=np.float64)
     enter = dr <= ALIGN_RADIUS_FRACTION * stop_radius_m
     leave = dr > EXIT_RADIUS_FRACTION * stop_radius_m
-    # a two-state hysteresis: the state is that of the last step that was a switch point
-    switch = np.where(enter, ALIGN, np.where(leave, APPROACH, -1))
-    idx = np.where(switch >= 0, np.arange(dr.size), -1)
-    last = np.maximum.accumulate(idx) if dr.size else idx
-    out = np.where(last >= 0, switch[np.maximum(last, 0)], start_phase)
-    return out.astype(np.int8)
+    # a two-state hysteresis: a step that is a switch point is in the phase it switches to
+    # (ALIGN is 1, APPROACH 0), any other step in that of the last switch point before it.
+    # The others come in runs (the band between the two radii, NaN), few: each run takes
+    # the phase of the step before it, without a pass over the whole run for them
+    out = enter.astype(np.int8)
+    held = np.flatnonzero(~(enter | leave))
+    if held.size:
+        first = np.flatnonzero(np.diff(held, prepend=-2) != 1)  # where each run starts
+        before = held[first] - 1
+        phase = np.where(before >= 0, out[np.maximum(before, 0)], start_phase)
+        out[held] = np.repeat(phase, np.diff(first, append=held.size))
+    return out
 
 
 def phase_changes(t_ns: npt.NDArray[np.int64], phase: npt.NDArray[np.int8]
