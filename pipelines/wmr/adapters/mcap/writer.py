@@ -83,6 +83,9 @@ from wmr.infra.durable import AtomicFile, stop_signals_held
 from wmr.infra.errors import LogError
 
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
+#: Rows a log's staging buffers hold at first (grown when a chunk needs more): a chunk of
+#: 1 s at 10 ms and the block after it, twice over.
+_STAGE_ROWS: Final = 512
 #: A Chunk record up to its compression string: opcode, record length, message start and end
 #: times, uncompressed size and CRC, the string's length; and a Message Index record's head:
 #: opcode, record length, channel id, length of the entries.
@@ -750,10 +753,15 @@ class RunLogWriter:
         # committed by McapFile.finish, or abandoned
         stream = AtomicFile(self.path, "log", durable=durable)
         self._period = int(chunk_period_ns)
-        # the rows given and not yet in a chunk: (t_ns, block) pairs, each added and dropped
-        # in one step (see _write_chunk), so that no exception can leave a row in a chunk and
-        # pending both, nor a time without its row
-        self._pending: list[tuple[NDArray[np.int64], NDArray[np.float64]]] = []
+        # the rows given and not yet in a chunk: rows lo:hi (_span) of the staging buffers,
+        # copied there from the caller's blocks.  What is pending changes only by one
+        # assignment of _span (with what goes with it, on the same line: see _write_chunk), so
+        # that no exception can leave a row in a chunk and pending both, nor a time without
+        # its row
+        self._t_buf = np.empty(_STAGE_ROWS, np.int64)
+        self._x_buf = np.empty((_STAGE_ROWS, len(SIGNALS)), np.float64)
+        self._spare: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
+        self._span = (0, 0)
         self._last_t = -1
         self._boundary = self._period
         self._rows = 0
@@ -771,6 +779,7 @@ class RunLogWriter:
             for name, (media_type, data) in (attachments or {}).items():
                 self._file.add_attachment(name, media_type, bytes(data))
             self._encoder = _row_encoder(channel_ids, topics)
+            self._in_c = isinstance(self._encoder, _CRowEncoder)
             self._scene = (SceneRecorder(run_record, goal, controlled=topics == STEP_TOPICS)
                            if scene else None)
             self._channel_ids = channel_ids
@@ -811,7 +820,8 @@ class RunLogWriter:
     @property
     def rows_written(self) -> int:
         """Rows given to :meth:`write_block` so far (buffered or on disk)."""
-        return self._rows + sum(len(t) for t, _ in self._pending)
+        lo, hi = self._span
+        return self._rows + hi - lo
 
     def write_block(self, t_ns: ArrayLike, block: ArrayLike) -> None:
         """Log rows of the run: every per-step topic, one message per row.
@@ -836,22 +846,42 @@ class RunLogWriter:
         if t.ndim != 1 or t.dtype.kind not in "iu":
             raise LogError(f"t_ns must be a 1-D integer array of ns, got {t.dtype} {t.shape}")
         n = t.shape[0]
-        x = np.array(block, dtype=np.float64, copy=True)
+        x = np.asarray(block, dtype=np.float64)
         if x.shape != (n, len(SIGNALS)):
             raise LogError(f"block must have shape ({n}, {len(SIGNALS)}), got {x.shape}")
         if n == 0:
             return
-        t = t.astype(np.int64, copy=True)  # one copy, whatever the caller's integer type
-        if t[0] < self._last_t or t[0] < 0 or (n > 1 and bool(np.any(t[1:] < t[:-1]))):
+        t = t.astype(np.int64, copy=False)  # as stored: a time past 2^63 - 1 is negative
+        if t[0] < self._last_t or t[0] < 0 or (n > 1 and bool((t[1:] < t[:-1]).any())):
             raise LogError(
                 f"t_ns must be non-negative and non-decreasing (got {t[0]} after {self._last_t})"
             )
-        self._last_t = int(t[-1])
-        self._pending.append((t, x))
+        lo, hi = self._span
+        if hi + n > self._t_buf.shape[0]:
+            lo, hi = self._compact(n)
+        self._t_buf[hi:hi + n] = t
+        self._x_buf[hi:hi + n] = x
+        self._span, self._last_t = (lo, hi + n), int(t[-1])
         if self._scene is not None:
             self._scene.add(t, x)
         if self._last_t >= self._boundary:
             self._flush_chunks(final=False)
+
+    def _compact(self, n: int) -> tuple[int, int]:
+        """Copy the pending rows to the front of the spare staging buffers (grown to take
+        ``n`` more rows: twice what they then hold) and make those the ones in use, in one
+        assignment; return the new span."""
+        lo, hi = self._span
+        rows = hi - lo
+        spare = self._spare
+        if spare is None or spare[0].shape[0] < rows + n:
+            size = max(self._t_buf.shape[0], 2 * (rows + n))
+            spare = (np.empty(size, np.int64), np.empty((size, len(SIGNALS)), np.float64))
+        spare[0][:rows] = self._t_buf[lo:hi]
+        spare[1][:rows] = self._x_buf[lo:hi]
+        self._t_buf, self._x_buf, self._spare, self._span = (
+            spare[0], spare[1], (self._t_buf, self._x_buf), (0, rows))
+        return 0, rows
 
     def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
                        t_ns: ArrayLike, messages: Sequence[bytes], *,
@@ -895,58 +925,47 @@ class RunLogWriter:
 
     def _flush_chunks(self, final: bool) -> None:
         """Write the pending rows before the chunk boundary as chunks (and, ``final``, the
-        last rows too).  The pending blocks are cut where the boundary falls, as views: a
-        chunk that is whole blocks (the loop's 100-row blocks fill a 1 s chunk exactly) is
-        written from them without a copy."""
-        while self._pending:
-            boundary = self._boundary
-            head: list[tuple[NDArray[np.int64], NDArray[np.float64]]] = []
-            rest = list(self._pending)
-            while rest:
-                t, x = rest[0]
-                cut = (len(t) if int(t[-1]) < boundary
-                       else int(np.searchsorted(t, boundary, side="left")))
-                if cut == len(t):
-                    head.append(rest.pop(0))
-                    continue
-                if cut:
-                    head.append((t[:cut], x[:cut]))
-                    rest[0] = (t[cut:], x[cut:])
-                break
-            if not rest and not final:
-                return  # the rows before the boundary may not all be here yet
-            if head:
-                self._write_chunk(head[0][0] if len(head) == 1
-                                  else np.concatenate([h[0] for h in head]),
-                                  head[0][1] if len(head) == 1
-                                  else np.concatenate([h[1] for h in head]), rest)
-            if rest:
-                self._boundary = (int(rest[0][0][0]) // self._period + 1) * self._period
+        last rows too), each from the staging buffers as they are (a view: no copy)."""
+        while True:
+            lo, hi = self._span
+            if lo == hi:
+                return
+            t = self._t_buf[lo:hi]
+            if t[-1] < self._boundary:
+                if not final:
+                    return  # the rows before the boundary may not all be here yet
+                cut = hi
+            else:
+                cut = lo + int(np.searchsorted(t, self._boundary, side="left"))
+            if cut > lo:
+                self._write_chunk(lo, cut, hi)
+            if cut < hi:
+                self._boundary = (int(self._t_buf[cut]) // self._period + 1) * self._period
 
-    def _write_chunk(self, t: NDArray[np.int64], x: NDArray[np.float64],
-                     rest: list[tuple[NDArray[np.int64], NDArray[np.float64]]]) -> None:
-        """Write the rows ``t, x`` as a chunk and leave ``rest`` pending, as one step: an
-        exception anywhere in it (a signal's ``KeyboardInterrupt`` between two bytecodes, a
-        full disk) puts the pending rows back and cuts the file back to where the chunk
+    def _write_chunk(self, lo: int, cut: int, hi: int) -> None:
+        """Write the pending rows ``lo:cut`` as a chunk and leave ``cut:hi`` pending, as one
+        step: an exception anywhere in it (a signal's ``KeyboardInterrupt`` between two
+        bytecodes, a full disk) puts the rows back and cuts the file back to where the chunk
         began, so the rows are on disk once or pending, never both (``close`` would write
         them again) and never lost."""
-        if isinstance(self._encoder, _CRowEncoder):
-            records, indexes = self._encoder.encode_chunk(t, x)
+        t, x = self._t_buf[lo:cut], self._x_buf[lo:cut]
+        if self._in_c:
+            records, indexes = self._encoder.encode_chunk(t, x)  # type: ignore[union-attr]
         else:
             records_, offsets = self._encoder.encode(t, x)
-        before = self._pending, self._rows
+        before = self._span, self._rows
         mark = self._file.mark()
         try:
             # forgotten first, in the same try: whichever line an exception stops, the
             # handler below sees the whole step to undo
-            self._pending, self._rows = rest, self._rows + len(t)
-            if isinstance(self._encoder, _CRowEncoder):
+            self._span, self._rows = (cut, hi), self._rows + (cut - lo)
+            if self._in_c:
                 self._file.add_indexed_chunk(records, int(t[0]), int(t[-1]), indexes,
-                                             _row_index_of(self._channel_ids, len(t)))
+                                             _row_index_of(self._channel_ids, cut - lo))
             else:
                 self._file.add_row_chunk(records_, t, offsets, self._channel_ids)
         except BaseException:
-            self._pending, self._rows = before
+            self._span, self._rows = before
             self._file.rollback(mark)
             raise
 
