@@ -199,19 +199,31 @@ def resample_path(xy: npt.NDArray[np.float64], spacing_m: float = PATH_SPACING_M
                   ) -> npt.NDArray[np.intp]:
     """Indices of the rows of a path kept for drawing: the first, then each one at least
     ``spacing_m`` along the path from the last kept, and the last (non-finite rows skipped)."""
-    ok = np.flatnonzero(np.isfinite(xy[:, 0]) & np.isfinite(xy[:, 1]))
-    if ok.size == 0:
-        return ok
-    d = np.diff(xy if ok.size == len(xy) else xy[ok], axis=0)
-    dx, dy = d[:, 0], d[:, 1]
-    # np.linalg.norm(d, axis=1)'s bits (the sum of the two squares, then its root) at a
-    # tenth of its cost, which is an axis-1 reduction over pairs
-    step = np.sqrt(dx * dx + dy * dy)
-    s = np.concatenate([[0.0], np.cumsum(step)])
-    bins = np.floor(s / spacing_m).astype(np.int64)
-    keep = np.concatenate([[True], bins[1:] != bins[:-1]])
+    finite = np.isfinite(xy[:, 0]) & np.isfinite(xy[:, 1])
+    ok = None if finite.all() else np.flatnonzero(finite)
+    p = xy if ok is None else xy[ok]
+    n = len(p)
+    if n == 0:
+        return np.flatnonzero(finite)
+    # np.linalg.norm(np.diff(p, axis=0), axis=1)'s bits (the sum of the two squares, then its
+    # root), then the arc length and its bins, in place: a long run's temporaries are big
+    # enough for each new one to cost its page faults
+    step = np.diff(p[:, 0])
+    dy = np.diff(p[:, 1])
+    np.multiply(step, step, out=step)
+    np.multiply(dy, dy, out=dy)
+    np.add(step, dy, out=step)
+    np.sqrt(step, out=step)
+    s = np.empty(n)
+    s[0] = 0.0
+    np.cumsum(step, out=s[1:])
+    np.floor(np.divide(s, spacing_m, out=s), out=s)  # the bin of each row's arc length
+    keep = np.empty(n, bool)
+    keep[0] = True
+    np.not_equal(s[1:], s[:-1], out=keep[1:])
     keep[-1] = True
-    return ok[keep]
+    kept = np.flatnonzero(keep)
+    return kept if ok is None else ok[kept]
 
 
 # --------------------------------------------------------------------------- phase
@@ -382,6 +394,8 @@ def robot_clouds(t_ns: npt.NDArray[np.int64], phase: npt.NDArray[np.int8],
 
 
 _X, _Y, _DR = COLUMN["x_m"], COLUMN["y_m"], COLUMN["dr_m"]
+#: Rows a recorder holds at first: 10 s at 10 ms (then twice as many each time it fills).
+_SCENE_ROWS: Final = 1024
 
 
 class SceneRecorder:
@@ -409,13 +423,28 @@ class SceneRecorder:
             eps = math.nan
         self._stop_radius = eps if math.isfinite(eps) and eps > 0 else None
         self._controlled = controlled
-        self._t: list[npt.NDArray[np.int64]] = []
-        self._rows: list[npt.NDArray[np.float64]] = []
+        # the rows' times, and x, y and dr a column each (what the drawing reads column by
+        # column), rows 0:_n of them; grown by doubling
+        self._n = 0
+        self._t = np.empty(_SCENE_ROWS, np.int64)
+        self._cols = np.empty((3, _SCENE_ROWS), np.float64)
 
     def add(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
-        """Keep the position and ``dr_m`` of the rows (the caller's arrays are not kept)."""
-        self._t.append(np.array(t_ns, dtype=np.int64))
-        self._rows.append(block[:, [_X, _Y, _DR]])  # fancy indexing: a copy
+        """Keep the times, position and ``dr_m`` of the rows (copied: the caller's arrays are
+        not kept)."""
+        k = self._n
+        n = k + len(t_ns)
+        if n > self._t.shape[0]:
+            size = max(n, 2 * self._t.shape[0])
+            t, cols = np.empty(size, np.int64), np.empty((3, size), np.float64)
+            t[:k], cols[:, :k] = self._t[:k], self._cols[:, :k]
+            self._t, self._cols = t, cols
+        self._t[k:n] = t_ns
+        cols = self._cols
+        cols[0, k:n] = block[:, _X]
+        cols[1, k:n] = block[:, _Y]
+        cols[2, k:n] = block[:, _DR]
+        self._n = n
 
     def write(self, log: MessageLog) -> None:
         """Write the scene topics to ``log``; a failure here warns and leaves the log as is,
@@ -432,17 +461,16 @@ class SceneRecorder:
         gx, gy, gth = self._goal
         _write_cloud(log, GOAL_TOPIC,
                      cloud_points(goal_outline(gx, gy, gth, self._stop_radius), GOAL_COLOR))
-        if not self._t:
+        if not self._n:
             return
-        t = np.concatenate(self._t)
-        rows = np.concatenate(self._rows)
-        xy = rows[:, :2]
-        phase = (control_phases(rows[:, 2], self._stop_radius)
+        t = self._t[:self._n]
+        xy = self._cols[:2, :self._n].T  # (n, 2): each column contiguous
+        phase = (control_phases(self._cols[2, :self._n], self._stop_radius)
                  if self._controlled and self._stop_radius is not None
                  else np.zeros(len(t), np.int8))
-        colors = np.asarray(PHASE_COLORS, np.uint8)[phase]
         keep = resample_path(xy)
-        _write_cloud(log, PATH_TOPIC, cloud_points(xy[keep], colors[keep]))
+        _write_cloud(log, PATH_TOPIC, cloud_points(
+            xy[keep], np.asarray(PHASE_COLORS, np.uint8)[phase[keep]]))
         robot_t, robot = robot_clouds(t, phase, self._half_track, self._wheel_radius)
         log.write_messages(ROBOT_TOPIC, CLOUD_SCHEMA, CLOUD_SCHEMA_DATA, robot_t, robot)
         if self._controlled and self._stop_radius is not None:

@@ -580,12 +580,14 @@ class _CRowEncoder:
         # allocation and page faults each time
         self._buffers = threading.local()
 
-    def encode_chunk(self, t_ns: NDArray[np.int64],
-                     block: NDArray[np.float64]) -> tuple[memoryview, memoryview]:
+    def encode_chunk(self, t_ns: NDArray[np.int64], block: NDArray[np.float64],
+                     at: tuple[int, int] | None = None) -> tuple[memoryview, memoryview]:
         """A chunk's records (as :meth:`encode`) and its Message Index records, one per
         topic in topic order, as :mod:`mcap.records` packs them, in one C call.
 
-        Both are views of this thread's buffers: valid until its next call."""
+        ``at``: the addresses of the data of ``t_ns`` and ``block`` when the caller knows
+        them (C-contiguous int64 and float64: the log's staging buffers).  Both results are
+        views of this thread's buffers: valid until its next call."""
         n = t_ns.shape[0]
         buf = self._scratch(n)
         # the heading quaternion as RowEncoder computes it (0.5 * theta, numpy's sin and
@@ -593,10 +595,11 @@ class _CRowEncoder:
         half = np.multiply(block[:, self._theta], 0.5, out=buf.half[:n])
         np.sin(half, out=buf.extra[:n])
         np.cos(half, out=buf.extra[n:2 * n])
-        x = np.ascontiguousarray(block, np.float64)
-        t = np.ascontiguousarray(t_ns, np.int64)
-        size = self._chunk_fun(self._layout_ref, n, _address(t), _address(x), buf.extra_at,
-                               buf.out_at, buf.index_at)
+        if at is None:
+            at = (_address(np.ascontiguousarray(t_ns, np.int64)),
+                  _address(np.ascontiguousarray(block, np.float64)))
+        size = self._chunk_fun(self._layout_ref, n, at[0], at[1], buf.extra_at, buf.out_at,
+                               buf.index_at)
         if size < 0:  # more topics than the C encoder holds: never for STEP_TOPICS
             raise LogError(f"{self._n_topics} per-step topics: the C encoder takes at most 32")
         return buf.out[:size].data, buf.index[:self._n_topics * (15 + 16 * n)].data
@@ -761,6 +764,7 @@ class RunLogWriter:
         self._t_buf = np.empty(_STAGE_ROWS, np.int64)
         self._x_buf = np.empty((_STAGE_ROWS, len(SIGNALS)), np.float64)
         self._spare: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
+        self._at = (int(self._t_buf.ctypes.data), int(self._x_buf.ctypes.data))  # their data
         self._span = (0, 0)
         self._last_t = -1
         self._boundary = self._period
@@ -851,15 +855,17 @@ class RunLogWriter:
             raise LogError(f"block must have shape ({n}, {len(SIGNALS)}), got {x.shape}")
         if n == 0:
             return
-        t = t.astype(np.int64, copy=False)  # as stored: a time past 2^63 - 1 is negative
+        lo, hi = self._span
+        if hi + n > self._t_buf.shape[0]:
+            lo, hi = self._compact(n)
+        # checked as stored (int64: a time past 2^63 - 1 is negative); taken only by the
+        # assignment of the span below
+        t = self._t_buf[hi:hi + n]
+        t[:] = t_ns
         if t[0] < self._last_t or t[0] < 0 or (n > 1 and bool((t[1:] < t[:-1]).any())):
             raise LogError(
                 f"t_ns must be non-negative and non-decreasing (got {t[0]} after {self._last_t})"
             )
-        lo, hi = self._span
-        if hi + n > self._t_buf.shape[0]:
-            lo, hi = self._compact(n)
-        self._t_buf[hi:hi + n] = t
         self._x_buf[hi:hi + n] = x
         self._span, self._last_t = (lo, hi + n), int(t[-1])
         if self._scene is not None:
@@ -879,8 +885,9 @@ class RunLogWriter:
             spare = (np.empty(size, np.int64), np.empty((size, len(SIGNALS)), np.float64))
         spare[0][:rows] = self._t_buf[lo:hi]
         spare[1][:rows] = self._x_buf[lo:hi]
-        self._t_buf, self._x_buf, self._spare, self._span = (
-            spare[0], spare[1], (self._t_buf, self._x_buf), (0, rows))
+        self._t_buf, self._x_buf, self._spare, self._span, self._at = (
+            spare[0], spare[1], (self._t_buf, self._x_buf), (0, rows),
+            (int(spare[0].ctypes.data), int(spare[1].ctypes.data)))
         return 0, rows
 
     def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
@@ -936,7 +943,7 @@ class RunLogWriter:
                     return  # the rows before the boundary may not all be here yet
                 cut = hi
             else:
-                cut = lo + int(np.searchsorted(t, self._boundary, side="left"))
+                cut = lo + int(t.searchsorted(self._boundary, side="left"))
             if cut > lo:
                 self._write_chunk(lo, cut, hi)
             if cut < hi:
@@ -950,7 +957,9 @@ class RunLogWriter:
         them again) and never lost."""
         t, x = self._t_buf[lo:cut], self._x_buf[lo:cut]
         if self._in_c:
-            records, indexes = self._encoder.encode_chunk(t, x)  # type: ignore[union-attr]
+            t_at, x_at = self._at
+            records, indexes = self._encoder.encode_chunk(  # type: ignore[union-attr]
+                t, x, (t_at + 8 * lo, x_at + 8 * len(SIGNALS) * lo))
         else:
             records_, offsets = self._encoder.encode(t, x)
         before = self._span, self._rows
