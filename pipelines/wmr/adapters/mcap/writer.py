@@ -163,9 +163,13 @@ class Sink(Protocol):
     def truncate(self) -> object: ...
 
 
-#: What :meth:`McapFile.mark` saves: the position, the data section CRC, the chunk indexes
-#: written, the message count of each channel, the message count, first and last times.
-_Mark = tuple[int, int, int, dict[int, int], int, int, int]
+#: What :meth:`McapFile.mark` saves: the position, the data section CRC, the chunks written.
+_Mark = tuple[int, int, int]
+#: A chunk written, as :meth:`McapFile.finish` indexes it: its first and last message times,
+#: start and length, ``index_of`` (channel id, offset in its Message Index records and count
+#: of each channel), the byte length of the Message Index records, of its data and of its
+#: records uncompressed.
+_Chunk = tuple[int, int, int, int, Sequence[tuple[int, int, int]], int, int, int]
 
 
 class McapFile:
@@ -199,13 +203,12 @@ class McapFile:
         self._pos = 0
         self._schemas: list[bytes] = []  # the records, written again in the summary
         self._channels: list[bytes] = []
-        self._chunk_indexes: list[bytes] = []  # the Chunk Index records
+        # what each chunk's Chunk Index record and the statistics need of it, packed by
+        # finish(): one append per chunk (_Chunk)
+        self._chunks: list[_Chunk] = []
         self._attachment_indexes: list[AttachmentIndex] = []
         self._metadata_indexes: list[MetadataIndex] = []
-        self._counts: dict[int, int] = {}
-        self._n_messages = 0
-        self._t_first = 0
-        self._t_last = 0
+        self._channel_ids: list[int] = []
         self._crc = 0  # of the data section: every byte before Data End, magic included
         self._broken = ""  # why the file cannot be finished (a rollback that failed)
         self._write(MAGIC)
@@ -236,7 +239,7 @@ class McapFile:
         channel_id = len(self._channels) + 1
         self._channels.append(_channel_record(channel_id, topic, message_encoding, schema_id,
                                               tuple((metadata or {}).items())))
-        self._counts[channel_id] = 0
+        self._channel_ids.append(channel_id)
         self._write(self._channels[-1])
         return channel_id
 
@@ -342,43 +345,24 @@ class McapFile:
         write(data)
         write(indexes)
         chunk_length = len(head) + data_len
-        index_start = chunk_start + chunk_length
         # the position and CRC only once every part is written: rollback() restores them
         self._crc = crc32(indexes, crc32(data, crc32(head, self._crc)))
-        self._pos = index_start + len(indexes)
-        counts = self._counts
-        entries: list[int] = []
-        n_messages = 0
-        for cid, at, count in index_of:
-            counts[cid] += count
-            n_messages += count
-            entries += (cid, index_start + at)
-        self._chunk_indexes.append(_chunk_index_struct(len(index_of), len(comp)).pack(
-            Opcode.CHUNK_INDEX, _CHUNK_INDEX_FIXED + _INDEX_OFFSET.size * len(index_of)
-            + len(comp), t_first, t_last, chunk_start, chunk_length,
-            _INDEX_OFFSET.size * len(index_of), *entries, len(indexes), len(comp), comp,
-            data_len, size))
-        if self._n_messages == 0:
-            self._t_first = t_first
-        self._t_first = min(self._t_first, t_first)
-        self._t_last = max(self._t_last, t_last)
-        self._n_messages += n_messages
+        self._pos = chunk_start + chunk_length + len(indexes)
+        self._chunks.append((t_first, t_last, chunk_start, chunk_length, index_of,
+                             len(indexes), data_len, size))
         self._stream.flush()
 
     def mark(self) -> _Mark:
         """Where the file is, for :meth:`rollback` (taken before a chunk is added)."""
-        return (self._pos, self._crc, len(self._chunk_indexes), dict(self._counts),
-                self._n_messages, self._t_first, self._t_last)
+        return self._pos, self._crc, len(self._chunks)
 
     def rollback(self, mark: _Mark) -> None:
         """Undo what was written since ``mark`` (a chunk cut anywhere, or whole): the file
         is cut back to the marked position and the summary forgets it.  A stream that cannot
         be cut back (a full disk refusing the buffered bytes) is given up: the file stays as
         it is, readable up to its last whole chunk, and :meth:`finish` refuses to end it."""
-        pos, crc, chunks, counts, n_messages, t_first, t_last = mark
-        del self._chunk_indexes[chunks:]
-        self._counts = counts
-        self._n_messages, self._t_first, self._t_last = n_messages, t_first, t_last
+        pos, crc, chunks = mark
+        del self._chunks[chunks:]
         self._pos, self._crc = pos, crc
         try:
             self._stream.seek(pos)
@@ -420,25 +404,46 @@ class McapFile:
                     r.write(rb)
             offsets.append(SummaryOffset(opcode, summary_start + start, rb.count - start))
 
+        counts = dict.fromkeys(self._channel_ids, 0)
+        chunk_indexes = []
+        comp = self._compression_bytes
+        t_first, t_last, n_messages = 0, 0, 0
+        for start, end, chunk_start, chunk_length, index_of, indexes_length, data_len, size \
+                in self._chunks:
+            index_start = chunk_start + chunk_length
+            entries: list[int] = []
+            for cid, at, count in index_of:
+                if count and n_messages == 0:
+                    t_first, t_last = start, end
+                counts[cid] += count
+                n_messages += count
+                entries += (cid, index_start + at)
+            if n_messages:
+                t_first, t_last = min(t_first, start), max(t_last, end)
+            chunk_indexes.append(_chunk_index_struct(len(index_of), len(comp)).pack(
+                Opcode.CHUNK_INDEX, _CHUNK_INDEX_FIXED + _INDEX_OFFSET.size * len(index_of)
+                + len(comp), start, end, chunk_start, chunk_length,
+                _INDEX_OFFSET.size * len(index_of), *entries, indexes_length, len(comp), comp,
+                data_len, size))
         group(Opcode.SCHEMA, self._schemas)
         group(Opcode.CHANNEL, self._channels)
         group(
             Opcode.STATISTICS,
             [
                 Statistics(
-                    message_count=self._n_messages,
+                    message_count=n_messages,
                     schema_count=len(self._schemas),
                     channel_count=len(self._channels),
                     attachment_count=len(self._attachment_indexes),
                     metadata_count=len(self._metadata_indexes),
-                    chunk_count=len(self._chunk_indexes),
-                    message_start_time=self._t_first,
-                    message_end_time=self._t_last,
-                    channel_message_counts=dict(self._counts),
+                    chunk_count=len(chunk_indexes),
+                    message_start_time=t_first,
+                    message_end_time=t_last,
+                    channel_message_counts=counts,
                 )
             ],
         )
-        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.CHUNK_INDEX, chunk_indexes)
         group(Opcode.ATTACHMENT_INDEX, self._attachment_indexes)
         group(Opcode.METADATA_INDEX, self._metadata_indexes)
         summary_offset_start = summary_start + rb.count
