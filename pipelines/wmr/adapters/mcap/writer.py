@@ -37,19 +37,7 @@ from typing import Any, Final, Literal, Protocol
 import numpy as np
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import (
-    Attachment,
-    AttachmentIndex,
-    Channel,
-    DataEnd,
-    Footer,
-    Header,
-    Message,
-    MetadataIndex,
-    Schema,
-    Statistics,
-    SummaryOffset,
-)
+from mcap.records import Channel, Schema
 from numpy.typing import ArrayLike, NDArray
 from zlib_ng.zlib_ng import crc32
 
@@ -83,6 +71,9 @@ from wmr.infra.durable import AtomicFile, stop_signals_held
 from wmr.infra.errors import LogError
 
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
+#: A Message record up to its data: opcode, record length, channel id, sequence, log and
+#: publish time.
+_MESSAGE_HEAD: Final = struct.Struct("<BQHIQQ")
 #: Rows a log's staging buffers hold at first (grown when a chunk needs more): a chunk of
 #: 1 s at 10 ms and the block after it, twice over.
 _STAGE_ROWS: Final = 512
@@ -199,32 +190,23 @@ class McapFile:
         self._compression_bytes = compression.encode()
         #: a Chunk record up to its data: the fields, the compression string, the data length
         self._chunk_head = struct.Struct(f"{_CHUNK_HEAD.format}{len(self._compression_bytes)}sQ")
-        self._rb = RecordBuilder()
         self._pos = 0
         self._schemas: list[bytes] = []  # the records, written again in the summary
         self._channels: list[bytes] = []
         # what each chunk's Chunk Index record and the statistics need of it, packed by
         # finish(): one append per chunk (_Chunk)
         self._chunks: list[_Chunk] = []
-        self._attachment_indexes: list[AttachmentIndex] = []
-        self._metadata_indexes: list[MetadataIndex] = []
+        self._attachment_indexes: list[bytes] = []  # the records
+        self._metadata_indexes: list[bytes] = []
         self._channel_ids: list[int] = []
         self._crc = 0  # of the data section: every byte before Data End, magic included
         self._broken = ""  # why the file cannot be finished (a rollback that failed)
-        self._write(MAGIC)
-        Header(profile="", library=library).write(self._rb)
-        self._flush_records()
+        self._write(MAGIC + _record(Opcode.HEADER, _prefixed("") + _prefixed(library)))
 
     def _write(self, data: bytes) -> None:
         self._stream.write(data)
         self._pos += len(data)
         self._crc = crc32(data, self._crc)
-
-    def _flush_records(self) -> int:
-        """Write the records built so far; return their length."""
-        data = self._rb.end()
-        self._write(data)
-        return len(data)
 
     def add_schema(self, name: str, data: bytes, encoding: str = "protobuf") -> int:
         """Write a Schema record (protobuf by default); return its id (1, 2, ...)."""
@@ -248,27 +230,20 @@ class McapFile:
         offset = self._pos
         record = metadata_record(name, data)
         self._write(record)
-        self._metadata_indexes.append(MetadataIndex(offset=offset, length=len(record),
-                                                    name=name))
+        self._metadata_indexes.append(_record(
+            Opcode.METADATA_INDEX, _U64X2.pack(offset, len(record)) + _prefixed(name)))
 
     def add_attachment(self, name: str, media_type: str, data: bytes) -> None:
-        """Write an Attachment record, log and create time 0."""
+        """Write an Attachment record, log and create time 0 (packed here as
+        :meth:`mcap.records.Attachment.write` packs it, its CRC by zlib-ng)."""
         offset = self._pos
-        Attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data).write(
-            self._rb
-        )
-        length = self._flush_records()
-        self._attachment_indexes.append(
-            AttachmentIndex(
-                offset=offset,
-                length=length,
-                log_time=0,
-                create_time=0,
-                data_size=len(data),
-                name=name,
-                media_type=media_type,
-            )
-        )
+        names = _prefixed(name) + _prefixed(media_type)
+        body = b"".join((_U64X2.pack(0, 0), names, _U64.pack(len(data)), data))
+        record = _record(Opcode.ATTACHMENT, body + _U32.pack(crc32(body)))
+        self._write(record)
+        self._attachment_indexes.append(_record(
+            Opcode.ATTACHMENT_INDEX,
+            _ATTACHMENT_INDEX.pack(offset, len(record), 0, 0, len(data)) + names))
 
     def add_chunk(
         self,
@@ -387,22 +362,21 @@ class McapFile:
         """
         if self._broken:
             raise LogError(self._broken)
-        DataEnd(data_section_crc=self._crc).write(self._rb)
-        self._flush_records()
+        self._write(_record(Opcode.DATA_END, _U32.pack(self._crc)))
         summary_start = self._pos
-        rb = RecordBuilder()
-        offsets: list[SummaryOffset] = []
+        parts: list[bytes] = []
+        offsets: list[bytes] = []  # the Summary Offset records
+        group_at = summary_start
 
-        def group(opcode: Opcode, records: list[Any]) -> None:
+        def group(opcode: Opcode, records: list[bytes]) -> None:
+            nonlocal group_at
             if not records:
                 return
-            start = rb.count
-            for r in records:
-                if isinstance(r, bytes):
-                    rb.write(r)
-                else:
-                    r.write(rb)
-            offsets.append(SummaryOffset(opcode, summary_start + start, rb.count - start))
+            length = sum(len(r) for r in records)
+            parts.extend(records)
+            offsets.append(_record(Opcode.SUMMARY_OFFSET,
+                                   _SUMMARY_OFFSET.pack(opcode, group_at, length)))
+            group_at += length
 
         counts = dict.fromkeys(self._channel_ids, 0)
         chunk_indexes = []
@@ -427,39 +401,19 @@ class McapFile:
                 data_len, size))
         group(Opcode.SCHEMA, self._schemas)
         group(Opcode.CHANNEL, self._channels)
-        group(
-            Opcode.STATISTICS,
-            [
-                Statistics(
-                    message_count=n_messages,
-                    schema_count=len(self._schemas),
-                    channel_count=len(self._channels),
-                    attachment_count=len(self._attachment_indexes),
-                    metadata_count=len(self._metadata_indexes),
-                    chunk_count=len(chunk_indexes),
-                    message_start_time=t_first,
-                    message_end_time=t_last,
-                    channel_message_counts=counts,
-                )
-            ],
-        )
+        group(Opcode.STATISTICS, [_record(Opcode.STATISTICS, b"".join((
+            _STATISTICS.pack(n_messages, len(self._schemas), len(self._channels),
+                             len(self._attachment_indexes), len(self._metadata_indexes),
+                             len(chunk_indexes), t_first, t_last, _COUNT.size * len(counts)),
+            *(_COUNT.pack(cid, count) for cid, count in counts.items()))))])
         group(Opcode.CHUNK_INDEX, chunk_indexes)
         group(Opcode.ATTACHMENT_INDEX, self._attachment_indexes)
         group(Opcode.METADATA_INDEX, self._metadata_indexes)
-        summary_offset_start = summary_start + rb.count
-        for off in offsets:
-            off.write(rb)
-        summary = rb.end()
-        crc = crc32(summary)
-        crc = crc32(
-            struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc
-        )
-        self._write(summary)
-        Footer(
-            summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc
-        ).write(self._rb)
-        self._flush_records()
-        self._write(MAGIC)
+        summary_offset_start = group_at
+        summary = b"".join(parts + offsets)
+        footer = _FOOTER_HEAD.pack(Opcode.FOOTER, 20, summary_start, summary_offset_start)
+        self._write(b"".join((summary, footer, _U32.pack(crc32(footer, crc32(summary))),
+                              MAGIC)))
         commit = getattr(self._stream, "commit", None)
         if commit is not None:
             commit()
@@ -468,6 +422,24 @@ class McapFile:
 
 
 _U32: Final = struct.Struct("<I")
+_U64: Final = struct.Struct("<Q")
+_U64X2: Final = struct.Struct("<QQ")
+#: A record's opcode and length; the bodies of the records :class:`McapFile` packs itself, as
+#: :mod:`mcap.records` packs them (checked against them by ``tests/test_mcaplog.py``):
+#: Attachment Index (offset, length, log and create time, data size, then the name and media
+#: type), Statistics (then a channel id and message count per channel), Summary Offset, and
+#: the Footer up to its CRC.
+_RECORD_HEAD: Final = struct.Struct("<BQ")
+_ATTACHMENT_INDEX: Final = struct.Struct("<QQQQQ")
+_STATISTICS: Final = struct.Struct("<QHIIIIQQI")
+_COUNT: Final = struct.Struct("<HQ")
+_SUMMARY_OFFSET: Final = struct.Struct("<BQQ")
+_FOOTER_HEAD: Final = struct.Struct("<BQQQ")
+
+
+def _record(opcode: int, body: bytes) -> bytes:
+    """A record: its opcode, its body's length, its body."""
+    return _RECORD_HEAD.pack(opcode, len(body)) + body
 
 
 def _prefixed(text: str) -> bytes:
@@ -821,10 +793,9 @@ class RunLogWriter:
     def _write_goal(self, channel: int, goal: tuple[float, float, float]) -> None:
         x, y, theta = (float(v) for v in goal)
         data = goal_message(x, y, theta)
-        record = RecordBuilder()
-        Message(channel_id=channel, log_time=0, publish_time=0, sequence=0, data=data).write(record)
+        record = _MESSAGE_HEAD.pack(_OP_MESSAGE, 2 + 4 + 8 + 8 + len(data), channel, 0, 0, 0)
         zero = np.zeros(1, np.int64)
-        self._file.add_chunk(record.end(), {channel: (zero, zero)})
+        self._file.add_chunk(record + data, {channel: (zero, zero)})
 
     @property
     def rows_written(self) -> int:
@@ -925,7 +896,7 @@ class RunLogWriter:
             raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
         schema_id = self._file.add_schema(schema_name, schema_data, schema_encoding)
         cid = self._file.add_channel(topic, schema_id, message_encoding)
-        head = struct.Struct("<BQHIQQ")
+        head = _MESSAGE_HEAD
         parts: list[bytes] = []
         offsets = np.zeros(len(messages), np.int64)
         pos = 0
