@@ -82,6 +82,22 @@ def test_phases_are_the_hysteresis_step_by_step(dr: list[float], start: int) -> 
     assert got.dtype == np.int8 and got.tolist() == want
 
 
+@pytest.mark.parametrize("params", [
+    {"L": 0.3, "r": 0.15}, {"L": 0.25}, {}, {"L": -1.0, "r": 0.1}, {"L": math.nan, "r": 0.1},
+    {"L": "0.4", "r": True}, {"L": "wide", "r": 0.1}, {"L": [0.3], "r": 0.1},
+    {"L": math.inf, "r": 0.1}, {"L": 1e308, "r": 1e308}])
+def test_the_robot_s_geometry_is_the_same_from_the_run_mapping_and_from_its_json(
+        params: dict[str, Any]) -> None:
+    """The writer hands the scene the run's own mapping (no JSON round trip per log); a log's
+    record is JSON text: the same geometry from both, the paper's where a value is unusable."""
+    import json
+
+    from wmr.adapters.mcap.scene import robot_geometry
+
+    assert robot_geometry({"params": params}) == robot_geometry(
+        {"params": json.dumps(params, allow_nan=True)})
+
+
 def test_phase_topic_is_a_step_at_each_change() -> None:
     t = np.arange(10, dtype=np.int64) * 10
     phase = np.array([0, 0, 0, 1, 1, 0, 0, 0, 1, 1], np.int8)

@@ -108,15 +108,19 @@ _POINT: Final = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"
 # --------------------------------------------------------------------------- geometry
 
 
-def robot_geometry(run: Mapping[str, str]) -> tuple[float, float]:
+def robot_geometry(run: Mapping[str, object]) -> tuple[float, float]:
     """Half track ``L`` and wheel radius ``r`` (m) from a log's ``run`` record (or the paper's).
 
     Parameters
     ----------
     run
-        The ``run`` metadata record; its ``params`` is a JSON object with ``L`` and ``r``.
+        The ``run`` metadata record; its ``params`` is a JSON object with ``L`` and ``r`` (as
+        a log holds it), or a mapping (as the writer is given it: read without the JSON).
     """
-    return _geometry(run.get("params", "{}"))
+    params = run.get("params", "{}")
+    if isinstance(params, Mapping):
+        return _checked_geometry(params)
+    return _geometry(str(params))
 
 
 @functools.lru_cache(maxsize=256)  # every log of a batch of one robot has the same params
@@ -126,9 +130,17 @@ def _geometry(params_json: str) -> tuple[float, float]:
 
     try:  # bounded: a stranger's log may hold a value nested too deep for json.loads
         params = metadata_json(params_json)
-        half_track = float(params.get("L", DEFAULT_HALF_TRACK_M))
-        radius = float(params.get("r", DEFAULT_WHEEL_RADIUS_M))
     except (ValueError, TypeError, AttributeError, LogError):
+        return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
+    return _checked_geometry(params)
+
+
+def _checked_geometry(params: object) -> tuple[float, float]:
+    """``L`` and ``r`` of ``params`` if both are positive and finite, else the paper's."""
+    try:
+        half_track = float(params.get("L", DEFAULT_HALF_TRACK_M))  # type: ignore[attr-defined]
+        radius = float(params.get("r", DEFAULT_WHEEL_RADIUS_M))  # type: ignore[attr-defined]
+    except (ValueError, TypeError, AttributeError):
         return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
     if not (half_track > 0 and radius > 0 and math.isfinite(half_track + radius)):
         return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
@@ -413,13 +425,13 @@ class SceneRecorder:
         topic is written only then.
     """
 
-    def __init__(self, run: Mapping[str, str], goal: tuple[float, float, float], *,
+    def __init__(self, run: Mapping[str, object], goal: tuple[float, float, float], *,
                  controlled: bool) -> None:
         self._goal = goal
         self._half_track, self._wheel_radius = robot_geometry(run)
         try:
-            eps = float(run.get("stop_radius_m", "nan"))
-        except ValueError:
+            eps = float(run.get("stop_radius_m", "nan"))  # type: ignore[arg-type]
+        except (ValueError, TypeError):
             eps = math.nan
         self._stop_radius = eps if math.isfinite(eps) and eps > 0 else None
         self._controlled = controlled

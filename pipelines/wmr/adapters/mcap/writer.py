@@ -761,7 +761,8 @@ class RunLogWriter:
                 self._file.add_attachment(name, media_type, bytes(data))
             self._encoder = _row_encoder(channel_ids, topics)
             self._in_c = isinstance(self._encoder, _CRowEncoder)
-            self._scene = (SceneRecorder(run_record, goal, controlled=topics == STEP_TOPICS)
+            # given the run's own mapping: its params are read as given, not from their JSON
+            self._scene = (SceneRecorder(run, goal, controlled=topics == STEP_TOPICS)
                            if scene else None)
             self._channel_ids = channel_ids
             self._write_goal(goal_channel, goal)
