@@ -4,11 +4,14 @@ The MCAP container is written here rather than through :class:`mcap.writer.Write
 ``add_message`` costs about 7 us per message in pure Python (45 us per control step for six
 topics).  The Message records of a chunk are built by the C stepper (``wmr_encode_rows``, the
 bytes of :class:`wmr.adapters.mcap.schemas.RowEncoder`, numpy's encoder, when the stepper is
-not there); the Chunk, Message Index and Chunk Index records are packed with :mod:`struct` and
-numpy exactly as :mod:`mcap.records` packs them (``tests/test_mcaplog.py`` reads them back
-with the ``mcap`` library and writes them again with its record classes: the same bytes); the
-other records are serialised by :mod:`mcap.records`, the Schema and Channel records once per
-process (every log of a batch has the same).
+not there) from the log's staging buffers, where each block of rows is copied once; the other
+records are packed with :mod:`struct` exactly as :mod:`mcap.records` packs them
+(``tests/test_mcaplog.py`` reads a whole log back with the ``mcap`` library and writes every
+record again with its record classes: the same bytes), the Schema and Channel records by
+:mod:`mcap.records` once per process (every log of a batch has the same).  Every CRC (each
+chunk's, each attachment's, the data section's and the summary's) is zlib's CRC-32 computed by
+zlib-ng, which folds with the CPU's carry-less multiply: the same values at about 30 times the
+speed of the system zlib's.
 
 Layout of a file: magic, Header, Schema and Channel records, the ``run`` Metadata record, the
 Attachments, a chunk holding the ``/goal`` message, then one chunk per second of simulation
@@ -29,10 +32,10 @@ import os
 import struct
 import sys
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from types import TracebackType
-from typing import Any, Final, Literal, Protocol
+from typing import Any, Final, Literal, Protocol, cast
 
 import numpy as np
 from mcap.data_stream import RecordBuilder
@@ -315,7 +318,8 @@ class McapFile:
             Opcode.CHUNK, _CHUNK_FIXED + len(comp) + data_len, t_first, t_last, size,
             crc32(records) if uncompressed_crc is None else uncompressed_crc, len(comp), comp,
             data_len)
-        write = self._stream.write
+        # the sinks' write takes any buffer (a BufferedWriter's does): views are not copied
+        write = cast(Callable[[bytes | memoryview], object], self._stream.write)
         write(head)
         write(data)
         write(indexes)
