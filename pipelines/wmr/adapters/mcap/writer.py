@@ -855,14 +855,15 @@ class RunLogWriter:
             self._flush_chunks(final=False)
 
     def _compact(self, n: int) -> tuple[int, int]:
-        """Copy the pending rows to the front of the spare staging buffers (grown to take
-        ``n`` more rows: twice what they then hold) and make those the ones in use, in one
-        assignment; return the new span."""
+        """Copy the pending rows to the front of the spare staging buffers (grown, when they
+        cannot take ``n`` more rows, to half as much again as they then hold: a chunk of many
+        blocks is copied a bounded number of times, one huge block costs half its size more)
+        and make those the ones in use, in one assignment; return the new span."""
         lo, hi = self._span
         rows = hi - lo
         spare = self._spare
         if spare is None or spare[0].shape[0] < rows + n:
-            size = max(self._t_buf.shape[0], 2 * (rows + n))
+            size = max(self._t_buf.shape[0], rows + n + max(_STAGE_ROWS, (rows + n) // 2))
             spare = (np.empty(size, np.int64), np.empty((size, len(SIGNALS)), np.float64))
         spare[0][:rows] = self._t_buf[lo:hi]
         spare[1][:rows] = self._x_buf[lo:hi]
