@@ -47,8 +47,8 @@ from wmr.config.scenario import load_scenario
 from wmr.core.closedloop import run_closed_loop
 from wmr.core.runspec import Pose, RunSpec
 
-LONG_S = 40.0
-SHORT_S = 10.0
+LONG_S = 160.0
+SHORT_S = 40.0
 #: The far goal: 1 km ahead along x, beyond what any run here reaches.
 FAR_GOAL = Pose(1000.0, 0.0, 0.0)
 UNLOGGED = "unlogged (PI compiled into the stepper)"

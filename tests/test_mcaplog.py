@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from wmr.adapters.mcap import RunLogWriter, read_run
 from wmr.adapters.mcap.schemas import (
+    MAGIC,
     OPEN_LOOP_TOPICS,
     SRC_QW,
     SRC_QZ,
@@ -731,6 +732,61 @@ def test_chunk_and_index_records_are_mcap_s_own_bytes(compression: Any) -> None:
     summary = make_reader(io.BytesIO(out)).get_summary()  # found through the Footer
     assert summary is not None and summary.chunk_indexes == [ci]
     assert summary.statistics is not None and summary.statistics.message_count == n * 3
+
+
+def test_every_record_of_a_log_is_mcap_s_own_bytes(tmp_path: Path) -> None:
+    """The whole file of a closed log (header, schemas, channels, metadata, attachments,
+    chunks and their indexes, data end, the summary's schemas, channels, statistics, chunk,
+    attachment and metadata indexes and summary offsets, the footer), read by the ``mcap``
+    library's stream reader and written again record by record by its own record classes:
+    the same bytes, and every CRC checks."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.opcode import Opcode
+    from mcap.records import (
+        AttachmentIndex,
+        Channel,
+        ChunkIndex,
+        Footer,
+        MetadataIndex,
+        Schema,
+        Statistics,
+        SummaryOffset,
+    )
+
+    out = tmp_path / "log.mcap"
+    t, x = make_run(250, seed=3)
+    with RunLogWriter(out, run={"name": "r", "stop_radius_m": 0.05}, goal=GOAL, scene=True,
+                      attachments={"a.toml": ("application/toml", b"x = 1\n" * 300),
+                                   "b.xml": ("application/xml", b"")}) as w:
+        w.write_block(t[:130], x[:130])
+        w.write_block(t[130:], x[130:])
+        w.close({"status": "timeout", "final_position_error_m": 0.5})
+    data = out.read_bytes()
+    again = RecordBuilder()
+    records = list(StreamReader(io.BytesIO(data), emit_chunks=True).records)
+    for record in records:
+        record.write(again)
+    assert data == MAGIC + again.end() + MAGIC
+    # each Summary Offset spans exactly the summary's records of its kind, and the Footer
+    # points at the summary and at the offsets
+    kinds = {Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel, Opcode.STATISTICS: Statistics,
+             Opcode.CHUNK_INDEX: ChunkIndex, Opcode.ATTACHMENT_INDEX: AttachmentIndex,
+             Opcode.METADATA_INDEX: MetadataIndex}
+    offsets = [r for r in records if isinstance(r, SummaryOffset)]
+    assert sorted(o.group_opcode for o in offsets) == sorted(kinds)
+    footer = records[-1]
+    assert isinstance(footer, Footer)
+    at = footer.summary_start
+    for o in offsets:
+        assert o.group_start == at
+        group = message_records(data[at:at + o.group_length])
+        assert group and all(type(r) is kinds[Opcode(o.group_opcode)] for r in group)
+        at += o.group_length
+    assert at == footer.summary_offset_start
+    with open(out, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        assert sum(1 for _ in reader.iter_messages()) > 6 * 250
+        assert [a.name for a in reader.iter_attachments()] == ["a.toml", "b.xml"]
 
 
 def _written(records: list[Any]) -> list[bytes]:

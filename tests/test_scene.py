@@ -27,6 +27,7 @@ from wmr.adapters.mcap.scene import (
     control_phases,
     phase_changes,
     read_cloud,
+    resample_path,
     robot_outline,
 )
 from wmr.core.control.registry import BUILTIN_NAMES, make_controller
@@ -64,6 +65,39 @@ def test_phases_are_the_stabilisers(name: str) -> None:
     np.testing.assert_array_equal(control_phases(np.array(dr), EPS_M), seen)
 
 
+@given(st.lists(st.sampled_from([0.0, 0.02, 0.025, 0.03, 0.1, 0.11, 5.0, math.nan]),
+                max_size=60), st.sampled_from([0, 1]))
+def test_phases_are_the_hysteresis_step_by_step(dr: list[float], start: int) -> None:
+    """Against the definition, one step at a time: into the alignment at ``dr <= eps / 2``,
+    back to the approach only at ``dr > 2 eps``, the phase kept in between and on NaN, from
+    ``start``; runs of kept steps at the start, the end, and between switches."""
+    want, phase = [], start
+    for d in dr:
+        if d <= 0.5 * EPS_M:
+            phase = 1
+        elif d > 2 * EPS_M:
+            phase = 0
+        want.append(phase)
+    got = control_phases(np.array(dr, np.float64), EPS_M, start_phase=start)
+    assert got.dtype == np.int8 and got.tolist() == want
+
+
+@pytest.mark.parametrize("params", [
+    {"L": 0.3, "r": 0.15}, {"L": 0.25}, {}, {"L": -1.0, "r": 0.1}, {"L": math.nan, "r": 0.1},
+    {"L": "0.4", "r": True}, {"L": "wide", "r": 0.1}, {"L": [0.3], "r": 0.1},
+    {"L": math.inf, "r": 0.1}, {"L": 1e308, "r": 1e308}])
+def test_the_robot_s_geometry_is_the_same_from_the_run_mapping_and_from_its_json(
+        params: dict[str, Any]) -> None:
+    """The writer hands the scene the run's own mapping (no JSON round trip per log); a log's
+    record is JSON text: the same geometry from both, the paper's where a value is unusable."""
+    import json
+
+    from wmr.adapters.mcap.scene import robot_geometry
+
+    assert robot_geometry({"params": params}) == robot_geometry(
+        {"params": json.dumps(params, allow_nan=True)})
+
+
 def test_phase_topic_is_a_step_at_each_change() -> None:
     t = np.arange(10, dtype=np.int64) * 10
     phase = np.array([0, 0, 0, 1, 1, 0, 0, 0, 1, 1], np.int8)
@@ -86,6 +120,29 @@ def test_phase_changes_are_the_first_last_and_both_sides_of_each_change(
     pt, pv = phase_changes(t, phase)
     assert pt.tolist() == [int(t[i]) for i in sorted(want)]
     assert pv.tolist() == [phases[i] for i in sorted(want)]
+
+
+@given(st.lists(st.tuples(st.floats(-5, 5) | st.just(math.nan), st.floats(-5, 5)),
+                min_size=1, max_size=80),
+       st.sampled_from([0.01, 0.3, 1.0]))
+def test_the_path_keeps_a_row_per_spacing_of_its_arc_length(
+        xy: list[tuple[float, float]], spacing_m: float) -> None:
+    """Against the definition, step by step: the finite rows, their arc length summed from
+    ``np.linalg.norm`` of each step, the first row, each row entering a new multiple of the
+    spacing, and the last."""
+    pts = np.array(xy, np.float64).reshape(-1, 2)
+    ok = [i for i, (x, y) in enumerate(xy) if math.isfinite(x) and math.isfinite(y)]
+    want: list[int] = []
+    s, last_bin = 0.0, 0
+    for k, i in enumerate(ok):
+        if k:
+            dx, dy = np.diff(pts[[ok[k - 1], i]], axis=0)[0]
+            s += float(np.linalg.norm([dx, dy]))
+        b = math.floor(s / spacing_m)
+        if k == 0 or b != last_bin or k == len(ok) - 1:
+            want.append(i)
+        last_bin = b
+    assert resample_path(pts, spacing_m).tolist() == want
 
 
 def _log(path: Path, n: int = 300) -> tuple[np.ndarray, np.ndarray]:

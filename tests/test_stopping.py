@@ -87,12 +87,19 @@ def _interrupted_log(path: Path, at: int) -> tuple[_Interrupt, int]:
     return trace, handed
 
 
-def test_an_interrupt_at_any_line_of_a_chunk_write_never_repeats_rows(tmp_path: Path) -> None:
+@pytest.mark.parametrize("stage_rows", [None, pytest.param(40, marks=pytest.mark.slow)],
+                         ids=["default", "staging-grows"])
+def test_an_interrupt_at_any_line_of_a_chunk_write_never_repeats_rows(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, stage_rows: int | None) -> None:
     """Issue 28 item 13: the rows of a chunk were dropped from the pending list only after the
     chunk was written, so an exception between the two wrote them again at ``close()``
     (``test_sigterm_stops_wmr_run_like_ctrl_c`` saw 100 messages repeating log times).  An
     interrupt at every line the writer runs while taking the blocks: each log holds each row
-    once, in order, the rows of every call that returned among them."""
+    once, in order, the rows of every call that returned among them.  Also with staging
+    buffers of 40 rows, so that the pending rows move to the spare buffers (and those grow)
+    at lines an interrupt can stop too."""
+    if stage_rows is not None:
+        monkeypatch.setattr(writer_module, "_STAGE_ROWS", stage_rows)
     t_all = _rows(250)[0]
     at = 0
     while True:  # every line, until the writer runs out of lines before the interrupt

@@ -48,8 +48,8 @@ static void put_message_head(unsigned char *r, int channel, unsigned int sequenc
 
 /* Row i's records, at out; each record's offset (from base) in offsets[k] */
 static size_t encode_row(const wmr_layout *L, unsigned long long t, const double *row,
-                         const double *extra, unsigned char *out, size_t base,
-                         long long *offsets) {
+                         const double *extra, size_t extra_stride, unsigned char *out,
+                         size_t base, long long *offsets) {
     unsigned char ts[12];
     int ts_len = put_varint_field(ts, 0x08, t / 1000000000ULL);
     ts_len += put_varint_field(ts + ts_len, 0x10, t % 1000000000ULL);
@@ -67,7 +67,9 @@ static size_t encode_row(const wmr_layout *L, unsigned long long t, const double
         unsigned char *b = r + 33 + ts_len;
         memcpy(b, body, (size_t)L->body_len[k]);
         for (int s = 0; s < L->n_slots[k]; s++) {
-            const double *v = from[s] < L->n_sig ? row + from[s] : extra + (from[s] - L->n_sig);
+            const double *v = from[s] < L->n_sig
+                                  ? row + from[s]
+                                  : extra + (size_t)(from[s] - L->n_sig) * extra_stride;
             memcpy(b + off[s], v, 8);
         }
         pos += 31 + data_len;
@@ -87,12 +89,13 @@ WMR_API long long wmr_encode_rows(int n, const long long *t_ns, const double *sr
     size_t pos = 0;
     for (int i = 0; i < n; i++)
         pos += encode_row(&L, (unsigned long long)t_ns[i], src + (size_t)i * (size_t)n_src,
-                          NULL, out + pos, pos, offsets + (size_t)i * (size_t)n_topics);
+                          NULL, 0, out + pos, pos, offsets + (size_t)i * (size_t)n_topics);
     return (long long)pos;
 }
 
-/* A chunk's rows: the records of wmr_encode_rows (the signals in block, n x n_sig, the extra
- * columns in extra, n x n_extra), and the chunk's Message Index records at index, one per
+/* A chunk's rows: the records of wmr_encode_rows (the signals in block, n x n_sig, row after
+ * row; the extra columns in extra, n_extra x n, column after column: what numpy's sin and cos
+ * write in place), and the chunk's Message Index records at index, one per
  * topic in topic order, as mcap packs them: opcode 0x07, record length, channel id, length of
  * the entries, then (log time, record offset) per row.  Returns the records' bytes. */
 WMR_API long long wmr_encode_chunk(const wmr_layout *L, int n, const long long *t_ns,
@@ -114,8 +117,8 @@ WMR_API long long wmr_encode_chunk(const wmr_layout *L, int n, const long long *
     }
     for (int i = 0; i < n; i++) {
         unsigned long long t = (unsigned long long)t_ns[i];
-        pos += encode_row(L, t, block + (size_t)i * (size_t)L->n_sig,
-                          extra + (size_t)i * (size_t)L->n_extra, out + pos, pos, offsets);
+        pos += encode_row(L, t, block + (size_t)i * (size_t)L->n_sig, extra + i, (size_t)n,
+                          out + pos, pos, offsets);
         for (int k = 0; k < L->n_topics; k++) {
             unsigned char *e = index + (size_t)k * rec + 15 + 16 * (size_t)i;
             put_u64(e, t);

@@ -108,15 +108,19 @@ _POINT: Final = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"
 # --------------------------------------------------------------------------- geometry
 
 
-def robot_geometry(run: Mapping[str, str]) -> tuple[float, float]:
+def robot_geometry(run: Mapping[str, object]) -> tuple[float, float]:
     """Half track ``L`` and wheel radius ``r`` (m) from a log's ``run`` record (or the paper's).
 
     Parameters
     ----------
     run
-        The ``run`` metadata record; its ``params`` is a JSON object with ``L`` and ``r``.
+        The ``run`` metadata record; its ``params`` is a JSON object with ``L`` and ``r`` (as
+        a log holds it), or a mapping (as the writer is given it: read without the JSON).
     """
-    return _geometry(run.get("params", "{}"))
+    params = run.get("params", "{}")
+    if isinstance(params, Mapping):
+        return _checked_geometry(params)
+    return _geometry(str(params))
 
 
 @functools.lru_cache(maxsize=256)  # every log of a batch of one robot has the same params
@@ -126,9 +130,17 @@ def _geometry(params_json: str) -> tuple[float, float]:
 
     try:  # bounded: a stranger's log may hold a value nested too deep for json.loads
         params = metadata_json(params_json)
-        half_track = float(params.get("L", DEFAULT_HALF_TRACK_M))
-        radius = float(params.get("r", DEFAULT_WHEEL_RADIUS_M))
     except (ValueError, TypeError, AttributeError, LogError):
+        return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
+    return _checked_geometry(params)
+
+
+def _checked_geometry(params: object) -> tuple[float, float]:
+    """``L`` and ``r`` of ``params`` if both are positive and finite, else the paper's."""
+    try:
+        half_track = float(params.get("L", DEFAULT_HALF_TRACK_M))  # type: ignore[attr-defined]
+        radius = float(params.get("r", DEFAULT_WHEEL_RADIUS_M))  # type: ignore[attr-defined]
+    except (ValueError, TypeError, AttributeError):
         return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
     if not (half_track > 0 and radius > 0 and math.isfinite(half_track + radius)):
         return DEFAULT_HALF_TRACK_M, DEFAULT_WHEEL_RADIUS_M
@@ -199,15 +211,31 @@ def resample_path(xy: npt.NDArray[np.float64], spacing_m: float = PATH_SPACING_M
                   ) -> npt.NDArray[np.intp]:
     """Indices of the rows of a path kept for drawing: the first, then each one at least
     ``spacing_m`` along the path from the last kept, and the last (non-finite rows skipped)."""
-    ok = np.flatnonzero(np.isfinite(xy).all(axis=1))
-    if ok.size == 0:
-        return ok
-    step = np.linalg.norm(np.diff(xy[ok], axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(step)])
-    bins = np.floor(s / spacing_m).astype(np.int64)
-    keep = np.concatenate([[True], bins[1:] != bins[:-1]])
+    finite = np.isfinite(xy[:, 0]) & np.isfinite(xy[:, 1])
+    ok = None if finite.all() else np.flatnonzero(finite)
+    p = xy if ok is None else xy[ok]
+    n = len(p)
+    if n == 0:
+        return np.flatnonzero(finite)
+    # np.linalg.norm(np.diff(p, axis=0), axis=1)'s bits (the sum of the two squares, then its
+    # root), then the arc length and its bins, in place: a long run's temporaries are big
+    # enough for each new one to cost its page faults
+    step = np.diff(p[:, 0])
+    dy = np.diff(p[:, 1])
+    np.multiply(step, step, out=step)
+    np.multiply(dy, dy, out=dy)
+    np.add(step, dy, out=step)
+    np.sqrt(step, out=step)
+    s = np.empty(n)
+    s[0] = 0.0
+    np.cumsum(step, out=s[1:])
+    np.floor(np.divide(s, spacing_m, out=s), out=s)  # the bin of each row's arc length
+    keep = np.empty(n, bool)
+    keep[0] = True
+    np.not_equal(s[1:], s[:-1], out=keep[1:])
     keep[-1] = True
-    return ok[keep]
+    kept = np.flatnonzero(keep)
+    return kept if ok is None else ok[kept]
 
 
 # --------------------------------------------------------------------------- phase
@@ -240,12 +268,18 @@ def control_phases(dr_m: npt.ArrayLike, stop_radius_m: float,
     dr = np.asarray(dr_m, dtype=np.float64)
     enter = dr <= ALIGN_RADIUS_FRACTION * stop_radius_m
     leave = dr > EXIT_RADIUS_FRACTION * stop_radius_m
-    # a two-state hysteresis: the state is that of the last step that was a switch point
-    switch = np.where(enter, ALIGN, np.where(leave, APPROACH, -1))
-    idx = np.where(switch >= 0, np.arange(dr.size), -1)
-    last = np.maximum.accumulate(idx) if dr.size else idx
-    out = np.where(last >= 0, switch[np.maximum(last, 0)], start_phase)
-    return out.astype(np.int8)
+    # a two-state hysteresis: a step that is a switch point is in the phase it switches to
+    # (ALIGN is 1, APPROACH 0), any other step in that of the last switch point before it.
+    # The others come in runs (the band between the two radii, NaN), few: each run takes
+    # the phase of the step before it, without a pass over the whole run for them
+    out = enter.astype(np.int8)
+    held = np.flatnonzero(~(enter | leave))
+    if held.size:
+        first = np.flatnonzero(np.diff(held, prepend=-2) != 1)  # where each run starts
+        before = held[first] - 1
+        phase = np.where(before >= 0, out[np.maximum(before, 0)], start_phase)
+        out[held] = np.repeat(phase, np.diff(first, append=held.size))
+    return out
 
 
 def phase_changes(t_ns: npt.NDArray[np.int64], phase: npt.NDArray[np.int8]
@@ -372,6 +406,8 @@ def robot_clouds(t_ns: npt.NDArray[np.int64], phase: npt.NDArray[np.int8],
 
 
 _X, _Y, _DR = COLUMN["x_m"], COLUMN["y_m"], COLUMN["dr_m"]
+#: Rows a recorder holds at first: 10 s at 10 ms (then twice as many each time it fills).
+_SCENE_ROWS: Final = 1024
 
 
 class SceneRecorder:
@@ -405,8 +441,11 @@ class SceneRecorder:
         eps = math.nan if stop_radius_m is None else float(stop_radius_m)
         self._stop_radius = eps if math.isfinite(eps) and eps > 0 else None
         self._controlled = controlled
-        self._t: list[npt.NDArray[np.int64]] = []
-        self._rows: list[npt.NDArray[np.float64]] = []
+        # the rows' times, and x, y and dr a column each (what the drawing reads column by
+        # column), rows 0:_n of them; grown by doubling
+        self._n = 0
+        self._t = np.empty(_SCENE_ROWS, np.int64)
+        self._cols = np.empty((3, _SCENE_ROWS), np.float64)
 
     @classmethod
     def from_run_record(cls, run: Mapping[str, str], goal: tuple[float, float, float], *,
@@ -423,9 +462,21 @@ class SceneRecorder:
                    stop_radius_m=stop_radius_m, controlled=controlled)
 
     def add(self, t_ns: npt.NDArray[np.int64], block: npt.NDArray[np.float64]) -> None:
-        """Keep the position and ``dr_m`` of the rows (the caller's arrays are not kept)."""
-        self._t.append(np.array(t_ns, dtype=np.int64))
-        self._rows.append(block[:, [_X, _Y, _DR]])  # fancy indexing: a copy
+        """Keep the times, position and ``dr_m`` of the rows (copied: the caller's arrays are
+        not kept)."""
+        k = self._n
+        n = k + len(t_ns)
+        if n > self._t.shape[0]:
+            size = max(n, 2 * self._t.shape[0])
+            t, cols = np.empty(size, np.int64), np.empty((3, size), np.float64)
+            t[:k], cols[:, :k] = self._t[:k], self._cols[:, :k]
+            self._t, self._cols = t, cols
+        self._t[k:n] = t_ns
+        cols = self._cols
+        cols[0, k:n] = block[:, _X]
+        cols[1, k:n] = block[:, _Y]
+        cols[2, k:n] = block[:, _DR]
+        self._n = n
 
     def write(self, log: MessageLog) -> None:
         """Write the scene topics to ``log``; a failure here warns and leaves the log as is,
@@ -442,17 +493,16 @@ class SceneRecorder:
         gx, gy, gth = self._goal
         _write_cloud(log, GOAL_TOPIC,
                      cloud_points(goal_outline(gx, gy, gth, self._stop_radius), GOAL_COLOR))
-        if not self._t:
+        if not self._n:
             return
-        t = np.concatenate(self._t)
-        rows = np.concatenate(self._rows)
-        xy = rows[:, :2]
-        phase = (control_phases(rows[:, 2], self._stop_radius)
+        t = self._t[:self._n]
+        xy = self._cols[:2, :self._n].T  # (n, 2): each column contiguous
+        phase = (control_phases(self._cols[2, :self._n], self._stop_radius)
                  if self._controlled and self._stop_radius is not None
                  else np.zeros(len(t), np.int8))
-        colors = np.asarray(PHASE_COLORS, np.uint8)[phase]
         keep = resample_path(xy)
-        _write_cloud(log, PATH_TOPIC, cloud_points(xy[keep], colors[keep]))
+        _write_cloud(log, PATH_TOPIC, cloud_points(
+            xy[keep], np.asarray(PHASE_COLORS, np.uint8)[phase[keep]]))
         robot_t, robot = robot_clouds(t, phase, self._half_track, self._wheel_radius)
         log.write_messages(ROBOT_TOPIC, CLOUD_SCHEMA, CLOUD_SCHEMA_DATA, robot_t, robot)
         if self._controlled and self._stop_radius is not None:

@@ -4,11 +4,14 @@ The MCAP container is written here rather than through :class:`mcap.writer.Write
 ``add_message`` costs about 7 us per message in pure Python (45 us per control step for six
 topics).  The Message records of a chunk are built by the C stepper (``wmr_encode_rows``, the
 bytes of :class:`wmr.adapters.mcap.schemas.RowEncoder`, numpy's encoder, when the stepper is
-not there); the Chunk, Message Index and Chunk Index records are packed with :mod:`struct` and
-numpy exactly as :mod:`mcap.records` packs them (``tests/test_mcaplog.py`` reads them back
-with the ``mcap`` library and writes them again with its record classes: the same bytes); the
-other records are serialised by :mod:`mcap.records`, the Schema and Channel records once per
-process (every log of a batch has the same).
+not there) from the log's staging buffers, where each block of rows is copied once; the other
+records are packed with :mod:`struct` exactly as :mod:`mcap.records` packs them
+(``tests/test_mcaplog.py`` reads a whole log back with the ``mcap`` library and writes every
+record again with its record classes: the same bytes), the Schema and Channel records by
+:mod:`mcap.records` once per process (every log of a batch has the same).  Every CRC (each
+chunk's, each attachment's, the data section's and the summary's) is zlib's CRC-32 computed by
+zlib-ng, which folds with the CPU's carry-less multiply: the same values at about 30 times the
+speed of the system zlib's.
 
 Layout of a file: magic, Header, Schema and Channel records, the ``run`` Metadata record, the
 Attachments, a chunk holding the ``/goal`` message, then one chunk per second of simulation
@@ -29,31 +32,19 @@ import os
 import struct
 import sys
 import threading
-import zlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Final, Literal, Protocol
+from typing import Any, Final, Literal, Protocol, cast
 
 import numpy as np
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import (
-    Attachment,
-    AttachmentIndex,
-    Channel,
-    DataEnd,
-    Footer,
-    Header,
-    Message,
-    MetadataIndex,
-    Schema,
-    Statistics,
-    SummaryOffset,
-)
+from mcap.records import Channel, Schema
 from numpy.typing import ArrayLike, NDArray
+from zlib_ng.zlib_ng import crc32
 
 import wmr
 from wmr.adapters.mcap.readme import write_readme
@@ -80,6 +71,12 @@ from wmr.infra.durable import AtomicFile, stop_signals_held
 from wmr.infra.errors import LogError
 
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
+#: A Message record up to its data: opcode, record length, channel id, sequence, log and
+#: publish time.
+_MESSAGE_HEAD: Final = struct.Struct("<BQHIQQ")
+#: Rows a log's staging buffers hold at first (grown when a chunk needs more): a chunk of
+#: 1 s at 10 ms and the block after it, twice over.
+_STAGE_ROWS: Final = 512
 #: A Chunk record up to its compression string: opcode, record length, message start and end
 #: times, uncompressed size and CRC, the string's length; and a Message Index record's head:
 #: opcode, record length, channel id, length of the entries.
@@ -157,9 +154,13 @@ class Sink(Protocol):
     def truncate(self) -> object: ...
 
 
-#: What :meth:`McapFile.mark` saves: the position, the data section CRC, the chunk indexes
-#: written, the message count of each channel, the message count, first and last times.
-_Mark = tuple[int, int, int, dict[int, int], int, int, int]
+#: What :meth:`McapFile.mark` saves: the position, the data section CRC, the chunks written.
+_Mark = tuple[int, int, int]
+#: A chunk written, as :meth:`McapFile.finish` indexes it: its first and last message times,
+#: start and length, ``index_of`` (channel id, offset in its Message Index records and count
+#: of each channel), the byte length of the Message Index records, of its data and of its
+#: records uncompressed.
+_Chunk = tuple[int, int, int, int, Sequence[tuple[int, int, int]], int, int, int]
 
 
 class McapFile:
@@ -187,33 +188,25 @@ class McapFile:
         self._compression = compression
         self._compress = _compressor(compression, level)
         self._compression_bytes = compression.encode()
-        self._rb = RecordBuilder()
+        #: a Chunk record up to its data: the fields, the compression string, the data length
+        self._chunk_head = struct.Struct(f"{_CHUNK_HEAD.format}{len(self._compression_bytes)}sQ")
         self._pos = 0
         self._schemas: list[bytes] = []  # the records, written again in the summary
         self._channels: list[bytes] = []
-        self._chunk_indexes: list[bytes] = []  # the Chunk Index records
-        self._attachment_indexes: list[AttachmentIndex] = []
-        self._metadata_indexes: list[MetadataIndex] = []
-        self._counts: dict[int, int] = {}
-        self._n_messages = 0
-        self._t_first = 0
-        self._t_last = 0
+        # what each chunk's Chunk Index record and the statistics need of it, packed by
+        # finish(): one append per chunk (_Chunk)
+        self._chunks: list[_Chunk] = []
+        self._attachment_indexes: list[bytes] = []  # the records
+        self._metadata_indexes: list[bytes] = []
+        self._channel_ids: list[int] = []
         self._crc = 0  # of the data section: every byte before Data End, magic included
         self._broken = ""  # why the file cannot be finished (a rollback that failed)
-        self._write(MAGIC)
-        Header(profile="", library=library).write(self._rb)
-        self._flush_records()
+        self._write(MAGIC + _record(Opcode.HEADER, _prefixed("") + _prefixed(library)))
 
     def _write(self, data: bytes) -> None:
         self._stream.write(data)
         self._pos += len(data)
-        self._crc = zlib.crc32(data, self._crc)
-
-    def _flush_records(self) -> int:
-        """Write the records built so far; return their length."""
-        data = self._rb.end()
-        self._write(data)
-        return len(data)
+        self._crc = crc32(data, self._crc)
 
     def add_schema(self, name: str, data: bytes, encoding: str = "protobuf") -> int:
         """Write a Schema record (protobuf by default); return its id (1, 2, ...)."""
@@ -228,7 +221,7 @@ class McapFile:
         channel_id = len(self._channels) + 1
         self._channels.append(_channel_record(channel_id, topic, message_encoding, schema_id,
                                               tuple((metadata or {}).items())))
-        self._counts[channel_id] = 0
+        self._channel_ids.append(channel_id)
         self._write(self._channels[-1])
         return channel_id
 
@@ -237,27 +230,20 @@ class McapFile:
         offset = self._pos
         record = metadata_record(name, data)
         self._write(record)
-        self._metadata_indexes.append(MetadataIndex(offset=offset, length=len(record),
-                                                    name=name))
+        self._metadata_indexes.append(_record(
+            Opcode.METADATA_INDEX, _U64X2.pack(offset, len(record)) + _prefixed(name)))
 
     def add_attachment(self, name: str, media_type: str, data: bytes) -> None:
-        """Write an Attachment record, log and create time 0."""
+        """Write an Attachment record, log and create time 0 (packed here as
+        :meth:`mcap.records.Attachment.write` packs it, its CRC by zlib-ng)."""
         offset = self._pos
-        Attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data).write(
-            self._rb
-        )
-        length = self._flush_records()
-        self._attachment_indexes.append(
-            AttachmentIndex(
-                offset=offset,
-                length=length,
-                log_time=0,
-                create_time=0,
-                data_size=len(data),
-                name=name,
-                media_type=media_type,
-            )
-        )
+        names = _prefixed(name) + _prefixed(media_type)
+        body = b"".join((_U64X2.pack(0, 0), names, _U64.pack(len(data)), data))
+        record = _record(Opcode.ATTACHMENT, body + _U32.pack(crc32(body)))
+        self._write(record)
+        self._attachment_indexes.append(_record(
+            Opcode.ATTACHMENT_INDEX,
+            _ATTACHMENT_INDEX.pack(offset, len(record), 0, 0, len(data)) + names))
 
     def add_chunk(
         self,
@@ -274,7 +260,7 @@ class McapFile:
         index
             Channel id -> (log times in ns, byte offsets of the records in ``records``).
         uncompressed_crc
-            ``zlib.crc32(records)``, if the caller has it (computed here otherwise).
+            ``crc32(records)``, if the caller has it (computed here otherwise).
         """
         entries = [(cid, t, o) for cid, (t, o) in index.items() if len(t)]
         if not entries:
@@ -312,60 +298,47 @@ class McapFile:
                                [(cid, k * size, n) for k, cid in enumerate(channel_ids)])
 
     def add_indexed_chunk(self, records: bytes | memoryview, t_first: int, t_last: int,
-                          indexes: bytes, index_of: list[tuple[int, int, int]],
+                          indexes: bytes | memoryview, index_of: Sequence[tuple[int, int, int]],
                           uncompressed_crc: int | None = None) -> None:
         """The Chunk record and its Message Index records (``indexes``: channel id, offset in
         ``indexes`` and message count of each in ``index_of``), packed here as
         :meth:`mcap.records.Chunk.write` and ``MessageIndex.write`` pack them (checked
         against them by ``tests/test_mcaplog.py``) without their copies through a
-        ``BytesIO``: a chunk's header, its data and its indexes are one write."""
+        ``BytesIO``: a chunk's head, its data and its indexes are written as they are, then
+        handed to the OS at once; the Chunk Index record is one ``struct`` call."""
         size = len(records)  # bytes, or a view of uint8
         data = records if self._compress is None else self._compress(records)
         data_len = len(data)
         chunk_start = self._pos
-        head = _CHUNK_HEAD.pack(Opcode.CHUNK, _CHUNK_FIXED + len(self._compression_bytes)
-                                + data_len, t_first, t_last, size,
-                                zlib.crc32(records) if uncompressed_crc is None
-                                else uncompressed_crc,
-                                len(self._compression_bytes))
-        self._write(b"".join((head, self._compression_bytes, struct.pack("<Q", data_len), data,
-                              indexes)))
-        chunk_length = len(head) + len(self._compression_bytes) + 8 + data_len
-        index_start = chunk_start + chunk_length
-        for cid, _, count in index_of:
-            self._counts[cid] += count
-        index_entries = b"".join(_INDEX_OFFSET.pack(cid, index_start + at)
-                                 for cid, at, _ in index_of)
-        self._chunk_indexes.append(b"".join((
-            _CHUNK_INDEX_HEAD.pack(Opcode.CHUNK_INDEX, _CHUNK_INDEX_FIXED + len(index_entries)
-                                   + len(self._compression_bytes), t_first, t_last,
-                                   chunk_start, chunk_length, len(index_entries)),
-            index_entries,
-            _CHUNK_INDEX_TAIL.pack(len(indexes), len(self._compression_bytes)),
-            self._compression_bytes,
-            _CHUNK_INDEX_SIZES.pack(data_len, size))))
-        n_messages = sum(count for _, _, count in index_of)
-        if self._n_messages == 0:
-            self._t_first = t_first
-        self._t_first = min(self._t_first, t_first)
-        self._t_last = max(self._t_last, t_last)
-        self._n_messages += n_messages
+        comp = self._compression_bytes
+        head = self._chunk_head.pack(
+            Opcode.CHUNK, _CHUNK_FIXED + len(comp) + data_len, t_first, t_last, size,
+            crc32(records) if uncompressed_crc is None else uncompressed_crc, len(comp), comp,
+            data_len)
+        # the sinks' write takes any buffer (a BufferedWriter's does): views are not copied
+        write = cast(Callable[[bytes | memoryview], object], self._stream.write)
+        write(head)
+        write(data)
+        write(indexes)
+        chunk_length = len(head) + data_len
+        # the position and CRC only once every part is written: rollback() restores them
+        self._crc = crc32(indexes, crc32(data, crc32(head, self._crc)))
+        self._pos = chunk_start + chunk_length + len(indexes)
+        self._chunks.append((t_first, t_last, chunk_start, chunk_length, index_of,
+                             len(indexes), data_len, size))
         self._stream.flush()
 
     def mark(self) -> _Mark:
         """Where the file is, for :meth:`rollback` (taken before a chunk is added)."""
-        return (self._pos, self._crc, len(self._chunk_indexes), dict(self._counts),
-                self._n_messages, self._t_first, self._t_last)
+        return self._pos, self._crc, len(self._chunks)
 
     def rollback(self, mark: _Mark) -> None:
         """Undo what was written since ``mark`` (a chunk cut anywhere, or whole): the file
         is cut back to the marked position and the summary forgets it.  A stream that cannot
         be cut back (a full disk refusing the buffered bytes) is given up: the file stays as
         it is, readable up to its last whole chunk, and :meth:`finish` refuses to end it."""
-        pos, crc, chunks, counts, n_messages, t_first, t_last = mark
-        del self._chunk_indexes[chunks:]
-        self._counts = counts
-        self._n_messages, self._t_first, self._t_last = n_messages, t_first, t_last
+        pos, crc, chunks = mark
+        del self._chunks[chunks:]
         self._pos, self._crc = pos, crc
         try:
             self._stream.seek(pos)
@@ -390,58 +363,58 @@ class McapFile:
         """
         if self._broken:
             raise LogError(self._broken)
-        DataEnd(data_section_crc=self._crc).write(self._rb)
-        self._flush_records()
+        self._write(_record(Opcode.DATA_END, _U32.pack(self._crc)))
         summary_start = self._pos
-        rb = RecordBuilder()
-        offsets: list[SummaryOffset] = []
+        parts: list[bytes] = []
+        offsets: list[bytes] = []  # the Summary Offset records
+        group_at = summary_start
 
-        def group(opcode: Opcode, records: list[Any]) -> None:
+        def group(opcode: Opcode, records: list[bytes]) -> None:
+            nonlocal group_at
             if not records:
                 return
-            start = rb.count
-            for r in records:
-                if isinstance(r, bytes):
-                    rb.write(r)
-                else:
-                    r.write(rb)
-            offsets.append(SummaryOffset(opcode, summary_start + start, rb.count - start))
+            length = sum(len(r) for r in records)
+            parts.extend(records)
+            offsets.append(_record(Opcode.SUMMARY_OFFSET,
+                                   _SUMMARY_OFFSET.pack(opcode, group_at, length)))
+            group_at += length
 
+        counts = dict.fromkeys(self._channel_ids, 0)
+        chunk_indexes = []
+        comp = self._compression_bytes
+        t_first, t_last, n_messages = 0, 0, 0
+        for start, end, chunk_start, chunk_length, index_of, indexes_length, data_len, size \
+                in self._chunks:
+            index_start = chunk_start + chunk_length
+            entries: list[int] = []
+            for cid, at, count in index_of:
+                if count and n_messages == 0:
+                    t_first, t_last = start, end
+                counts[cid] += count
+                n_messages += count
+                entries += (cid, index_start + at)
+            if n_messages:
+                t_first, t_last = min(t_first, start), max(t_last, end)
+            chunk_indexes.append(_chunk_index_struct(len(index_of), len(comp)).pack(
+                Opcode.CHUNK_INDEX, _CHUNK_INDEX_FIXED + _INDEX_OFFSET.size * len(index_of)
+                + len(comp), start, end, chunk_start, chunk_length,
+                _INDEX_OFFSET.size * len(index_of), *entries, indexes_length, len(comp), comp,
+                data_len, size))
         group(Opcode.SCHEMA, self._schemas)
         group(Opcode.CHANNEL, self._channels)
-        group(
-            Opcode.STATISTICS,
-            [
-                Statistics(
-                    message_count=self._n_messages,
-                    schema_count=len(self._schemas),
-                    channel_count=len(self._channels),
-                    attachment_count=len(self._attachment_indexes),
-                    metadata_count=len(self._metadata_indexes),
-                    chunk_count=len(self._chunk_indexes),
-                    message_start_time=self._t_first,
-                    message_end_time=self._t_last,
-                    channel_message_counts=dict(self._counts),
-                )
-            ],
-        )
-        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.STATISTICS, [_record(Opcode.STATISTICS, b"".join((
+            _STATISTICS.pack(n_messages, len(self._schemas), len(self._channels),
+                             len(self._attachment_indexes), len(self._metadata_indexes),
+                             len(chunk_indexes), t_first, t_last, _COUNT.size * len(counts)),
+            *(_COUNT.pack(cid, count) for cid, count in counts.items()))))])
+        group(Opcode.CHUNK_INDEX, chunk_indexes)
         group(Opcode.ATTACHMENT_INDEX, self._attachment_indexes)
         group(Opcode.METADATA_INDEX, self._metadata_indexes)
-        summary_offset_start = summary_start + rb.count
-        for off in offsets:
-            off.write(rb)
-        summary = rb.end()
-        crc = zlib.crc32(summary)
-        crc = zlib.crc32(
-            struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc
-        )
-        self._write(summary)
-        Footer(
-            summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc
-        ).write(self._rb)
-        self._flush_records()
-        self._write(MAGIC)
+        summary_offset_start = group_at
+        summary = b"".join(parts + offsets)
+        footer = _FOOTER_HEAD.pack(Opcode.FOOTER, 20, summary_start, summary_offset_start)
+        self._write(b"".join((summary, footer, _U32.pack(crc32(footer, crc32(summary))),
+                              MAGIC)))
         commit = getattr(self._stream, "commit", None)
         if commit is not None:
             commit()
@@ -450,6 +423,24 @@ class McapFile:
 
 
 _U32: Final = struct.Struct("<I")
+_U64: Final = struct.Struct("<Q")
+_U64X2: Final = struct.Struct("<QQ")
+#: A record's opcode and length; the bodies of the records :class:`McapFile` packs itself, as
+#: :mod:`mcap.records` packs them (checked against them by ``tests/test_mcaplog.py``):
+#: Attachment Index (offset, length, log and create time, data size, then the name and media
+#: type), Statistics (then a channel id and message count per channel), Summary Offset, and
+#: the Footer up to its CRC.
+_RECORD_HEAD: Final = struct.Struct("<BQ")
+_ATTACHMENT_INDEX: Final = struct.Struct("<QQQQQ")
+_STATISTICS: Final = struct.Struct("<QHIIIIQQI")
+_COUNT: Final = struct.Struct("<HQ")
+_SUMMARY_OFFSET: Final = struct.Struct("<BQQ")
+_FOOTER_HEAD: Final = struct.Struct("<BQQQ")
+
+
+def _record(opcode: int, body: bytes) -> bytes:
+    """A record: its opcode, its body's length, its body."""
+    return _RECORD_HEAD.pack(opcode, len(body)) + body
 
 
 def _prefixed(text: str) -> bytes:
@@ -465,6 +456,23 @@ def metadata_record(name: str, data: Mapping[str, str]) -> bytes:
     entries = b"".join([_prefixed(k) + _prefixed(v) for k, v in data.items()])
     body = b"".join((_prefixed(name), _U32.pack(len(entries)), entries))
     return struct.pack("<BQ", Opcode.METADATA, len(body)) + body
+
+
+@functools.lru_cache(maxsize=64)
+def _row_index_of(channel_ids: tuple[int, ...], n: int) -> tuple[tuple[int, int, int], ...]:
+    """``index_of`` of :meth:`McapFile.add_indexed_chunk` for a chunk of ``n`` rows of the
+    per-step topics: channel id, offset and count of each channel's Message Index record
+    (``15 + 16 n`` bytes each, in channel order)."""
+    return tuple((cid, k * (15 + 16 * n), n) for k, cid in enumerate(channel_ids))
+
+
+@functools.lru_cache(maxsize=64)
+def _chunk_index_struct(n_indexes: int, n_compression: int) -> struct.Struct:
+    """A Chunk Index record with ``n_indexes`` Message Index offsets and a compression string
+    of ``n_compression`` bytes, as one ``struct`` (the layout of :data:`_CHUNK_INDEX_HEAD`)."""
+    return struct.Struct(f"{_CHUNK_INDEX_HEAD.format}{_INDEX_OFFSET.format[1:] * n_indexes}"
+                         f"{_CHUNK_INDEX_TAIL.format[1:]}{n_compression}s"
+                         f"{_CHUNK_INDEX_SIZES.format[1:]}")
 
 
 @functools.lru_cache(maxsize=64)
@@ -503,6 +511,21 @@ def _address(a: NDArray[Any]) -> int:
         return int(a.ctypes.data)
 
 
+class _Scratch:
+    """A thread's buffers for :meth:`_CRowEncoder.encode_chunk`: ``rows`` rows' records, their
+    Message Index records, the quaternion's two columns and half-angles, and the addresses the
+    C call takes."""
+
+    def __init__(self, rows: int, row_max: int, n_topics: int) -> None:
+        self.rows = rows
+        self.out = np.empty(rows * row_max, np.uint8)
+        self.index = np.empty(n_topics * (15 + 16 * rows), np.uint8)
+        self.extra = np.empty(2 * rows, np.float64)
+        self.half = np.empty(rows, np.float64)
+        self.out_at, self.index_at, self.extra_at = (int(a.ctypes.data)
+                                                     for a in (self.out, self.index, self.extra))
+
+
 class _CRowEncoder:
     """:class:`RowEncoder`'s bytes, written by the C stepper (``wmr_encode_rows``) one row
     after another instead of by numpy gathers of whole columns.
@@ -529,38 +552,43 @@ class _CRowEncoder:
         self._chunk_fun = lib.wmr_encode_chunk
         self._layout = Layout(len(SIGNALS), 2, self._n_topics, *self._args)
         self._layout_ref = ctypes.byref(self._layout)
-        # a chunk's output buffer, kept per thread (the encoder is shared by every log of a
-        # process, and a Dask worker may run logs in several threads): a new 70 kB buffer per
-        # chunk costs its page faults each time
+        self._theta = COLUMN["theta_rad"]
+        # a chunk's buffers, kept per thread (the encoder is shared by every log of a process,
+        # and a Dask worker may run logs in several threads): new ones per chunk cost their
+        # allocation and page faults each time
         self._buffers = threading.local()
 
-    def encode_chunk(self, t_ns: NDArray[np.int64],
-                     block: NDArray[np.float64]) -> tuple[memoryview, bytes]:
+    def encode_chunk(self, t_ns: NDArray[np.int64], block: NDArray[np.float64],
+                     at: tuple[int, int] | None = None) -> tuple[memoryview, memoryview]:
         """A chunk's records (as :meth:`encode`) and its Message Index records, one per
         topic in topic order, as :mod:`mcap.records` packs them, in one C call.
 
-        The records are a view of this thread's buffer: valid until its next call."""
+        ``at``: the addresses of the data of ``t_ns`` and ``block`` when the caller knows
+        them (C-contiguous int64 and float64: the log's staging buffers).  Both results are
+        views of this thread's buffers: valid until its next call."""
         n = t_ns.shape[0]
-        extra = np.empty((n, 2), np.float64)  # the heading quaternion, as RowEncoder has it
-        half = 0.5 * block[:, COLUMN["theta_rad"]]
-        extra[:, 0] = np.sin(half)
-        extra[:, 1] = np.cos(half)
-        x = np.ascontiguousarray(block, np.float64)
-        t = np.ascontiguousarray(t_ns, np.int64)
-        out = self._buffer("records", n * self._row_max)
-        index = np.empty(self._n_topics * (15 + 16 * n), np.uint8)
-        size = self._chunk_fun(self._layout_ref, n,
-                               *[_address(a) for a in (t, x, extra, out, index)])
+        buf = self._scratch(n)
+        # the heading quaternion as RowEncoder computes it (0.5 * theta, numpy's sin and
+        # cos of a contiguous array), written in place: z then w, a column each
+        half = np.multiply(block[:, self._theta], 0.5, out=buf.half[:n])
+        np.sin(half, out=buf.extra[:n])
+        np.cos(half, out=buf.extra[n:2 * n])
+        if at is None:
+            at = (_address(np.ascontiguousarray(t_ns, np.int64)),
+                  _address(np.ascontiguousarray(block, np.float64)))
+        size = self._chunk_fun(self._layout_ref, n, at[0], at[1], buf.extra_at, buf.out_at,
+                               buf.index_at)
         if size < 0:  # more topics than the C encoder holds: never for STEP_TOPICS
             raise LogError(f"{self._n_topics} per-step topics: the C encoder takes at most 32")
-        return out[:size].data, index.tobytes()
+        return buf.out[:size].data, buf.index[:self._n_topics * (15 + 16 * n)].data
 
-    def _buffer(self, name: str, size: int) -> NDArray[np.uint8]:
-        """This thread's buffer ``name`` of at least ``size`` bytes."""
-        buf: NDArray[np.uint8] | None = getattr(self._buffers, name, None)
-        if buf is None or buf.size < size:
-            buf = np.empty(size, np.uint8)
-            setattr(self._buffers, name, buf)
+    def _scratch(self, n: int) -> Any:
+        """This thread's buffers for a chunk of ``n`` rows (and their addresses)."""
+        buf = getattr(self._buffers, "chunk", None)
+        if buf is None or buf.rows < n:
+            buf = _Scratch(max(n, 2 * buf.rows if buf is not None else 128), self._row_max,
+                           self._n_topics)
+            self._buffers.chunk = buf
         return buf
 
     def encode(self, t_ns: NDArray[np.int64],
@@ -712,10 +740,16 @@ class RunLogWriter:
         # committed by McapFile.finish, or abandoned
         stream = AtomicFile(self.path, "log", durable=durable)
         self._period = int(chunk_period_ns)
-        # the rows given and not yet in a chunk: (t_ns, block) pairs, each added and dropped
-        # in one step (see _write_chunk), so that no exception can leave a row in a chunk and
-        # pending both, nor a time without its row
-        self._pending: list[tuple[NDArray[np.int64], NDArray[np.float64]]] = []
+        # the rows given and not yet in a chunk: rows lo:hi (_span) of the staging buffers,
+        # copied there from the caller's blocks.  What is pending changes only by one
+        # assignment of _span (with what goes with it, on the same line: see _write_chunk), so
+        # that no exception can leave a row in a chunk and pending both, nor a time without
+        # its row
+        self._t_buf = np.empty(_STAGE_ROWS, np.int64)
+        self._x_buf = np.empty((_STAGE_ROWS, len(SIGNALS)), np.float64)
+        self._spare: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
+        self._at = (int(self._t_buf.ctypes.data), int(self._x_buf.ctypes.data))  # their data
+        self._span = (0, 0)
         self._last_t = -1
         self._boundary = self._period
         self._rows = 0
@@ -733,6 +767,7 @@ class RunLogWriter:
             for name, (media_type, data) in (attachments or {}).items():
                 self._file.add_attachment(name, media_type, bytes(data))
             self._encoder = _row_encoder(channel_ids, topics)
+            self._in_c = isinstance(self._encoder, _CRowEncoder)
             controlled = topics == STEP_TOPICS
             self._scene = (None if not scene
                            else SceneRecorder.from_run_record(run_record, goal,
@@ -792,15 +827,15 @@ class RunLogWriter:
     def _write_goal(self, channel: int, goal: tuple[float, float, float]) -> None:
         x, y, theta = (float(v) for v in goal)
         data = goal_message(x, y, theta)
-        record = RecordBuilder()
-        Message(channel_id=channel, log_time=0, publish_time=0, sequence=0, data=data).write(record)
+        record = _MESSAGE_HEAD.pack(_OP_MESSAGE, 2 + 4 + 8 + 8 + len(data), channel, 0, 0, 0)
         zero = np.zeros(1, np.int64)
-        self._file.add_chunk(record.end(), {channel: (zero, zero)})
+        self._file.add_chunk(record + data, {channel: (zero, zero)})
 
     @property
     def rows_written(self) -> int:
         """Rows given to :meth:`write_block` so far (buffered or on disk)."""
-        return self._rows + sum(len(t) for t, _ in self._pending)
+        lo, hi = self._span
+        return self._rows + hi - lo
 
     def write_block(self, t_ns: ArrayLike, block: ArrayLike) -> None:
         """Log rows of the run: every per-step topic, one message per row.
@@ -825,22 +860,46 @@ class RunLogWriter:
         if t.ndim != 1 or t.dtype.kind not in "iu":
             raise LogError(f"t_ns must be a 1-D integer array of ns, got {t.dtype} {t.shape}")
         n = t.shape[0]
-        x = np.array(block, dtype=np.float64, copy=True)
+        x = np.asarray(block, dtype=np.float64)
         if x.shape != (n, len(SIGNALS)):
             raise LogError(f"block must have shape ({n}, {len(SIGNALS)}), got {x.shape}")
         if n == 0:
             return
-        t = t.astype(np.int64, copy=True)  # one copy, whatever the caller's integer type
-        if t[0] < self._last_t or t[0] < 0 or (n > 1 and bool(np.any(t[1:] < t[:-1]))):
+        lo, hi = self._span
+        if hi + n > self._t_buf.shape[0]:
+            lo, hi = self._compact(n)
+        # checked as stored (int64: a time past 2^63 - 1 is negative); taken only by the
+        # assignment of the span below
+        t = self._t_buf[hi:hi + n]
+        t[:] = t_ns
+        if t[0] < self._last_t or t[0] < 0 or (n > 1 and bool((t[1:] < t[:-1]).any())):
             raise LogError(
                 f"t_ns must be non-negative and non-decreasing (got {t[0]} after {self._last_t})"
             )
-        self._last_t = int(t[-1])
-        self._pending.append((t, x))
+        self._x_buf[hi:hi + n] = x
+        self._span, self._last_t = (lo, hi + n), int(t[-1])
         if self._scene is not None:
             self._scene.add(t, x)
         if self._last_t >= self._boundary:
             self._flush_chunks(final=False)
+
+    def _compact(self, n: int) -> tuple[int, int]:
+        """Copy the pending rows to the front of the spare staging buffers (grown, when they
+        cannot take ``n`` more rows, to half as much again as they then hold: a chunk of many
+        blocks is copied a bounded number of times, one huge block costs half its size more)
+        and make those the ones in use, in one assignment; return the new span."""
+        lo, hi = self._span
+        rows = hi - lo
+        spare = self._spare
+        if spare is None or spare[0].shape[0] < rows + n:
+            size = max(self._t_buf.shape[0], rows + n + max(_STAGE_ROWS, (rows + n) // 2))
+            spare = (np.empty(size, np.int64), np.empty((size, len(SIGNALS)), np.float64))
+        spare[0][:rows] = self._t_buf[lo:hi]
+        spare[1][:rows] = self._x_buf[lo:hi]
+        self._t_buf, self._x_buf, self._spare, self._span, self._at = (
+            spare[0], spare[1], (self._t_buf, self._x_buf), (0, rows),
+            (int(spare[0].ctypes.data), int(spare[1].ctypes.data)))
+        return 0, rows
 
     def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
                        t_ns: ArrayLike, messages: Sequence[bytes], *,
@@ -872,7 +931,7 @@ class RunLogWriter:
             raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
         schema_id = self._file.add_schema(schema_name, schema_data, schema_encoding)
         cid = self._file.add_channel(topic, schema_id, message_encoding)
-        head = struct.Struct("<BQHIQQ")
+        head = _MESSAGE_HEAD
         parts: list[bytes] = []
         offsets = np.zeros(len(messages), np.int64)
         pos = 0
@@ -891,60 +950,49 @@ class RunLogWriter:
 
     def _flush_chunks(self, final: bool) -> None:
         """Write the pending rows before the chunk boundary as chunks (and, ``final``, the
-        last rows too).  The pending blocks are cut where the boundary falls, as views: a
-        chunk that is whole blocks (the loop's 100-row blocks fill a 1 s chunk exactly) is
-        written from them without a copy."""
-        while self._pending:
-            boundary = self._boundary
-            head: list[tuple[NDArray[np.int64], NDArray[np.float64]]] = []
-            rest = list(self._pending)
-            while rest:
-                t, x = rest[0]
-                cut = (len(t) if int(t[-1]) < boundary
-                       else int(np.searchsorted(t, boundary, side="left")))
-                if cut == len(t):
-                    head.append(rest.pop(0))
-                    continue
-                if cut:
-                    head.append((t[:cut], x[:cut]))
-                    rest[0] = (t[cut:], x[cut:])
-                break
-            if not rest and not final:
-                return  # the rows before the boundary may not all be here yet
-            if head:
-                self._write_chunk(head[0][0] if len(head) == 1
-                                  else np.concatenate([h[0] for h in head]),
-                                  head[0][1] if len(head) == 1
-                                  else np.concatenate([h[1] for h in head]), rest)
-            if rest:
-                self._boundary = (int(rest[0][0][0]) // self._period + 1) * self._period
+        last rows too), each from the staging buffers as they are (a view: no copy)."""
+        while True:
+            lo, hi = self._span
+            if lo == hi:
+                return
+            t = self._t_buf[lo:hi]
+            if t[-1] < self._boundary:
+                if not final:
+                    return  # the rows before the boundary may not all be here yet
+                cut = hi
+            else:
+                cut = lo + int(t.searchsorted(self._boundary, side="left"))
+            if cut > lo:
+                self._write_chunk(lo, cut, hi)
+            if cut < hi:
+                self._boundary = (int(self._t_buf[cut]) // self._period + 1) * self._period
 
-    def _write_chunk(self, t: NDArray[np.int64], x: NDArray[np.float64],
-                     rest: list[tuple[NDArray[np.int64], NDArray[np.float64]]]) -> None:
-        """Write the rows ``t, x`` as a chunk and leave ``rest`` pending, as one step: an
-        exception anywhere in it (a signal's ``KeyboardInterrupt`` between two bytecodes, a
-        full disk) puts the pending rows back and cuts the file back to where the chunk
+    def _write_chunk(self, lo: int, cut: int, hi: int) -> None:
+        """Write the pending rows ``lo:cut`` as a chunk and leave ``cut:hi`` pending, as one
+        step: an exception anywhere in it (a signal's ``KeyboardInterrupt`` between two
+        bytecodes, a full disk) puts the rows back and cuts the file back to where the chunk
         began, so the rows are on disk once or pending, never both (``close`` would write
         them again) and never lost."""
-        if isinstance(self._encoder, _CRowEncoder):
-            records, indexes = self._encoder.encode_chunk(t, x)
+        t, x = self._t_buf[lo:cut], self._x_buf[lo:cut]
+        if self._in_c:
+            t_at, x_at = self._at
+            records, indexes = self._encoder.encode_chunk(  # type: ignore[union-attr]
+                t, x, (t_at + 8 * lo, x_at + 8 * len(SIGNALS) * lo))
         else:
             records_, offsets = self._encoder.encode(t, x)
-        before = self._pending, self._rows
+        before = self._span, self._rows
         mark = self._file.mark()
         try:
             # forgotten first, in the same try: whichever line an exception stops, the
             # handler below sees the whole step to undo
-            self._pending, self._rows = rest, self._rows + len(t)
-            if isinstance(self._encoder, _CRowEncoder):
-                size = len(indexes) // len(self._channel_ids)
-                self._file.add_indexed_chunk(
-                    records, int(t[0]), int(t[-1]), indexes,
-                    [(cid, k * size, len(t)) for k, cid in enumerate(self._channel_ids)])
+            self._span, self._rows = (cut, hi), self._rows + (cut - lo)
+            if self._in_c:
+                self._file.add_indexed_chunk(records, int(t[0]), int(t[-1]), indexes,
+                                             _row_index_of(self._channel_ids, cut - lo))
             else:
                 self._file.add_row_chunk(records_, t, offsets, self._channel_ids)
         except BaseException:
-            self._pending, self._rows = before
+            self._span, self._rows = before
             self._file.rollback(mark)
             raise
 
