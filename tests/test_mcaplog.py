@@ -665,6 +665,32 @@ def test_a_row_encoder_shared_by_threads_writes_each_thread_s_own_bytes(kind: st
     assert wrong == [0] * len(work)
 
 
+def test_a_log_opened_before_the_stepper_was_built_leaves_the_c_encoder_to_the_next(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The encoder is chosen at each log's open: with a cold cache, the first log of a
+    process opens before the plant's reset builds the stepper, and takes numpy's encoder; the
+    logs after it take the C one (the encoder was cached per process, numpy's kept for
+    every later log, the cause of the Dask test's threaded runs using it).  Seen failing
+    with the choice cached per layout."""
+    import wmr.adapters.mcap.writer as writer
+
+    lib = load_stepper()
+    if lib is None:
+        pytest.skip("no C compiler: the stepper is not built")
+    built = [None]
+    monkeypatch.setattr(writer, "load_stepper", lambda build=False: built[0])
+    kinds = []
+    for k in range(2):
+        with RunLogWriter(tmp_path / f"{k}.mcap", run=RUN, goal=GOAL) as w:
+            kinds.append(type(w._encoder).__name__)
+            w.write_block(np.arange(3, dtype=np.int64) * STEP_NS, np.zeros((3, N_SIG)))
+            w.close({"status": "converged"})
+        built[0] = lib  # the plant's reset built it
+    assert kinds == ["RowEncoder", "_CRowEncoder"]
+    assert (tmp_path / "0.mcap").read_bytes() == (tmp_path / "1.mcap").read_bytes().replace(
+        b"1.mcap", b"0.mcap")
+
+
 class _Capture(io.BytesIO):
     """A sink that keeps its bytes when closed."""
 

@@ -609,15 +609,28 @@ class _CRowEncoder:
         return out[:size].data, offsets
 
 
-@functools.lru_cache(maxsize=16)  # an encoder holds no state of a log: one per layout
 def _row_encoder(channel_ids: tuple[int, ...],
                  layouts: tuple[TopicLayout, ...]) -> RowEncoder | _CRowEncoder:
     """The C row encoder when the stepper is there (and doubles are little-endian, as
-    protobuf writes them), else numpy's: the same bytes."""
+    protobuf writes them), else numpy's: the same bytes.  The choice is made at each log's
+    open, not once per process: a log opened before the stepper was built (a cold cache's
+    first run) must not leave numpy's encoder to every later log of the process."""
     if sys.byteorder == "little":
         lib = load_stepper(build=False)
         if lib is not None:
-            return _CRowEncoder(lib, channel_ids, layouts)
+            return _c_row_encoder(lib, channel_ids, layouts)
+    return _numpy_row_encoder(channel_ids, layouts)
+
+
+@functools.lru_cache(maxsize=16)  # an encoder holds no state of a log: one per layout
+def _c_row_encoder(lib: Any, channel_ids: tuple[int, ...],
+                   layouts: tuple[TopicLayout, ...]) -> _CRowEncoder:
+    return _CRowEncoder(lib, channel_ids, layouts)
+
+
+@functools.lru_cache(maxsize=16)
+def _numpy_row_encoder(channel_ids: tuple[int, ...],
+                       layouts: tuple[TopicLayout, ...]) -> RowEncoder:
     return RowEncoder(channel_ids, layouts)
 
 
