@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ lo
 __all__ = ["BatchResult", "Log", "RunResult", "__version__", "batch", "load_scenario", "optimal",
            "read_log", "replay", "run"]
 
-__version__ = "0.1.0"
+from wmr.infra.version import __version__
 
 #: Names of the API (wmr.api) that ``import wmr`` offers without importing it.
 _API = ("load_scenario", "run", "read_log", "batch", "optimal", "replay", "Log", "RunResult",

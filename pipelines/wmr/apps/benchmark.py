@@ -43,7 +43,6 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from wmr import __version__
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import OPEN_LOOP_TOPICS, McapOpener
 from wmr.apps.run import (
@@ -61,6 +60,7 @@ from wmr.core.plant import OUTPUT_NAMES, Pose, RobotParams
 from wmr.core.runlog import LogHeader
 from wmr.core.runspec import RunSpec
 from wmr.core.signals import COLUMN, PLANT_SIGNALS, SIGNALS
+from wmr.infra.version import __version__
 
 #: The suffix of a row with the controller's tuned gains (``pi-tuned``).
 TUNED_SUFFIX: Final = "-tuned"

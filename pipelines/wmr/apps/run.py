@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from wmr import __version__
 from wmr.adapters.fmi.compiled_law import CompiledLawController
 from wmr.adapters.fmi.robot import FmuPlant
 from wmr.adapters.mcap import McapOpener
@@ -35,6 +34,7 @@ from wmr.core.runlog import LogHeader, LogOpener, RunLog
 from wmr.core.runspec import RunSpec
 from wmr.infra.errors import ConfigError
 from wmr.infra.paths import safe_filename
+from wmr.infra.version import __version__
 
 if TYPE_CHECKING:
     from wmr.adapters.fmi.controller import FmuController

@@ -202,8 +202,8 @@ def index_html(model: ControllerModel) -> str:
     """``documentation/index.html`` of the controller FMUs."""
     from html import escape
 
-    from wmr import __version__
     from wmr.build.documentation import PAPER, _table, html_page
+    from wmr.infra.version import __version__
 
     return html_page(model.name, model.description, f"""\
 <p>{escape(model.description)}. The point stabiliser of the paper below (reference point and

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from wmr import __version__
 from wmr.build.fmus import BuildResult, summarize
 from wmr.build.platforms import host_platform
 from wmr.infra.errors import BuildError
+from wmr.infra.version import __version__
 
 TOOL = "wmr-cosim"
 MODEL = "wmr_robot"

@@ -11,10 +11,10 @@ from __future__ import annotations
 import math
 from html import escape
 
-from wmr import __version__
 from wmr.build.flatten import FlatModel, Variable
 from wmr.infra import paths
 from wmr.infra.errors import BuildError
+from wmr.infra.version import __version__
 
 PAPER = ("D. Bunjaku, J. Stefanovski, M. Stankovski: Dynamic modelling and asymptotic point "
          "stabilization control of two differential wheeled mobile robot.")

@@ -34,7 +34,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from wmr import __version__
 from wmr.build.platforms import (
     CFLAGS,
     GLIBC_FLOOR,
@@ -49,6 +48,7 @@ from wmr.infra import paths
 from wmr.infra.durable import open_own, storage_error
 from wmr.infra.errors import BuildError, ConfigError, LogError
 from wmr.infra.trust import make_folder, trust_root, untrusted
+from wmr.infra.version import __version__
 
 FMI_VERSIONS = (2, 3)
 #: Longest silence of a build, s: a compile or a wait on another process's build says it is

@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING, TypeAlias
 
 import casadi as ca
 
-from wmr import __version__
 from wmr.build.flatten import MODEL_IDENTIFIER, FlatModel, Variable
+from wmr.infra.version import __version__
 
 if TYPE_CHECKING:
     from wmr.build.controller_interface import ControllerModel

@@ -14,10 +14,10 @@ import math
 from collections.abc import Mapping
 from dataclasses import fields
 
-from wmr import __version__
 from wmr.config.scenario import parse_scenario
 from wmr.core.plant import Pose
 from wmr.core.runspec import RunSpec
+from wmr.infra.version import __version__
 
 
 def _float(value: float) -> str:

@@ -46,7 +46,6 @@ from mcap.records import Channel, Schema
 from numpy.typing import ArrayLike, NDArray
 from zlib_ng.zlib_ng import crc32
 
-import wmr
 from wmr.adapters.mcap.readme import write_readme
 from wmr.adapters.mcap.scene import SceneRecorder
 from wmr.adapters.mcap.schemas import (
@@ -69,6 +68,7 @@ from wmr.core.sensing import SensingRecord
 from wmr.core.signals import COLUMN, SIGNALS
 from wmr.infra.durable import AtomicFile, stop_signals_held
 from wmr.infra.errors import LogError
+from wmr.infra.version import __version__
 
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
 #: A Message record up to its data: opcode, record length, channel id, sequence, log and
@@ -108,7 +108,7 @@ try:
 except PackageNotFoundError:  # pragma: no cover - installed from source
     _MCAP_VERSION = "unknown"
 #: Header ``library`` field: software versions only, no host, no time.
-LIBRARY: Final = f"wmr-cosim/{wmr.__version__} mcap-python/{_MCAP_VERSION}"
+LIBRARY: Final = f"wmr-cosim/{__version__} mcap-python/{_MCAP_VERSION}"
 
 
 def _compressor(kind: Compression, level: int | None = None) -> Any:
