@@ -78,10 +78,11 @@ WINDOW: Final = 4
 RESULT_WAIT_S: Final = 30.0
 #: Most runs in one Dask task (a range: the worker draws its runs and returns their journal
 #: lines and summary rows in one piece).  A task costs the scheduler, the client and the
-#: worker the same whatever it holds (Dask's own cost is 0.2 to 1 ms a task), and a run of
-#: ``mc_fig10`` takes a worker about 2.5 ms: with 128 runs a task that cost is under 1 % of
-#: the task's work; a dead worker loses at most its range's work (its runs are run again).
-MAX_CHUNK: Final = 128
+#: worker the same whatever it holds (Dask's own cost is 0.2 to 1 ms a task, the client's
+#: about 1 ms), and a run of ``mc_fig10`` takes a worker about 2.5 ms: with 1,024 runs a
+#: task the client spends about 1 us a run on Dask; a dead worker loses at most its range's
+#: work (its runs are run again).
+MAX_CHUNK: Final = 1024
 #: Seconds a batch waits for its scheduler to have a worker before it stops, saying it has
 #: none: a worker started with the batch joins within a few seconds; a batch sent to a
 #: scheduler without workers waited for ever.
