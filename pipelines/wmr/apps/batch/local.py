@@ -479,11 +479,7 @@ class LocalPool:
                         slot.ready = True
                         continue
                     if msg is not None and msg[0] == "done":
-                        # its next range first: the worker runs while the parent writes
                         slot.block = None
-                        block = again.popleft() if again else next(source, None)
-                        if block is not None:
-                            slot.give(block)
                         yield msg[1]
                         continue
                     if msg is not None and msg[0] == "init_error":

@@ -23,6 +23,7 @@ import itertools
 import json
 import math
 import os
+import struct
 import sys
 import time
 import zlib
@@ -80,7 +81,14 @@ from wmr.apps.batch.worker import (
 from wmr.apps.progress import count_progress
 from wmr.apps.run import FULL_LOGS, LogPolicy
 from wmr.config.naming import plural
-from wmr.infra.durable import AtomicFile, open_own, partial_path, storage_error
+from wmr.infra.durable import (
+    AtomicFile,
+    fsync_dir,
+    open_own,
+    partial_path,
+    storage_error,
+    write_all,
+)
 from wmr.infra.errors import ClusterError, ConfigError, DiskFullError, WmrError
 
 #: Default per-run wall-clock limit, s: generous (a 120 s simulated run takes about 1 s).
@@ -996,39 +1004,64 @@ def _message(res: BlockResult, k: int) -> str | None:
                  if row["run_id"] == run_id), None)
 
 
+#: A frame of a parts file (:class:`_Parts`): its magic, the length of its payload (an Arrow
+#: IPC stream) and the payload's CRC-32, little-endian, then the payload.
+PART_FRAME: Final = struct.Struct("<4sII")
+PART_MAGIC: Final = b"WMRp"
+#: Longest payload a parts file's frame is read with (a range of 1,024 runs is about
+#: 200 kB): a longer length is damage, and the rest of the file is not read.
+MAX_PART_BYTES: Final = 1 << 28
+#: Suffix of a parts file (``.arrow``: a range's file, from a batch of before).
+PARTS_SUFFIX: Final = ".arrows"
+
+
 class _Parts:
-    """The summary rows of the runs finished since the batch's summary was last written, as
-    Arrow IPC files in ``OUT/.parts``, one per range, by the :data:`SUMMARY_BLOCK` of runs
-    they belong to: each written and fsynced before the range's journal lines (a journal line
-    always has its row on disk), merged into the summary at the end (:func:`_summary_chunks`),
-    then removed.  A batch killed before that leaves them: the next one finds its runs' rows
-    there (:func:`_carry`), keeps them as its own and removes the others."""
+    """The summary rows of the runs finished since the batch's summary was last written, in
+    ``OUT/.parts``: one file per invocation (``<pid>-<ns>.arrows``) to which each range's rows
+    are appended as a frame (:data:`PART_FRAME`: an Arrow IPC stream), made durable
+    (``fdatasync``; the folder fsynced once, when the file is made) before the range's journal
+    lines are written (a journal line always has its row on disk), merged into the summary at
+    the end (:func:`_summary_chunks`), then removed.  A batch killed before that leaves them:
+    the next one finds its runs' rows there (:func:`_carry`), keeps them as its own and
+    removes the others.  (A file and two fsyncs a range, as before, cost the parent about
+    0.65 ms of CPU a range; a frame appended and one ``fdatasync``, about 0.2 ms.)"""
 
     def __init__(self, out: Path, n_runs: int = 0) -> None:
         self.folder = out / ".parts"
-        self._files: dict[int, list[Path]] = {}
-        self._count = 0
+        # this invocation's file never meets a killed one's
+        self.path = self.folder / f"{os.getpid()}-{time.time_ns():x}{PARTS_SUFFIX}"
+        self._fd: int | None = None
+        self._size = 0
+        #: (offset, length) of each frame's payload, by SUMMARY_BLOCK of runs
+        self._frames: dict[int, list[tuple[int, int]]] = {}
         #: 1 where the run's row is in a part of this invocation (a numpy array)
         self.has = np.zeros(n_runs, np.bool_)
-        # this invocation's names never meet a killed one's
-        self._tag = f"{os.getpid()}-{time.time_ns():x}"
 
     def leftovers(self) -> list[Path]:
         """The part files a batch killed before its summary left (links are not followed)."""
         try:
             return sorted(p for p in self.folder.iterdir()
-                          if p.suffix == ".arrow" and not p.is_symlink() and p.is_file())
+                          if p.suffix in (PARTS_SUFFIX, ".arrow") and p != self.path
+                          and not p.is_symlink() and p.is_file())
         except OSError:
             return []
 
     def read(self, paths: Sequence[Path]) -> Iterator[Any]:
-        """The tables of the part files ``paths``; a damaged one is skipped (its runs are run
-        again)."""
+        """The tables of the part files ``paths``; a damaged frame (or a damaged file of
+        before) is skipped (its runs are run again), and a file is read up to a frame whose
+        header is damaged (the cut end of a killed batch's)."""
         import pyarrow as pa
 
         for path in paths:
             try:
-                yield pa.ipc.open_stream(path.read_bytes()).read_all()
+                if path.suffix != PARTS_SUFFIX:  # a range's file, from a batch of before
+                    yield pa.ipc.open_stream(path.read_bytes()).read_all()
+                    continue
+                for payload in _frames(path):
+                    try:
+                        yield pa.ipc.open_stream(payload).read_all()
+                    except pa.ArrowException:
+                        continue
             except (OSError, pa.ArrowException):
                 continue
 
@@ -1044,9 +1077,9 @@ class _Parts:
             only: set[str] | None = None) -> None:
         """Keep ``table`` (a table or its IPC stream), the rows of the runs ``indices``
         (increasing, in the table's order), or, with ``only``, its rows of those run ids (the
-        runs ``indices``): written whole and fsynced (its folder too) before this returns; a
-        file for each :data:`SUMMARY_BLOCK` of runs they fall in (a worker's range never
-        crosses one; the rows a resume found may)."""
+        runs ``indices``): on disk (``fdatasync``) before this returns; a frame for each
+        :data:`SUMMARY_BLOCK` of runs they fall in (a worker's range never crosses one; the
+        rows a resume found may)."""
         import pyarrow as pa
         import pyarrow.compute as pc
 
@@ -1058,7 +1091,7 @@ class _Parts:
                 table = pa.ipc.open_stream(table).read_all()
             if only is not None:
                 table = table.filter(pc.is_in(table["run_id"], pa.array(sorted(only))))
-            if first != last:  # one file per block of runs: the summary merges them so
+            if first != last:  # a frame per block of runs: the summary merges them so
                 at = np.asarray(indices, np.int64)
                 cuts = np.searchsorted(at, np.arange(first + 1, last + 1) * SUMMARY_BLOCK)
                 for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), len(at)],
@@ -1072,31 +1105,75 @@ class _Parts:
             table = table_bytes(table)
         if not table:
             return
-        path = self.folder / f"{indices[0]}-{self._tag}-{self._count}.arrow"
-        self._count += 1
-        try:
-            self.folder.mkdir(exist_ok=True)
-        except OSError as exc:  # a full disk is one line, as for the journal
-            raise storage_error(exc, path) from exc
-        _write_atomic(path, bytes(table))
-        self._files.setdefault(first, []).append(path)
+        self._append(bytes(table), first)
         if isinstance(indices, range):
             self.has[indices[0]:indices[-1] + 1] = True
         else:
             self.has[np.asarray(indices, np.int64)] = True
 
+    def _append(self, payload: bytes, chunk: int) -> None:
+        """Append ``payload`` as a frame, durably (a full disk is one DiskFullError)."""
+        try:
+            made = self._fd is None
+            if self._fd is None:
+                self.folder.mkdir(exist_ok=True)
+                self._fd = open_own(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL
+                                    | os.O_APPEND, "batch parts")
+            head = PART_FRAME.pack(PART_MAGIC, len(payload), zlib.crc32(payload))
+            write_all(self._fd, head + payload, self.path)
+            os.fdatasync(self._fd)
+            if made:  # the file's name too, once
+                fsync_dir(self.folder)
+        except OSError as exc:
+            raise storage_error(exc, self.path) from exc
+        self._frames.setdefault(chunk, []).append((self._size + PART_FRAME.size,
+                                                   len(payload)))
+        self._size += PART_FRAME.size + len(payload)
+
     def tables(self, chunk: int) -> list[Any]:
         """The kept tables of the runs ``chunk * SUMMARY_BLOCK`` to the next block's."""
         import pyarrow as pa
 
-        return [pa.ipc.open_stream(path.read_bytes()).read_all()
-                for path in self._files.get(chunk, [])]
+        frames = self._frames.get(chunk, [])
+        if not frames:
+            return []
+        with open(self.path, "rb") as stream:
+            tables = []
+            for offset, length in frames:
+                stream.seek(offset)
+                tables.append(pa.ipc.open_stream(stream.read(length)).read_all())
+            return tables
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
 
     def clear(self) -> None:
         import shutil
 
+        self.close()
         shutil.rmtree(self.folder, ignore_errors=True)
-        self._files.clear()
+        self._frames.clear()
+
+    def __del__(self) -> None:
+        self.close()
+
+
+def _frames(path: Path) -> Iterator[bytes]:
+    """The payloads of the frames of the parts file ``path`` (a link is not followed), up to
+    its first damaged header or cut frame; a frame whose CRC does not match is skipped."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    with os.fdopen(fd, "rb") as stream:
+        while len(head := stream.read(PART_FRAME.size)) == PART_FRAME.size:
+            magic, length, crc = PART_FRAME.unpack(head)
+            if magic != PART_MAGIC or length > MAX_PART_BYTES:
+                return
+            payload = stream.read(length)
+            if len(payload) < length:
+                return
+            if zlib.crc32(payload) == crc:
+                yield payload
 
 
 def _recover_partial(log: Path) -> None:
