@@ -1121,7 +1121,7 @@ class _Parts:
                                     | os.O_APPEND, "batch parts")
             head = PART_FRAME.pack(PART_MAGIC, len(payload), zlib.crc32(payload))
             write_all(self._fd, head + payload, self.path)
-            os.fdatasync(self._fd)
+            _datasync(self._fd)
             if made:  # the file's name too, once
                 fsync_dir(self.folder)
         except OSError as exc:
@@ -1158,6 +1158,10 @@ class _Parts:
 
     def __del__(self) -> None:
         self.close()
+
+
+#: ``fdatasync`` where the platform has it (not macOS), else ``fsync``.
+_datasync: Final = getattr(os, "fdatasync", os.fsync)
 
 
 def _frames(path: Path) -> Iterator[bytes]:
