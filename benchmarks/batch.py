@@ -27,6 +27,23 @@ Three measurements, each printed as a table:
     client, alone; its workers are other processes) and the bytes per run of its journal
     and summary.
 
+``python benchmarks/batch.py costs N_RUNS [--dask] [--repeats R] [--workers K]``
+    The parent's (or the Dask client's) CPU split into what it spends per range (a Dask
+    task) and per run, from which docs/batch.md projects where the client becomes the bound:
+    three batches of ``mc_fig10`` (failed-only logs) per executor, the configurations taking
+    turns ``R`` times (default 2; medians): ``N_RUNS`` runs in ranges of 1,024, the same in
+    ranges of 128, and ``N_RUNS / 4`` in ranges of 128 (the range size set by patching the
+    executors' largest range; ``N_RUNS`` at least 8 x 1,024 x the worker threads, so that
+    the large ranges are whole).  With C(runs, size) the CPU of the batch's own process
+    (``RUSAGE_SELF``), the cost of a range is (C(N, 128) - C(N, 1024)) / (N/128 - N/1024),
+    that of a run (C(N, 128) - C(N/4, 128)) / (3N/4) less a range's share, and the rest the
+    fixed cost (imports done, the FMU's digest, workers or client, the summary's merge).
+    The Dask client also spends CPU per second whatever it runs (its heartbeats, the
+    batch's look at the workers every second), which a batch of 2 workers would count as a
+    cost per run: it is measured alone (a client and the batch's worker watch, idle for
+    5 s), printed, and its share (per second x the batch's wall time) taken out of each C
+    first.  (The local parent's is nil: it sleeps between its workers' messages.)
+
 ``python benchmarks/batch.py policies N_RUNS [--dask] [--policy P ...]``
     One batch of ``N_RUNS`` runs of ``mc_fig10`` (its ``n`` raised to ``N_RUNS``) per log
     policy (``full``, ``failed``, ``none``; default all three), on 2 local workers and, with
@@ -313,6 +330,100 @@ def scaling(n_runs: int, with_dask: bool, repeats: int, policy: str,
               f"{bytes_run:>22.0f}")
 
 
+def _idle_client_cpu(address: str, seconds: float = 5.0) -> float:
+    """CPU seconds per second of this process with a Dask client of ``address`` connected and
+    a batch's worker watch running, idle."""
+    from distributed import Client
+
+    from wmr.apps.batch.dask_exec import _WorkerWatch
+
+    with Client(address, timeout="60s") as client:
+        watch = _WorkerWatch(client, {})
+        time.sleep(1.0)
+        before = resource.getrusage(resource.RUSAGE_SELF)
+        time.sleep(seconds)
+        after = resource.getrusage(resource.RUSAGE_SELF)
+        watch.stop()
+    return ((after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)) / seconds
+
+
+#: Range sizes of the ``costs`` measurement: large and small.
+COST_RANGES = (1024, 128)
+
+
+def costs(n_runs: int, with_dask: bool, repeats: int, workers: int) -> None:
+    """The CPU of the batch's own process per range and per run, per executor."""
+    import wmr.apps.batch.dask_exec as dask_exec
+    import wmr.apps.batch.runner as runner
+
+    big, small = COST_RANGES
+    batch = _mc_fig10(n_runs)
+    quarter = replace(batch, runs=batch.runs.head(n_runs // 4)) \
+        if isinstance(batch.runs, RunList) else batch
+    fmu = default_fmu()
+    executors_: dict[str, dict[str, Any]] = {f"local, {workers} workers": {"workers": workers}}
+    #: (runs, range size) -> CPU seconds, per executor
+    samples: dict[str, dict[tuple[int, int], list[float]]] = {}
+    with dask_cluster(workers) if with_dask else _nothing() as address:
+        if address:
+            executors_[f"Dask, {workers} worker processes"] = {"scheduler": address}
+        if n_runs < 8 * big * workers:
+            raise SystemExit(f"costs: give at least {8 * big * workers} runs (8 ranges of "
+                             f"{big} a worker)")
+        warm = replace(batch, runs=batch.runs.head(50)) if isinstance(batch.runs, RunList) \
+            else batch
+        for how in executors_.values():  # imports, the forkserver, the Dask workers' FMU
+            folder = Path(tempfile.mkdtemp(prefix="wmr-bench-warm-"))
+            run_batch(warm, folder, BatchOptions(fmu_path=fmu, log=LogPolicy("failed"), **how),
+                      progress=False)
+            shutil.rmtree(folder, ignore_errors=True)
+        per_s = {name: 0.0 for name in executors_}
+        if address:
+            per_s[f"Dask, {workers} worker processes"] = _idle_client_cpu(address)
+        points = ((batch, big), (batch, small), (quarter, small))
+        for _ in range(repeats):
+            for name, how in executors_.items():
+                for spec, size in points:
+                    folder = Path(tempfile.mkdtemp(prefix="wmr-bench-costs-", dir=os.getcwd()))
+                    saved = runner.MAX_BLOCK, dask_exec.MAX_CHUNK
+                    runner.MAX_BLOCK = dask_exec.MAX_CHUNK = size  # type: ignore[misc]
+                    try:
+                        before = resource.getrusage(resource.RUSAGE_SELF)
+                        t0 = time.perf_counter()
+                        result = run_batch(spec, folder, BatchOptions(
+                            fmu_path=fmu, log=LogPolicy("failed"), **how), progress=False)
+                        wall = time.perf_counter() - t0
+                        after = resource.getrusage(resource.RUSAGE_SELF)
+                    finally:
+                        runner.MAX_BLOCK, dask_exec.MAX_CHUNK = saved  # type: ignore[misc]
+                        shutil.rmtree(folder, ignore_errors=True)
+                    assert len(result.executed) == len(spec.runs)
+                    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime
+                                                                - before.ru_stime)
+                    key = (len(spec.runs), size)
+                    samples.setdefault(name, {}).setdefault(key, []).append(
+                        cpu - per_s[name] * wall)
+                    print(name, *key, f"{cpu:.3f} s CPU, {wall:.1f} s wall", file=sys.stderr,
+                          flush=True)
+    print(f"costs: the CPU of the batch's own process (the parent, or the Dask client), "
+          f"mc_fig10, failed-only, median of {repeats} (configurations in turn; "
+          f"{os.cpu_count()} cores; load {os.getloadavg()[0]:.1f})")
+    print(f"{'executor':<26} {'ms/s':>5} {'C(N,1024) s':>11} {'C(N,128) s':>10} "
+          f"{'C(N/4,128) s':>12} {'us/range':>9} {'us/run':>7} {'fixed s':>8} "
+          f"{'us/run at 1024':>15}")
+    for name, by in samples.items():
+        med = {k: statistics.median(v) for k, v in by.items()}
+        c_big, c_small, c_quarter = (med[(n_runs, big)], med[(n_runs, small)],
+                                     med[(n_runs // 4, small)])
+        per_range = (c_small - c_big) / (n_runs / small - n_runs / big)
+        per_run = (c_small - c_quarter) / (n_runs - n_runs // 4) - per_range / small
+        fixed = c_big - n_runs * per_run - n_runs / big * per_range
+        print(f"{name:<26} {1e3 * per_s[name]:>5.2f} {c_big:>11.3f} {c_small:>10.3f} "
+              f"{c_quarter:>12.3f} "
+              f"{1e6 * per_range:>9.0f} {1e6 * per_run:>7.2f} {fixed:>8.3f} "
+              f"{1e6 * (per_run + per_range / big):>15.2f}")
+
+
 @contextmanager
 def _nothing() -> Iterator[str]:
     yield ""
@@ -334,6 +445,11 @@ def main(argv: list[str]) -> None:
     sc.add_argument("--workers", type=int, action="append",
                     help="local workers of a configuration (repeat; default 1, 2, 4, 8 up to "
                     "the cores)")
+    co = sub.add_parser("costs")
+    co.add_argument("n_runs", type=int)
+    co.add_argument("--dask", action="store_true")
+    co.add_argument("--repeats", type=int, default=2)
+    co.add_argument("--workers", type=int, default=2)
     po = sub.add_parser("policies")
     po.add_argument("n_runs", type=int)
     po.add_argument("--dask", action="store_true")
@@ -343,6 +459,8 @@ def main(argv: list[str]) -> None:
         phases(args.n_runs)
     elif args.what == "scaling":
         scaling(args.n_runs, args.dask, args.repeats, args.policy, args.workers)
+    elif args.what == "costs":
+        costs(args.n_runs, args.dask, args.repeats, args.workers)
     elif args.what == "policies":
         policies(args.n_runs, args.policy or ["full", "failed", "none"], args.dask)
     else:

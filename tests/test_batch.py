@@ -10,11 +10,13 @@ import math
 import os
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 import time
 import tomllib
 import tracemalloc
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -492,6 +494,49 @@ def test_interrupted_batch_resumes_with_only_the_missing_runs(reference: Path, s
     assert len(ids) == 21 and len(set(ids)) == 20  # only the cut log's run twice in the journal
 
 
+def test_a_range_stopped_midway_keeps_the_rows_and_lines_of_the_same_runs(
+        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/batch.md, "Execution": a range comes back as its rows and its lines, and the
+    parent keeps the same runs of both.  Stopped after 6 runs, in the middle of the second
+    range of 4, the batch journals the first 6 runs, and its summary holds exactly their rows
+    (not the 2 others of the range, which have no line); the resume runs the other 14 and
+    ends with the reference's summary."""
+    monkeypatch.setattr(runner_module._Blocks, "block_runs", lambda self, workers: 4)
+    batch = load_batch(spec20)
+    with _test_hooks(stop_after=6):
+        first = run_batch(batch, tmp_path, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
+    journalled = _journal_ids(tmp_path)
+    assert first.interrupted and journalled == list(first.executed) \
+        == [r.run_id for r in batch.runs[:6]]
+    assert pq.read_table(tmp_path / "summary.parquet")["run_id"].to_pylist() == journalled
+    again = run_batch(batch, tmp_path, BatchOptions(workers=1, fmu_path=fmu3), progress=False)
+    assert again.skipped == 6 and len(again.executed) == 14
+    assert _summary_bytes(tmp_path) == _summary_bytes(reference)
+
+
+def test_a_parts_file_cut_or_damaged_gives_back_its_whole_frames_only(tmp_path: Path) -> None:
+    """docs/batch.md, "Execution": each range's rows are a frame appended to the invocation's
+    parts file.  A batch killed during an append leaves a cut last frame, and a disk may
+    damage one: a resume reads every whole frame, skips the damaged one (its runs are run
+    again) and takes nothing of the cut one."""
+    parts = runner_module._Parts(tmp_path, 4)
+    ids = [f"{i:04d}-0000000{i}" for i in range(4)]
+    for i, run_id in enumerate(ids):
+        row = SummaryRow(run_id, "n", "b", "", {"gains.K_ps": 0.5 + i}, "pi", i)
+        parts.add(summary_table([row], ["gains.K_ps"], {run_id: {"status": "converged",
+                                                                 "steps": 3 + i}}), [i])
+    parts.close()
+    frames = _part_frames(tmp_path)
+    assert len(frames) == 4
+    data = bytearray(parts.path.read_bytes())
+    data[frames[1][0] + len(frames[1][1]) // 2] ^= 0xFF  # the second frame damaged
+    parts.path.write_bytes(bytes(data[:frames[3][0] + len(frames[3][1]) // 2]))  # the last cut
+    again = runner_module._Parts(tmp_path, 4)
+    got = [t["run_id"].to_pylist() for t in again.read(again.leftovers())]
+    assert got == [[ids[0]], [ids[2]]]
+
+
 def test_a_cut_journal_line_is_ignored_and_redone(spec20: Path, fmu3: Path,
                                                   tmp_path: Path) -> None:
     batch = load_batch(spec20)
@@ -951,6 +996,20 @@ with _test_hooks(between_writes=kill_at_the_third_range):
 """
 
 
+def _part_frames(out: Path) -> list[tuple[int, bytes]]:
+    """The frames of the batch's one parts file, as docs/batch.md describes them (read here
+    with ``struct``, not with the batch's reader): each payload's offset and bytes."""
+    (path,) = (out / ".parts").glob("*.arrows")
+    data, at, frames = path.read_bytes(), 0, []
+    while at < len(data):
+        magic, length, crc = struct.unpack_from("<4sII", data, at)
+        payload = data[at + 12:at + 12 + length]
+        assert magic == b"WMRp" and len(payload) == length and zlib.crc32(payload) == crc
+        frames.append((at + 12, payload))
+        at += 12 + length
+    return frames
+
+
 def _killed_between_writes(spec20: Path, fmu3: Path, out: Path) -> list[str]:
     """The 20-run batch (ranges of 2 runs on one worker) killed with SIGKILL after its third
     range's summary rows are on disk and before that range's journal lines; the ids of the
@@ -973,8 +1032,8 @@ def test_a_batch_killed_between_a_ranges_rows_and_its_lines_resumes_to_the_same_
     is the uninterrupted batch's byte for byte."""
     out = tmp_path / "o"
     journalled = _killed_between_writes(spec20, fmu3, out)
-    on_disk = {r for part in (out / ".parts").glob("*.arrow")
-               for r in pa.ipc.open_stream(part.read_bytes()).read_all()["run_id"].to_pylist()}
+    on_disk = {r for _, payload in _part_frames(out)
+               for r in pa.ipc.open_stream(payload).read_all()["run_id"].to_pylist()}
     assert set(journalled) <= on_disk, "a journalled run without its summary row on disk"
     assert len(journalled) == 4 and len(on_disk) == 6
     capsys.readouterr()
@@ -997,8 +1056,11 @@ def test_a_part_lost_after_its_journal_lines_reruns_its_runs_saying_so(
     out = tmp_path / "o"
     journalled = _killed_between_writes(spec20, fmu3, out)
     first = journalled[0]
-    (lost,) = [p for p in (out / ".parts").glob("*.arrow") if p.name.startswith("0-")]
-    lost.unlink()  # the part of runs 0 and 1
+    (lost,) = [(at, payload) for at, payload in _part_frames(out)
+               if pa.ipc.open_stream(payload).read_all()["run_id"][0].as_py() == first]
+    with open(next((out / ".parts").glob("*.arrows")), "r+b") as part:
+        part.seek(lost[0])
+        part.write(bytes(len(lost[1])))  # the part of runs 0 and 1 zeroed on disk
     capsys.readouterr()
     again = run_batch(load_batch(spec20), out, BatchOptions(workers=1, fmu_path=fmu3),
                       progress=False)

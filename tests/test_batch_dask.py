@@ -28,7 +28,7 @@ from distributed.comm.core import CommClosedError
 from distributed.scheduler import KilledWorker
 
 from wmr.apps.batch import BatchOptions, dask_exec, load_batch, run_batch
-from wmr.apps.batch.dask_exec import task_failure
+from wmr.apps.batch.dask_exec import task_failure, task_runs
 from wmr.apps.batch.runner import _test_hooks
 from wmr.cli import main
 
@@ -455,3 +455,20 @@ def test_workers_all_gone_mid_batch_stop_it_in_bounded_time_and_it_resumes(
     assert f"; {40 - n} run now, {n} done before;" in capfd.readouterr().err
     for name in ("summary.csv", "summary.parquet"):
         assert (out / name).read_bytes() == (local / name).read_bytes(), name
+
+
+def test_a_dask_task_holds_up_to_1024_runs_and_at_least_as_many_as_the_threads() -> None:
+    """docs/batch.md, "Execution": ranges of up to 1,024 runs, at least 8 a worker thread,
+    but never fewer runs a task than there are threads while each thread still gets one (the
+    client spends 1 to 5 ms a task: 10^6 runs on 1,000 threads are 1,000 tasks, not 8,000)."""
+    assert task_runs(10_000, 2) == 625  # 8 tasks a thread
+    assert task_runs(10**6, 16) == task_runs(10**6, 64) == 1024
+    assert task_runs(10**6, 1000) == 1000
+    assert task_runs(20, 2) == 2 and task_runs(3, 8) == 1
+    for n_runs in (1, 7, 100, 5_000, 123_457, 10**6):
+        for threads in (1, 2, 16, 64, 1000):
+            size = task_runs(n_runs, threads)
+            tasks = -(-n_runs // size)
+            assert 1 <= size <= 1024
+            assert tasks >= min(n_runs, threads)  # every thread has one
+            assert size >= min(threads, n_runs // threads) or tasks >= 8 * threads

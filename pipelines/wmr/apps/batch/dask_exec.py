@@ -78,10 +78,11 @@ WINDOW: Final = 4
 RESULT_WAIT_S: Final = 30.0
 #: Most runs in one Dask task (a range: the worker draws its runs and returns their journal
 #: lines and summary rows in one piece).  A task costs the scheduler, the client and the
-#: worker the same whatever it holds (Dask's own cost is 0.2 to 1 ms a task), and a run of
-#: ``mc_fig10`` takes a worker about 2.5 ms: with 128 runs a task that cost is under 1 % of
-#: the task's work; a dead worker loses at most its range's work (its runs are run again).
-MAX_CHUNK: Final = 128
+#: worker the same whatever it holds (Dask's own cost is 0.2 to 1 ms a task, the client's
+#: about 1 ms), and a run of ``mc_fig10`` takes a worker about 2.5 ms: with 1,024 runs a
+#: task the client spends about 1 us a run on Dask; a dead worker loses at most its range's
+#: work (its runs are run again).
+MAX_CHUNK: Final = 1024
 #: Seconds a batch waits for its scheduler to have a worker before it stops, saying it has
 #: none: a worker started with the batch joins within a few seconds; a batch sent to a
 #: scheduler without workers waited for ever.
@@ -89,6 +90,22 @@ WORKER_WAIT_S: Final = 30.0
 #: Seconds between two looks at the scheduler's workers while the batch waits for its tasks:
 #: when every worker left mid-batch, the tasks would wait for ever.
 WORKER_POLL_S: Final = 1.0
+
+
+def task_runs(n_runs: int, threads: int) -> int:
+    """Runs per Dask task for ``n_runs`` runs on ``threads`` worker threads.
+
+    Each thread gets at least 8 tasks (the last ones share out evenly), of at most
+    :data:`MAX_CHUNK` runs; but a task holds at least as many runs as there are threads
+    (while each thread still gets one): the client spends about 1 to 5 ms of CPU on each
+    task (submitting it, fetching its result, writing its rows and lines), and a cluster of
+    ``threads`` threads finishes one every ``runs x w / threads`` seconds (``w`` a run's time,
+    2.5 ms for ``mc_fig10``), so that with as many runs a task as threads the client has a
+    run's time for each task, however large the cluster (10^6 runs on 1,000 threads: 1,000
+    tasks of 1,000 runs, not 8,000 of 125)."""
+    threads = max(1, threads)
+    return max(1, min(MAX_CHUNK, max(n_runs // (8 * threads),
+                                     min(threads, n_runs // threads))))
 
 
 class DaskExecutor:
@@ -109,8 +126,8 @@ class DaskExecutor:
     ship_logs
         Send every log back to the client, even from workers that see ``out_dir``.
     chunk
-        Runs per Dask task; default: up to :data:`MAX_CHUNK`, so that each worker thread gets
-        at least 8 tasks (fewer, longer tasks cost the scheduler and the client less).
+        Runs per Dask task; default: :func:`task_runs` (up to :data:`MAX_CHUNK`; fewer,
+        longer tasks cost the scheduler and the client less).
     """
 
     def __init__(self, fmu_path: Path, out_dir: Path, *, scheduler: str | None = None,
@@ -195,7 +212,7 @@ class DaskExecutor:
             threads = sum(client.nthreads().values()) or 1
             watch = _WorkerWatch(client, futures)
         out = str(self.out_dir.resolve())
-        size = self.chunk or max(1, min(MAX_CHUNK, len(tasks) // (8 * threads)))
+        size = self.chunk or task_runs(len(tasks), threads)
 
         def submit(block: Block, tag: str) -> Any:
             fut = client.submit(dask_run_block, block, plugin.sha256, att, out, token,
@@ -423,4 +440,4 @@ def _cut(text: str, limit: int = 120) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
 
 
-__all__ = ["DaskExecutor", "FmuPlugin", "task_failure"]
+__all__ = ["DaskExecutor", "FmuPlugin", "task_failure", "task_runs"]

@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Final, Protocol
 
 from wmr.adapters.fmi.archive import file_sha256
 from wmr.adapters.fmi.compiled_law import law_library
@@ -127,6 +127,9 @@ class Block:
     retry: bool = False
     #: Runs per shard of logs (:data:`~wmr.apps.batch.summary.SHARD_RUNS`, the parent's).
     shard_runs: int = SHARD_RUNS
+    #: Send each run's record and wall time back (:attr:`BlockResult.outcomes`: the API's
+    #: ``on_outcome`` wants them; without it, no Python object a run crosses the pipe).
+    outcomes: bool = False
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -143,45 +146,84 @@ class Block:
                     log=self.log, optimal=self.optimal)
 
 
-class Entry(NamedTuple):
-    """One finished run of a :class:`BlockResult` (a tuple: cheap to pickle, a block's
-    entries cross a pipe or the network)."""
-
-    #: The run's index in the spec.
-    run_index: int
-    run_id: str
-    #: ``converged``, ``timeout`` or ``failed``.
-    status: str
-    #: The run got past its first step (a batch whose first runs all fail before it stops).
-    started: bool
-    #: Its sealed journal line (:func:`~wmr.apps.batch.journal.compact_line`).
-    line: bytes
-    #: Its log relative to the batch folder, ``None`` when it kept none.
-    path: str | None
-    #: The log's bytes, sent back by a worker that does not see the batch folder (the parent
-    #: writes them at ``path`` before the line).
-    log: bytes | None
-    wall_s: float
-    #: It kept a log.
-    kept: bool
-    #: Its executor stopped it from outside (its record is made up).
-    killed: bool = False
-    #: Its result record (for ``on_outcome``; the journal keeps only the seal of its row).
-    record: dict[str, Any] | None = None
-    #: Who ran it.
-    worker: str = ""
+#: A finished run's status as one byte of :attr:`BlockResult.codes` (0: none of these).
+STATUS_CODES: Final = {"converged": 1, "timeout": 2, "failed": 3}
+#: The status bits of a code.
+STATUS_MASK: Final = 3
+#: Bit of a code: the run got past its first step (a batch whose first runs all fail before
+#: it stops).
+STARTED: Final = 4
+#: Bit of a code: the run kept a log.
+KEPT: Final = 8
 
 
 @dataclass
 class BlockResult:
-    """What a worker returns for a :class:`Block`: its finished runs in index order, their
-    summary rows as an Arrow IPC stream (``b""`` when none), and why the block stopped early,
-    if it did: ``("disk_full", message)`` (the run that found the disk full is not among the
-    entries) or ``("config", field, problem, fix)`` (a run could not be made)."""
+    """What a worker returns for a :class:`Block`: its finished runs as a few byte strings,
+    one of each kind for the whole range, never a Python object per run (a range crosses a
+    pipe or the network, and the parent does per range what it did per run).
 
-    entries: list[Entry]
+    Attributes
+    ----------
+    indices
+        The runs finished, in index order: the block's first ``len(indices)`` (a ``range``
+        when they are consecutive).
+    ids
+        Their run ids, each followed by a newline (ASCII).
+    lines
+        Their sealed journal lines (:func:`~wmr.apps.batch.journal.compact_line`), in the
+        same order, each ending with a newline: written with one ``write``.
+    codes
+        One byte a run: its status (:data:`STATUS_CODES`), with :data:`STARTED` and
+        :data:`KEPT`.
+    table
+        Their summary rows, an Arrow IPC stream (zstd), ``b""`` when none.
+    logs
+        ``(k, path, bytes)`` of each log sent back (a worker that does not see the batch
+        folder): the ``k``-th run's, which the parent writes at ``path`` (relative to the
+        batch folder) before the lines.
+    outcomes
+        ``(record, wall_s)`` of each run when the block asked for them (:attr:`Block.
+        outcomes`: the API's ``on_outcome``), else ``None``.
+    worker
+        Who ran them.
+    killed
+        Their executor stopped them from outside (their records are made up).
+    stop
+        Why the block stopped early, if it did: ``("disk_full", message)`` (the run that
+        found the disk full is not among them) or ``("config", field, problem, fix)`` (a run
+        could not be made).
+    """
+
+    indices: Sequence[int] = ()
+    ids: bytes = b""
+    lines: bytes = b""
+    codes: bytes = b""
     table: bytes = b""
+    logs: tuple[tuple[int, str, bytes], ...] = ()
+    outcomes: tuple[tuple[dict[str, Any], float], ...] | None = None
+    worker: str = ""
+    killed: bool = False
     stop: tuple[str, ...] | None = None
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def run_ids(self) -> list[str]:
+        """The run ids, as strings."""
+        return self.ids.decode("ascii").split("\n")[:-1]
+
+
+def run_code(status: str, started: bool, kept: bool) -> int:
+    """A run's byte of :attr:`BlockResult.codes`."""
+    return STATUS_CODES.get(status, 0) | (STARTED if started else 0) | (KEPT if kept else 0)
+
+
+def line_ends(lines: bytes) -> Any:
+    """Where each line of ``lines`` ends (the offset after its newline), as a numpy array."""
+    import numpy as np
+
+    return np.flatnonzero(np.frombuffer(lines, np.uint8) == 0x0A) + 1
 
 
 class TaskSource(Protocol):
@@ -238,9 +280,8 @@ def run_block(block: Block, run_one: Callable[[Task], tuple[dict[str, Any], byte
         Called with each run's index before it starts (the local pool's parent learns from
         it which run a worker that died or hung was on).
     """
-    done: list[tuple[int, BatchRun, str, bool, bytes | None, float, dict[str, Any]]] = []
-    rows: list[SummaryRow] = []
-    records: dict[str, dict[str, Any]] = {}
+    done: list[tuple[BatchRun, bool, float, dict[str, Any]]] = []
+    shipped: list[tuple[int, str, bytes]] = []
     logs: dict[str, str | None] = {}
     stop: tuple[str, ...] | None = None
     for index in block.indices:
@@ -260,27 +301,31 @@ def run_block(block: Block, run_one: Callable[[Task], tuple[dict[str, Any], byte
         rel = block.log_relpath(run.run_id)
         if out_dir is None:  # the parent writes the log
             kept = data is not None and record.get("mcap") is not None
+            if kept and data is not None:
+                shipped.append((len(done), rel, data))
         else:
             kept = record.get("mcap") is not None and (out_dir / rel).is_file()
-        done.append((index, run, rel, kept, data, wall, record))
-        rows.append(SummaryRow.of(run))
-        records[run.run_id] = record
+        done.append((run, kept, wall, record))
         logs[run.run_id] = rel if kept else None
-    if not rows:
-        return BlockResult([], b"", stop)
-    table = summary_table(rows, block.input_columns, records, logs,
-                          optimal=block.optimal is not None)
+    if not done:
+        return BlockResult(stop=stop, worker=worker)
+    records = {run.run_id: record for run, _, _, record in done}
+    table = summary_table([SummaryRow.of(run) for run, *_ in done], block.input_columns,
+                          records, logs, optimal=block.optimal is not None)
     lines = block_lines(table, {run.run_id: run_digest(run.digest, block.fmu_sha256)
-                                for _, run, *_ in done})
-    entries = []
-    for index, run, rel, kept, data, wall, record in done:
-        status = str(record.get("status"))
-        entries.append(Entry(index, run.run_id, status,
-                             status != "failed" or bool(record.get("steps")),
-                             lines[run.run_id],
-                             rel if kept else None, data if kept else None, wall, kept,
-                             record=record, worker=worker))
-    return BlockResult(entries, table_bytes(table), stop)
+                                for run, *_ in done})
+    codes = bytes(run_code(str(record.get("status")),
+                           record.get("status") != "failed" or bool(record.get("steps")), kept)
+                  for _, kept, _, record in done)
+    indices = block.indices[:len(done)]
+    return BlockResult(
+        indices=range(indices[0], indices[-1] + 1)
+        if indices[-1] - indices[0] + 1 == len(indices) else tuple(indices),
+        ids="".join(f"{run.run_id}\n" for run, *_ in done).encode("ascii"),
+        lines=b"".join(lines[run.run_id] for run, *_ in done), codes=codes,
+        table=table_bytes(table), logs=tuple(shipped),
+        outcomes=tuple((record, wall) for _, _, wall, record in done) if block.outcomes
+        else None, worker=worker, stop=stop)
 
 
 @dataclass(frozen=True)
@@ -517,6 +562,7 @@ def dask_run_block(block: Block, fmu_sha256: str, attachment: Attachment | None,
     return run_block(block, run_one, Path(out_dir) if shared else None, "")
 
 
-__all__ = ["FAULTS", "Attachment", "Block", "BlockResult", "Entry", "PlantHolder", "Task",
-           "WallClockLimit", "block_lines", "dask_run_block", "execute", "fmu_digest",
-           "materialise", "run_block", "table_bytes", "wall_limit_message"]
+__all__ = ["FAULTS", "KEPT", "STARTED", "STATUS_CODES", "STATUS_MASK", "Attachment", "Block",
+           "BlockResult", "PlantHolder", "Task", "WallClockLimit", "block_lines",
+           "dask_run_block", "execute", "fmu_digest", "line_ends", "materialise", "run_block",
+           "run_code", "table_bytes", "wall_limit_message"]
