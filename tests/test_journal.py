@@ -377,7 +377,8 @@ def test_a_record_is_made_again_exactly_from_the_logs_the_resume_counts_finished
     """A record is made from a log only if :func:`log_complete` takes it as finished (its
     summary indexes a ``result`` record), so that a resume never trusts a record from a log
     it would redo: among them another writer's log that holds the ``result`` record but no
-    summary section (written without indexes)."""
+    summary section (written without indexes), and a log whose ``result`` record is there
+    but whose summary lists it under another name (its index's name edited in place)."""
     from mcap.writer import IndexType
 
     no_summary = tmp_path / "no_summary.mcap"
@@ -388,10 +389,19 @@ def test_a_record_is_made_again_exactly_from_the_logs_the_resume_counts_finished
         writer.add_metadata("result", RESULT)
         writer.finish()
     done = _log(tmp_path / "done.mcap", RESULT)
+    # the MCAP string "result" (uint32 length, bytes) twice: the Metadata record in the data
+    # section, then its MetadataIndex in the summary, which is renamed
+    name = len(b"result").to_bytes(4, "little") + b"result"
+    data = done.read_bytes()
+    assert data.count(name) == 2
+    at = data.rindex(name)
+    unlisted = tmp_path / "unlisted.mcap"
+    unlisted.write_bytes(data[:at] + name.replace(b"result", b"Result") + data[at + len(name):])
     logs = [done, no_summary, _log(tmp_path / "none.mcap", None),
-            _log(tmp_path / "killed.mcap", RESULT, finish=False), tmp_path / "missing.mcap"]
+            _log(tmp_path / "killed.mcap", RESULT, finish=False), tmp_path / "missing.mcap",
+            unlisted]
     assert [logged_record(p) is not None for p in logs] == [log_complete(p) for p in logs]
-    assert [log_complete(p) for p in logs] == [True, False, False, False, False]
+    assert [log_complete(p) for p in logs] == [True, False, False, False, False, False]
 
 
 def test_a_stamped_path_that_cannot_hold_a_log_is_not_complete(tmp_path: Path) -> None:
