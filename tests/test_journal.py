@@ -26,6 +26,7 @@ from wmr.apps.batch.journal import (
     Journal,
     line_check,
     log_complete,
+    log_ends_whole,
     log_stamp,
     logged_record,
 )
@@ -416,6 +417,31 @@ def test_a_stamped_path_that_cannot_hold_a_log_is_not_complete(tmp_path: Path) -
         stamp = log_stamp(path)
         assert stamp is not None
         assert not log_complete(path, stamp), path.name
+
+
+def test_a_log_ends_whole_when_a_file_there_ends_with_the_magic_after_the_leading_one(
+        tmp_path: Path) -> None:
+    """What a compact line's run needs of its log (``log_ends_whole``): a regular file at the
+    path (a link is not followed) that ends with the MCAP magic, past the magic an MCAP file
+    starts with (the MCAP specification: a file opens and closes with it), so at least 16
+    bytes; a file holding only the leading magic (a writer killed at once), a log cut or
+    zeroed in place, a missing file and a folder are not."""
+    done = _log(tmp_path / "done.mcap", RESULT)
+    assert log_ends_whole(done)
+    both = tmp_path / "both.mcap"
+    both.write_bytes(MCAP_MAGIC + MCAP_MAGIC)
+    assert log_ends_whole(both)
+    for name, data in (("leading.mcap", MCAP_MAGIC), ("short.mcap", MCAP_MAGIC[1:] + MCAP_MAGIC),
+                       ("cut.mcap", done.read_bytes()[:-1]),
+                       ("zeroed.mcap", bytes(done.stat().st_size))):
+        (tmp_path / name).write_bytes(data)
+        assert not log_ends_whole(tmp_path / name), name
+    assert not log_ends_whole(tmp_path / "missing.mcap")
+    (tmp_path / "folder.mcap").mkdir()
+    assert not log_ends_whole(tmp_path / "folder.mcap")
+    link = tmp_path / "link.mcap"
+    link.symlink_to(done)
+    assert not log_ends_whole(link)
 
 
 def test_a_link_at_the_journal_is_refused_naming_the_file_and_nothing_written(
