@@ -520,3 +520,23 @@ def test_a_compact_line_is_94_bytes_sealed_over_itself_and_the_runs_row(tmp_path
     path = tmp_path / "journal.jsonl"
     path.write_bytes(line + line.replace(b'"seal":"', b'"seal":"0') + killed)
     assert [row["run_id"] for _, row in Journal(path).scan()] == ["0042-1f2e3d4c"] * 2
+
+
+def test_a_compact_line_whose_seal_is_not_8_hex_digits_is_garbled_and_skipped(
+        tmp_path: Path) -> None:
+    """docs/batch.md ("The journal"): the seal is 8 hex digits (a CRC-32); a line whose seal
+    holds another character (``g``, the first past hex; ``z``; a sign, a space or an ``_``,
+    which Python's ``int(text, 16)`` takes) is garbled, skipped as a cut line is, and its run
+    is done again: a negative seal stopped the resume (OverflowError), whose seals are
+    unsigned."""
+    from wmr.apps.batch.journal import compact_line
+
+    line = compact_line("0042-1f2e3d4c", "converged", "9c1d0f5e2a7b3c48", {"steps": 695})
+    seal = json.loads(line)["seal"]
+    path = tmp_path / "journal.jsonl"
+    edited = [line.replace(seal.encode(), other.encode())
+              for other in ("g" + seal[1:], seal[:-1] + "z", "zzzzzzzz", "-" + seal[1:],
+                            "+" + seal[1:], " " + seal[1:], seal[:4] + "_" + seal[5:])]
+    path.write_bytes(b"".join(edited) + line)
+    assert [(offset, row["seal"]) for offset, row in Journal(path).scan()] == [
+        (len(line) * len(edited), seal)]
