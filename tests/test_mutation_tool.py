@@ -51,3 +51,46 @@ def test_every_equivalent_entry_names_a_module_under_mutation() -> None:
     modules = {"wmr." + t.source.removesuffix(".py").replace("/", ".") + "."
                for t in tool.TARGETS.values()}
     assert [k for k in tool.EQUIVALENT if not any(k.startswith(m) for m in modules)] == []
+
+
+def test_every_function_with_equivalent_mutants_is_the_code_they_were_checked_on() -> None:
+    """mutmut numbers a function's mutants in the order of its code: once the function is
+    edited, an entry's number can name another mutant (the compact journal made the resume's
+    ``_verified`` 38 'and' for 'or' in the test of a seal, which an entry called equivalent).
+    Each function that has ``EQUIVALENT`` entries is the code it was when they were checked
+    (``CHECKED_CODE``), and the module still defines it."""
+    tool = _mutation()
+    now = tool.checked_code_now()
+    changed = sorted(p for p, h in now.items() if h is None or tool.CHECKED_CODE.get(p) != h)
+    assert changed == [], (
+        f"changed since their equivalent mutants were checked: {changed}: run their mutants "
+        "again (tools/mutation.py MODULE --mutants 'PREFIX__mutmut_*'), check each EQUIVALENT "
+        "entry against its mutant (mutmut show NAME), then python tools/mutation.py "
+        "--code-hashes")
+    assert sorted(tool.CHECKED_CODE) == sorted(now), "CHECKED_CODE lists other functions"
+
+
+MODULE = """
+def f(x):
+    return x + 1
+
+
+class C:
+    def f(self, x):
+        return x - 1
+"""
+
+
+def test_the_code_hash_is_of_the_function_mutmut_names_and_not_of_its_layout() -> None:
+    """``x_f`` is the module's function, ``xǁCǁf`` the method of ``C``; comments and line
+    breaks, which change no mutant, leave the hash as it is; a changed operator does not."""
+    tool = _mutation()
+    function, method = tool.code_hash(MODULE, "x_f"), tool.code_hash(MODULE, "xǁCǁf")
+    assert function is not None and method is not None and function != method
+    assert tool.code_hash(MODULE, "x_g") is None and tool.code_hash(MODULE, "xǁDǁf") is None
+    laid_out = MODULE.replace("return x + 1", "# one more\n    return (x\n            + 1)")
+    assert tool.code_hash(laid_out, "x_f") == function
+    assert tool.code_hash(laid_out, "xǁCǁf") == method
+    edited = MODULE.replace("x - 1", "x + 1")
+    assert tool.code_hash(edited, "x_f") == function
+    assert tool.code_hash(edited, "xǁCǁf") != method

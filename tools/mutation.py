@@ -26,7 +26,9 @@ docs/testing.md).
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
+import hashlib
 import json
 import os
 import shutil
@@ -202,6 +204,16 @@ EQUIVALENT: dict[str, str] = {
     # adapters/mcap/reader.py
     "wmr.adapters.mcap.reader.x__read_chunk__mutmut_25": (
         "unpack_from(body, 0) with the offset dropped: 0 is its default"),
+    **{f"wmr.adapters.mcap.reader.x__read_chunk__mutmut_{n}": (
+        "every chunk walked record by record (_chunk_messages; spans = None, or 'or True'): it "
+        "finds exactly the records the numpy walk finds when every record is a Message "
+        "(test_log_integrity's look-alike headers test), only slower, which benchmarks/ "
+        "measure") for n in (46, 50)},
+    **{f"wmr.adapters.mcap.reader.x__chunk_messages__mutmut_{n}": (
+        "np.int64 dropped from np.array of a list of Python ints: numpy 2 (pyproject: "
+        "numpy>=2.0) makes int64 of them on every platform; an empty list (float64) is never "
+        "used as an index: add_messages returns first when heads is empty")
+       for n in (43, 45, 47, 49)},
     "wmr.adapters.mcap.reader.x_finished_result__mutmut_19": (
         "next() without its default None: the StopIteration is an Exception, caught: None"),
     # build/fmus.py: the digest's separators and the label of a host build (its value changes,
@@ -218,18 +230,30 @@ EQUIVALENT: dict[str, str] = {
     **{f"wmr.apps.batch.journal.x_logged_record__mutmut_{n}": (
         "another default for a missing message (None, 'XXXX'): it is only tested for starting "
         "with 'WallClockLimit', which none of them does") for n in (13, 15, 18)},
+    "wmr.apps.batch.journal.x_logged_record__mutmut_36": (
+        "rpartition for partition of 'WallClockLimit: <text>': the text is "
+        "worker.wall_limit_message's ('wall-clock limit of {limit_s:g} s exceeded'), which "
+        "holds no ': '"),
     **{f"wmr.apps.batch.journal.xǁJournalǁ_ends_with_newline__mutmut_{n}": (
         "read(None) or read(2) for read(1) after seeking to the last byte: one byte is left "
         "either way") for n in (13, 14)},
-    **{f"wmr.apps.batch.journal.xǁJournalǁappend__mutmut_{n}": (
-        "append's allow_nan=False dropped, None or True: line_check(row) just before already "
-        "raises ValueError on a NaN (allow_nan=False), the only value it would refuse")
-       for n in (8, 11, 13)},
-    **{f"wmr.apps.batch.journal.xǁJournalǁappend__mutmut_{n}": (
-        "_checked left falsy (None, False) after the first append: every append then reads "
-        "the journal's last byte, which is the newline this journal wrote (the batch folder's "
-        "lock makes it the only writer): the same bytes, one 1-byte read more a line")
-       for n in (31, 32)},
+    **{f"wmr.apps.batch.journal.xǁJournalǁappend_lines__mutmut_{n}": (
+        "_checked = None or False for True after the first append: every append then reads the "
+        "journal's last byte, which is the newline this journal wrote (the batch folder's "
+        "lock makes it the only writer): the same bytes, one 1-byte read more a write")
+       for n in (15, 16)},
+    "wmr.apps.batch.journal.x_row_bytes__mutmut_3": (
+        "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
+    **{f"wmr.apps.batch.journal.x_row_bytes__mutmut_{n}": (
+        "allow_nan dropped or True: a worker's row holds no NaN (summary._float makes a "
+        "non-finite value None), so no seal was made over one; a row read back with a NaN "
+        "(edited) is other bytes ('NaN' for 'null'), and its CRC, as any edited row's, "
+        "misses the seal: the run is redone either way (the resume takes the ValueError as "
+        "'not sealed')") for n in (7, 10)},
+    **{f"wmr.apps.batch.journal.x_sealed_line__mutmut_{n}": (
+        "sealed_line's allow_nan=False as None, dropped or True: line_check(row) just before "
+        "already raises ValueError on a NaN (allow_nan=False), the only value it would "
+        "refuse, and the seal it adds is a hex string") for n in (7, 10, 12)},
     "wmr.apps.batch.journal.x_line_check__mutmut_8": (
         "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
     "wmr.apps.batch.journal.xǁJournalǁscan__mutmut_12": (
@@ -243,26 +267,45 @@ EQUIVALENT: dict[str, str] = {
     **{f"wmr.apps.batch.runner.x__resume__mutmut_{n}": (
         "the journal check's bar given file=None or no file: tqdm then writes to sys.stderr, "
         "as asked") for n in (10, 17)},
-    **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
-        "the reason returned with a line taken as it is ('XXXX' for ''), or with None (the run "
-        "redone): _resume reads the reason only of a line made again") for n in (
-            15, 35, 38, 60, 63, 91, 99)},
-    **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
-        "line.get('path', default) with another default: that branch is reached only when "
-        "_line_log found a 'path' key (without one it names runs/<id>.mcap)")
-       for n in (53, 55, 58)},
-    **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
-        "the old seal left in the line made again: Journal.append seals it anew (line_check "
-        "leaves 'check' out, and the new seal replaces it)") for n in (108, 111, 112)},
-    "wmr.apps.batch.runner.x__verified__mutmut_76": (
-        "the stamp read from an unsealed line too: it is used only when the line is sealed"),
-    "wmr.apps.batch.runner.x__verified__mutmut_86": (
-        "a stamp that is not a dict passed to log_complete: it never equals log_stamp's dict, "
-        "so the log is read, as with None"),
+    # (_verified's 15 entries were removed: the compact journal (issue 31) rewrote _verified,
+    # and their numbers named other mutants since, such as 38, 'and' made 'or' in the test of
+    # a line's seal; its mutants are to be run again: docs/testing.md)
     **{f"wmr.apps.batch.runner.x__recover_partial__mutmut_{n}": (
         "another name for the scratch file the partial log is moved to (.KILLED, "
         "XX.killedXX): any name but the recovered log's own .partial works alike, and none "
         "is documented") for n in (6, 7)},
+}
+
+#: The code of each function that has equivalent mutants, as it was when they were checked:
+#: :func:`code_hash` of the function, by its mutants' prefix.  mutmut numbers a function's
+#: mutants in the order of its code, so an edit of the function can give an entry's number to
+#: another mutant; tests/test_mutation_tool.py fails until the function's mutants are run
+#: again, the entries checked against them (``mutmut show NAME`` in the scratch folder), and
+#: the hash written here (``--code-hashes`` prints them).
+CHECKED_CODE: dict[str, str] = {
+    "wmr.adapters.mcap.reader.x__chunk_messages": "e4039932cd94",
+    "wmr.adapters.mcap.reader.x__read_chunk": "75dc94e4dbcd",
+    "wmr.adapters.mcap.reader.x_finished_result": "4c5378d4b986",
+    "wmr.adapters.ocp.result.x__dense": "e8147eed7675",
+    "wmr.adapters.ocp.result.x__integrals": "78b652a3f0bf",
+    "wmr.apps.batch.journal.x_line_check": "6733695feb5d",
+    "wmr.apps.batch.journal.x_logged_record": "fc979d524b89",
+    "wmr.apps.batch.journal.x_row_bytes": "eb6f7a32f560",
+    "wmr.apps.batch.journal.x_sealed_line": "d65f94d9c966",
+    "wmr.apps.batch.journal.xǁJournalǁ__init__": "760d35276bc8",
+    "wmr.apps.batch.journal.xǁJournalǁ_ends_with_newline": "b8bf172ec9d3",
+    "wmr.apps.batch.journal.xǁJournalǁappend_lines": "c6c0b0100e6a",
+    "wmr.apps.batch.journal.xǁJournalǁread_at": "74dddb57e5dd",
+    "wmr.apps.batch.journal.xǁJournalǁscan": "eff48e39103c",
+    "wmr.apps.batch.runner.x__recover_partial": "ea48e6f88794",
+    "wmr.apps.batch.runner.x__resume": "c72a55d80584",
+    "wmr.build.fmus.x_build_digest": "a2c75e72796f",
+    "wmr.core.control.actuator.xǁWheelServoǁupdate": "c107b9ef5763",
+    "wmr.core.control.stabiliser.xǁPointStabiliserǁ__init__": "34ee82caad38",
+    "wmr.core.control.stabiliser.xǁPointStabiliserǁupdate": "a27024ce6785",
+    "wmr.core.physics.x_outputs": "d119984f9fe3",
+    "wmr.core.physics.xǁReferencePlantǁreset": "88eb5a2c6013",
+    "wmr.core.physics.xǁReferencePlantǁstep": "f34f89978f0a",
 }
 
 #: mutmut's exit codes of a mutant's test run, as its own ``status_by_exit_code`` reads them.
@@ -336,6 +379,47 @@ def stale_equivalents(source: str, mutant_names: Iterable[str]) -> list[str]:
     prefix = "wmr." + source.removesuffix(".py").replace("/", ".") + "."
     names = set(mutant_names)
     return sorted(k for k in EQUIVALENT if k.startswith(prefix) and k not in names)
+
+
+def _function(text: str, mangled: str) -> ast.FunctionDef | ast.AsyncFunctionDef | None:
+    """The function of the module ``text`` that mutmut names ``mangled`` (``x_name``, or
+    ``xǁClassǁname`` for a method), ``None`` if it has none."""
+    if mangled.startswith("xǁ"):
+        _, cls, name = mangled.split("ǁ")
+    else:
+        cls, name = "", mangled.removeprefix("x_")
+    body: list[ast.stmt] = ast.parse(text).body
+    if cls:
+        body = next((n.body for n in body if isinstance(n, ast.ClassDef) and n.name == cls), [])
+    return next((n for n in body if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)
+                 and n.name == name), None)
+
+
+def code_hash(text: str, mangled: str) -> str | None:
+    """A hash of the code of the function mutmut names ``mangled`` in the module ``text`` (12
+    hex digits of the SHA-256 of ``ast.unparse``: comments and layout, which change no mutant,
+    left out), ``None`` if the module has no such function."""
+    node = _function(text, mangled)
+    if node is None:
+        return None
+    return hashlib.sha256(ast.unparse(node).encode()).hexdigest()[:12]
+
+
+def checked_code_now() -> dict[str, str | None]:
+    """:data:`CHECKED_CODE` as the code is now: the :func:`code_hash` of each function that
+    has :data:`EQUIVALENT` entries, by their prefix (``wmr.<module>.<mangled name>``)."""
+    modules = {"wmr." + t.source.removesuffix(".py").replace("/", "."): t.source
+               for t in TARGETS.values()}
+    texts: dict[str, str] = {}
+    hashes: dict[str, str | None] = {}
+    for key in EQUIVALENT:
+        prefix = key.partition("__mutmut_")[0]
+        module, _, mangled = prefix.rpartition(".")
+        if module in modules and prefix not in hashes:
+            if module not in texts:
+                texts[module] = (ROOT / "pipelines" / "wmr" / modules[module]).read_text()
+            hashes[prefix] = code_hash(texts[module], mangled)
+    return hashes
 
 
 def _results(root: Path, name: str, target: Target) -> tuple[Score, list[str], list[str]]:
@@ -416,7 +500,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="mutmut's timeout multiplier for this run (default: the "
                              "target's); higher, to confirm that the timeouts of a run loop")
     parser.add_argument("--list", action="store_true", help="list the modules and exit")
+    parser.add_argument("--code-hashes", action="store_true",
+                        help="print CHECKED_CODE as the code is now (for the functions whose "
+                             "equivalent mutants were checked again) and exit")
     args = parser.parse_args(argv)
+    if args.code_hashes:
+        for prefix, digest in sorted(checked_code_now().items()):
+            print(f'    "{prefix}": "{digest}",')
+        return 0
     if args.list:
         for name, t in TARGETS.items():
             print(f"{name:14} wmr/{t.source:30} {' '.join(t.tests)}")
