@@ -26,6 +26,7 @@ from wmr.apps.batch.journal import (
     Journal,
     line_check,
     log_complete,
+    log_ends_whole,
     log_stamp,
     logged_record,
 )
@@ -377,7 +378,8 @@ def test_a_record_is_made_again_exactly_from_the_logs_the_resume_counts_finished
     """A record is made from a log only if :func:`log_complete` takes it as finished (its
     summary indexes a ``result`` record), so that a resume never trusts a record from a log
     it would redo: among them another writer's log that holds the ``result`` record but no
-    summary section (written without indexes)."""
+    summary section (written without indexes), and a log whose ``result`` record is there
+    but whose summary lists it under another name (its index's name edited in place)."""
     from mcap.writer import IndexType
 
     no_summary = tmp_path / "no_summary.mcap"
@@ -388,10 +390,19 @@ def test_a_record_is_made_again_exactly_from_the_logs_the_resume_counts_finished
         writer.add_metadata("result", RESULT)
         writer.finish()
     done = _log(tmp_path / "done.mcap", RESULT)
+    # the MCAP string "result" (uint32 length, bytes) twice: the Metadata record in the data
+    # section, then its MetadataIndex in the summary, which is renamed
+    name = len(b"result").to_bytes(4, "little") + b"result"
+    data = done.read_bytes()
+    assert data.count(name) == 2
+    at = data.rindex(name)
+    unlisted = tmp_path / "unlisted.mcap"
+    unlisted.write_bytes(data[:at] + name.replace(b"result", b"Result") + data[at + len(name):])
     logs = [done, no_summary, _log(tmp_path / "none.mcap", None),
-            _log(tmp_path / "killed.mcap", RESULT, finish=False), tmp_path / "missing.mcap"]
+            _log(tmp_path / "killed.mcap", RESULT, finish=False), tmp_path / "missing.mcap",
+            unlisted]
     assert [logged_record(p) is not None for p in logs] == [log_complete(p) for p in logs]
-    assert [log_complete(p) for p in logs] == [True, False, False, False, False]
+    assert [log_complete(p) for p in logs] == [True, False, False, False, False, False]
 
 
 def test_a_stamped_path_that_cannot_hold_a_log_is_not_complete(tmp_path: Path) -> None:
@@ -406,6 +417,31 @@ def test_a_stamped_path_that_cannot_hold_a_log_is_not_complete(tmp_path: Path) -
         stamp = log_stamp(path)
         assert stamp is not None
         assert not log_complete(path, stamp), path.name
+
+
+def test_a_log_ends_whole_when_a_file_there_ends_with_the_magic_after_the_leading_one(
+        tmp_path: Path) -> None:
+    """What a compact line's run needs of its log (``log_ends_whole``): a regular file at the
+    path (a link is not followed) that ends with the MCAP magic, past the magic an MCAP file
+    starts with (the MCAP specification: a file opens and closes with it), so at least 16
+    bytes; a file holding only the leading magic (a writer killed at once), a log cut or
+    zeroed in place, a missing file and a folder are not."""
+    done = _log(tmp_path / "done.mcap", RESULT)
+    assert log_ends_whole(done)
+    both = tmp_path / "both.mcap"
+    both.write_bytes(MCAP_MAGIC + MCAP_MAGIC)
+    assert log_ends_whole(both)
+    for name, data in (("leading.mcap", MCAP_MAGIC), ("short.mcap", MCAP_MAGIC[1:] + MCAP_MAGIC),
+                       ("cut.mcap", done.read_bytes()[:-1]),
+                       ("zeroed.mcap", bytes(done.stat().st_size))):
+        (tmp_path / name).write_bytes(data)
+        assert not log_ends_whole(tmp_path / name), name
+    assert not log_ends_whole(tmp_path / "missing.mcap")
+    (tmp_path / "folder.mcap").mkdir()
+    assert not log_ends_whole(tmp_path / "folder.mcap")
+    link = tmp_path / "link.mcap"
+    link.symlink_to(done)
+    assert not log_ends_whole(link)
 
 
 def test_a_link_at_the_journal_is_refused_naming_the_file_and_nothing_written(
@@ -484,3 +520,23 @@ def test_a_compact_line_is_94_bytes_sealed_over_itself_and_the_runs_row(tmp_path
     path = tmp_path / "journal.jsonl"
     path.write_bytes(line + line.replace(b'"seal":"', b'"seal":"0') + killed)
     assert [row["run_id"] for _, row in Journal(path).scan()] == ["0042-1f2e3d4c"] * 2
+
+
+def test_a_compact_line_whose_seal_is_not_8_hex_digits_is_garbled_and_skipped(
+        tmp_path: Path) -> None:
+    """docs/batch.md ("The journal"): the seal is 8 hex digits (a CRC-32); a line whose seal
+    holds another character (``g``, the first past hex; ``z``; a sign, a space or an ``_``,
+    which Python's ``int(text, 16)`` takes) is garbled, skipped as a cut line is, and its run
+    is done again: a negative seal stopped the resume (OverflowError), whose seals are
+    unsigned."""
+    from wmr.apps.batch.journal import compact_line
+
+    line = compact_line("0042-1f2e3d4c", "converged", "9c1d0f5e2a7b3c48", {"steps": 695})
+    seal = json.loads(line)["seal"]
+    path = tmp_path / "journal.jsonl"
+    edited = [line.replace(seal.encode(), other.encode())
+              for other in ("g" + seal[1:], seal[:-1] + "z", "zzzzzzzz", "-" + seal[1:],
+                            "+" + seal[1:], " " + seal[1:], seal[:4] + "_" + seal[5:])]
+    path.write_bytes(b"".join(edited) + line)
+    assert [(offset, row["seal"]) for offset, row in Journal(path).scan()] == [
+        (len(line) * len(edited), seal)]

@@ -803,6 +803,30 @@ def test_the_read_budget_stops_at_the_first_chunk_past_it_and_counts_the_rest(
         "the data section CRC was not checked: records over a read limit were skipped unread"]
 
 
+@pytest.mark.parametrize("short", [0, 1])
+def test_a_recovery_keeps_the_places_of_the_chunks_within_its_budget_and_names_where_it_stops(
+        tmp_path: Path, short: int) -> None:
+    """A recovery (``keep_chunks``: the chunks are read again when written) keeps only where
+    each good chunk is, 16 bytes of the budget each: with exactly 3 chunks' worth the first 3
+    are kept, with one byte less 2, and the one warning names the second the read stops at."""
+    from wmr.adapters.mcap.reader import open_log, scan_log
+
+    chunks = [_second_chunk(s) for s in range(5)]
+    data, at = _hand_log(*chunks)
+    path = tmp_path / "hand.mcap"
+    path.write_bytes(data)
+    budget = 3 * 16 - short
+    with open_log(str(path)) as log:
+        scan = scan_log(log, ReadLimits(total_bytes=budget), keep_chunks=True)
+    n = 3 - short
+    assert scan.chunks == [(at[i], len(chunks[i]) - 9) for i in range(n)]  # after opcode, length
+    assert scan.bad_chunks == 5 - n
+    assert scan.warnings[0] == (
+        f"reading the log takes more than {budget} B of memory (ReadLimits.total_bytes): read "
+        f"stops at the chunk at t = {n} s; raise it (wmr replay/wmr log recover --read-limit "
+        "MIB, or WMR_READ_LIMIT_MIB=MIB) to read it all")
+
+
 @pytest.mark.parametrize("compression", ["none", "lz4", "zstd"])
 @pytest.mark.parametrize("cut", ["whole", "no summary", "no data end"])
 def test_another_writers_log_with_its_schemas_and_channels_inside_the_chunks(

@@ -16,15 +16,19 @@ Usage::
     python tools/mutation.py --list          # the modules, their tests and functions
 
 Prints a table (module, mutants, killed, survived, equivalent, no tests, timeout) and the
-surviving mutants not known to be equivalent; exits 1 when any is left (or, with
-``--min-score``, when a module's score is below it).  A survivor is either killed by a new
-test or explained in :data:`EQUIVALENT` (and in docs/testing.md).
+surviving mutants not known to be equivalent; exits 1 when any is left, when an
+:data:`EQUIVALENT` key of a module run names none of its mutants any more (stale: the code it
+was checked against moved), or, with ``--min-score``, when a module's score is below it.  A
+survivor is either killed by a new test or explained in :data:`EQUIVALENT` (and in
+docs/testing.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
+import hashlib
 import json
 import os
 import shutil
@@ -32,6 +36,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,12 +77,17 @@ TARGETS: dict[str, Target] = {
     "ocp_result": Target("adapters/ocp/result.py", ("tests/test_optimal.py",),
                          pytest_args=("-m", "not slow")),
     # the integrity checks: the CRCs, the chunks and the read budget (the record walk and
-    # _parse_record, 235 mutants more, are left out for time: docs/testing.md)
-    "mcap_reader": Target("adapters/mcap/reader.py", ("tests/test_log_integrity.py",),
+    # _parse_record, 235 mutants more, are left out for time: docs/testing.md); and the
+    # batch's test of a finished log on resume and its result record (log_finished,
+    # finished_result: a log wrongly taken as finished is a run never run again), which
+    # test_journal covers (through journal.log_complete and logged_record)
+    "mcap_reader": Target("adapters/mcap/reader.py",
+                          ("tests/test_log_integrity.py", "tests/test_journal.py"),
                           pytest_args=("-m", "not slow"),
                           functions=tuple(f"wmr.adapters.mcap.reader.{f}__mutmut_*" for f in (
                               "x__check_crc", "x__read_chunk", "x__chunk_messages",
-                              "xǁLogScanǁdamage", "xǁLogScanǁcharge"))),
+                              "xǁLogScanǁdamage", "xǁLogScanǁcharge", "x_log_finished",
+                              "x_finished_result"))),
     "batch_journal": Target("apps/batch/journal.py",
                             ("tests/test_journal.py", "tests/test_batch.py"),
                             pytest_args=("-m", "not slow", "-k", "resume or journal or cut"),
@@ -194,9 +204,18 @@ EQUIVALENT: dict[str, str] = {
     # adapters/mcap/reader.py
     "wmr.adapters.mcap.reader.x__read_chunk__mutmut_25": (
         "unpack_from(body, 0) with the offset dropped: 0 is its default"),
-    "wmr.adapters.mcap.reader.x__read_chunk__mutmut_89": (
-        "'more than' when len(buf) >= usize instead of >: the message is made only when "
-        "len(buf) != usize, where the two agree"),
+    **{f"wmr.adapters.mcap.reader.x__read_chunk__mutmut_{n}": (
+        "every chunk walked record by record (_chunk_messages; spans = None, or 'or True'): it "
+        "finds exactly the records the numpy walk finds when every record is a Message "
+        "(test_log_integrity's look-alike headers test), only slower, which benchmarks/ "
+        "measure") for n in (46, 50)},
+    **{f"wmr.adapters.mcap.reader.x__chunk_messages__mutmut_{n}": (
+        "np.int64 dropped from np.array of a list of Python ints: numpy 2 (pyproject: "
+        "numpy>=2.0) makes int64 of them on every platform; an empty list (float64) is never "
+        "used as an index: add_messages returns first when heads is empty")
+       for n in (43, 45, 47, 49)},
+    "wmr.adapters.mcap.reader.x_finished_result__mutmut_19": (
+        "next() without its default None: the StopIteration is an Exception, caught: None"),
     # build/fmus.py: the digest's separators and the label of a host build (its value changes,
     # not what goes into it)
     **{f"wmr.build.fmus.x_build_digest__mutmut_{n}": (
@@ -208,30 +227,33 @@ EQUIVALENT: dict[str, str] = {
     # apps/batch/journal.py
     "wmr.apps.batch.journal.xǁJournalǁ__init____mutmut_2": (
         "_checked = None for False: only ever tested as 'not self._checked', both falsy"),
-    "wmr.apps.batch.journal.x_logged_record__mutmut_10": (
-        "'summary is None and not any(...)': without a summary it reads summary's indexes and "
-        "raises AttributeError (caught: None, as before); with one, iter_metadata reads that "
-        "same index, so a result it does not list is not found either (None)"),
-    "wmr.apps.batch.journal.x_logged_record__mutmut_20": (
-        "next() without its default None: the StopIteration is an Exception, caught: None"),
     **{f"wmr.apps.batch.journal.x_logged_record__mutmut_{n}": (
         "another default for a missing message (None, 'XXXX'): it is only tested for starting "
-        "with 'WallClockLimit', which none of them does") for n in (35, 37, 40)},
-    "wmr.apps.batch.journal.x_logged_record__mutmut_58": (
+        "with 'WallClockLimit', which none of them does") for n in (13, 15, 18)},
+    "wmr.apps.batch.journal.x_logged_record__mutmut_36": (
         "rpartition for partition of 'WallClockLimit: <text>': the text is "
-        "worker.wall_limit_message's, which holds no ': '"),
+        "worker.wall_limit_message's ('wall-clock limit of {limit_s:g} s exceeded'), which "
+        "holds no ': '"),
     **{f"wmr.apps.batch.journal.xǁJournalǁ_ends_with_newline__mutmut_{n}": (
         "read(None) or read(2) for read(1) after seeking to the last byte: one byte is left "
         "either way") for n in (13, 14)},
-    **{f"wmr.apps.batch.journal.xǁJournalǁappend__mutmut_{n}": (
-        "append's allow_nan=False dropped, None or True: line_check(row) just before already "
-        "raises ValueError on a NaN (allow_nan=False), the only value it would refuse")
-       for n in (8, 11, 13)},
-    **{f"wmr.apps.batch.journal.xǁJournalǁappend__mutmut_{n}": (
-        "_checked left falsy (None, False) after the first append: every append then reads "
-        "the journal's last byte, which is the newline this journal wrote (the batch folder's "
-        "lock makes it the only writer): the same bytes, one 1-byte read more a line")
-       for n in (31, 32)},
+    **{f"wmr.apps.batch.journal.xǁJournalǁappend_lines__mutmut_{n}": (
+        "_checked = None or False for True after the first append: every append then reads the "
+        "journal's last byte, which is the newline this journal wrote (the batch folder's "
+        "lock makes it the only writer): the same bytes, one 1-byte read more a write")
+       for n in (15, 16)},
+    "wmr.apps.batch.journal.x_row_bytes__mutmut_3": (
+        "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
+    **{f"wmr.apps.batch.journal.x_row_bytes__mutmut_{n}": (
+        "allow_nan dropped or True: a worker's row holds no NaN (summary._float makes a "
+        "non-finite value None), so no seal was made over one; a row read back with a NaN "
+        "(edited) is other bytes ('NaN' for 'null'), and its CRC, as any edited row's, "
+        "misses the seal: the run is redone either way (the resume takes the ValueError as "
+        "'not sealed')") for n in (7, 10)},
+    **{f"wmr.apps.batch.journal.x_sealed_line__mutmut_{n}": (
+        "sealed_line's allow_nan=False as None, dropped or True: line_check(row) just before "
+        "already raises ValueError on a NaN (allow_nan=False), the only value it would "
+        "refuse, and the seal it adds is a hex string") for n in (7, 10, 12)},
     "wmr.apps.batch.journal.x_line_check__mutmut_8": (
         "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
     "wmr.apps.batch.journal.xǁJournalǁscan__mutmut_12": (
@@ -245,26 +267,45 @@ EQUIVALENT: dict[str, str] = {
     **{f"wmr.apps.batch.runner.x__resume__mutmut_{n}": (
         "the journal check's bar given file=None or no file: tqdm then writes to sys.stderr, "
         "as asked") for n in (10, 17)},
-    **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
-        "the reason returned with a line taken as it is ('XXXX' for ''), or with None (the run "
-        "redone): _resume reads the reason only of a line made again") for n in (
-            15, 35, 38, 60, 63, 91, 99)},
-    **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
-        "line.get('path', default) with another default: that branch is reached only when "
-        "_line_log found a 'path' key (without one it names runs/<id>.mcap)")
-       for n in (53, 55, 58)},
-    **{f"wmr.apps.batch.runner.x__verified__mutmut_{n}": (
-        "the old seal left in the line made again: Journal.append seals it anew (line_check "
-        "leaves 'check' out, and the new seal replaces it)") for n in (108, 111, 112)},
-    "wmr.apps.batch.runner.x__verified__mutmut_76": (
-        "the stamp read from an unsealed line too: it is used only when the line is sealed"),
-    "wmr.apps.batch.runner.x__verified__mutmut_86": (
-        "a stamp that is not a dict passed to log_complete: it never equals log_stamp's dict, "
-        "so the log is read, as with None"),
+    # (_verified's 15 entries were removed: the compact journal (issue 31) rewrote _verified,
+    # and their numbers named other mutants since, such as 38, 'and' made 'or' in the test of
+    # a line's seal; its mutants are to be run again: docs/testing.md)
     **{f"wmr.apps.batch.runner.x__recover_partial__mutmut_{n}": (
         "another name for the scratch file the partial log is moved to (.KILLED, "
         "XX.killedXX): any name but the recovered log's own .partial works alike, and none "
         "is documented") for n in (6, 7)},
+}
+
+#: The code of each function that has equivalent mutants, as it was when they were checked:
+#: :func:`code_hash` of the function, by its mutants' prefix.  mutmut numbers a function's
+#: mutants in the order of its code, so an edit of the function can give an entry's number to
+#: another mutant; tests/test_mutation_tool.py fails until the function's mutants are run
+#: again, the entries checked against them (``mutmut show NAME`` in the scratch folder), and
+#: the hash written here (``--code-hashes`` prints them).
+CHECKED_CODE: dict[str, str] = {
+    "wmr.adapters.mcap.reader.x__chunk_messages": "e4039932cd94",
+    "wmr.adapters.mcap.reader.x__read_chunk": "75dc94e4dbcd",
+    "wmr.adapters.mcap.reader.x_finished_result": "4c5378d4b986",
+    "wmr.adapters.ocp.result.x__dense": "e8147eed7675",
+    "wmr.adapters.ocp.result.x__integrals": "78b652a3f0bf",
+    "wmr.apps.batch.journal.x_line_check": "6733695feb5d",
+    "wmr.apps.batch.journal.x_logged_record": "fc979d524b89",
+    "wmr.apps.batch.journal.x_row_bytes": "eb6f7a32f560",
+    "wmr.apps.batch.journal.x_sealed_line": "d65f94d9c966",
+    "wmr.apps.batch.journal.xǁJournalǁ__init__": "760d35276bc8",
+    "wmr.apps.batch.journal.xǁJournalǁ_ends_with_newline": "b8bf172ec9d3",
+    "wmr.apps.batch.journal.xǁJournalǁappend_lines": "c6c0b0100e6a",
+    "wmr.apps.batch.journal.xǁJournalǁread_at": "74dddb57e5dd",
+    "wmr.apps.batch.journal.xǁJournalǁscan": "eff48e39103c",
+    "wmr.apps.batch.runner.x__recover_partial": "ea48e6f88794",
+    "wmr.apps.batch.runner.x__resume": "c72a55d80584",
+    "wmr.build.fmus.x_build_digest": "a2c75e72796f",
+    "wmr.core.control.actuator.xǁWheelServoǁupdate": "c107b9ef5763",
+    "wmr.core.control.stabiliser.xǁPointStabiliserǁ__init__": "34ee82caad38",
+    "wmr.core.control.stabiliser.xǁPointStabiliserǁupdate": "a27024ce6785",
+    "wmr.core.physics.x_outputs": "d119984f9fe3",
+    "wmr.core.physics.xǁReferencePlantǁreset": "88eb5a2c6013",
+    "wmr.core.physics.xǁReferencePlantǁstep": "f34f89978f0a",
 }
 
 #: mutmut's exit codes of a mutant's test run, as its own ``status_by_exit_code`` reads them.
@@ -330,10 +371,62 @@ class Score:
         return 100.0 * self.killed / n if n else 100.0
 
 
-def _results(root: Path, name: str, target: Target) -> tuple[Score, list[str]]:
+def stale_equivalents(source: str, mutant_names: Iterable[str]) -> list[str]:
+    """The :data:`EQUIVALENT` keys of the module ``source`` (under pipelines/wmr) that name
+    none of its mutants ``mutant_names`` (every mutant mutmut made of it, run or not): the
+    function they meant was moved, renamed or removed, so their reason was never checked
+    against the code there now."""
+    prefix = "wmr." + source.removesuffix(".py").replace("/", ".") + "."
+    names = set(mutant_names)
+    return sorted(k for k in EQUIVALENT if k.startswith(prefix) and k not in names)
+
+
+def _function(text: str, mangled: str) -> ast.FunctionDef | ast.AsyncFunctionDef | None:
+    """The function of the module ``text`` that mutmut names ``mangled`` (``x_name``, or
+    ``xǁClassǁname`` for a method), ``None`` if it has none."""
+    if mangled.startswith("xǁ"):
+        _, cls, name = mangled.split("ǁ")
+    else:
+        cls, name = "", mangled.removeprefix("x_")
+    body: list[ast.stmt] = ast.parse(text).body
+    if cls:
+        body = next((n.body for n in body if isinstance(n, ast.ClassDef) and n.name == cls), [])
+    return next((n for n in body if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)
+                 and n.name == name), None)
+
+
+def code_hash(text: str, mangled: str) -> str | None:
+    """A hash of the code of the function mutmut names ``mangled`` in the module ``text`` (12
+    hex digits of the SHA-256 of ``ast.unparse``: comments and layout, which change no mutant,
+    left out), ``None`` if the module has no such function."""
+    node = _function(text, mangled)
+    if node is None:
+        return None
+    return hashlib.sha256(ast.unparse(node).encode()).hexdigest()[:12]
+
+
+def checked_code_now() -> dict[str, str | None]:
+    """:data:`CHECKED_CODE` as the code is now: the :func:`code_hash` of each function that
+    has :data:`EQUIVALENT` entries, by their prefix (``wmr.<module>.<mangled name>``)."""
+    modules = {"wmr." + t.source.removesuffix(".py").replace("/", "."): t.source
+               for t in TARGETS.values()}
+    texts: dict[str, str] = {}
+    hashes: dict[str, str | None] = {}
+    for key in EQUIVALENT:
+        prefix = key.partition("__mutmut_")[0]
+        module, _, mangled = prefix.rpartition(".")
+        if module in modules and prefix not in hashes:
+            if module not in texts:
+                texts[module] = (ROOT / "pipelines" / "wmr" / modules[module]).read_text()
+            hashes[prefix] = code_hash(texts[module], mangled)
+    return hashes
+
+
+def _results(root: Path, name: str, target: Target) -> tuple[Score, list[str], list[str]]:
     meta = root / "mutants" / "src" / "wmr" / (target.source + ".meta")
     data = json.loads(meta.read_text())
     score, survivors = Score(name), []
+    stale = stale_equivalents(target.source, data.get("exit_code_by_key", {}))
     for mutant, code in sorted(data.get("exit_code_by_key", {}).items()):
         if code is None:  # not run (outside the sample)
             continue
@@ -355,11 +448,12 @@ def _results(root: Path, name: str, target: Target) -> tuple[Score, list[str]]:
         else:
             score.other += 1
             survivors.append(f"{mutant} (exit code {code})")
-    return score, survivors
+    return score, survivors, stale
 
 
 def run_target(name: str, target: Target, work: Path, sample: bool,
-               max_children: int, mutants: tuple[str, ...] = ()) -> tuple[Score, list[str]]:
+               max_children: int, mutants: tuple[str, ...] = ()
+               ) -> tuple[Score, list[str], list[str]]:
     root = _scratch(work, name, target)
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "MUTANT_UNDER_TEST")}
     env["MPLBACKEND"] = "Agg"
@@ -382,9 +476,9 @@ def run_target(name: str, target: Target, work: Path, sample: bool,
             or "failed to collect stats" in proc.stdout + proc.stderr:
         raise SystemExit(f"mutmut failed on {name} (exit {proc.returncode}); see "
                          f"{work / (name + '.log')}:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
-    score, survivors = _results(root, name, target)
+    score, survivors, stale = _results(root, name, target)
     score.wall_s = wall
-    return score, survivors
+    return score, survivors, stale
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -406,7 +500,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="mutmut's timeout multiplier for this run (default: the "
                              "target's); higher, to confirm that the timeouts of a run loop")
     parser.add_argument("--list", action="store_true", help="list the modules and exit")
+    parser.add_argument("--code-hashes", action="store_true",
+                        help="print CHECKED_CODE as the code is now (for the functions whose "
+                             "equivalent mutants were checked again) and exit")
     args = parser.parse_args(argv)
+    if args.code_hashes:
+        for prefix, digest in sorted(checked_code_now().items()):
+            print(f'    "{prefix}": "{digest}",')
+        return 0
     if args.list:
         for name, t in TARGETS.items():
             print(f"{name:14} wmr/{t.source:30} {' '.join(t.tests)}")
@@ -419,14 +520,16 @@ def main(argv: list[str] | None = None) -> int:
         names = [n for n in names if TARGETS[n].sample]
     rows: list[Score] = []
     left: list[str] = []
+    stale: list[str] = []
     for name in names:
         target = TARGETS[name]
         if args.timeout_multiplier is not None:
             target = dataclasses.replace(target, timeout_multiplier=args.timeout_multiplier)
-        score, survivors = run_target(name, target, args.work, args.sample,
-                                      args.max_children, tuple(args.mutants))
+        score, survivors, stale_keys = run_target(name, target, args.work, args.sample,
+                                                  args.max_children, tuple(args.mutants))
         rows.append(score)
         left += survivors
+        stale += stale_keys
     print("| module | mutants | killed | survived | equivalent | no tests | timeout | score | "
           "wall s |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
@@ -435,10 +538,13 @@ def main(argv: list[str] | None = None) -> int:
               f"{s.no_tests} | {s.timeout} | {s.percent:.1f} % | {s.wall_s:.0f} |")
     for mutant in left:
         print(f"survived: {mutant}")
+    for key in stale:
+        print(f"stale: EQUIVALENT names {key}, which is no mutant of its module any more "
+              "(its code moved or changed): remove it, and run the module again")
     low = [s.name for s in rows if args.min_score is not None and s.percent < args.min_score]
     if low:
         print(f"below {args.min_score} %: {', '.join(low)}")
-    return 1 if left or low else 0
+    return 1 if left or low or stale else 0
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ import hashlib
 import itertools
 import json
 import os
+import string
 import zlib
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -35,6 +36,8 @@ JOURNAL = "journal.jsonl"
 MAX_LINE_BYTES = 1 << 20
 #: Longest run id taken (``NNNN-hhhhhhhh``): a 5,000-digit one is not a run of any spec.
 MAX_RUN_ID_CHARS = 64
+#: What a compact line's seal is made of (:func:`compact_line` writes lower case).
+_HEX_DIGITS = frozenset(string.hexdigits)
 #: Record fields the log's ``result`` metadata keeps as text (the others are JSON).
 _TEXT_FIELDS = frozenset(("name", "status", "message", "mcap"))
 
@@ -261,11 +264,9 @@ def _parse(line: bytes) -> dict[str, Any] | None:
         return row
     if all(isinstance(row.get(k), str) for k in ("status", "digest", "seal")) \
             and len(row["seal"]) == 8 and len(row["digest"]) == DIGEST_CHARS:
-        try:
-            int(row["seal"], 16)
-        except ValueError:
-            return None
-        return row
+        # hex digits only: int(seal, 16) also takes a sign, spaces and '_', and a negative
+        # seal stopped the resume (its array of seals holds unsigned ints)
+        return row if _HEX_DIGITS.issuperset(row["seal"]) else None
     return None
 
 
