@@ -201,6 +201,10 @@ class McapFile:
         self._channel_ids: list[int] = []
         self._crc = 0  # of the data section: every byte before Data End, magic included
         self._broken = ""  # why the file cannot be finished (a rollback that failed)
+        #: hand each chunk to the OS once written (a killed run keeps it); off for the chunks
+        #: written at a log's close, which :meth:`finish` hands over with the summary in one
+        #: write
+        self.flush_each_chunk = True
         self._write(MAGIC + _record(Opcode.HEADER, _prefixed("") + _prefixed(library)))
 
     def _write(self, data: bytes) -> None:
@@ -326,7 +330,8 @@ class McapFile:
         self._pos = chunk_start + chunk_length + len(indexes)
         self._chunks.append((t_first, t_last, chunk_start, chunk_length, index_of,
                              len(indexes), data_len, size))
-        self._stream.flush()
+        if self.flush_each_chunk:
+            self._stream.flush()
 
     def mark(self) -> _Mark:
         """Where the file is, for :meth:`rollback` (taken before a chunk is added)."""
@@ -634,12 +639,26 @@ def _numpy_row_encoder(channel_ids: tuple[int, ...],
     return RowEncoder(channel_ids, layouts)
 
 
+#: ``json.dumps(value, sort_keys=True, allow_nan=True)`` without making an encoder a call (a
+#: ``run`` record has some 20 values to encode)
+_JSON: Final = json.JSONEncoder(sort_keys=True, allow_nan=True)
+_JSON_FLOATS: Final = {math.inf: "Infinity", -math.inf: "-Infinity"}
+
+
 def _as_str(value: object) -> str:
-    """Metadata values are strings: keep strings, JSON-encode anything else."""
+    """Metadata values are strings: keep strings, JSON-encode anything else (a float or an
+    int as :mod:`json` writes it, without its encoder's passes)."""
     if isinstance(value, str):
         return value
+    kind = type(value)
+    if kind is float:
+        number = cast(float, value)
+        return (float.__repr__(number) if number - number == 0.0
+                else "NaN" if number != number else _JSON_FLOATS[number])
+    if kind is int:
+        return int.__repr__(cast(int, value))
     try:
-        return json.dumps(value, sort_keys=True, allow_nan=True)
+        return _JSON.encode(value)
     except (TypeError, ValueError) as exc:
         raise LogError(f"metadata value {value!r} is not JSON-serialisable: {exc}") from exc
 
@@ -1022,6 +1041,9 @@ class RunLogWriter:
             raise LogError(f"{self.path}: closed twice")
         # a stop signal now would leave the log of an ended run unfinished: it waits
         with stop_signals_held():
+            # the close's chunks go to the OS with the summary, in one write: a process
+            # killed meanwhile (stop signals wait) loses the close, as it would anyway
+            self._file.flush_each_chunk = False
             if self._scene is not None:
                 self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
                 # what to run to see the log as wmr's dashboard: Rerun shows it as a document
