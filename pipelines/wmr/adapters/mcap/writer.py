@@ -229,6 +229,22 @@ class McapFile:
         self._write(self._channels[-1])
         return channel_id
 
+    def add_opening_records(self, schemas: Sequence[bytes], channels: Sequence[bytes]) -> None:
+        """Write Schema and Channel records already packed (:func:`_opening_records`), ids
+        1, 2, ... in order, in one write: the first of the file.
+
+        Raises
+        ------
+        LogError
+            The file has schemas or channels already (the records' ids would clash).
+        """
+        if self._schemas or self._channels:
+            raise LogError("the opening Schema and Channel records come before any other")
+        self._schemas += schemas
+        self._channels += channels
+        self._channel_ids += range(1, len(channels) + 1)
+        self._write(b"".join((*schemas, *channels)))
+
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write a Metadata record (and remember its index)."""
         offset = self._pos
@@ -495,6 +511,25 @@ def _schema_record(schema_id: int, name: str, encoding: str, data: bytes) -> byt
     rb = RecordBuilder()
     Schema(id=schema_id, name=name, encoding=encoding, data=data).write(rb)
     return rb.end()
+
+
+@functools.lru_cache(maxsize=16)
+def _opening_records(topics: tuple[TopicLayout, ...]
+                     ) -> tuple[tuple[bytes, ...], tuple[bytes, ...]]:
+    """The Schema and Channel records that open every log of ``topics``, packed once per
+    process: the schemas of ``/goal`` and of the topics, each once, ids 1, 2, ... in that
+    order; the topics' channels, ids 1 to n, then ``/goal``'s, n + 1 (what
+    :meth:`McapFile.add_schema` and :meth:`McapFile.add_channel` would write a record at a
+    time)."""
+    names = list(dict.fromkeys([GOAL_SCHEMA, *(t.schema_name for t in topics)]))
+    schema_ids = {name: k + 1 for k, name in enumerate(names)}
+    schemas = tuple(_schema_record(schema_ids[name], name, "protobuf", file_descriptor_set(name))
+                    for name in names)
+    topic_schemas = [(t.topic, schema_ids[t.schema_name]) for t in topics]
+    topic_schemas.append((GOAL_TOPIC, schema_ids[GOAL_SCHEMA]))
+    channels = tuple(_channel_record(k + 1, topic, "protobuf", schema_id, ())
+                     for k, (topic, schema_id) in enumerate(topic_schemas))
+    return schemas, channels
 
 
 @functools.lru_cache(maxsize=256)
@@ -788,13 +823,10 @@ class RunLogWriter:
         self._closed = False
         try:
             self._file = McapFile(stream, compression)
-            schema_ids: dict[str, int] = {}
-            for name in dict.fromkeys([GOAL_SCHEMA, *(t.schema_name for t in topics)]):
-                schema_ids[name] = self._file.add_schema(name, file_descriptor_set(name))
-            channel_ids = tuple(
-                self._file.add_channel(t.topic, schema_ids[t.schema_name]) for t in topics
-            )
-            goal_channel = self._file.add_channel(GOAL_TOPIC, schema_ids[GOAL_SCHEMA])
+            # the per-step topics' channels 1..n, then /goal's
+            self._file.add_opening_records(*_opening_records(topics))
+            channel_ids = tuple(range(1, len(topics) + 1))
+            goal_channel = len(topics) + 1
             self._file.add_metadata("run", run_record)
             for name, (media_type, data) in (attachments or {}).items():
                 self._file.add_attachment(name, media_type, bytes(data))
