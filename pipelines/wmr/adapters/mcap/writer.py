@@ -995,15 +995,26 @@ class RunLogWriter:
             raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
         schema_id = self._file.add_schema(schema_name, schema_data, schema_encoding)
         cid = self._file.add_channel(topic, schema_id, message_encoding)
+        if not len(t):
+            return  # a channel without messages: no chunk (add_chunk writes none)
         head = _MESSAGE_HEAD
         parts: list[bytes] = []
-        offsets = np.zeros(len(messages), np.int64)
+        times = t.tolist()
+        pairs: list[int] = []  # the Message Index's (log time, offset) of each message
         pos = 0
-        for i, (ti, data) in enumerate(zip(t.tolist(), messages, strict=True)):
-            offsets[i] = pos
+        for i, (ti, data) in enumerate(zip(times, messages, strict=True)):
+            pairs += (ti, pos)
             parts += [head.pack(_OP_MESSAGE, 2 + 4 + 8 + 8 + len(data), cid, i, ti, ti), data]
             pos += head.size + len(data)
-        self._file.add_chunk(b"".join(parts), {cid: (t, offsets)})
+        # add_chunk's Message Index record of one channel, packed here from the pairs in
+        # one array, not through add_chunk's index of arrays (the times are non-decreasing:
+        # the first is the least); int64's bytes are uint64's, a negative time wrapped
+        n = len(times)
+        entries = np.array(pairs, "<i8").tobytes()
+        self._file.add_indexed_chunk(
+            b"".join(parts), times[0], times[-1],
+            _INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + 16 * n, cid, 16 * n) + entries,
+            ((cid, 0, n),))
 
     def write_sensing(self, record: SensingRecord) -> None:
         """Log the run's sensor fixes and estimates (:mod:`wmr.adapters.mcap.sensing`);
