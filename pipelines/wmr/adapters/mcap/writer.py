@@ -1133,7 +1133,8 @@ class McapOpener:
 
     def __call__(self, header: LogHeader) -> RunLogWriter:
         path = Path(self.path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        if not path.parent.is_dir():  # one stat, where mkdir's refusal raises and stats
+            path.parent.mkdir(parents=True, exist_ok=True)
         log = RunLogWriter.from_header(path, header, compression=self.compression,
                                        topics=self.topics, durable=self.durable,
                                        scene=self.scene)
