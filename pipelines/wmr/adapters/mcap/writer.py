@@ -16,8 +16,11 @@ speed of the system zlib's.
 Layout of a file: magic, Header, Schema and Channel records, the ``run`` Metadata record, the
 Attachments, a chunk holding the ``/goal`` message, then one chunk per second of simulation
 time (each followed by its Message Index records and flushed to the OS, so a killed run loses at
-most the chunk in progress), the ``result`` Metadata record, Data End, the summary (schemas,
-channels, statistics, chunk, attachment and metadata indexes, summary offsets), Footer, magic.
+most the chunk in progress); at the close, the scene's and the note's chunks
+(:mod:`wmr.adapters.mcap.scene`, :mod:`wmr.adapters.mcap.readme`), the last rows' chunk, the
+``result`` Metadata record, Data End, the summary (schemas, channels, statistics, chunk,
+attachment and metadata indexes, summary offsets), Footer, magic (the close's chunks are not
+flushed one by one: they reach the OS with the summary).
 Nothing in the file depends on the wall clock or on the host: the same inputs give the same
 bytes.
 """
@@ -202,8 +205,7 @@ class McapFile:
         self._crc = 0  # of the data section: every byte before Data End, magic included
         self._broken = ""  # why the file cannot be finished (a rollback that failed)
         #: hand each chunk to the OS once written (a killed run keeps it); off for the chunks
-        #: written at a log's close, which :meth:`finish` hands over with the summary in one
-        #: write
+        #: written at a log's close, which :meth:`finish` hands over with the summary
         self.flush_each_chunk = True
         self._write(MAGIC + _record(Opcode.HEADER, _prefixed("") + _prefixed(library)))
 
