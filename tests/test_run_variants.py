@@ -107,3 +107,22 @@ def test_the_effective_scenario_reads_back_into_the_same_run_for_every_shipped_r
         for s in (spec, peer):
             back = parse_scenario(tomllib.loads(run_spec_toml(s))).runs
             assert back == (s,)
+
+
+def test_a_heading_of_minus_zero_is_written_as_minus_zero_after_a_heading_of_zero() -> None:
+    """The effective scenario's degrees are remembered by value (a batch's runs share their
+    angles): -0.0 equals 0.0, yet its file must say -0.0, whichever was written first (the
+    run read back must be the run, bit for bit)."""
+    import math
+    import tomllib
+
+    from wmr.config.scenario import parse_scenario
+    from wmr.core.plant import Pose
+
+    spec = load_scenario("fig11").runs[0]
+    for first, then in ((0.0, -0.0), (-0.0, 0.0)):
+        for heading in (first, then):
+            s = replace(spec, start=Pose(0.5, 0.5, heading))
+            text = run_spec_toml(s)
+            back = parse_scenario(tomllib.loads(text)).runs[0]
+            assert math.copysign(1.0, back.start.heading_rad) == math.copysign(1.0, heading)

@@ -11,7 +11,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 
@@ -354,3 +356,23 @@ def test_a_run_record_s_strings_draw_as_their_typed_values(
                                            wheel_radius_m=radius, stop_radius_m=stop,
                                            controlled=True))
     assert other[ROBOT_TOPIC] != parsed[ROBOT_TOPIC]
+
+
+@settings(max_examples=50, deadline=None)  # a loaded machine is no failure of the bytes
+@given(t_ns=st.integers(0, 2**63 - 1), n=st.integers(0, 40),
+       frame=st.sampled_from(["world", "base_link"]), seed=st.integers(0, 2**32 - 1))
+def test_a_cloud_message_is_the_one_message_s_serialisation(t_ns: int, n: int, frame: str,
+                                                            seed: int) -> None:
+    """cloud_message joins three serialisations (the stamp, the fields a frame's clouds share,
+    the points): the bytes of the one foxglove.PointCloud they make, serialised by protobuf."""
+    rng = np.random.default_rng(seed)
+    points = scene_mod.cloud_points(rng.normal(size=(n, 2)), rng.integers(0, 256, (n, 3)))
+    msg = PointCloud(frame_id=frame, point_stride=16, data=points.tobytes(), fields=[
+        PackedElementField(name=name, offset=offset, type=PackedElementField.FLOAT32
+                           if name in "xyz" else PackedElementField.UINT8)
+        for name, offset in (("x", 0), ("y", 4), ("z", 8), ("red", 12), ("green", 13),
+                             ("blue", 14), ("alpha", 15))])
+    msg.timestamp.FromNanoseconds(t_ns)
+    msg.pose.orientation.w = 1.0
+    assert scene_mod.cloud_message(t_ns, points, frame) == msg.SerializeToString(
+        deterministic=True)

@@ -10,6 +10,7 @@ the run's radians back exactly.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import fields
@@ -33,6 +34,14 @@ def exact_degrees(rad: float) -> float:
     ``math.degrees`` alone can miss by one unit in the last place, so its neighbours are tried
     next.  Every angle that came from degrees (a scenario file, the command line) has one.
     """
+    # remembered: a batch's runs share most of their angles (the heading tolerance, the
+    # goal's), and a search costs up to 17 formattings.  Keyed by the sign too: -0.0 equals
+    # 0.0 but has degrees of its own
+    return _exact_degrees(rad, math.copysign(1.0, rad))
+
+
+@functools.lru_cache(maxsize=1024)
+def _exact_degrees(rad: float, sign: float) -> float:
     d = math.degrees(rad)
     for digits in range(1, 18):
         short = float(f"{d:.{digits}g}")

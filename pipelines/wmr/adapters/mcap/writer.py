@@ -16,8 +16,11 @@ speed of the system zlib's.
 Layout of a file: magic, Header, Schema and Channel records, the ``run`` Metadata record, the
 Attachments, a chunk holding the ``/goal`` message, then one chunk per second of simulation
 time (each followed by its Message Index records and flushed to the OS, so a killed run loses at
-most the chunk in progress), the ``result`` Metadata record, Data End, the summary (schemas,
-channels, statistics, chunk, attachment and metadata indexes, summary offsets), Footer, magic.
+most the chunk in progress); at the close, the scene's and the note's chunks
+(:mod:`wmr.adapters.mcap.scene`, :mod:`wmr.adapters.mcap.readme`), the last rows' chunk, the
+``result`` Metadata record, Data End, the summary (schemas, channels, statistics, chunk,
+attachment and metadata indexes, summary offsets), Footer, magic (the close's chunks are not
+flushed one by one: they reach the OS with the summary).
 Nothing in the file depends on the wall clock or on the host: the same inputs give the same
 bytes.
 """
@@ -201,6 +204,9 @@ class McapFile:
         self._channel_ids: list[int] = []
         self._crc = 0  # of the data section: every byte before Data End, magic included
         self._broken = ""  # why the file cannot be finished (a rollback that failed)
+        #: hand each chunk to the OS once written (a killed run keeps it); off for the chunks
+        #: written at a log's close, which :meth:`finish` hands over with the summary
+        self.flush_each_chunk = True
         self._write(MAGIC + _record(Opcode.HEADER, _prefixed("") + _prefixed(library)))
 
     def _write(self, data: bytes) -> None:
@@ -224,6 +230,22 @@ class McapFile:
         self._channel_ids.append(channel_id)
         self._write(self._channels[-1])
         return channel_id
+
+    def add_opening_records(self, schemas: Sequence[bytes], channels: Sequence[bytes]) -> None:
+        """Write Schema and Channel records already packed (:func:`_opening_records`), ids
+        1, 2, ... in order, in one write: the first of the file.
+
+        Raises
+        ------
+        LogError
+            The file has schemas or channels already (the records' ids would clash).
+        """
+        if self._schemas or self._channels:
+            raise LogError("the opening Schema and Channel records come before any other")
+        self._schemas += schemas
+        self._channels += channels
+        self._channel_ids += range(1, len(channels) + 1)
+        self._write(b"".join((*schemas, *channels)))
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write a Metadata record (and remember its index)."""
@@ -326,7 +348,8 @@ class McapFile:
         self._pos = chunk_start + chunk_length + len(indexes)
         self._chunks.append((t_first, t_last, chunk_start, chunk_length, index_of,
                              len(indexes), data_len, size))
-        self._stream.flush()
+        if self.flush_each_chunk:
+            self._stream.flush()
 
     def mark(self) -> _Mark:
         """Where the file is, for :meth:`rollback` (taken before a chunk is added)."""
@@ -492,6 +515,25 @@ def _schema_record(schema_id: int, name: str, encoding: str, data: bytes) -> byt
     return rb.end()
 
 
+@functools.lru_cache(maxsize=16)
+def _opening_records(topics: tuple[TopicLayout, ...]
+                     ) -> tuple[tuple[bytes, ...], tuple[bytes, ...]]:
+    """The Schema and Channel records that open every log of ``topics``, packed once per
+    process: the schemas of ``/goal`` and of the topics, each once, ids 1, 2, ... in that
+    order; the topics' channels, ids 1 to n, then ``/goal``'s, n + 1 (what
+    :meth:`McapFile.add_schema` and :meth:`McapFile.add_channel` would write a record at a
+    time)."""
+    names = list(dict.fromkeys([GOAL_SCHEMA, *(t.schema_name for t in topics)]))
+    schema_ids = {name: k + 1 for k, name in enumerate(names)}
+    schemas = tuple(_schema_record(schema_ids[name], name, "protobuf", file_descriptor_set(name))
+                    for name in names)
+    topic_schemas = [(t.topic, schema_ids[t.schema_name]) for t in topics]
+    topic_schemas.append((GOAL_TOPIC, schema_ids[GOAL_SCHEMA]))
+    channels = tuple(_channel_record(k + 1, topic, "protobuf", schema_id, ())
+                     for k, (topic, schema_id) in enumerate(topic_schemas))
+    return schemas, channels
+
+
 @functools.lru_cache(maxsize=256)
 def _channel_record(channel_id: int, topic: str, message_encoding: str, schema_id: int,
                     metadata: tuple[tuple[str, str], ...]) -> bytes:
@@ -634,12 +676,26 @@ def _numpy_row_encoder(channel_ids: tuple[int, ...],
     return RowEncoder(channel_ids, layouts)
 
 
+#: ``json.dumps(value, sort_keys=True, allow_nan=True)`` without making an encoder a call (a
+#: ``run`` record has some 20 values to encode)
+_JSON: Final = json.JSONEncoder(sort_keys=True, allow_nan=True)
+_JSON_FLOATS: Final = {math.inf: "Infinity", -math.inf: "-Infinity"}
+
+
 def _as_str(value: object) -> str:
-    """Metadata values are strings: keep strings, JSON-encode anything else."""
+    """Metadata values are strings: keep strings, JSON-encode anything else (a float or an
+    int as :mod:`json` writes it, without its encoder's passes)."""
     if isinstance(value, str):
         return value
+    kind = type(value)
+    if kind is float:
+        number = cast(float, value)
+        return (float.__repr__(number) if number - number == 0.0
+                else "NaN" if number != number else _JSON_FLOATS[number])
+    if kind is int:
+        return int.__repr__(cast(int, value))
     try:
-        return json.dumps(value, sort_keys=True, allow_nan=True)
+        return _JSON.encode(value)
     except (TypeError, ValueError) as exc:
         raise LogError(f"metadata value {value!r} is not JSON-serialisable: {exc}") from exc
 
@@ -769,13 +825,10 @@ class RunLogWriter:
         self._closed = False
         try:
             self._file = McapFile(stream, compression)
-            schema_ids: dict[str, int] = {}
-            for name in dict.fromkeys([GOAL_SCHEMA, *(t.schema_name for t in topics)]):
-                schema_ids[name] = self._file.add_schema(name, file_descriptor_set(name))
-            channel_ids = tuple(
-                self._file.add_channel(t.topic, schema_ids[t.schema_name]) for t in topics
-            )
-            goal_channel = self._file.add_channel(GOAL_TOPIC, schema_ids[GOAL_SCHEMA])
+            # the per-step topics' channels 1..n, then /goal's
+            self._file.add_opening_records(*_opening_records(topics))
+            channel_ids = tuple(range(1, len(topics) + 1))
+            goal_channel = len(topics) + 1
             self._file.add_metadata("run", run_record)
             for name, (media_type, data) in (attachments or {}).items():
                 self._file.add_attachment(name, media_type, bytes(data))
@@ -944,15 +997,26 @@ class RunLogWriter:
             raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
         schema_id = self._file.add_schema(schema_name, schema_data, schema_encoding)
         cid = self._file.add_channel(topic, schema_id, message_encoding)
+        if not len(t):
+            return  # a channel without messages: no chunk (add_chunk writes none)
         head = _MESSAGE_HEAD
         parts: list[bytes] = []
-        offsets = np.zeros(len(messages), np.int64)
+        times = t.tolist()
+        pairs: list[int] = []  # the Message Index's (log time, offset) of each message
         pos = 0
-        for i, (ti, data) in enumerate(zip(t.tolist(), messages, strict=True)):
-            offsets[i] = pos
+        for i, (ti, data) in enumerate(zip(times, messages, strict=True)):
+            pairs += (ti, pos)
             parts += [head.pack(_OP_MESSAGE, 2 + 4 + 8 + 8 + len(data), cid, i, ti, ti), data]
             pos += head.size + len(data)
-        self._file.add_chunk(b"".join(parts), {cid: (t, offsets)})
+        # add_chunk's Message Index record of one channel, packed here from the pairs in
+        # one array, not through add_chunk's index of arrays (the times are non-decreasing:
+        # the first is the least); int64's bytes are uint64's, a negative time wrapped
+        n = len(times)
+        entries = np.array(pairs, "<i8").tobytes()
+        self._file.add_indexed_chunk(
+            b"".join(parts), times[0], times[-1],
+            _INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + 16 * n, cid, 16 * n) + entries,
+            ((cid, 0, n),))
 
     def write_sensing(self, record: SensingRecord) -> None:
         """Log the run's sensor fixes and estimates (:mod:`wmr.adapters.mcap.sensing`);
@@ -1022,6 +1086,9 @@ class RunLogWriter:
             raise LogError(f"{self.path}: closed twice")
         # a stop signal now would leave the log of an ended run unfinished: it waits
         with stop_signals_held():
+            # the close's chunks go to the OS with the summary, in one write: a process
+            # killed meanwhile (stop signals wait) loses the close, as it would anyway
+            self._file.flush_each_chunk = False
             if self._scene is not None:
                 self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
                 # what to run to see the log as wmr's dashboard: Rerun shows it as a document
@@ -1068,7 +1135,8 @@ class McapOpener:
 
     def __call__(self, header: LogHeader) -> RunLogWriter:
         path = Path(self.path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        if not path.parent.is_dir():  # one stat, where mkdir's refusal raises and stats
+            path.parent.mkdir(parents=True, exist_ok=True)
         log = RunLogWriter.from_header(path, header, compression=self.compression,
                                        topics=self.topics, durable=self.durable,
                                        scene=self.scene)

@@ -1,0 +1,88 @@
+"""Where a log's fixed cost goes: its header, open and close, phase by phase, in real runs.
+
+60 runs of ``mc_fig10`` (as ``python benchmarks/batch.py phases``), each run with its full
+MCAP log (not fsynced, a new file per run, as in a batch) and again keeping none (the rows
+held, the run converged: a failed-only batch's run); the log's phases are timed by wrapping
+the functions that do them: the run's header (``log_header``), the log's open (the opener,
+header excluded), the chunks of rows, and its close (the scene topics, the note, the summary
+with the file's commit).  CPU time of this process, medians per call (per run: each is called
+once a run, except the chunks, a call per block of rows).  The wrappers cost a microsecond or
+two a call: compare the code before and after with the same script, one after the other.
+
+Run: ``PYTHONPATH=pipelines python benchmarks/log_fixed.py [N_RUNS] [REPEATS]``.
+"""
+
+from __future__ import annotations
+
+import functools
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from batch import _mc_fig10, default_fmu
+
+
+def main(n_runs: int = 60, repeats: int = 3) -> None:
+    import wmr.adapters.mcap.scene as scene
+    import wmr.adapters.mcap.writer as writer
+    import wmr.apps.run as run
+    from wmr.adapters.fmi.robot import FmuPlant
+    from wmr.apps.run import LogPolicy, run_to_log
+
+    times: dict[str, list[float]] = {}
+
+    def wrap(owner: Any, name: str, label: str) -> None:
+        fun: Callable[..., Any] = getattr(owner, name)
+
+        @functools.wraps(fun)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            cpu = time.process_time()
+            try:
+                return fun(*args, **kwargs)
+            finally:
+                times.setdefault(label, []).append(time.process_time() - cpu)
+
+        setattr(owner, name, timed)
+
+    wrap(run, "log_header", "the run's header (log_header)")
+    wrap(writer.McapOpener, "__call__", "open (the opener, header excluded)")
+    wrap(writer.RunLogWriter, "_flush_chunks", "chunks of rows (a call per block)")
+    wrap(writer.RunLogWriter, "close", "close, all")
+    wrap(scene.SceneRecorder, "write", "close: the scene topics")
+    wrap(writer, "write_readme", "close: the note")
+    wrap(writer.McapFile, "finish", "close: the summary and the commit")
+    batch = _mc_fig10(n_runs)
+    folder = Path(tempfile.mkdtemp(prefix="wmr-bench-log-fixed-"))
+    full: list[float] = []
+    held: list[float] = []
+    with FmuPlant(default_fmu()) as plant:
+        for i, r in enumerate(batch.runs[:10]):  # warm-up
+            run_to_log(r.spec, writer.McapOpener(folder / f"w{i}.mcap", durable=False), plant)
+        times.clear()
+        for k in range(repeats):
+            for i, r in enumerate(batch.runs):
+                cpu = time.process_time()
+                run_to_log(r.spec, writer.McapOpener(folder / f"{k}-{i}.mcap", durable=False),
+                           plant)
+                full.append(time.process_time() - cpu)
+                cpu = time.process_time()
+                run_to_log(r.spec, writer.McapOpener(folder / "held.mcap", durable=False), plant,
+                           log=LogPolicy("failed"))
+                held.append(time.process_time() - cpu)
+    n = len(full)
+    print(f"{n_runs} runs of mc_fig10 x {repeats}, CPU us, medians")
+    print(f"{'run with its full log':<44} {1e6 * statistics.median(full):>8.0f}")
+    print(f"{'run keeping no log (rows held)':<44} {1e6 * statistics.median(held):>8.0f}")
+    for label, values in times.items():
+        print(f"{label:<44} {1e6 * statistics.median(values):>8.0f}  "
+              f"({len(values) / n:.1f} a run)")
+
+
+if __name__ == "__main__":
+    main(*(int(a) for a in sys.argv[1:3]))
