@@ -904,6 +904,17 @@ def _row_fits(row: Mapping[str, Any], columns: Sequence[str]) -> bool:
                for v in inputs.values())
 
 
+def _in_order(column: Any) -> bool:
+    """Whether the Arrow string ``column`` is in increasing order already (two comparisons
+    over the column, not a sort: about 0.01 against 0.27 us a run)."""
+    import pyarrow.compute as pc
+
+    if len(column) < 2:
+        return True
+    return bool(pc.all(pc.less_equal(column.slice(0, len(column) - 1),
+                                     column.slice(1))).as_py())
+
+
 #: Rows of the summary built (and written) at a time.
 SUMMARY_BLOCK: Final = 10_000
 
@@ -940,7 +951,11 @@ def _summary_chunks(batch: BatchSpec, journal: Journal, ledger: _Ledger,
                                                                               strict=True)],
                              batch.input_columns, records, logs,
                              optimal=batch.optimal is not None)
-        yield pa.concat_tables([read, *made]).sort_by("run_id") if made else read
+        if not made:
+            yield read
+            continue
+        merged = pa.concat_tables([read, *made])
+        yield merged if _in_order(merged["run_id"]) else merged.sort_by("run_id")
     if first:  # no run at all
         yield summary_table([], batch.input_columns, {}, optimal=batch.optimal is not None)
 
@@ -1053,8 +1068,8 @@ class _Parts:
         self.path = self.folder / f"{os.getpid()}-{time.time_ns():x}{PARTS_SUFFIX}"
         self._fd: int | None = None
         self._size = 0
-        #: (offset, length) of each frame's payload, by SUMMARY_BLOCK of runs
-        self._frames: dict[int, list[tuple[int, int]]] = {}
+        #: (first run index, offset, length) of each frame's payload, by SUMMARY_BLOCK of runs
+        self._frames: dict[int, list[tuple[int, int, int]]] = {}
         #: 1 where the run's row is in a part of this invocation (a numpy array)
         self.has = np.zeros(n_runs, np.bool_)
 
@@ -1126,14 +1141,15 @@ class _Parts:
             table = table_bytes(table)
         if not table:
             return
-        self._append(bytes(table), first)
+        self._append(bytes(table), first, int(indices[0]))
         if isinstance(indices, range):
             self.has[indices[0]:indices[-1] + 1] = True
         else:
             self.has[np.asarray(indices, np.int64)] = True
 
-    def _append(self, payload: bytes, chunk: int) -> None:
-        """Append ``payload`` as a frame, durably (a full disk is one DiskFullError)."""
+    def _append(self, payload: bytes, chunk: int, start: int) -> None:
+        """Append ``payload``, the rows from run ``start`` on, as a frame, durably (a full
+        disk is one DiskFullError)."""
         try:
             made = self._fd is None
             if self._fd is None:
@@ -1147,20 +1163,22 @@ class _Parts:
                 fsync_dir(self.folder)
         except OSError as exc:
             raise storage_error(exc, self.path) from exc
-        self._frames.setdefault(chunk, []).append((self._size + PART_FRAME.size,
+        self._frames.setdefault(chunk, []).append((start, self._size + PART_FRAME.size,
                                                    len(payload)))
         self._size += PART_FRAME.size + len(payload)
 
     def tables(self, chunk: int) -> list[Any]:
-        """The kept tables of the runs ``chunk * SUMMARY_BLOCK`` to the next block's."""
+        """The kept tables of the runs ``chunk * SUMMARY_BLOCK`` to the next block's, in the
+        order of their runs (not the order their ranges finished in: their rows are then
+        usually in run-id order already, and the summary is not sorted again)."""
         import pyarrow as pa
 
-        frames = self._frames.get(chunk, [])
+        frames = sorted(self._frames.get(chunk, []))
         if not frames:
             return []
         with open(self.path, "rb") as stream:
             tables = []
-            for offset, length in frames:
+            for _, offset, length in frames:
                 stream.seek(offset)
                 tables.append(pa.ipc.open_stream(stream.read(length)).read_all())
             return tables
