@@ -19,8 +19,10 @@ time (each followed by its Message Index records and flushed to the OS, so a kil
 most the chunk in progress); at the close, the scene's and the note's chunks
 (:mod:`wmr.adapters.mcap.scene`, :mod:`wmr.adapters.mcap.readme`), the last rows' chunk, the
 ``result`` Metadata record, Data End, the summary (schemas, channels, statistics, chunk,
-attachment and metadata indexes, summary offsets), Footer, magic (the close's chunks are not
-flushed one by one: they reach the OS with the summary).
+attachment and metadata indexes, summary offsets), Footer, magic.  Every chunk is flushed
+to the OS as it is written, the close's too: a write refused by a full disk fails on its own
+chunk, which is then cut back (:meth:`McapFile.rollback`) before the error is reported; a
+buffer holding several chunks would fail the cut back as well.
 Nothing in the file depends on the wall clock or on the host: the same inputs give the same
 bytes.
 """
@@ -204,9 +206,6 @@ class McapFile:
         self._channel_ids: list[int] = []
         self._crc = 0  # of the data section: every byte before Data End, magic included
         self._broken = ""  # why the file cannot be finished (a rollback that failed)
-        #: hand each chunk to the OS once written (a killed run keeps it); off for the chunks
-        #: written at a log's close, which :meth:`finish` hands over with the summary
-        self.flush_each_chunk = True
         self._write(MAGIC + _record(Opcode.HEADER, _prefixed("") + _prefixed(library)))
 
     def _write(self, data: bytes) -> None:
@@ -348,8 +347,7 @@ class McapFile:
         self._pos = chunk_start + chunk_length + len(indexes)
         self._chunks.append((t_first, t_last, chunk_start, chunk_length, index_of,
                              len(indexes), data_len, size))
-        if self.flush_each_chunk:
-            self._stream.flush()
+        self._stream.flush()
 
     def mark(self) -> _Mark:
         """Where the file is, for :meth:`rollback` (taken before a chunk is added)."""
@@ -1086,9 +1084,6 @@ class RunLogWriter:
             raise LogError(f"{self.path}: closed twice")
         # a stop signal now would leave the log of an ended run unfinished: it waits
         with stop_signals_held():
-            # the close's chunks go to the OS with the summary, in one write: a process
-            # killed meanwhile (stop signals wait) loses the close, as it would anyway
-            self._file.flush_each_chunk = False
             if self._scene is not None:
                 self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
                 # what to run to see the log as wmr's dashboard: Rerun shows it as a document
