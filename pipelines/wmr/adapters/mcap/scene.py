@@ -460,15 +460,16 @@ class SceneRecorder:
         self._cols = np.empty((3, _SCENE_ROWS), np.float64)
 
     @classmethod
-    def from_run_record(cls, run: Mapping[str, str], goal: tuple[float, float, float], *,
+    def from_run_record(cls, run: Mapping[str, object], goal: tuple[float, float, float], *,
                         controlled: bool) -> SceneRecorder:
-        """The recorder of a log known only by its ``run`` record's strings (a log read
-        back: recovery; a writer given no typed values): ``params`` (a JSON object with
-        ``L`` and ``r``) and ``stop_radius_m`` parsed here, the one place they are."""
+        """The recorder of a log known only by its ``run`` record: its strings (a log read
+        back: recovery) or the mapping a writer was given without typed values (its
+        ``params`` read without the JSON, :func:`robot_geometry`); ``params`` (``L`` and
+        ``r``) and ``stop_radius_m`` are read here, the one place they are."""
         half_track_m, wheel_radius_m = robot_geometry(run)
         try:
-            stop_radius_m = float(run.get("stop_radius_m", "nan"))
-        except ValueError:
+            stop_radius_m = float(run.get("stop_radius_m", "nan"))  # type: ignore[arg-type]
+        except (ValueError, TypeError):
             stop_radius_m = math.nan
         return cls(goal, half_track_m=half_track_m, wheel_radius_m=wheel_radius_m,
                    stop_radius_m=stop_radius_m, controlled=controlled)

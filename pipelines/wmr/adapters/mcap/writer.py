@@ -834,7 +834,7 @@ class RunLogWriter:
             self._in_c = isinstance(self._encoder, _CRowEncoder)
             controlled = topics == STEP_TOPICS
             self._scene = (None if not scene
-                           else SceneRecorder.from_run_record(run_record, goal,
+                           else SceneRecorder.from_run_record(run, goal,
                                                               controlled=controlled)
                            if scene_values is None
                            else SceneRecorder(goal, half_track_m=scene_values[0],
