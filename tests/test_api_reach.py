@@ -188,13 +188,11 @@ BAD_INPUTS: list[tuple[list[str], Callable[[], object], str, str]] = [
 ]
 
 
-@pytest.mark.parametrize(("argv", "call", "flag", "keyword"), BAD_INPUTS,
-                         ids=[" ".join(case[0]) for case in BAD_INPUTS])
-def test_the_api_gives_the_command_s_one_line_errors(
-        argv: list[str], call: Callable[[], object], flag: str, keyword: str, tmp_path: Path,
-        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    """The checks live below the CLI: ``wmr.batch(max_runs=0)`` is refused as ``wmr batch
-    --max-runs 0`` is, the same problem and fix, naming ``max_runs`` (issue 22)."""
+def _refused_by_both(argv: list[str], call: Callable[[], object], flag: str, keyword: str,
+                     tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                     capsys: pytest.CaptureFixture[str]) -> tuple[str, ConfigError]:
+    """``wmr ARGV`` fails with one line naming ``flag`` and ``call()`` raises a ConfigError
+    naming ``keyword`` (both from ``tmp_path``): the command's problem and the API's error."""
     from wmr.cli import main
 
     monkeypatch.chdir(tmp_path)
@@ -204,11 +202,21 @@ def test_the_api_gives_the_command_s_one_line_errors(
     with pytest.raises(ConfigError) as info:
         call()
     assert info.value.field == keyword
+    return err[0].removeprefix(f"wmr: error: {flag}: "), info.value
+
+
+@pytest.mark.parametrize(("argv", "call", "flag", "keyword"), BAD_INPUTS,
+                         ids=[" ".join(case[0]) for case in BAD_INPUTS])
+def test_the_api_gives_the_command_s_one_line_errors(
+        argv: list[str], call: Callable[[], object], flag: str, keyword: str, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """The checks live below the CLI: ``wmr.batch(max_runs=0)`` is refused as ``wmr batch
+    --max-runs 0`` is, the same problem and fix, naming ``max_runs`` (issue 22)."""
+    problem, error = _refused_by_both(argv, call, flag, keyword, tmp_path, monkeypatch, capsys)
     # the same problem, another option in it named as each front door names it
-    problem = err[0].removeprefix(f"wmr: error: {flag}: ")
     for option, keyword_is in (("--scheduler ", "scheduler="), ("--status ", "status=")):
         problem = problem.replace(option, keyword_is)
-    assert problem.startswith(info.value.problem), (problem, info.value.problem)
+    assert problem.startswith(error.problem), (problem, error.problem)
 
 
 def test_an_optimal_error_s_fix_names_the_other_inputs_as_its_front_door_does(
@@ -286,15 +294,6 @@ def test_an_app_names_its_request_s_fields_and_the_command_its_options(
         monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """The front doors only parse and call the apps; the apps name their inputs by the
     request's fields, and each command by its options (issue 29)."""
-    from wmr.cli import main
-
-    monkeypatch.chdir(tmp_path)
-    assert main(argv) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith(f"wmr: error: {flag}: "), err
-    with pytest.raises(ConfigError) as info:
-        call()
-    assert info.value.field == keyword
-    problem = err[0].removeprefix(f"wmr: error: {flag}: ")
-    assert problem.startswith(info.value.problem.split(" (")[0]), (problem, info.value.problem)
+    problem, error = _refused_by_both(argv, call, flag, keyword, tmp_path, monkeypatch, capsys)
+    assert problem.startswith(error.problem.split(" (")[0]), (problem, error.problem)
     assert list(tmp_path.iterdir()) == []  # nothing made
