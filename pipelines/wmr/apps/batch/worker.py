@@ -393,7 +393,8 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
         if not marker.exists():
             marker.touch()
             os._exit(70)
-        marker.unlink()
+        # the marker stays: Dask's scheduler may run a dead worker's task again more than
+        # once, and a third attempt must not die as the first did
     if task.fault == "crash-keeping-pipe":  # an FMU whose helper process outlives it
         helper = os.fork()
         if helper == 0:  # holds every descriptor the worker had, its pipe to the batch too
