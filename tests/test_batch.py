@@ -25,6 +25,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+import zstandard
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -537,6 +538,38 @@ def test_a_parts_file_cut_or_damaged_gives_back_its_whole_frames_only(tmp_path: 
     assert got == [[ids[0]], [ids[2]]]
 
 
+def test_parts_frames_of_before_are_read_and_an_overlong_one_is_not(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/batch.md, "Execution": a frame's payload is an Arrow IPC stream compressed whole
+    with zstd; the frame a batch of before left (the stream's buffers compressed one by one)
+    is still read on resume, and a zstd frame that says it holds more than a frame may is
+    skipped unread (its runs are run again) rather than decompressed."""
+    ids = [f"{i:04d}-0000000{i}" for i in range(3)]
+    tables = [summary_table([SummaryRow(run_id, "n", "b", "", {"gains.K_ps": 0.5 + i}, "pi",
+                                        i)], ["gains.K_ps"],
+                            {run_id: {"status": "converged", "steps": 3 + i}})
+              for i, run_id in enumerate(ids)]
+    sink = pa.BufferOutputStream()
+    with pa.ipc.new_stream(sink, tables[0].schema,
+                           options=pa.ipc.IpcWriteOptions(compression="zstd")) as writer:
+        writer.write_table(tables[0])
+    before = sink.getvalue().to_pybytes()
+    now = runner_module.table_bytes(tables[1])
+    assert now[:4] == b"\x28\xb5\x2f\xfd" and _payload_table(now).equals(tables[1])
+    # the longest a frame may be, made just shorter than this one's stream of three rows
+    huge = runner_module.table_bytes(pa.concat_tables(tables))
+    monkeypatch.setattr(runner_module, "MAX_PART_BYTES",
+                        len(zstandard.ZstdDecompressor().decompress(huge)) - 1)
+    (tmp_path / ".parts").mkdir()
+    with open(tmp_path / ".parts" / "1-0.arrows", "wb") as part:
+        for payload in (before, huge, runner_module.table_bytes(tables[2])):
+            part.write(struct.pack("<4sII", b"WMRp", len(payload), zlib.crc32(payload))
+                       + payload)
+    parts = runner_module._Parts(tmp_path, 3)
+    got = [t["run_id"].to_pylist() for t in parts.read(parts.leftovers())]
+    assert got == [[ids[0]], [ids[2]]]
+
+
 def test_a_cut_journal_line_is_ignored_and_redone(spec20: Path, fmu3: Path,
                                                   tmp_path: Path) -> None:
     batch = load_batch(spec20)
@@ -1010,6 +1043,12 @@ def _part_frames(out: Path) -> list[tuple[int, bytes]]:
     return frames
 
 
+def _payload_table(payload: bytes) -> pa.Table:
+    """A parts frame's payload as docs/batch.md describes it (an Arrow IPC stream compressed
+    whole with zstd), read with zstandard and pyarrow, not with the batch's reader."""
+    return pa.ipc.open_stream(zstandard.ZstdDecompressor().decompress(payload)).read_all()
+
+
 def _killed_between_writes(spec20: Path, fmu3: Path, out: Path) -> list[str]:
     """The 20-run batch (ranges of 2 runs on one worker) killed with SIGKILL after its third
     range's summary rows are on disk and before that range's journal lines; the ids of the
@@ -1033,7 +1072,7 @@ def test_a_batch_killed_between_a_ranges_rows_and_its_lines_resumes_to_the_same_
     out = tmp_path / "o"
     journalled = _killed_between_writes(spec20, fmu3, out)
     on_disk = {r for _, payload in _part_frames(out)
-               for r in pa.ipc.open_stream(payload).read_all()["run_id"].to_pylist()}
+               for r in _payload_table(payload)["run_id"].to_pylist()}
     assert set(journalled) <= on_disk, "a journalled run without its summary row on disk"
     assert len(journalled) == 4 and len(on_disk) == 6
     capsys.readouterr()
@@ -1057,7 +1096,7 @@ def test_a_part_lost_after_its_journal_lines_reruns_its_runs_saying_so(
     journalled = _killed_between_writes(spec20, fmu3, out)
     first = journalled[0]
     (lost,) = [(at, payload) for at, payload in _part_frames(out)
-               if pa.ipc.open_stream(payload).read_all()["run_id"][0].as_py() == first]
+               if _payload_table(payload)["run_id"][0].as_py() == first]
     with open(next((out / ".parts").glob("*.arrows")), "r+b") as part:
         part.seek(lost[0])
         part.write(bytes(len(lost[1])))  # the part of runs 0 and 1 zeroed on disk

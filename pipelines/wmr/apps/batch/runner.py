@@ -77,6 +77,7 @@ from wmr.apps.batch.worker import (
     line_ends,
     run_code,
     table_bytes,
+    table_of,
 )
 from wmr.apps.progress import count_progress
 from wmr.apps.run import FULL_LOGS, LogPolicy
@@ -1032,9 +1033,8 @@ def _message(res: BlockResult, k: int) -> str | None:
     """The message of the ``k``-th run of ``res`` (its record's, else its summary row's)."""
     if res.outcomes is not None:
         return res.outcomes[k][0].get("message")
-    import pyarrow as pa
 
-    table = pa.ipc.open_stream(res.table).read_all()
+    table = table_of(res.table, MAX_PART_BYTES)
     run_id = res.run_ids()[k]
     return next((row["message"] for row in table.select(["run_id", "message"]).to_pylist()
                  if row["run_id"] == run_id), None)
@@ -1091,11 +1091,11 @@ class _Parts:
         for path in paths:
             try:
                 if path.suffix != PARTS_SUFFIX:  # a range's file, from a batch of before
-                    yield pa.ipc.open_stream(path.read_bytes()).read_all()
+                    yield table_of(path.read_bytes(), MAX_PART_BYTES)
                     continue
                 for payload in _frames(path):
                     try:
-                        yield pa.ipc.open_stream(payload).read_all()
+                        yield table_of(payload, MAX_PART_BYTES)
                     except pa.ArrowException:
                         continue
             except (OSError, pa.ArrowException):
@@ -1124,7 +1124,7 @@ class _Parts:
         first, last = indices[0] // SUMMARY_BLOCK, indices[-1] // SUMMARY_BLOCK
         if only is not None or first != last:
             if isinstance(table, bytes | bytearray):
-                table = pa.ipc.open_stream(table).read_all()
+                table = table_of(table, MAX_PART_BYTES)
             if only is not None:
                 table = table.filter(pc.is_in(table["run_id"], pa.array(sorted(only))))
             if first != last:  # a frame per block of runs: the summary merges them so
@@ -1171,7 +1171,6 @@ class _Parts:
         """The kept tables of the runs ``chunk * SUMMARY_BLOCK`` to the next block's, in the
         order of their runs (not the order their ranges finished in: their rows are then
         usually in run-id order already, and the summary is not sorted again)."""
-        import pyarrow as pa
 
         frames = sorted(self._frames.get(chunk, []))
         if not frames:
@@ -1180,7 +1179,7 @@ class _Parts:
             tables = []
             for _, offset, length in frames:
                 stream.seek(offset)
-                tables.append(pa.ipc.open_stream(stream.read(length)).read_all())
+                tables.append(table_of(stream.read(length), MAX_PART_BYTES))
             return tables
 
     def close(self) -> None:

@@ -246,17 +246,51 @@ def block_lines(table: Any, digests: Mapping[str, str], killed: bool = False
             for run_id, row in zip(ids, result_rows(table), strict=True)}
 
 
+#: The first bytes of a zstd frame: a range's rows as :func:`table_bytes` makes them.  An
+#: Arrow IPC stream (a range's rows as a batch of before sent them) starts otherwise.
+ZSTD_MAGIC: Final = b"\x28\xb5\x2f\xfd"
+
+
 def table_bytes(table: Any) -> bytes:
-    """An Arrow table as an IPC stream (zstd-compressed)."""
+    """An Arrow table as an IPC stream, compressed whole with zstd (level 1).
+
+    Whole, not buffer by buffer (Arrow's ``IpcWriteOptions(compression="zstd")``, as before):
+    a summary row has some 34 columns, and zstd's cost per buffer made a 128-run range's
+    stream cost about 0.8 ms to write and 0.6 ms to read back (the parent's, at the merge)
+    where it now costs about 0.08 and 0.05 ms, in fewer bytes (186 a run against 221).
+    Compressed at all, because a range's rows wait on disk until the summary is written
+    (about 330 bytes a run as they are)."""
     import pyarrow as pa
+    import zstandard
 
     sink = pa.BufferOutputStream()
-    # compressed: a range's rows wait on disk until the summary is written (about 300 bytes
-    # a run as they are, a third of it compressed)
-    with pa.ipc.new_stream(sink, table.schema,
-                           options=pa.ipc.IpcWriteOptions(compression="zstd")) as writer:
+    with pa.ipc.new_stream(sink, table.schema) as writer:
         writer.write_table(table)
-    return bytes(sink.getvalue())
+    return zstandard.ZstdCompressor(level=1).compress(sink.getvalue())
+
+
+def table_of(payload: bytes, max_bytes: int) -> Any:
+    """The Arrow table of ``payload``, made by :func:`table_bytes` or, for rows a batch of
+    before left, an IPC stream whose buffers are compressed.
+
+    Raises
+    ------
+    pyarrow.ArrowInvalid
+        ``payload`` is damaged, or its stream would be longer than ``max_bytes`` (the
+        decompressed size is checked before any is made).
+    """
+    import pyarrow as pa
+    import zstandard
+
+    if payload[:4] == ZSTD_MAGIC:
+        try:
+            size = zstandard.frame_content_size(payload)
+            if not 0 <= size <= max_bytes:  # -1: not recorded; a frame of ours records it
+                raise pa.ArrowInvalid(f"a summary part of {size} bytes (at most {max_bytes})")
+            payload = zstandard.ZstdDecompressor().decompress(payload, max_output_size=size)
+        except zstandard.ZstdError as exc:
+            raise pa.ArrowInvalid(f"a damaged summary part: {exc}") from None
+    return pa.ipc.open_stream(payload).read_all()
 
 
 def run_block(block: Block, run_one: Callable[[Task], tuple[dict[str, Any], bytes | None]],
@@ -566,4 +600,4 @@ def dask_run_block(block: Block, fmu_sha256: str, attachment: Attachment | None,
 __all__ = ["FAULTS", "KEPT", "STARTED", "STATUS_CODES", "STATUS_MASK", "Attachment", "Block",
            "BlockResult", "PlantHolder", "Task", "WallClockLimit", "block_lines",
            "dask_run_block", "execute", "fmu_digest", "line_ends", "materialise", "run_block",
-           "run_code", "table_bytes", "wall_limit_message"]
+           "run_code", "table_bytes", "table_of", "wall_limit_message"]
