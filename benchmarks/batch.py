@@ -44,6 +44,15 @@ Three measurements, each printed as a table:
     5 s), printed, and its share (per second x the batch's wall time) taken out of each C
     first.  (The local parent's is nil: it sleeps between its workers' messages.)
 
+``python benchmarks/batch.py backlog N_RUNS [--runs-a-task K ...] [--repeats R]``
+    The Dask client at the pace of a large cluster: ``N_RUNS`` runs of ``mc_fig10``
+    (failed-only) on a Dask cluster of 2 worker processes in tasks of ``K`` runs (repeat;
+    default 2 and 1,024), the configurations taking turns ``R`` times (default 3; medians).
+    With tasks of 2 runs, 2 workers finish a task every 1 to 2 ms, as 1,000 worker threads
+    do with tasks of 1,000 runs: the client then spends its CPU per task at the rate it
+    must keep up with there.  Per configuration: tasks, wall time, runs per second, and the
+    client's CPU (``RUSAGE_SELF``, its per second share, measured idle, taken out) per task.
+
 ``python benchmarks/batch.py policies N_RUNS [--dask] [--policy P ...]``
     One batch of ``N_RUNS`` runs of ``mc_fig10`` (its ``n`` raised to ``N_RUNS``) per log
     policy (``full``, ``failed``, ``none``; default all three), on 2 local workers and, with
@@ -424,6 +433,54 @@ def costs(n_runs: int, with_dask: bool, repeats: int, workers: int) -> None:
               f"{1e6 * (per_run + per_range / big):>15.2f}")
 
 
+def backlog(n_runs: int, sizes: list[int], repeats: int) -> None:
+    """The Dask client's CPU per task when tasks finish every few milliseconds."""
+    import wmr.apps.batch.dask_exec as dask_exec
+
+    batch = _mc_fig10(n_runs)
+    fmu = default_fmu()
+    samples: dict[int, list[tuple[float, float]]] = {size: [] for size in sizes}
+    with dask_cluster(2) as address:
+        warm = replace(batch, runs=batch.runs.head(50)) if isinstance(batch.runs, RunList) \
+            else batch
+        folder = Path(tempfile.mkdtemp(prefix="wmr-bench-warm-"))
+        run_batch(warm, folder, BatchOptions(fmu_path=fmu, log=LogPolicy("failed"),
+                                             scheduler=address), progress=False)
+        shutil.rmtree(folder, ignore_errors=True)
+        per_s = _idle_client_cpu(address)
+        for _ in range(repeats):
+            for size in sizes:
+                folder = Path(tempfile.mkdtemp(prefix="wmr-bench-backlog-", dir=os.getcwd()))
+                saved = dask_exec.MAX_CHUNK
+                dask_exec.MAX_CHUNK = size  # type: ignore[misc]  # as costs does
+                try:
+                    before = resource.getrusage(resource.RUSAGE_SELF)
+                    t0 = time.perf_counter()
+                    result = run_batch(batch, folder, BatchOptions(
+                        fmu_path=fmu, log=LogPolicy("failed"), scheduler=address),
+                        progress=False)
+                    wall = time.perf_counter() - t0
+                    after = resource.getrusage(resource.RUSAGE_SELF)
+                finally:
+                    dask_exec.MAX_CHUNK = saved  # type: ignore[misc]
+                    shutil.rmtree(folder, ignore_errors=True)
+                assert len(result.executed) == n_runs
+                cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+                samples[size].append((wall, cpu - per_s * wall))
+                print(size, f"{cpu:.3f} s CPU, {wall:.1f} s wall", file=sys.stderr, flush=True)
+    print(f"backlog: {n_runs} runs of mc_fig10, failed-only, Dask, 2 worker processes, median "
+          f"of {repeats} (configurations in turn; {os.cpu_count()} cores; load "
+          f"{os.getloadavg()[0]:.1f}; the client idle {1e3 * per_s:.2f} ms/s, taken out)")
+    print(f"{'runs a task':>11} {'tasks':>6} {'wall s':>7} {'runs/s':>7} {'ms a task':>10} "
+          f"{'client CPU ms/task':>19}")
+    for size, got in samples.items():
+        wall = statistics.median(w for w, _ in got)
+        cpu = statistics.median(c for _, c in got)
+        tasks = -(-n_runs // size)
+        print(f"{size:>11} {tasks:>6} {wall:>7.1f} {n_runs / wall:>7.0f} "
+              f"{1e3 * wall / tasks:>10.2f} {1e3 * cpu / tasks:>19.3f}")
+
+
 @contextmanager
 def _nothing() -> Iterator[str]:
     yield ""
@@ -450,6 +507,10 @@ def main(argv: list[str]) -> None:
     co.add_argument("--dask", action="store_true")
     co.add_argument("--repeats", type=int, default=2)
     co.add_argument("--workers", type=int, default=2)
+    bl = sub.add_parser("backlog")
+    bl.add_argument("n_runs", type=int)
+    bl.add_argument("--runs-a-task", type=int, action="append")
+    bl.add_argument("--repeats", type=int, default=3)
     po = sub.add_parser("policies")
     po.add_argument("n_runs", type=int)
     po.add_argument("--dask", action="store_true")
@@ -461,6 +522,8 @@ def main(argv: list[str]) -> None:
         scaling(args.n_runs, args.dask, args.repeats, args.policy, args.workers)
     elif args.what == "costs":
         costs(args.n_runs, args.dask, args.repeats, args.workers)
+    elif args.what == "backlog":
+        backlog(args.n_runs, args.runs_a_task or [2, 1024], args.repeats)
     elif args.what == "policies":
         policies(args.n_runs, args.policy or ["full", "failed", "none"], args.dask)
     else:

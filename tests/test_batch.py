@@ -17,7 +17,7 @@ import time
 import tomllib
 import tracemalloc
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -1083,6 +1083,46 @@ def test_a_batch_killed_between_a_ranges_rows_and_its_lines_resumes_to_the_same_
     assert capsys.readouterr().err == ""
     assert _summary_bytes(out) == _summary_bytes(reference)
     assert not (out / ".parts").exists()
+
+
+def test_ranges_that_finish_together_are_made_durable_together_rows_before_lines(
+        reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/batch.md, "Execution": ranges that finish together (here the executor's ranges
+    of 2 runs handed over in pairs) are settled together: their rows appended and made
+    durable with one ``fdatasync``, then their journal lines in one write (a journal line
+    always has its row on disk); the summary is the uninterrupted batch's byte for byte."""
+    from wmr.apps.batch.local import LocalPool
+
+    events: list[str] = []
+    run = LocalPool.run
+
+    def in_pairs(self: LocalPool, tasks: Any, block_runs: int = 1) -> Any:
+        held: list[Any] = []
+        for group in run(self, tasks, block_runs):
+            held.extend(group)
+            if len(held) >= 2:
+                yield held
+                held = []
+        if held:
+            yield held
+
+    sync, append = runner_module._datasync, Journal.append_lines
+    monkeypatch.setattr(LocalPool, "run", in_pairs)
+    monkeypatch.setattr(runner_module._Blocks, "block_runs", lambda self, workers: 2)
+    monkeypatch.setattr(runner_module, "_datasync",
+                        lambda fd: (events.append("sync"), sync(fd))[1])
+    monkeypatch.setattr(Journal, "append_lines",
+                        lambda self, data: (events.append(f"lines {len(data.splitlines())}"),
+                                            append(self, data))[1])
+    groups: list[Sequence[str]] = []
+    with _test_hooks(between_writes=groups.append):
+        done = run_batch(load_batch(spec20), tmp_path, BatchOptions(workers=1, fmu_path=fmu3),
+                         progress=False)
+    assert len(done.executed) == 20
+    assert [len(ids) for ids in groups] == [4] * 5  # two ranges of 2 runs each time
+    assert events == ["sync", "lines 4"] * 5
+    assert _summary_bytes(tmp_path) == _summary_bytes(reference)
 
 
 @pytest.mark.slow

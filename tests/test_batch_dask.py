@@ -142,6 +142,80 @@ def test_the_worker_watch_tells_no_workers_from_workers_restarting(
     assert client.cancelled == ([] if restarts else [(["f1", "f2"], "no-workers")])
 
 
+def test_the_worker_watch_hears_no_event_while_the_scheduler_has_workers(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The scheduler sends a client subscribed to its topic ``all`` an event for every
+    ``gather`` (one a task: about 0.2 ms of the client's CPU each): the watch subscribes only
+    once a look finds no worker, and then hears the joins."""
+    monkeypatch.setattr(dask_exec, "WORKER_POLL_S", 0.05)
+
+    class Busy(_FakeClient):
+        workers: dict[str, int]
+
+        def nthreads(self) -> dict[str, int]:
+            return self.workers
+
+    client = Busy(restarts=True)
+    client.workers = {"tcp://w:1": 1}
+    watch = dask_exec._WorkerWatch(client, {})  # type: ignore[arg-type]
+    try:
+        time.sleep(0.3)  # several looks, each finding a worker
+        assert client.handler is None
+        client.workers = {}
+        deadline = time.monotonic() + 5.0
+        while client.handler is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert client.handler is not None
+    finally:
+        watch.stop()
+    assert not watch.starved.is_set()
+
+
+def test_results_of_tasks_finished_together_come_in_one_fetch_or_each_alone() -> None:
+    """Several finished tasks' results are fetched in one gather, with a bounded wait; when
+    that fails (here a dead worker's result, which alone would time out), each is asked for
+    alone, as one alone always is, and only the lost one's failure is its own."""
+    from distributed.scheduler import KilledWorker
+
+    class Fut:
+        def __init__(self, key: str, lost: bool = False) -> None:
+            self.key, self.lost, self.asked = key, lost, 0
+
+        def result(self, timeout: float | None = None) -> object:
+            assert timeout == dask_exec.RESULT_WAIT_S
+            self.asked += 1
+            if self.lost:
+                raise KilledWorker(self.key, "tcp://w:1", 3)
+            return f"rows of {self.key}"
+
+    class Client:
+        def __init__(self) -> None:
+            self.gathers: list[list[str]] = []
+
+        async def _gather(self, futures: list[Fut]) -> list[object]:
+            raise AssertionError("called through sync only")
+
+        def sync(self, func: object, futures: list[Fut], callback_timeout: float) -> object:
+            assert callback_timeout == dask_exec.RESULT_WAIT_S
+            self.gathers.append([f.key for f in futures])
+            if any(f.lost for f in futures):
+                raise TimeoutError("no result within the wait")
+            return [f"rows of {f.key}" for f in futures]
+
+    client = Client()
+    together = [Fut("a"), Fut("b"), Fut("c")]
+    assert dask_exec._results(client, together) == ["rows of a", "rows of b",  # type: ignore[arg-type]
+                                                    "rows of c"]
+    assert client.gathers == [["a", "b", "c"]] and not any(f.asked for f in together)
+    one_lost = [Fut("d"), Fut("e", lost=True), Fut("f")]
+    got = dask_exec._results(client, one_lost)  # type: ignore[arg-type]
+    assert got[0] == "rows of d" and got[2] == "rows of f" and isinstance(got[1], KilledWorker)
+    assert [f.asked for f in one_lost] == [1, 1, 1]
+    alone = [Fut("g")]
+    assert dask_exec._results(client, alone) == ["rows of g"]  # type: ignore[arg-type]
+    assert len(client.gathers) == 2 and alone[0].asked == 1
+
+
 def test_worker_threads_read_model_descriptions_one_at_a_time(
         fmu3: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Each thread of a Dask worker opens its own FmuPlant: fmpy's schema check of the model

@@ -511,7 +511,20 @@ def test_dask_redoes_a_run_whose_result_was_lost(tmp_path: Path, fmu3: Path,
             raise TimeoutError(f"no result for {self.key} within {timeout} s")
         return real(self, timeout=timeout)
 
+    real_gather = Client._gather
+
+    async def gather(self: Client, futures: list[Future], *args: object, **kwargs: object
+                     ) -> object:
+        """The results of several finished tasks fetched at once (a client that fell
+        behind): one of them lost fails the whole fetch, as it would by its timeout."""
+        keys = [str(f.key) for f in futures]
+        asked.extend(keys)
+        if any(k.startswith(lost_key) and not k.endswith("-retry") for k in keys):
+            raise TimeoutError(f"no result for {keys} within the wait")
+        return await real_gather(self, futures, *args, **kwargs)
+
     monkeypatch.setattr(Future, "result", result)
+    monkeypatch.setattr(Client, "_gather", gather)
     monkeypatch.setattr(dask_exec, "RESULT_WAIT_S", 5.0)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster, Client(cluster) as client:

@@ -143,10 +143,11 @@ class DaskExecutor:
         self.client = client
         self.attachment = attachment
 
-    def run(self, tasks: TaskSource) -> Iterator[BlockResult | Killed]:
-        """Submit ``tasks``, one Dask task per range of runs; yield each range's
-        :class:`~wmr.apps.batch.worker.BlockResult` as it finishes, and a :class:`Killed` for
-        each run whose task failed.
+    def run(self, tasks: TaskSource) -> Iterator[list[BlockResult | Killed]]:
+        """Submit ``tasks``, one Dask task per range of runs; yield, as they finish, each
+        range's :class:`~wmr.apps.batch.worker.BlockResult` and a :class:`Killed` for each run
+        whose task failed: in lists, the tasks that finished together (their results fetched
+        at once, made durable together by the caller).
 
         At most :data:`WINDOW` tasks per worker thread are submitted at a time, the next as one
         finishes: the client holds, and the scheduler tracks, a window of a large batch, not
@@ -195,7 +196,7 @@ class DaskExecutor:
 
     def _run(self, client: Client, address: str, tasks: TaskSource, plugin: FmuPlugin,
              att: Attachment | None, token: str, futures: dict[Any, Block]
-             ) -> Iterator[BlockResult | Killed]:
+             ) -> Iterator[list[BlockResult | Killed]]:
         """:meth:`run` on ``client``; ``futures`` holds the tasks in flight (the caller
         cancels them)."""
         from distributed import as_completed
@@ -236,22 +237,26 @@ class DaskExecutor:
                 # Not as_completed(with_results=True): it gathers each result inside its own
                 # tracking task, and a worker that dies during that gather raises KilledWorker
                 # there; the future is then never yielded and the batch waits for ever (seen with
-                # workers killed mid-run).  Waiting only for completion, then asking the finished
-                # future for its result here, cannot lose one.
+                # workers killed mid-run).  Waiting only for completion, then asking for the
+                # finished futures' results here (_results: with a bounded wait), cannot lose one.
                 done = as_completed(list(futures))
-                for fut in done:
-                    block = futures.pop(fut)
-                    more = submit_next()
-                    if more is not None:
-                        done.add(more)
-                    try:
-                        result = fut.result(timeout=RESULT_WAIT_S)
-                    except Exception as exc:  # KilledWorker, CancelledError, TimeoutError, its own
-                        result = exc
-                    if isinstance(result, BaseException):
+                for finished in done.batches():  # every task finished meanwhile, at once
+                    blocks = [futures.pop(fut) for fut in finished]
+                    for _ in finished:
+                        more = submit_next()
+                        if more is not None:
+                            done.add(more)
+                    group: list[BlockResult | Killed] = []
+                    for fut, block, result in zip(finished, blocks, _results(client, finished),
+                                                  strict=True):
+                        if not isinstance(result, BaseException):
+                            group.append(result)
+                            continue
                         how = task_failure(result, fut.status, client.status)
                         if how == "cluster":  # its runs were not run, or their results are
                             # lost with the connection: none is journalled, a resume runs them
+                            if group:
+                                yield group  # those that came back are kept
                             if watch.starved.is_set():
                                 raise _starved(address, "has no workers left",
                                                f"none for {WORKER_WAIT_S:g} s")
@@ -267,13 +272,33 @@ class DaskExecutor:
                                 done.add(submit(replace(block, indices=[index], retry=True),
                                                 "-retry"))
                                 continue
-                            yield Killed(index, "failed", DIED_TWICE if died else
-                                         f"the Dask task failed: {type(result).__name__}: "
-                                         f"{result}", 0.0)
-                        continue
-                    yield result
+                            group.append(Killed(index, "failed", DIED_TWICE if died else
+                                                f"the Dask task failed: {type(result).__name__}: "
+                                                f"{result}", 0.0))
+                    if group:
+                        yield group
         finally:
             watch.stop()
+
+
+def _results(client: Client, finished: list[Any]) -> list[Any]:
+    """The results of the finished futures ``finished``, in their order (an exception for a
+    future whose result could not be had): several in one ``gather`` (one round trip through
+    the scheduler for all, not one each: a client that fell behind catches up), with a
+    bounded wait; if that fails (a task's error, a worker that died with a result, a lost
+    connection) or takes longer than :data:`RESULT_WAIT_S`, each is asked for alone, as one
+    alone always is, and its failure said for it."""
+    if len(finished) > 1:
+        with contextlib.suppress(Exception):
+            return list(client.sync(client._gather, finished,
+                                    callback_timeout=RESULT_WAIT_S))
+    got: list[Any] = []
+    for fut in finished:
+        try:
+            got.append(fut.result(timeout=RESULT_WAIT_S))
+        except Exception as exc:  # KilledWorker, CancelledError, TimeoutError, its own
+            got.append(exc)
+    return got
 
 
 class _WorkerWatch:
@@ -283,10 +308,12 @@ class _WorkerWatch:
     saying so).
 
     A look every :data:`WORKER_POLL_S` s can miss a worker that a nanny restarts and that
-    dies again in between (a run that crashes every worker it is given): each worker that
-    joins is an event of the scheduler's topic ``all``, and one joined since the last look
-    counts as one seen.  (A caller's own handler of that topic on the same client is
-    replaced for the batch.)
+    dies again in between (a run that crashes every worker it is given): from the first look
+    that finds none, each worker that joins is an event of the scheduler's topic ``all``, and
+    one joined since the last look counts as one seen.  Not before: the scheduler sends a
+    client subscribed to ``all`` an event for every ``gather`` too, one per task, which cost
+    the client about 0.2 ms of CPU a task.  (A caller's own handler of that topic on the
+    same client is replaced while the batch has no workers.)
     """
 
     def __init__(self, client: Client, futures: dict[Any, Block]) -> None:
@@ -295,7 +322,7 @@ class _WorkerWatch:
         self.starved = threading.Event()
         self._stop = threading.Event()
         self._joined = 0
-        client.subscribe_topic("all", self._event)
+        self._subscribed = False
         threading.Thread(target=self._watch, name="wmr-dask-workers", daemon=True).start()
 
     def _event(self, event: tuple[float, Any]) -> None:
@@ -309,6 +336,9 @@ class _WorkerWatch:
         while not self._stop.wait(WORKER_POLL_S):
             try:
                 workers = self.client.nthreads()
+                if not workers and not self._subscribed:  # the joins from now on count
+                    self._subscribed = True
+                    self.client.subscribe_topic("all", self._event)
             except Exception:  # the connection's loss: the tasks' futures say it
                 return
             now = time.monotonic()
@@ -333,7 +363,7 @@ class _WorkerWatch:
     def stop(self) -> None:
         """Stop watching (the client may have lost its scheduler: then no call on it)."""
         self._stop.set()
-        if self.client.status == "running":
+        if self._subscribed and self.client.status == "running":
             with contextlib.suppress(Exception):
                 self.client.unsubscribe_topic("all")
 

@@ -174,6 +174,11 @@ class Journal:
     def __init__(self, path: Path) -> None:
         self.path = path
         self._checked = False
+        #: the file, open for appending from the first append to :meth:`close` (a batch
+        #: appends once per range: an open, fstat and close each time cost more than the
+        #: write), and its size (the batch folder's lock makes this the only writer)
+        self._fd: int | None = None
+        self._size = 0
 
     def scan(self) -> Iterator[tuple[int, dict[str, Any]]]:
         """Each well-formed line, with the byte offset where it starts, in file order; cut or
@@ -228,20 +233,37 @@ class Journal:
     def append_lines(self, data: bytes) -> int:
         """Append whole lines (:func:`sealed_line` each, a range's in one write: a batch's
         parent writes once per range, not per run); return the byte offset where the first
-        starts."""
-        fd = open_own(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, "batch journal")
+        starts.  The file stays open until :meth:`close`."""
+        if self._fd is None:
+            fd = open_own(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, "batch journal")
+            try:
+                size = os.fstat(fd).st_size
+                # a line that a previous batch cut short must not swallow this one
+                if not self._checked:
+                    self._checked = True
+                    if size and not self._ends_with_newline():
+                        write_all(fd, b"\n", self.path)
+                        size += 1
+            except BaseException:
+                os.close(fd)
+                raise
+            self._fd, self._size = fd, size
         try:
-            size = os.fstat(fd).st_size
-            # a line that a previous batch cut short must not swallow this one
-            if not self._checked:
-                self._checked = True
-                if size and not self._ends_with_newline():
-                    data = b"\n" + data
-                    size += 1
-            write_all(fd, data, self.path)  # os.write may write less than asked: loop
-        finally:
+            write_all(self._fd, data, self.path)  # os.write may write less than asked: loop
+        except BaseException:  # a part may be written: the next append looks at the file
+            self.close()
+            raise
+        start, self._size = self._size, self._size + len(data)
+        return start
+
+    def close(self) -> None:
+        """Close the file (appended to since the first append); the next append opens it."""
+        if self._fd is not None:
+            fd, self._fd = self._fd, None
             os.close(fd)
-        return size
+
+    def __del__(self) -> None:
+        self.close()
 
     def _ends_with_newline(self) -> bool:
         with open(self.path, "rb") as f:

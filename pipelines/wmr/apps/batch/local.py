@@ -402,10 +402,12 @@ class LocalPool:
             slot.proc.join(2.0)
         slot.conn.close()
 
-    def run(self, tasks: TaskSource, block_runs: int = 1) -> Iterator[BlockResult | Killed]:
-        """Run ``tasks`` in blocks of up to ``block_runs`` runs; yield each block's
-        :class:`~wmr.apps.batch.worker.BlockResult` as it finishes, and a :class:`Killed` for
-        each run stopped or lost with its worker.
+    def run(self, tasks: TaskSource, block_runs: int = 1
+            ) -> Iterator[list[BlockResult | Killed]]:
+        """Run ``tasks`` in blocks of up to ``block_runs`` runs; yield, as they finish, the
+        blocks' :class:`~wmr.apps.batch.worker.BlockResult` and a :class:`Killed` for each run
+        stopped or lost with its worker: in lists, those that came in together (the caller
+        makes them durable together).
 
         A worker that dies or is killed loses its block's results: the run it was on gets one
         more try, alone (then it is a ``failed`` :class:`Killed`), and the block's other runs
@@ -465,6 +467,7 @@ class LocalPool:
                 # the process too: one gone whose pipe a child of its own (an FMU's helper)
                 # keeps open never reads as EOF
                 ready = wait([s.conn for s in busy] + [s.proc.sentinel for s in busy], timeout)
+                group: list[BlockResult | Killed] = []
                 for slot in busy:
                     if slot.conn in ready:
                         try:
@@ -480,8 +483,11 @@ class LocalPool:
                         continue
                     if msg is not None and msg[0] == "done":
                         slot.block = None
-                        yield msg[1]
+                        group.append(msg[1])
                         continue
+                    if group:  # what finished is kept before an error below
+                        yield group
+                        group = []
                     if msg is not None and msg[0] == "init_error":
                         raise FmuError(f"a batch worker cannot open {self.fmu_path}: {msg[1]}")
                     if msg is not None and msg[0] == "setup_error":
@@ -494,7 +500,7 @@ class LocalPool:
                         raise WmrError(f"a batch worker process died while starting (exit "
                                        f"code {slot.proc.exitcode}){log}")
                     self._stop(slot, kill=True)
-                    yield from lost(slot, died=True)
+                    group.extend(lost(slot, died=True))
                     slot.block = None
                     slots[slots.index(slot)] = self._spawn(spawned)
                     spawned += 1
@@ -504,10 +510,12 @@ class LocalPool:
                         if slot.block is None or now - slot.current()[1] < self.hard_limit_s:
                             continue
                         self._stop(slot, kill=True)
-                        yield from lost(slot, died=False)
+                        group.extend(lost(slot, died=False))
                         slot.block = None
                         slots[i] = self._spawn(spawned)
                         spawned += 1
+                if group:
+                    yield group
         finally:
             for slot in slots:
                 self._stop(slot, kill=slot.block is not None)

@@ -386,8 +386,8 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str],
     fmu_sha = fmu_digest(fmu, var_map)
     policy = log or batch.log or default_log_policy(len(batch.runs))
     lock = _Lock(out)
+    journal = Journal(out / JOURNAL)
     try:
-        journal = Journal(out / JOURNAL)
         parts = _Parts(out, len(batch.runs))
         ledger = _resume(batch, journal, fmu_sha, out, progress, parts)
         result = BatchOutcome(out_dir=out, total=len(batch.runs), skipped=ledger.n_done,
@@ -400,7 +400,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str],
         tasks = _Blocks(batch, ledger, run_timeout_s, hooks.faults, policy, fmu_sha,
                         outcomes=on_outcome is not None)
         if not tasks:
-            stream: Iterator[BlockResult | Killed] = iter(())
+            stream: Iterator[Sequence[BlockResult | Killed]] = iter(())
         elif scheduler is not None or client is not None:
             from wmr.apps.batch.dask_exec import DaskExecutor
 
@@ -430,79 +430,106 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str],
         started = False  # a run of this invocation got past its first step
         unstarted = 0  # runs of this invocation that failed before it
 
-        def settle(res: BlockResult) -> None:
-            """Keep the summary rows of the runs a range finished (written and fsynced first,
-            so that a journal line always has its row on disk), journal them (one write),
-            count them: a range at a time, over its bytes (no Python work per run, unless
+        def settle(group: Sequence[BlockResult]) -> None:
+            """Keep the summary rows of the runs some ranges finished (written and fsynced
+            first, one ``fdatasync`` for the group, so that a journal line always has its row
+            on disk), journal them (one write), count them: a group of ranges at a time (those
+            that finished together), over their bytes (no Python work per run, unless
             ``on_outcome`` asks for each); raise when the batch must stop (its first runs all
             failed before their first step, a test's Ctrl-C) after journalling the runs up to
-            the one that says so."""
+            the one that says so (the group's later ranges are not kept: run again on
+            resume)."""
             nonlocal started, unstarted
-            take = len(res)
+            taken: list[tuple[BlockResult, int]] = []
             stop: BaseException | None = None
-            if not take:
-                return
-            if not started:  # the batch's first runs: do they all fail before their first step?
-                for k, code in enumerate(res.codes):
-                    if code & STARTED:
-                        started = True
-                        break
-                    if not res.killed:
-                        unstarted += 1
-                        if unstarted >= min(EARLY_STOP_RUNS, len(tasks)):
-                            take, stop = k + 1, WmrError(
-                                f"the first {unstarted} runs all failed before their first "
-                                f"step, stopping the batch: {_message(res, k)}")
+            n_taken = 0
+            for res in group:
+                take = len(res)
+                if not take:
+                    continue
+                if not started:  # the first runs: do they all fail before their first step?
+                    for k, code in enumerate(res.codes):
+                        if code & STARTED:
+                            started = True
                             break
-            if hooks.stop_after is not None:
-                at = max(1, hooks.stop_after - len(result.executed))
-                if at <= take and ledger.n_done + at < len(batch.runs) \
-                        and (stop is None or at < take):
-                    take, stop = at, KeyboardInterrupt()
-            lines, ids, codes = res.lines, res.ids, res.codes
-            ends = line_ends(lines)
-            if take < len(res):
-                lines, codes = lines[:ends[take - 1]], codes[:take]
-                ids = "".join(f"{r}\n" for r in res.run_ids()[:take]).encode("ascii")
-            for k, rel, data in res.logs:  # logs that came back as bytes: before the lines
-                if k < take:
-                    (out / rel).parent.mkdir(exist_ok=True)
-                    _write_atomic(out / rel, data)
-            indices = res.indices[:take]
-            parts.add(res.table, indices, None if take == len(res) else set(res.run_ids()[:take]))
+                        if not res.killed:
+                            unstarted += 1
+                            if unstarted >= min(EARLY_STOP_RUNS, len(tasks)):
+                                take, stop = k + 1, WmrError(
+                                    f"the first {unstarted} runs all failed before their "
+                                    f"first step, stopping the batch: {_message(res, k)}")
+                                break
+                if hooks.stop_after is not None:
+                    at = max(1, hooks.stop_after - len(result.executed) - n_taken)
+                    if at <= take and ledger.n_done + n_taken + at < len(batch.runs) \
+                            and (stop is None or at < take):
+                        take, stop = at, KeyboardInterrupt()
+                taken.append((res, take))
+                n_taken += take
+                if stop is not None:
+                    break
+            kept: list[tuple[BlockResult, int, bytes, bytes, bytes, Any]] = []
+            for res, take in taken:
+                lines, ids, codes = res.lines, res.ids, res.codes
+                ends = line_ends(lines)
+                if take < len(res):
+                    lines, codes = lines[:ends[take - 1]], codes[:take]
+                    ids = "".join(f"{r}\n" for r in res.run_ids()[:take]).encode("ascii")
+                kept.append((res, take, lines, ids, codes, ends))
+                for k, rel, data in res.logs:  # logs that came back as bytes: before the lines
+                    if k < take:
+                        (out / rel).parent.mkdir(exist_ok=True)
+                        _write_atomic(out / rel, data)
+                parts.add(res.table, res.indices[:take],
+                          None if take == len(res) else set(res.run_ids()[:take]),
+                          durable=False)
+            if not kept:
+                if stop is not None:
+                    raise stop
+                return
+            parts.sync()  # every row of the group on disk, before any of its lines
             if hooks.between_writes is not None:
-                hooks.between_writes(res.run_ids()[:take])
-            offset = journal.append_lines(lines)
-            ledger.mark_many(indices, offset + np.concatenate(([0], ends[:take - 1])), codes)
-            result.executed.add(ids, take)
-            flags = np.frombuffer(codes, np.uint8)
-            result.logs_kept += int(np.count_nonzero(flags & KEPT))
-            per_code = np.bincount(flags & STATUS_MASK, minlength=4)
-            for status, code in STATUS_CODES.items():
-                counts[status] += int(per_code[code])
+                hooks.between_writes([r for res, take, *_ in kept for r in res.run_ids()[:take]])
+            offset = journal.append_lines(b"".join(lines for _, _, lines, *_ in kept))
+            for res, take, lines, ids, codes, ends in kept:
+                ledger.mark_many(res.indices[:take],
+                                 offset + np.concatenate(([0], ends[:take - 1])), codes)
+                offset += len(lines)
+                result.executed.add(ids, take)
+                flags = np.frombuffer(codes, np.uint8)
+                result.logs_kept += int(np.count_nonzero(flags & KEPT))
+                per_code = np.bincount(flags & STATUS_MASK, minlength=4)
+                for status, code in STATUS_CODES.items():
+                    counts[status] += int(per_code[code])
             show()
-            bar.update(take)
+            bar.update(n_taken)
             if on_outcome is not None:
-                logs = {k: data for k, _, data in res.logs}
-                assert res.outcomes is not None  # the blocks asked for them
-                for k, (run_id, (record, wall)) in enumerate(zip(res.run_ids()[:take],
-                                                                 res.outcomes[:take],
-                                                                 strict=True)):
-                    on_outcome(Outcome(run_id, dict(record), wall, res.killed, logs.get(k),
-                                       res.worker))
+                for res, take, *_ in kept:
+                    logs = {k: data for k, _, data in res.logs}
+                    assert res.outcomes is not None  # the blocks asked for them
+                    for k, (run_id, (record, wall)) in enumerate(zip(res.run_ids()[:take],
+                                                                     res.outcomes[:take],
+                                                                     strict=True)):
+                        on_outcome(Outcome(run_id, dict(record), wall, res.killed, logs.get(k),
+                                           res.worker))
             if stop is not None:
                 raise stop
 
         try:
-            for item in stream:
-                if isinstance(item, Killed):
-                    settle(_killed(item, batch, out, fmu_sha))
-                    continue
-                settle(item)
-                if item.stop is not None and item.stop[0] == "disk_full":
-                    raise DiskFullError(item.stop[1])
-                if item.stop is not None:  # a run made late, e.g. a sample drawn out of range
-                    field_, problem, fix = item.stop[1:]
+            for items in stream:  # the ranges that finished together
+                group: list[BlockResult] = []
+                for item in items:
+                    group.append(_killed(item, batch, out, fmu_sha) if isinstance(item, Killed)
+                                 else item)
+                    if group[-1].stop is not None:  # the ranges after it are not kept
+                        break
+                settle(group)
+                last = group[-1] if group else None
+                if last is not None and last.stop is not None and last.stop[0] == "disk_full":
+                    raise DiskFullError(last.stop[1])
+                if last is not None and last.stop is not None:  # a run made late, e.g. a
+                    # sample drawn out of range
+                    field_, problem, fix = last.stop[1:]
                     raise ConfigError(field_, problem, f"{fix}; the runs finished are kept: "
                                       "rerun the same command after the fix")
         except KeyboardInterrupt:
@@ -535,6 +562,7 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str],
                 lost.problem, (f"the {n} finished are kept; " if n else "")
                 + f"{lost.fix} to run the {result.total - n} missing", lost.cause) from lost
     finally:
+        journal.close()
         lock.release()
     return result
 
@@ -1068,6 +1096,9 @@ class _Parts:
         self.path = self.folder / f"{os.getpid()}-{time.time_ns():x}{PARTS_SUFFIX}"
         self._fd: int | None = None
         self._size = 0
+        #: frames written and not yet made durable; the file's name made durable
+        self._unsynced = False
+        self._named = False
         #: (first run index, offset, length) of each frame's payload, by SUMMARY_BLOCK of runs
         self._frames: dict[int, list[tuple[int, int, int]]] = {}
         #: 1 where the run's row is in a part of this invocation (a numpy array)
@@ -1110,12 +1141,13 @@ class _Parts:
         self.drop(self.leftovers())
 
     def add(self, table: Any, indices: Sequence[int],
-            only: set[str] | None = None) -> None:
+            only: set[str] | None = None, durable: bool = True) -> None:
         """Keep ``table`` (a table or its IPC stream), the rows of the runs ``indices``
         (increasing, in the table's order), or, with ``only``, its rows of those run ids (the
-        runs ``indices``): on disk (``fdatasync``) before this returns; a frame for each
-        :data:`SUMMARY_BLOCK` of runs they fall in (a worker's range never crosses one; the
-        rows a resume found may)."""
+        runs ``indices``): on disk (``fdatasync``) before this returns, or, not ``durable``,
+        at the next :meth:`sync` (several ranges' frames made durable at once); a frame for
+        each :data:`SUMMARY_BLOCK` of runs they fall in (a worker's range never crosses one;
+        the rows a resume found may)."""
         import pyarrow as pa
         import pyarrow.compute as pc
 
@@ -1133,7 +1165,10 @@ class _Parts:
                 for lo, hi in zip([0, *cuts.tolist()], [*cuts.tolist(), len(at)],
                                   strict=True):
                     if hi > lo:
-                        self.add(table.slice(lo, hi - lo), at[lo:hi].tolist())
+                        self.add(table.slice(lo, hi - lo), at[lo:hi].tolist(),
+                                 durable=False)
+                if durable:
+                    self.sync()
                 return
         if not isinstance(table, bytes | bytearray):
             if not table.num_rows:
@@ -1142,30 +1177,44 @@ class _Parts:
         if not table:
             return
         self._append(bytes(table), first, int(indices[0]))
+        if durable:
+            self.sync()
         if isinstance(indices, range):
             self.has[indices[0]:indices[-1] + 1] = True
         else:
             self.has[np.asarray(indices, np.int64)] = True
 
     def _append(self, payload: bytes, chunk: int, start: int) -> None:
-        """Append ``payload``, the rows from run ``start`` on, as a frame, durably (a full
-        disk is one DiskFullError)."""
+        """Append ``payload``, the rows from run ``start`` on, as a frame (durable at the
+        next :meth:`sync`; a full disk is one DiskFullError)."""
         try:
-            made = self._fd is None
             if self._fd is None:
                 self.folder.mkdir(exist_ok=True)
                 self._fd = open_own(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL
                                     | os.O_APPEND, "batch parts")
+                self._named = False
             head = PART_FRAME.pack(PART_MAGIC, len(payload), zlib.crc32(payload))
+            self._unsynced = True
             write_all(self._fd, head + payload, self.path)
-            _datasync(self._fd)
-            if made:  # the file's name too, once
-                fsync_dir(self.folder)
         except OSError as exc:
             raise storage_error(exc, self.path) from exc
         self._frames.setdefault(chunk, []).append((start, self._size + PART_FRAME.size,
                                                    len(payload)))
         self._size += PART_FRAME.size + len(payload)
+
+    def sync(self) -> None:
+        """Make the frames appended since the last sync durable: one ``fdatasync`` however
+        many (and the folder's, once, for the file's name)."""
+        if self._fd is None or not self._unsynced:
+            return
+        try:
+            _datasync(self._fd)
+            if not self._named:
+                fsync_dir(self.folder)
+                self._named = True
+        except OSError as exc:
+            raise storage_error(exc, self.path) from exc
+        self._unsynced = False
 
     def tables(self, chunk: int) -> list[Any]:
         """The kept tables of the runs ``chunk * SUMMARY_BLOCK`` to the next block's, in the

@@ -269,7 +269,7 @@ def table_bytes(table: Any) -> bytes:
     return zstandard.ZstdCompressor(level=1).compress(sink.getvalue())
 
 
-def table_of(payload: bytes, max_bytes: int) -> Any:
+def table_of(payload: bytes | bytearray, max_bytes: int) -> Any:
     """The Arrow table of ``payload``, made by :func:`table_bytes` or, for rows a batch of
     before left, an IPC stream whose buffers are compressed.
 
