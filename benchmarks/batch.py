@@ -42,7 +42,10 @@ Three measurements, each printed as a table:
     batch's look at the workers every second), which a batch of 2 workers would count as a
     cost per run: it is measured alone (a client and the batch's worker watch, idle for
     5 s), printed, and its share (per second x the batch's wall time) taken out of each C
-    first.  (The local parent's is nil: it sleeps between its workers' messages.)
+    first.  (The local parent's is nil: it sleeps between its workers' messages.)  The
+    last column is the CPU of the summary's merge at the end (the parts read back, the
+    summary written: ``runner._finish``, timed), per run, included in the others: the part
+    of the cost a run that comes after the workers are done, not while they run.
 
 ``python benchmarks/batch.py backlog N_RUNS [--runs-a-task K ...] [--repeats R]``
     The Dask client at the pace of a large cluster: ``N_RUNS`` runs of ``mc_fig10``
@@ -373,6 +376,10 @@ def costs(n_runs: int, with_dask: bool, repeats: int, workers: int) -> None:
     executors_: dict[str, dict[str, Any]] = {f"local, {workers} workers": {"workers": workers}}
     #: (runs, range size) -> CPU seconds, per executor
     samples: dict[str, dict[tuple[int, int], list[float]]] = {}
+    #: the CPU of the summary's merge at the end (the parts read back, the summary written),
+    #: per run, per executor; ``merges`` the last one's seconds
+    merged: dict[str, list[float]] = {}
+    merges: list[float] = []
     with dask_cluster(workers) if with_dask else _nothing() as address:
         if address:
             executors_[f"Dask, {workers} worker processes"] = {"scheduler": address}
@@ -394,8 +401,9 @@ def costs(n_runs: int, with_dask: bool, repeats: int, workers: int) -> None:
             for name, how in executors_.items():
                 for spec, size in points:
                     folder = Path(tempfile.mkdtemp(prefix="wmr-bench-costs-", dir=os.getcwd()))
-                    saved = runner.MAX_BLOCK, dask_exec.MAX_CHUNK
+                    saved = runner.MAX_BLOCK, dask_exec.MAX_CHUNK, runner._finish
                     runner.MAX_BLOCK = dask_exec.MAX_CHUNK = size  # type: ignore[misc]
+                    runner._finish = _timed(runner._finish, merges)
                     try:
                         before = resource.getrusage(resource.RUSAGE_SELF)
                         t0 = time.perf_counter()
@@ -404,8 +412,9 @@ def costs(n_runs: int, with_dask: bool, repeats: int, workers: int) -> None:
                         wall = time.perf_counter() - t0
                         after = resource.getrusage(resource.RUSAGE_SELF)
                     finally:
-                        runner.MAX_BLOCK, dask_exec.MAX_CHUNK = saved  # type: ignore[misc]
+                        runner.MAX_BLOCK, dask_exec.MAX_CHUNK, runner._finish = saved  # type: ignore[misc]
                         shutil.rmtree(folder, ignore_errors=True)
+                    merged.setdefault(name, []).append(merges.pop() / len(spec.runs))
                     assert len(result.executed) == len(spec.runs)
                     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime
                                                                 - before.ru_stime)
@@ -419,7 +428,7 @@ def costs(n_runs: int, with_dask: bool, repeats: int, workers: int) -> None:
           f"{os.cpu_count()} cores; load {os.getloadavg()[0]:.1f})")
     print(f"{'executor':<26} {'ms/s':>5} {'C(N,1024) s':>11} {'C(N,128) s':>10} "
           f"{'C(N/4,128) s':>12} {'us/range':>9} {'us/run':>7} {'fixed s':>8} "
-          f"{'us/run at 1024':>15}")
+          f"{'us/run at 1024':>15} {'merge us/run':>13}")
     for name, by in samples.items():
         med = {k: statistics.median(v) for k, v in by.items()}
         c_big, c_small, c_quarter = (med[(n_runs, big)], med[(n_runs, small)],
@@ -430,7 +439,8 @@ def costs(n_runs: int, with_dask: bool, repeats: int, workers: int) -> None:
         print(f"{name:<26} {1e3 * per_s[name]:>5.2f} {c_big:>11.3f} {c_small:>10.3f} "
               f"{c_quarter:>12.3f} "
               f"{1e6 * per_range:>9.0f} {1e6 * per_run:>7.2f} {fixed:>8.3f} "
-              f"{1e6 * (per_run + per_range / big):>15.2f}")
+              f"{1e6 * (per_run + per_range / big):>15.2f} "
+              f"{1e6 * statistics.median(merged[name]):>13.2f}")
 
 
 def backlog(n_runs: int, sizes: list[int], repeats: int) -> None:
@@ -479,6 +489,17 @@ def backlog(n_runs: int, sizes: list[int], repeats: int) -> None:
         tasks = -(-n_runs // size)
         print(f"{size:>11} {tasks:>6} {wall:>7.1f} {n_runs / wall:>7.0f} "
               f"{1e3 * wall / tasks:>10.2f} {1e3 * cpu / tasks:>19.3f}")
+
+
+def _timed(fun: Callable[..., Any], into: list[float]) -> Callable[..., Any]:
+    """``fun``, appending the CPU time (this process's) of each call to ``into``."""
+    def timed(*args: Any, **kwargs: Any) -> Any:
+        before = time.process_time()
+        try:
+            return fun(*args, **kwargs)
+        finally:
+            into.append(time.process_time() - before)
+    return timed
 
 
 @contextmanager
