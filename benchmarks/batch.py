@@ -486,7 +486,7 @@ def backlog(n_runs: int, sizes: list[int], repeats: int) -> None:
     for size, got in samples.items():
         wall = statistics.median(w for w, _ in got)
         cpu = statistics.median(c for _, c in got)
-        tasks = -(-n_runs // size)
+        tasks = -(-n_runs // min(size, dask_exec.task_runs(n_runs, 2)))  # 8 a thread at least
         print(f"{size:>11} {tasks:>6} {wall:>7.1f} {n_runs / wall:>7.0f} "
               f"{1e3 * wall / tasks:>10.2f} {1e3 * cpu / tasks:>19.3f}")
 
