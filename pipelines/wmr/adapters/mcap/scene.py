@@ -36,7 +36,8 @@ together); the readers take both (only the signal topics are read back).
 
 They are made from the rows the log already holds (no new column in
 :data:`wmr.core.signals.SIGNALS`) by :class:`SceneRecorder`, which the log writer feeds each
-block and asks to write its topics when the log is closed (one chunk per topic): a run killed
+block and asks to write its topics when the log is closed (all of them and the log's note in
+one chunk, the clouds on one schema): a run killed
 before its end has no scene topics (``wmr log recover`` makes them from the rows it holds,
 :mod:`wmr.adapters.mcap.recover`), and its signal topics are unchanged.  The phase is the
 stabiliser's hysteresis (:func:`control_phases`) replayed on the logged distance ``dr_m``.

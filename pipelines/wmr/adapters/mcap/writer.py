@@ -16,7 +16,7 @@ speed of the system zlib's.
 Layout of a file: magic, Header, Schema and Channel records, the ``run`` Metadata record, the
 Attachments, a chunk holding the ``/goal`` message, then one chunk per second of simulation
 time (each followed by its Message Index records and flushed to the OS, so a killed run loses at
-most the chunk in progress); at the close, the scene's and the note's chunks
+most the chunk in progress); at the close, one chunk of the scene's topics and the note
 (:mod:`wmr.adapters.mcap.scene`, :mod:`wmr.adapters.mcap.readme`), the last rows' chunk, the
 ``result`` Metadata record, Data End, the summary (schemas, channels, statistics, chunk,
 attachment and metadata indexes, summary offsets), Footer, magic.  Every chunk is flushed
