@@ -105,8 +105,8 @@ Compression = Literal["zstd", "lz4", ""]
 DEFAULT_COMPRESSION: Final[Compression] = "lz4"
 #: lz4's level: negative levels are LZ4F's fast mode, acceleration ``1 - level`` (python-lz4
 #: hands the level to LZ4F as it is).  On the rows' chunks (69 kB of records each, Monte Carlo
-#: runs of Fig. 10 and the Fig. 11 cruise) -3 (acceleration 4) takes 78 % of -1's time and
-#: 62 % of level 0's for 0.6 % more bytes than -1; -2 and -4 give 5 to 7 % more bytes (where
+#: runs of Fig. 10 and Fig. 11's logs) -3 (acceleration 4) takes 77 to 84 % of -1's time and
+#: about 65 % of level 0's for 0.6 % more bytes than -1; -2 and -4 give 5 to 7 % more bytes (where
 #: the accelerated search skips falls across the rows' records), -16 17 % more for 61 % of the
 #: time; a larger block or a checksum changes neither (docs/batch.md, issue 31, round 3).
 LZ4_LEVEL: Final = -3
