@@ -15,18 +15,29 @@ Run: ``PYTHONPATH=pipelines python benchmarks/log_fixed.py [N_RUNS] [REPEATS]``.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import shutil
 import statistics
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).parent))
 
 from batch import _mc_fig10, default_fmu
+
+
+@contextlib.contextmanager
+def _removed(folder: Path) -> Iterator[None]:
+    """Remove ``folder`` and its logs when the block ends."""
+    try:
+        yield
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def main(n_runs: int = 60, repeats: int = 3) -> None:
@@ -62,10 +73,13 @@ def main(n_runs: int = 60, repeats: int = 3) -> None:
     wrap(writer, "write_readme", "close: the note")
     wrap(writer.McapFile, "finish", "close: the summary and the commit")
     batch = _mc_fig10(n_runs)
+    # removed at the end (its logs are 0.6 MB a run): a folder of this machine's ext4 without
+    # a journal makes files slower to create for 30 s after many were removed, so run the
+    # next benchmark a little later (docs/batch.md, "Round three")
     folder = Path(tempfile.mkdtemp(prefix="wmr-bench-log-fixed-"))
     full: list[float] = []
     held: list[float] = []
-    with FmuPlant(default_fmu()) as plant:
+    with FmuPlant(default_fmu()) as plant, _removed(folder):
         for i, r in enumerate(batch.runs[:10]):  # warm-up
             run_to_log(r.spec, writer.McapOpener(folder / f"w{i}.mcap", durable=False), plant)
         times.clear()
