@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
-from mcap.records import Message
+from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
@@ -282,6 +282,32 @@ def test_same_inputs_same_bytes(tmp_path: Path, compression: str) -> None:
         assert summary.statistics.chunk_count == 1 + 5  # goal + seconds 0..4
         assert summary.statistics.message_count == 1 + 450 * len(STEP_TOPICS)
         assert {i.compression for i in summary.chunk_indexes} == {compression}
+
+
+def test_the_chunks_are_lz4_frames_of_the_accelerated_level(tmp_path: Path) -> None:
+    """Each chunk is one LZ4 frame of its records at ``LZ4_LEVEL``, which python-lz4 hands to
+    LZ4F as it is: a negative level is the fast mode's acceleration (other bytes than level
+    0's, which a clamped level would give), on these records for about the bytes of -1's."""
+    import lz4.frame
+
+    from wmr.adapters.mcap.writer import LZ4_LEVEL
+
+    t, block = make_run(450, seed=3)
+    path = tmp_path / "a.mcap"
+    write_run(path, t, block)
+    with open(path, "rb") as f:
+        chunks = [r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+    rows = [c for c in chunks if c.uncompressed_size > 20_000]  # the seconds of rows
+    assert len(rows) == 5 and {c.compression for c in chunks} == {"lz4"}
+    for c in chunks:
+        records = lz4.frame.decompress(c.data)
+        assert len(records) == c.uncompressed_size and zlib.crc32(records) == c.uncompressed_crc
+        assert c.data == lz4.frame.compress(records, compression_level=LZ4_LEVEL)
+    sizes = {level: sum(len(lz4.frame.compress(lz4.frame.decompress(c.data),
+                                               compression_level=level)) for c in rows)
+             for level in (0, -1)}
+    written = sum(len(c.data) for c in rows)
+    assert LZ4_LEVEL < 0 and written != sizes[0] and written < 1.02 * sizes[-1]
 
 
 def test_different_data_different_bytes(tmp_path: Path) -> None:

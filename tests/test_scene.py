@@ -376,3 +376,121 @@ def test_a_cloud_message_is_the_one_message_s_serialisation(t_ns: int, n: int, f
     msg.pose.orientation.w = 1.0
     assert scene_mod.cloud_message(t_ns, points, frame) == msg.SerializeToString(
         deterministic=True)
+
+
+def _chunks_of(path: Path) -> tuple[dict[int, tuple[str, int]], dict[int, str],
+                                    list[tuple[list[tuple[int, int, int]], list[Any]]]]:
+    """A log's channels (id: topic, schema id), schemas (id: name) and chunks: each chunk's
+    Message records as (offset, channel id, log time), parsed from its inflated bytes, and the
+    Message Index records that follow it."""
+    import struct
+
+    from mcap.records import Channel, Chunk, MessageIndex, Schema
+    from mcap.stream_reader import StreamReader, get_chunk_data_stream
+
+    channels: dict[int, tuple[str, int]] = {}
+    schemas: dict[int, str] = {}
+    chunks: list[tuple[list[tuple[int, int, int]], list[Any]]] = []
+    with open(path, "rb") as f:
+        for r in StreamReader(f, emit_chunks=True).records:
+            if isinstance(r, Channel):
+                channels[r.id] = (r.topic, r.schema_id)
+            elif isinstance(r, Schema):
+                schemas[r.id] = r.name
+            elif isinstance(r, Chunk):
+                stream, size = get_chunk_data_stream(r, validate_crc=True)
+                data = stream.read(size)
+                records, at = [], 0
+                while at < len(data):
+                    opcode, length = struct.unpack_from("<BQ", data, at)
+                    assert opcode == 0x05  # Message
+                    cid, _, log_time = struct.unpack_from("<HIQ", data, at + 9)
+                    records.append((at, cid, log_time))
+                    at += 9 + length
+                chunks.append((records, []))
+            elif isinstance(r, MessageIndex):
+                chunks[-1][1].append(r)
+    return channels, schemas, chunks
+
+
+def _assert_scene_in_one_chunk(path: Path) -> None:
+    """The scene's topics and the note are one chunk's, alone, in log-time order; each
+    channel's Message Index lists its records' times and offsets; the clouds share a schema."""
+    from wmr.adapters.mcap.recover import SCENE_TOPICS
+
+    channels, schemas, chunks = _chunks_of(path)
+    scene = {cid for cid, (topic, _) in channels.items() if topic in SCENE_TOPICS}
+    assert {channels[cid][0] for cid in scene} == set(SCENE_TOPICS)
+    holding = [c for c in chunks if scene & {cid for _, cid, _ in c[0]}]
+    assert len(holding) == 1
+    records, indexes = holding[0]
+    assert {cid for _, cid, _ in records} == scene
+    times = [t for _, _, t in records]
+    assert times == sorted(times) and times[-1] > 0  # the robot's second outline, the phase
+    assert [i.channel_id for i in indexes] == sorted(scene)
+    for index in indexes:
+        assert index.records == [(t, at) for at, cid, t in records if cid == index.channel_id]
+    clouds = {channels[cid][1] for cid in scene
+              if channels[cid][0] in (GOAL_TOPIC, PATH_TOPIC, ROBOT_TOPIC)}
+    assert len(clouds) == 1 and list(schemas.values()).count("foxglove.PointCloud") == 1
+
+
+def test_the_scene_and_the_note_are_one_chunk_and_recovery_writes_them_so(
+        tmp_path: Path) -> None:
+    """The close writes the scene's topics and the note in one chunk (it was a chunk each:
+    five compressions, writes to the OS and summary entries a log), their records in log-time
+    order with every channel's Message Index pointing at its records, the clouds on one
+    schema; recovery of a killed run's log makes them the same way.  The mcap reader finds
+    each topic's messages through the summary's index."""
+    from wmr.adapters.mcap.recover import SCENE_TOPICS, recover_log
+
+    path = tmp_path / "run.mcap"
+    t, block = _log(path)
+    _assert_scene_in_one_chunk(path)
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        kept = {topic: [(m.log_time, m.data) for _, _, m in reader.iter_messages(topics=[topic])]
+                for topic in SCENE_TOPICS}
+    assert [len(kept[topic]) for topic in SCENE_TOPICS] == [1, 1, 2, 4, 1]
+    # a killed run: the .partial as it stands before the close (its first 2 s of rows)
+    cut = tmp_path / "cut.mcap"
+    run = {"stop_radius_m": EPS_M, "params": {"L": 0.3, "r": 0.15}}
+    with RunLogWriter(tmp_path / "live.mcap", run=run, goal=(3.0, 0.0, 1.0), scene=True) as log:
+        log.write_block(t, block)
+        cut.with_name("cut.mcap.partial").write_bytes(
+            (tmp_path / "live.mcap.partial").read_bytes())
+        log.close({"status": "converged"})
+    rec = recover_log(cut.with_name("cut.mcap.partial"), cut)
+    assert sorted(rec.scene_added) == sorted(SCENE_TOPICS)
+    _assert_scene_in_one_chunk(cut)
+
+
+@pytest.mark.parametrize("stop_radius_m", [0.05, 0.2, None])
+def test_the_goal_cloud_kept_for_a_batch_is_the_one_drawn_afresh(stop_radius_m: float | None
+                                                                ) -> None:
+    """The ``/scene/goal`` message is kept per goal and stop radius (the runs of a batch
+    share them): after the other goals and radii, it is the cloud drawn afresh for its own."""
+    from wmr.adapters.mcap.scene import (
+        GOAL_COLOR,
+        SceneRecorder,
+        cloud_message,
+        cloud_points,
+        goal_outline,
+    )
+
+    class Log:
+        def __init__(self) -> None:
+            self.goal: list[bytes] = []
+
+        def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                           t_ns: Any, messages: list[bytes]) -> None:
+            if topic == GOAL_TOPIC:
+                self.goal = list(messages)
+
+    for goal in ((3.0, 0.0, 1.0), (3.0, 0.0, 1.0), (-1.0, 2.0, 0.0)):
+        for radius in (0.05, 0.2, None, stop_radius_m):
+            log = Log()
+            SceneRecorder(goal, half_track_m=0.3, wheel_radius_m=0.15, stop_radius_m=radius,
+                          controlled=True).write(log)
+            assert log.goal == [cloud_message(0, cloud_points(goal_outline(*goal, radius),
+                                                              GOAL_COLOR))]

@@ -14,7 +14,8 @@ A killed run's log has no scene topics (``/scene/*``, ``/controller/phase``: the
 :class:`~wmr.adapters.mcap.scene.SceneRecorder` writes them when the log is closed), so Rerun
 and Foxglove would draw nothing of it.  For a log without a ``result`` record (the run did not
 finish), recovery makes them from the rows the recovered log holds (:func:`_add_scene`), each
-missing topic on a channel of its own after the copied chunks; the copied messages stay byte
+missing topic on a channel of its own, their messages in one chunk after the copied chunks
+(as the log writer writes them at a close); the copied messages stay byte
 for byte, and the ``recovery`` record lists the topics it made (``scene_added``).
 """
 
@@ -61,8 +62,6 @@ RECOVERY_RECORD: Final = "recovery"
 _MESSAGE: Final = 0x05
 _HEAD = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQ")
-#: A Message record's opcode, length, channel id, sequence, log time and publish time.
-_MSG_RECORD = struct.Struct("<BQHIQQ")
 #: The topics of :class:`wmr.adapters.mcap.scene.SceneRecorder` and the log's note
 #: (:mod:`wmr.adapters.mcap.readme`), all written when a log is closed (made by recovery if
 #: missing).
@@ -192,13 +191,14 @@ def recover_log(source: str | os.PathLike[str], output: str | os.PathLike[str] |
 
 class _SceneSink:
     """The log writer's ``write_messages`` (what :class:`SceneRecorder` needs) on the recovered
-    file, for the topics in ``missing`` only."""
+    file, for the topics in ``missing`` only: their messages in one chunk at :meth:`finish`."""
 
     def __init__(self, file: McapFile, missing: set[str], rec: Recovery) -> None:
         self._file = file
         self._missing = missing
         self._rec = rec
         self._schemas: dict[tuple[str, bytes], int] = {}  # the clouds share one schema
+        self._messages: list[tuple[int, int, int, bytes]] = []  # until finish()
 
     def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
                        t_ns: npt.ArrayLike, messages: Sequence[bytes], *,
@@ -211,14 +211,18 @@ class _SceneSink:
             self._schemas[key] = self._file.add_schema(schema_name, schema_data,
                                                        schema_encoding)
         cid = self._file.add_channel(topic, self._schemas[key], message_encoding)
-        records = [(cid, t, _MSG_RECORD.pack(_MESSAGE, _MSG_RECORD.size - 9 + len(data), cid,
-                                             seq, t, t) + data)
-                   for seq, (t, data) in enumerate(zip(np.asarray(t_ns, np.int64).tolist(),
-                                                       messages, strict=True))]
-        _write_chunk(self._file, records)
-        self._rec.chunks += 1
-        self._rec.messages += len(records)
+        self._messages += [(t, cid, seq, data) for seq, (t, data)
+                           in enumerate(zip(np.asarray(t_ns, np.int64).tolist(), messages,
+                                            strict=True))]
         self._rec.scene_added.append(topic)
+
+    def finish(self) -> None:
+        """Write the topics' messages, all in one chunk (as the log writer writes them)."""
+        if self._messages:
+            self._file.add_messages(self._messages)
+            self._rec.chunks += 1
+            self._rec.messages += len(self._messages)
+            self._messages = []
 
 
 def _add_scene(file: McapFile, src: Path, scan: LogScan, limits: ReadLimits,
@@ -248,6 +252,7 @@ def _add_scene(file: McapFile, src: Path, scan: LogScan, limits: ReadLimits,
     sink = _SceneSink(file, missing, rec)
     recorder.write(sink)
     write_readme(sink)
+    sink.finish()
 
 
 def _write(scan: LogScan, log: _LogFile, src: Path, rec: Recovery,

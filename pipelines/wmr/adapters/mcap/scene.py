@@ -36,7 +36,8 @@ together); the readers take both (only the signal topics are read back).
 
 They are made from the rows the log already holds (no new column in
 :data:`wmr.core.signals.SIGNALS`) by :class:`SceneRecorder`, which the log writer feeds each
-block and asks to write its topics when the log is closed (one chunk per topic): a run killed
+block and asks to write its topics when the log is closed (all of them and the log's note in
+one chunk, the clouds on one schema): a run killed
 before its end has no scene topics (``wmr log recover`` makes them from the rows it holds,
 :mod:`wmr.adapters.mcap.recover`), and its signal topics are unchanged.  The phase is the
 stabiliser's hysteresis (:func:`control_phases`) replayed on the logged distance ``dr_m``.
@@ -46,6 +47,7 @@ from __future__ import annotations
 
 import functools
 import math
+import struct
 import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any, Final
@@ -358,6 +360,20 @@ def _cloud_head(frame: str) -> bytes:
 CLOUD_SCHEMA_DATA: Final = descriptor_set(PointCloud.DESCRIPTOR.file)
 
 
+#: The goal and the stop radius a ``/scene/goal`` cloud is drawn from, packed: the key of
+#: :func:`_goal_cloud` (by their bits: -0.0 and 0.0 draw other float32 bytes, and NaN is
+#: equal to itself there).
+_GOAL_KEY: Final = struct.Struct("<4d")
+
+
+@functools.lru_cache(maxsize=64)  # the runs of a batch mostly share their goal
+def _goal_cloud(key: bytes) -> bytes:
+    """The ``/scene/goal`` message at t = 0 of the goal and stop radius packed in ``key``
+    (:data:`_GOAL_KEY`; a radius of 0: no ring)."""
+    gx, gy, gth, radius = _GOAL_KEY.unpack(key)
+    return cloud_message(0, cloud_points(goal_outline(gx, gy, gth, radius or None), GOAL_COLOR))
+
+
 def _write_cloud(log: MessageLog, topic: str, points: npt.NDArray[np.void]) -> None:
     """One cloud of ``points`` in the world on ``topic`` at t = 0 (the goal, the path, the
     fixes, the estimate)."""
@@ -503,9 +519,8 @@ class SceneRecorder:
                           RuntimeWarning, stacklevel=2)
 
     def _write(self, log: MessageLog) -> None:
-        gx, gy, gth = self._goal
-        _write_cloud(log, GOAL_TOPIC,
-                     cloud_points(goal_outline(gx, gy, gth, self._stop_radius), GOAL_COLOR))
+        log.write_messages(GOAL_TOPIC, CLOUD_SCHEMA, CLOUD_SCHEMA_DATA, [0],
+                           [_goal_cloud(_GOAL_KEY.pack(*self._goal, self._stop_radius or 0.0))])
         if not self._n:
             return
         t = self._t[:self._n]

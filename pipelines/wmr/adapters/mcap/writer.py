@@ -16,7 +16,7 @@ speed of the system zlib's.
 Layout of a file: magic, Header, Schema and Channel records, the ``run`` Metadata record, the
 Attachments, a chunk holding the ``/goal`` message, then one chunk per second of simulation
 time (each followed by its Message Index records and flushed to the OS, so a killed run loses at
-most the chunk in progress); at the close, the scene's and the note's chunks
+most the chunk in progress); at the close, one chunk of the scene's topics and the note
 (:mod:`wmr.adapters.mcap.scene`, :mod:`wmr.adapters.mcap.readme`), the last rows' chunk, the
 ``result`` Metadata record, Data End, the summary (schemas, channels, statistics, chunk,
 attachment and metadata indexes, summary offsets), Footer, magic.  Every chunk is flushed
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Final, Literal, Protocol, cast
+from typing import Any, Final, Literal, NamedTuple, Protocol, cast
 
 import numpy as np
 from mcap.data_stream import RecordBuilder
@@ -103,9 +103,13 @@ Compression = Literal["zstd", "lz4", ""]
 #: logs' compression before, and is still written on request) for about a quarter more bytes
 #: (``benchmarks/log_cost.py``, docs/formats.md).
 DEFAULT_COMPRESSION: Final[Compression] = "lz4"
-#: lz4's level: -1 (its fast mode, acceleration 1) compresses these records in 80 % of the
-#: time of level 0 for 1 % more bytes.
-LZ4_LEVEL: Final = -1
+#: lz4's level: negative levels are LZ4F's fast mode, acceleration ``1 - level`` (python-lz4
+#: hands the level to LZ4F as it is).  On the rows' chunks (69 kB of records each, Monte Carlo
+#: runs of Fig. 10 and Fig. 11's logs) -3 (acceleration 4) takes 77 to 84 % of -1's time and
+#: about 65 % of level 0's for 0.6 % more bytes than -1; -2 and -4 give 5 to 7 % more bytes (where
+#: the accelerated search skips falls across the rows' records), -16 17 % more for 61 % of the
+#: time; a larger block or a checksum changes neither (docs/batch.md, issue 31, round 3).
+LZ4_LEVEL: Final = -3
 ZSTD_LEVEL: Final = 1
 
 try:
@@ -301,6 +305,35 @@ class McapFile:
         self.add_indexed_chunk(records, t_first, t_last, b"".join(parts), index_of,
                                uncompressed_crc)
 
+    def add_messages(self, messages: Sequence[tuple[int, int, int, bytes]]) -> None:
+        """One chunk of the messages of one channel or several: (log time in ns, channel id,
+        sequence, data) each, written in log-time order (equal times in the order given),
+        then a Message Index record per channel, in channel id order; nothing when
+        ``messages`` is empty."""
+        if not messages:
+            return
+        ordered = sorted(messages, key=_log_time)  # stable
+        head = _MESSAGE_HEAD
+        parts: list[bytes] = []
+        pairs: dict[int, list[int]] = {}  # channel id: its (log time, offset) pairs
+        pos = 0
+        for t, cid, seq, data in ordered:
+            pairs.setdefault(cid, []).extend((t, pos))
+            parts += [head.pack(_OP_MESSAGE, 2 + 4 + 8 + 8 + len(data), cid, seq, t, t), data]
+            pos += head.size + len(data)
+        indexes: list[bytes] = []
+        index_of: list[tuple[int, int, int]] = []
+        at = 0
+        for cid in sorted(pairs):
+            # int64's bytes are uint64's (a negative time wrapped)
+            entries = np.array(pairs[cid], "<i8").tobytes()
+            indexes += [_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + len(entries), cid,
+                                         len(entries)), entries]
+            index_of.append((cid, at, len(entries) // 16))
+            at += _INDEX_HEAD.size + len(entries)
+        self.add_indexed_chunk(b"".join(parts), ordered[0][0], ordered[-1][0], b"".join(indexes),
+                               index_of)
+
     def add_row_chunk(self, records: bytes | memoryview, t_ns: NDArray[np.int64],
                       offsets: NDArray[np.int64], channel_ids: tuple[int, ...]) -> None:
         """:meth:`add_chunk` of rows: one message per channel and row, all channels at the
@@ -457,6 +490,11 @@ _STATISTICS: Final = struct.Struct("<QHIIIIQQI")
 _COUNT: Final = struct.Struct("<HQ")
 _SUMMARY_OFFSET: Final = struct.Struct("<BQQ")
 _FOOTER_HEAD: Final = struct.Struct("<BQQQ")
+
+
+def _log_time(message: tuple[int, int, int, bytes]) -> int:
+    """The sort key of :meth:`McapFile.add_messages`' messages: their log time."""
+    return message[0]
 
 
 def _record(opcode: int, body: bytes) -> bytes:
@@ -734,6 +772,33 @@ def goal_message(x_m: float, y_m: float, theta_rad: float, t_ns: int = 0) -> byt
     return bytes(msg.SerializeToString(deterministic=True))
 
 
+class _Topic(NamedTuple):
+    """A topic of :meth:`RunLogWriter.write_messages`' arguments."""
+
+    topic: str
+    schema_name: str
+    schema_data: bytes
+    t_ns: ArrayLike
+    messages: Sequence[bytes]
+    schema_encoding: str
+    message_encoding: str
+
+
+class _Gathered:
+    """A :class:`~wmr.adapters.mcap.schemas.MessageLog` that keeps the topics it is given,
+    for the log writer to write them all as one chunk (the scene's and the note)."""
+
+    def __init__(self) -> None:
+        self.topics: list[_Topic] = []
+
+    def write_messages(self, topic: str, schema_name: str, schema_data: bytes,
+                       t_ns: ArrayLike, messages: Sequence[bytes], *,
+                       schema_encoding: str = "protobuf",
+                       message_encoding: str = "protobuf") -> None:
+        self.topics.append(_Topic(topic, schema_name, schema_data, t_ns, messages,
+                                  schema_encoding, message_encoding))
+
+
 class RunLogWriter:
     """The MCAP log of one closed-loop run; a context manager.
 
@@ -821,6 +886,8 @@ class RunLogWriter:
         self._boundary = self._period
         self._rows = 0
         self._closed = False
+        # the schemas written by write_messages: (name, encoding, data) -> id
+        self._schema_ids: dict[tuple[str, str, bytes], int] = {}
         try:
             self._file = McapFile(stream, compression)
             # the per-step topics' channels 1..n, then /goal's
@@ -979,7 +1046,8 @@ class RunLogWriter:
         topic
             The new channel's topic (one call per topic).
         schema_name, schema_data
-            Protobuf message name and its serialised ``FileDescriptorSet``.
+            Protobuf message name and its serialised ``FileDescriptorSet`` (a schema the log
+            has already, by name, encoding and data, is not written again).
         t_ns
             Log time of each message, ns, non-decreasing, shape ``(len(messages),)``.
         messages
@@ -990,31 +1058,30 @@ class RunLogWriter:
         """
         if self._closed:
             raise LogError(f"{self.path}: write_messages after close")
-        t = np.asarray(t_ns, dtype=np.int64)
-        if t.shape != (len(messages),) or (len(t) > 1 and bool(np.any(t[1:] < t[:-1]))):
-            raise LogError(f"{topic}: t_ns must be non-decreasing, one per message")
-        schema_id = self._file.add_schema(schema_name, schema_data, schema_encoding)
-        cid = self._file.add_channel(topic, schema_id, message_encoding)
-        if not len(t):
-            return  # a channel without messages: no chunk (add_chunk writes none)
-        head = _MESSAGE_HEAD
-        parts: list[bytes] = []
-        times = t.tolist()
-        pairs: list[int] = []  # the Message Index's (log time, offset) of each message
-        pos = 0
-        for i, (ti, data) in enumerate(zip(times, messages, strict=True)):
-            pairs += (ti, pos)
-            parts += [head.pack(_OP_MESSAGE, 2 + 4 + 8 + 8 + len(data), cid, i, ti, ti), data]
-            pos += head.size + len(data)
-        # add_chunk's Message Index record of one channel, packed here from the pairs in
-        # one array, not through add_chunk's index of arrays (the times are non-decreasing:
-        # the first is the least); int64's bytes are uint64's, a negative time wrapped
-        n = len(times)
-        entries = np.array(pairs, "<i8").tobytes()
-        self._file.add_indexed_chunk(
-            b"".join(parts), times[0], times[-1],
-            _INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + 16 * n, cid, 16 * n) + entries,
-            ((cid, 0, n),))
+        self._write_topics([_Topic(topic, schema_name, schema_data, t_ns, messages,
+                                   schema_encoding, message_encoding)])
+
+    def _write_topics(self, topics: Sequence[_Topic]) -> None:
+        """Each of ``topics`` on a channel of its own (and its schema, unless the log has it),
+        their messages all in one chunk (:meth:`McapFile.add_messages`); every topic's times
+        are checked before anything is written."""
+        times: list[list[int]] = []
+        for topic in topics:
+            t = np.asarray(topic.t_ns, dtype=np.int64)
+            if t.shape != (len(topic.messages),) or (len(t) > 1 and bool(np.any(t[1:] < t[:-1]))):
+                raise LogError(f"{topic.topic}: t_ns must be non-decreasing, one per message")
+            times.append(t.tolist())
+        messages: list[tuple[int, int, int, bytes]] = []
+        for topic, t_list in zip(topics, times, strict=True):
+            key = (topic.schema_name, topic.schema_encoding, topic.schema_data)
+            schema_id = self._schema_ids.get(key)
+            if schema_id is None:
+                schema_id = self._schema_ids[key] = self._file.add_schema(
+                    topic.schema_name, topic.schema_data, topic.schema_encoding)
+            cid = self._file.add_channel(topic.topic, schema_id, topic.message_encoding)
+            messages += [(t, cid, seq, data) for seq, (t, data)
+                         in enumerate(zip(t_list, topic.messages, strict=True))]
+        self._file.add_messages(messages)
 
     def write_sensing(self, record: SensingRecord) -> None:
         """Log the run's sensor fixes and estimates (:mod:`wmr.adapters.mcap.sensing`);
@@ -1084,12 +1151,16 @@ class RunLogWriter:
             raise LogError(f"{self.path}: closed twice")
         # a stop signal now would leave the log of an ended run unfinished: it waits
         with stop_signals_held():
+            drawn = _Gathered()
             if self._scene is not None:
-                self._scene.write(self)  # the drawable topics (wmr.adapters.mcap.scene)
+                self._scene.write(drawn)  # the drawable topics (wmr.adapters.mcap.scene)
                 # what to run to see the log as wmr's dashboard: Rerun shows it as a document
-                write_readme(self)
+                write_readme(drawn)
             self._closed = True
             try:
+                # the scene's topics and the note in one chunk: a chunk each cost a compression,
+                # its CRCs, a write to the OS and its summary entries (five a log)
+                self._write_topics(drawn.topics)
                 self._flush_chunks(final=True)
                 self._file.add_metadata("result", _str_dict("result", result))
                 self._file.finish()
