@@ -540,3 +540,36 @@ def test_a_compact_line_whose_seal_is_not_8_hex_digits_is_garbled_and_skipped(
     path.write_bytes(b"".join(edited) + line)
     assert [(offset, row["seal"]) for offset, row in Journal(path).scan()] == [
         (len(line) * len(edited), seal)]
+
+
+def test_a_full_disk_while_mending_a_cut_journal_says_which_file_and_keeps_no_fd(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A journal a killed batch left cut short gets its newline before the first append; if
+    the disk is full right then, the error is the full disk's, naming the journal (not another
+    error raised while giving up), the file is closed, and the next append, space freed,
+    mends it and appends: the cut line stays apart from the new one."""
+    import errno
+
+    import wmr.apps.batch.journal as journal_mod
+    from wmr.infra.durable import storage_error
+    from wmr.infra.errors import DiskFullError
+
+    path = tmp_path / "journal.jsonl"
+    path.write_bytes(b'{"run_id": "cu')
+    journal = Journal(path)
+    real = journal_mod.write_all
+
+    def full_at_the_newline(fd: int, data: bytes, where: Any) -> None:
+        if bytes(data) == b"\n":
+            raise storage_error(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)), where)
+        real(fd, data, where)
+
+    fds = len(os.listdir("/proc/self/fd"))
+    monkeypatch.setattr(journal_mod, "write_all", full_at_the_newline)
+    with pytest.raises(DiskFullError, match=str(path)):
+        journal.append_lines(b'{"run_id": "a"}\n')
+    assert len(os.listdir("/proc/self/fd")) == fds
+    monkeypatch.setattr(journal_mod, "write_all", real)
+    assert journal.append_lines(b'{"run_id": "b"}\n') == len(b'{"run_id": "cu\n')
+    journal.close()
+    assert path.read_bytes() == b'{"run_id": "cu\n{"run_id": "b"}\n'

@@ -238,10 +238,14 @@ EQUIVALENT: dict[str, str] = {
         "read(None) or read(2) for read(1) after seeking to the last byte: one byte is left "
         "either way") for n in (13, 14)},
     **{f"wmr.apps.batch.journal.xǁJournalǁappend_lines__mutmut_{n}": (
-        "_checked = None or False for True after the first append: every append then reads the "
-        "journal's last byte, which is the newline this journal wrote (the batch folder's "
-        "lock makes it the only writer): the same bytes, one 1-byte read more a write")
-       for n in (15, 16)},
+        "_checked = None or False for True once mended: every open of the journal (its first "
+        "append, or the next after a close) then reads its last byte, which is the newline "
+        "this journal wrote (the batch folder's lock makes it the only writer): the same "
+        "bytes, one 1-byte read more an open")
+       for n in (28, 29)},
+    **{f"wmr.apps.batch.journal.xǁJournalǁ__init____mutmut_{n}": (
+        "_size = None or 1 for 0: it is set from the file's size when the journal is opened, "
+        "before anything reads it") for n in (5, 6)},
     "wmr.apps.batch.journal.x_row_bytes__mutmut_3": (
         "allow_nan=None for False: json only tests it for truth, NaN still raises ValueError"),
     **{f"wmr.apps.batch.journal.x_row_bytes__mutmut_{n}": (
@@ -292,9 +296,9 @@ CHECKED_CODE: dict[str, str] = {
     "wmr.apps.batch.journal.x_logged_record": "fc979d524b89",
     "wmr.apps.batch.journal.x_row_bytes": "eb6f7a32f560",
     "wmr.apps.batch.journal.x_sealed_line": "d65f94d9c966",
-    "wmr.apps.batch.journal.xǁJournalǁ__init__": "760d35276bc8",
+    "wmr.apps.batch.journal.xǁJournalǁ__init__": "31c1fd20ce66",
     "wmr.apps.batch.journal.xǁJournalǁ_ends_with_newline": "b8bf172ec9d3",
-    "wmr.apps.batch.journal.xǁJournalǁappend_lines": "c6c0b0100e6a",
+    "wmr.apps.batch.journal.xǁJournalǁappend_lines": "3fd97e4ffb85",
     "wmr.apps.batch.journal.xǁJournalǁread_at": "74dddb57e5dd",
     "wmr.apps.batch.journal.xǁJournalǁscan": "eff48e39103c",
     "wmr.apps.batch.runner.x__recover_partial": "ea48e6f88794",

@@ -240,10 +240,11 @@ class Journal:
                 size = os.fstat(fd).st_size
                 # a line that a previous batch cut short must not swallow this one
                 if not self._checked:
-                    self._checked = True
                     if size and not self._ends_with_newline():
                         write_all(fd, b"\n", self.path)
                         size += 1
+                    # only once mended: a full disk here leaves the next append to mend it
+                    self._checked = True
             except BaseException:
                 os.close(fd)
                 raise
