@@ -182,7 +182,7 @@ def test_results_of_tasks_finished_together_come_in_one_fetch_or_each_alone() ->
             self.key, self.lost, self.asked = key, lost, 0
 
         def result(self, timeout: float | None = None) -> object:
-            assert timeout == dask_exec.RESULT_WAIT_S
+            assert timeout is not None and 0 < timeout <= dask_exec.RESULT_WAIT_S
             self.asked += 1
             if self.lost:
                 raise KilledWorker(self.key, "tcp://w:1", 3)
@@ -214,6 +214,36 @@ def test_results_of_tasks_finished_together_come_in_one_fetch_or_each_alone() ->
     alone = [Fut("g")]
     assert dask_exec._results(client, alone) == ["rows of g"]  # type: ignore[arg-type]
     assert len(client.gathers) == 2 and alone[0].asked == 1
+
+
+def test_a_group_whose_fetch_used_up_the_wait_asks_each_alone_only_briefly(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """When every worker died holding finished tasks' results, their group's fetch waits
+    RESULT_WAIT_S and fails; each is then asked for alone with what is left of that wait (at
+    least RESULT_FLOOR_S), not RESULT_WAIT_S again each: the batch stops in about one wait
+    (`test_workers_all_gone_mid_batch_stop_it_in_bounded_time_and_it_resumes` took 90 s, over
+    its 60, with 30 s each)."""
+    monkeypatch.setattr(dask_exec, "RESULT_WAIT_S", 0.3)
+    monkeypatch.setattr(dask_exec, "RESULT_FLOOR_S", 0.01)
+    waits: list[float] = []
+
+    class Fut:
+        def result(self, timeout: float | None = None) -> object:
+            assert timeout is not None
+            waits.append(timeout)
+            raise TimeoutError("the result died with its worker")
+
+    class Client:
+        async def _gather(self, futures: list[Fut]) -> list[object]:
+            raise AssertionError("called through sync only")
+
+        def sync(self, func: object, futures: list[Fut], callback_timeout: float) -> object:
+            time.sleep(callback_timeout)  # the whole wait, then nothing
+            raise TimeoutError("no result within the wait")
+
+    got = dask_exec._results(Client(), [Fut() for _ in range(8)])  # type: ignore[arg-type]
+    assert all(isinstance(r, TimeoutError) for r in got) and len(waits) == 8
+    assert max(waits) <= 0.05, waits
 
 
 def test_worker_threads_read_model_descriptions_one_at_a_time(

@@ -76,6 +76,11 @@ WINDOW: Final = 4
 #: death was seen to wait for ever while the other workers kept dying.  Past this wait the
 #: task's runs are treated as those of a dead worker: one more try each, under a new key.
 RESULT_WAIT_S: Final = 30.0
+#: Seconds each finished task's result is still waited for, at least, once its group's fetch
+#: has used up :data:`RESULT_WAIT_S`: a result that is there comes in well under it, and a
+#: group's wait stays about :data:`RESULT_WAIT_S`, not that once more for each of its tasks
+#: (all the workers gone mid-fetch must still stop the batch in bounded time).
+RESULT_FLOOR_S: Final = 1.0
 #: Most runs in one Dask task (a range: the worker draws its runs and returns their journal
 #: lines and summary rows in one piece).  A task costs the scheduler, the client and the
 #: worker the same whatever it holds (Dask's own cost is 0.2 to 1 ms a task, the client's
@@ -287,7 +292,9 @@ def _results(client: Client, finished: list[Any]) -> list[Any]:
     the scheduler for all, not one each: a client that fell behind catches up), with a
     bounded wait; if that fails (a task's error, a worker that died with a result, a lost
     connection) or takes longer than :data:`RESULT_WAIT_S`, each is asked for alone, as one
-    alone always is, and its failure said for it."""
+    alone always is, and its failure said for it; the group's wait is bounded as one's is
+    (each alone then waits what is left of it, or :data:`RESULT_FLOOR_S`)."""
+    deadline = time.monotonic() + RESULT_WAIT_S
     if len(finished) > 1:
         with contextlib.suppress(Exception):
             return list(client.sync(client._gather, finished,
@@ -295,7 +302,7 @@ def _results(client: Client, finished: list[Any]) -> list[Any]:
     got: list[Any] = []
     for fut in finished:
         try:
-            got.append(fut.result(timeout=RESULT_WAIT_S))
+            got.append(fut.result(timeout=max(RESULT_FLOOR_S, deadline - time.monotonic())))
         except Exception as exc:  # KilledWorker, CancelledError, TimeoutError, its own
             got.append(exc)
     return got
