@@ -1125,6 +1125,31 @@ def test_ranges_that_finish_together_are_made_durable_together_rows_before_lines
     assert _summary_bytes(tmp_path) == _summary_bytes(reference)
 
 
+def test_a_batch_stopped_between_a_range_s_rows_and_its_lines_keeps_no_row_without_a_line(
+        spec20: Path, fmu3: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A full disk when the third range's lines are to be written (its rows already in the
+    parts file): the batch stops with its summary, which holds the rows of the journalled
+    runs only, not the third range's (a summary row without a journal line is a result the
+    journal does not know: a resume runs it again, and the two disagree until then)."""
+    from wmr.infra.errors import DiskFullError
+
+    monkeypatch.setattr(runner_module._Blocks, "block_runs", lambda self, workers: 2)
+    calls: list[int] = []
+
+    def full_at_the_third(ids: Sequence[str]) -> None:
+        calls.append(len(ids))
+        if len(calls) == 3:
+            raise DiskFullError("no space left on / while writing journal.jsonl")
+
+    with _test_hooks(between_writes=full_at_the_third), pytest.raises(DiskFullError):
+        run_batch(load_batch(spec20), tmp_path, BatchOptions(workers=1, fmu_path=fmu3),
+                  progress=False)
+    journalled = [json.loads(line)["run_id"]
+                  for line in (tmp_path / "journal.jsonl").read_text().splitlines()]
+    rows = pq.read_table(tmp_path / "summary.parquet").column("run_id").to_pylist()
+    assert len(journalled) == 4 and rows == journalled
+
+
 @pytest.mark.slow
 def test_a_part_lost_after_its_journal_lines_reruns_its_runs_saying_so(
         reference: Path, spec20: Path, fmu3: Path, tmp_path: Path,

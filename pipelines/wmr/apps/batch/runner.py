@@ -87,6 +87,7 @@ from wmr.infra.durable import (
     fsync_dir,
     open_own,
     partial_path,
+    stop_signals_held,
     storage_error,
     write_all,
 )
@@ -468,39 +469,44 @@ def run_batch(batch: BatchSpec, out_dir: str | os.PathLike[str],
                 n_taken += take
                 if stop is not None:
                     break
-            kept: list[tuple[BlockResult, int, bytes, bytes, bytes, Any]] = []
-            for res, take in taken:
-                lines, ids, codes = res.lines, res.ids, res.codes
-                ends = line_ends(lines)
-                if take < len(res):
-                    lines, codes = lines[:ends[take - 1]], codes[:take]
-                    ids = "".join(f"{r}\n" for r in res.run_ids()[:take]).encode("ascii")
-                kept.append((res, take, lines, ids, codes, ends))
-                for k, rel, data in res.logs:  # logs that came back as bytes: before the lines
-                    if k < take:
-                        (out / rel).parent.mkdir(exist_ok=True)
-                        _write_atomic(out / rel, data)
-                parts.add(res.table, res.indices[:take],
-                          None if take == len(res) else set(res.run_ids()[:take]),
-                          durable=False)
-            if not kept:
-                if stop is not None:
-                    raise stop
-                return
-            parts.sync()  # every row of the group on disk, before any of its lines
-            if hooks.between_writes is not None:
-                hooks.between_writes([r for res, take, *_ in kept for r in res.run_ids()[:take]])
-            offset = journal.append_lines(b"".join(lines for _, _, lines, *_ in kept))
-            for res, take, lines, ids, codes, ends in kept:
-                ledger.mark_many(res.indices[:take],
-                                 offset + np.concatenate(([0], ends[:take - 1])), codes)
-                offset += len(lines)
-                result.executed.add(ids, take)
-                flags = np.frombuffer(codes, np.uint8)
-                result.logs_kept += int(np.count_nonzero(flags & KEPT))
-                per_code = np.bincount(flags & STATUS_MASK, minlength=4)
-                for status, code in STATUS_CODES.items():
-                    counts[status] += int(per_code[code])
+            # a stop signal waits until the group's rows, lines and marks agree: raised
+            # between them, the summary would hold a row whose line was never written
+            with stop_signals_held():
+                kept: list[tuple[BlockResult, int, bytes, bytes, bytes, Any]] = []
+                for res, take in taken:
+                    lines, ids, codes = res.lines, res.ids, res.codes
+                    ends = line_ends(lines)
+                    if take < len(res):
+                        lines, codes = lines[:ends[take - 1]], codes[:take]
+                        ids = "".join(f"{r}\n" for r in res.run_ids()[:take]).encode("ascii")
+                    kept.append((res, take, lines, ids, codes, ends))
+                    for k, rel, data in res.logs:  # logs that came back as bytes: before the lines
+                        if k < take:
+                            (out / rel).parent.mkdir(exist_ok=True)
+                            _write_atomic(out / rel, data)
+                    parts.add(res.table, res.indices[:take],
+                              None if take == len(res) else set(res.run_ids()[:take]),
+                              durable=False)
+                if not kept:
+                    if stop is not None:
+                        raise stop
+                    return
+                parts.sync()  # every row of the group on disk, before any of its lines
+                if hooks.between_writes is not None:
+                    hooks.between_writes([r for res, take, *_ in kept
+                                          for r in res.run_ids()[:take]])
+                offset = journal.append_lines(b"".join(lines for _, _, lines, *_ in kept))
+                parts.commit()
+                for res, take, lines, ids, codes, ends in kept:
+                    ledger.mark_many(res.indices[:take],
+                                     offset + np.concatenate(([0], ends[:take - 1])), codes)
+                    offset += len(lines)
+                    result.executed.add(ids, take)
+                    flags = np.frombuffer(codes, np.uint8)
+                    result.logs_kept += int(np.count_nonzero(flags & KEPT))
+                    per_code = np.bincount(flags & STATUS_MASK, minlength=4)
+                    for status, code in STATUS_CODES.items():
+                        counts[status] += int(per_code[code])
             show()
             bar.update(n_taken)
             if on_outcome is not None:
@@ -1103,6 +1109,10 @@ class _Parts:
         self._frames: dict[int, list[tuple[int, int, int]]] = {}
         #: 1 where the run's row is in a part of this invocation (a numpy array)
         self.has = np.zeros(n_runs, np.bool_)
+        #: frames written whose runs' journal lines are not yet written (chunk, frame, runs):
+        #: the summary takes a frame only once committed (:meth:`commit`): a batch stopped
+        #: between its rows and its lines (a full disk, an error) holds no row without a line
+        self._pending: list[tuple[int, tuple[int, int, int], Sequence[int]]] = []
 
     def leftovers(self) -> list[Path]:
         """The part files a batch killed before its summary left (links are not followed)."""
@@ -1169,6 +1179,7 @@ class _Parts:
                                  durable=False)
                 if durable:
                     self.sync()
+                    self.commit()
                 return
         if not isinstance(table, bytes | bytearray):
             if not table.num_rows:
@@ -1176,17 +1187,15 @@ class _Parts:
             table = table_bytes(table)
         if not table:
             return
-        self._append(bytes(table), first, int(indices[0]))
+        self._append(bytes(table), first, indices)
         if durable:
             self.sync()
-        if isinstance(indices, range):
-            self.has[indices[0]:indices[-1] + 1] = True
-        else:
-            self.has[np.asarray(indices, np.int64)] = True
+            self.commit()
 
-    def _append(self, payload: bytes, chunk: int, start: int) -> None:
-        """Append ``payload``, the rows from run ``start`` on, as a frame (durable at the
-        next :meth:`sync`; a full disk is one DiskFullError)."""
+    def _append(self, payload: bytes, chunk: int, indices: Sequence[int]) -> None:
+        """Append ``payload``, the rows of the runs ``indices``, as a frame (durable at the
+        next :meth:`sync`, in the summary from the next :meth:`commit`; a full disk is one
+        DiskFullError)."""
         try:
             if self._fd is None:
                 self.folder.mkdir(exist_ok=True)
@@ -1198,9 +1207,20 @@ class _Parts:
             write_all(self._fd, head + payload, self.path)
         except OSError as exc:
             raise storage_error(exc, self.path) from exc
-        self._frames.setdefault(chunk, []).append((start, self._size + PART_FRAME.size,
-                                                   len(payload)))
+        self._pending.append((chunk, (int(indices[0]), self._size + PART_FRAME.size,
+                                      len(payload)), indices))
         self._size += PART_FRAME.size + len(payload)
+
+    def commit(self) -> None:
+        """The frames appended since the last commit are the summary's (their runs' journal
+        lines are written)."""
+        for chunk, frame, indices in self._pending:
+            self._frames.setdefault(chunk, []).append(frame)
+            if isinstance(indices, range):
+                self.has[indices[0]:indices[-1] + 1] = True
+            else:
+                self.has[np.asarray(indices, np.int64)] = True
+        self._pending.clear()
 
     def sync(self) -> None:
         """Make the frames appended since the last sync durable: one ``fdatasync`` however
