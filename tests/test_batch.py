@@ -934,6 +934,43 @@ def test_failures_timeouts_hangs_and_crashes_are_rows(fmu3: Path, tmp_path: Path
     assert again.executed == []
 
 
+def test_a_run_past_its_wall_clock_limit_only_at_its_end_is_a_timeout(
+        fmu3: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The worker's clock passes the deadline only at the loop's last report, after its last
+    block: the run is ``timeout`` with the limit's message and its log closed ``failed``.  The
+    exception escaped the loop there: the record said ``failed``, ``WallClockLimit: ...``, and
+    a resumed batch ran the run again (1 batch in 6 of test_hostile_inputs'
+    test_records_made_again_from_logs_are_the_journalled_ones, on CI too)."""
+    import types
+
+    import wmr.apps.batch.worker as worker
+    from wmr.apps.batch.worker import PlantHolder, Task, wall_limit_message
+    from wmr.config.scenario import load_scenario
+
+    spec = load_scenario("fig11").runs[0]
+    reads = [0]
+    late_from = [math.inf]
+
+    def monotonic() -> float:  # 0 s, then far past any limit from the read late_from on
+        reads[0] += 1
+        return 1e9 if reads[0] >= late_from[0] else 0.0
+
+    monkeypatch.setattr(worker, "time", types.SimpleNamespace(monotonic=monotonic,
+                                                              sleep=time.sleep))
+    holder = PlantHolder(fmu3)
+    try:
+        task = Task("r", spec, wall_limit_s=1.0)
+        first = holder.run(task, tmp_path / "a.mcap", None)
+        assert first["status"] == "converged"
+        late_from[0], reads[0] = reads[0], 0  # the last read: the report after the loop
+        record = holder.run(task, tmp_path / "b.mcap", None)
+    finally:
+        holder.close()
+    assert (record["status"], record["message"]) == ("timeout", wall_limit_message(1.0))
+    result = read_run(tmp_path / "b.mcap").metadata["result"]
+    assert result["status"] == "failed" and result["message"].startswith("WallClockLimit at t = ")
+
+
 def test_cli_exit_codes_and_messages(spec20: Path, fmu3: Path, tmp_path: Path,
                                      capsys: pytest.CaptureFixture[str]) -> None:
     bad = _write(tmp_path, "start = [0.0, 0.0, 0.0]\ngoal = [1.0, 0.0, 0.0]\n"

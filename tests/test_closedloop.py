@@ -126,6 +126,36 @@ def test_plant_failure_is_a_status_and_keeps_the_rows() -> None:
     assert rec.block.shape[0] == 150
 
 
+class _StopAt:
+    """A progress callback that raises at its ``at``-th call, as a batch's wall-clock limit
+    does (0: never; ``calls`` counts them)."""
+
+    def __init__(self, at: int) -> None:
+        self.at, self.calls = at, 0
+
+    def __call__(self, t_s: float, t_max_s: float) -> None:
+        self.calls += 1
+        if self.calls == self.at:
+            raise TimeoutError("the limit")
+
+
+@pytest.mark.parametrize("at", ["second", "last"])
+def test_a_progress_callback_that_raises_fails_the_run_even_at_its_last_call(at: str) -> None:
+    """The last call, after the loop ended, raised out of the loop: a batch's run past its
+    wall-clock limit only there was logged failed and journalled failed, then run again on
+    resume (an intermittent CI failure, test_hostile_inputs)."""
+    spec = _spec((0, 0, 0), (5, 0, 0))
+    count = _StopAt(0)
+    run_closed_loop(spec, ReferencePlant(), progress=count, controller=SpecController())
+    rec = MemoryLog()
+    res = run_closed_loop(spec, ReferencePlant(), rec,
+                          progress=_StopAt(2 if at == "second" else count.calls),
+                          controller=SpecController())
+    assert res.status == "failed" and res.message.startswith("TimeoutError at t = ")
+    assert res.message.endswith("the limit")
+    assert rec.block.shape[0] == res.steps  # the rows up to the stop are kept
+
+
 class _Interrupted(ReferencePlant):
     def step(self, tau_r_nm: float, tau_l_nm: float, h_s: float) -> npt.NDArray[np.float64]:
         raise KeyboardInterrupt

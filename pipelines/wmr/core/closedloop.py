@@ -109,7 +109,8 @@ class Controller(Protocol):
         ...
 
 
-#: ``progress(t_s, t_max_s)``, called once per block.
+#: ``progress(t_s, t_max_s)``, called once per block and once when the run ended; what it
+#: raises, at any call, is the run's failure (a batch's wall-clock limit stops runs so).
 Progress = Callable[[float, float], None]
 
 
@@ -234,6 +235,12 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
             _python_loop(spec, plant, controller, sensing, out, block, tally, progress)
         rows_left, tally.row = tally.row, 0
         block.flush(rows_left)
+        if progress is not None:
+            # inside the try: a callback that stops runs (a batch's wall-clock limit) may
+            # raise at this last report as at any other, and that is the run's failure, never
+            # an exception out of the loop (it escaped, and a batch logged the run failed
+            # where its journal said timeout, then ran it again on resume)
+            progress(min(tally.n * h, spec.t_max_s), spec.t_max_s)
     except Exception as exc:  # a plant or controller failure ends the run, never the caller
         tally.status = "failed"
         tally.message = f"{type(exc).__name__} at t = {tally.n * h:g} s: {exc}"
@@ -241,8 +248,6 @@ def run_closed_loop(spec: RunSpec, plant: Plant, sink: BlockSink | None = None,
             block.flush(tally.row)
         except Exception as sink_exc:
             tally.message += f"; and the sink failed: {sink_exc}"
-    if progress is not None:
-        progress(min(tally.n * h, spec.t_max_s), spec.t_max_s)
 
     x, y, theta = tally.x, tally.y, tally.theta
     pos_err = math.hypot(xd - x, yd - y) if math.isfinite(x) and math.isfinite(y) else math.nan

@@ -444,12 +444,9 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
     limit = task.wall_limit_s
     if limit is not None:
         deadline = time.monotonic() + limit
-        raised: list[bool] = []
 
         def progress(t_s: float, t_max_s: float) -> None:
-            # once only: the loop's final progress call, after it ended, must not raise
-            if not raised and time.monotonic() > deadline:
-                raised.append(True)
+            if time.monotonic() > deadline:
                 raise WallClockLimit(wall_limit_message(limit))
 
     with ExitStack() as stack:
