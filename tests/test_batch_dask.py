@@ -8,6 +8,7 @@ restarted cluster, runs exactly the missing runs and ends with the local batch's
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -22,14 +23,17 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, cast
 
+import numpy as np
 import pytest
 from distributed.client import ClosedClientError, FutureCancelledError
 from distributed.comm.core import CommClosedError
 from distributed.scheduler import KilledWorker
 
+from wmr.adapters.mcap import read_run
 from wmr.apps.batch import BatchOptions, dask_exec, load_batch, run_batch
 from wmr.apps.batch.dask_exec import task_failure, task_runs
 from wmr.apps.batch.runner import _test_hooks
+from wmr.apps.batch.worker import RunAloneDied
 from wmr.cli import main
 
 #: 40 short runs (about 25 ms each): 2 list entries x 20 random samples.
@@ -75,6 +79,7 @@ DASK = shutil.which("dask", path=str(Path(sys.executable).parent)) or "dask"
     (ValueError("anything"), "error", "connecting", "cluster"),
     # the worker died (or took the result with it): one more try
     (KilledWorker("k", cast(Any, "tcp://127.0.0.1:2"), 3), "error", "running", "worker"),
+    (RunAloneDied("exit code 70"), "error", "running", "worker"),  # its try, alone, died
     (TimeoutError("no result for k within 30 s"), "finished", "running", "worker"),
     (TimeoutError("no result for k within 30 s"), "lost", "running", "worker"),
     # the run's own failure: a failed row
@@ -86,6 +91,109 @@ DASK = shutil.which("dask", path=str(Path(sys.executable).parent)) or "dask"
 def test_a_failure_is_the_run_s_its_worker_s_or_the_cluster_s(
         exc: BaseException, future_status: str | None, client_status: str, whose: str) -> None:
     assert task_failure(exc, future_status, client_status) == whose
+
+
+ALONE = """
+import sys
+from pathlib import Path
+
+from wmr.apps.batch import worker
+from wmr.apps.batch.spec import BatchRun
+from wmr.config.scenario import load_scenario
+
+spec = load_scenario("fig11").runs[0]
+out = Path(sys.argv[2])
+worker._FMUS["f"] = Path(sys.argv[1])
+(out / "runs").mkdir(parents=True)
+(out / worker.TOKEN_FILE).write_text("t")
+runs = {i: BatchRun(f"000{i}-x", spec, spec.name, "", {}, "x") for i in range(2)}
+crash = worker.Block([0], runs, 2, (), "f", faults={"0000-x": "crash"}, retry=True)
+try:
+    worker.dask_run_block(crash, "f", None, str(out), "t")
+except worker.RunAloneDied as exc:
+    print("died alone:", exc)
+done = worker.dask_run_block(worker.Block([1], runs, 2, (), "f", retry=True), "f", None,
+                             str(out), "t")
+print("ran alone:", list(done.indices), done.ids)
+"""
+
+
+def test_a_dask_retry_runs_alone_and_its_crash_leaves_the_worker(fmu3: Path,
+                                                                tmp_path: Path) -> None:
+    """A retry crashed the worker it ran in again: Dask counted the tasks queued there as
+    suspects and lost the results held there, and the retry of a run queued beside one that
+    crashes every time ended "died twice" (test_robustness'
+    test_dask_retries_a_dead_worker_s_run_like_the_local_pool, 1 CI in 3).  Now it runs in
+    a process of its own; the worker (here this script) lives on."""
+    proc = subprocess.run([sys.executable, "-c", ALONE, str(fmu3), str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "died alone: the process of the retry ended with exit code 70" in proc.stdout
+    assert "ran alone: [1] b'0001-x\\n'" in proc.stdout
+    assert (tmp_path / "out" / "runs" / "0001-x.mcap").is_file()
+
+
+def test_a_dask_retry_s_process_ends_with_its_killed_worker(fmu3: Path, tmp_path: Path) -> None:
+    """A worker killed outright (kill -9) while its retry runs alone leaves no orphan to go
+    on writing into the batch folder."""
+    hang = ALONE.replace('"crash"', '"hang"')
+    worker_proc = subprocess.Popen([sys.executable, "-c", hang, str(fmu3), str(tmp_path / "out")],
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        children = Path(f"/proc/{worker_proc.pid}/task/{worker_proc.pid}/children")
+        deadline = time.monotonic() + 60
+        pids: list[int] = []
+        while not pids and time.monotonic() < deadline:
+            pids = [int(x) for x in children.read_text().split()]
+            time.sleep(0.05)
+        assert pids, "the retry's process never started"
+        (alone,) = pids
+        worker_proc.kill()
+        worker_proc.wait()
+        deadline = time.monotonic() + 10
+        while Path(f"/proc/{alone}").exists() and time.monotonic() < deadline:
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(alone, os.WNOHANG)
+            time.sleep(0.05)
+        stat = Path(f"/proc/{alone}/stat")
+        assert not stat.exists() or stat.read_text().split(")")[1].split()[0] == "Z", \
+            "the retry's process outlived its worker"
+    finally:
+        worker_proc.kill()
+
+
+def test_the_retry_s_process_runs_its_job_and_watches_its_worker(
+        fmu3: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``python -m wmr.apps.batch.alone PID``'s main, in this process: it watches the worker
+    ``PID``, runs the job's block and leaves its result, as the worker's own run of it."""
+    import io
+    import pickle
+
+    from wmr.apps.batch import alone
+    from wmr.apps.batch.spec import BatchRun
+    from wmr.apps.batch.worker import Block, PlantHolder, block_on
+    from wmr.config.scenario import load_scenario
+
+    spec = load_scenario("fig11").runs[0]
+    block = Block([0], {0: BatchRun("0000-x", spec, spec.name, "", {}, "x")}, 1, (), "f",
+                  retry=True)
+    watched: list[int] = []
+    monkeypatch.setattr(alone, "die_with", watched.append)
+    result = tmp_path / "result.pickle"
+    job = pickle.dumps((block, str(fmu3), None, None, None, str(result)))
+    alone.main(["alone", "4242"], io.BytesIO(job))
+    assert watched == [4242]
+    done = pickle.loads(result.read_bytes())
+    holder = PlantHolder(fmu3)
+    try:
+        here = block_on(holder, block, None, None)
+    finally:
+        holder.close()
+    assert (done.indices, done.ids, done.codes) == (here.indices, here.ids, here.codes)
+    (a, b) = (tmp_path / "alone.mcap", tmp_path / "here.mcap")
+    a.write_bytes(done.logs[0][2])  # the log's bytes come back
+    b.write_bytes(here.logs[0][2])
+    np.testing.assert_array_equal(read_run(a).block(), read_run(b).block())
 
 
 class _FakeClient:

@@ -35,6 +35,7 @@ from wmr.apps.batch.worker import (
     Attachment,
     Block,
     BlockResult,
+    RunAloneDied,
     TaskSource,
     dask_run_block,
 )
@@ -395,7 +396,8 @@ def task_failure(exc: BaseException, future_status: str | None, client_status: s
     str
         ``"run"``: the task's runs failed (they raised): each is a ``failed`` row.
         ``"worker"``: the worker running them died (``KilledWorker``), or took their result
-        with it (no result within :data:`RESULT_WAIT_S`): each gets one more try.
+        with it (no result within :data:`RESULT_WAIT_S`): each gets one more try; or the
+        process of such a try died (:class:`~wmr.apps.batch.worker.RunAloneDied`).
         ``"cluster"``: the scheduler or the connection to it went away (a cancelled future,
         a closed comm or client, a connection that timed out, anything while the client is
         not connected): the runs were not run, or their results never came back; none of
@@ -408,7 +410,7 @@ def task_failure(exc: BaseException, future_status: str | None, client_status: s
     if isinstance(exc, CancelledError | CommClosedError) \
             or type(exc).__name__ == "ClosedClientError":
         return "cluster"
-    if type(exc).__name__ == "KilledWorker":
+    if type(exc).__name__ == "KilledWorker" or isinstance(exc, RunAloneDied):
         return "worker"
     if future_status == "error":
         return "run"

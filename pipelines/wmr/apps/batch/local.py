@@ -168,9 +168,10 @@ def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
             "mcap": None}
 
 
-def _die_with(batch_pid: int) -> None:
-    """End this worker as soon as the batch process ``batch_pid`` is gone, even killed by
-    SIGKILL: an orphan must not go on writing into a folder that a resumed batch uses.
+def die_with(batch_pid: int) -> None:
+    """End this worker (or a Dask task's retry, :mod:`wmr.apps.batch.alone`) as soon as the
+    batch process ``batch_pid`` (the Dask worker) is gone, even killed by SIGKILL: an orphan
+    must not go on writing into a folder that a resumed batch uses.
 
     The worker's parent is the forkserver, not the batch process, and the forkserver outlives
     the batch while workers hold its liveness pipe, so ``PR_SET_PDEATHSIG`` cannot do this.
@@ -205,7 +206,7 @@ def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str
     ``where`` is shared memory of two doubles: the index of the run it starts and when
     (``time.monotonic``, the same clock in every process), written before each run.
     """
-    _die_with(batch_pid)
+    die_with(batch_pid)
     # Ctrl-C and SIGTERM reach the whole process group: the parent alone decides what stops
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -521,5 +522,5 @@ class LocalPool:
                 self._stop(slot, kill=slot.block is not None)
 
 
-__all__ = ["DIED_TWICE", "Killed", "LocalPool", "Outcome", "check_open_files", "made_up_record",
-           "open_files_needed"]
+__all__ = ["DIED_TWICE", "Killed", "LocalPool", "Outcome", "check_open_files", "die_with",
+           "made_up_record", "open_files_needed"]

@@ -522,18 +522,14 @@ _FMUS: dict[str, Path] = {}
 _local = threading.local()
 
 
-def _holder(sha256: str, var_map: VariableMap | None = None) -> PlantHolder:
-    """This thread's plant of the FMU ``sha256`` (FmuPlant is not thread-safe)."""
+def _holder(sha256: str, path: Path, var_map: VariableMap | None = None) -> PlantHolder:
+    """This thread's plant of the FMU ``sha256`` at ``path`` (FmuPlant is not thread-safe)."""
     holders: dict[tuple[str, str], PlantHolder] | None = getattr(_local, "holders", None)
     if holders is None:
         holders = _local.holders = {}
     key = (sha256, "" if var_map is None else json.dumps(var_map.as_dict(), sort_keys=True))
     holder = holders.get(key)
     if holder is None:
-        path = _FMUS.get(sha256)
-        if path is None:
-            raise RuntimeError(f"FMU {sha256[:12]} was not shipped to this worker "
-                               "(FmuPlugin not registered)")
         holder = holders[key] = PlantHolder(path, var_map)
     return holder
 
@@ -556,6 +552,11 @@ def sees_folder(out_dir: str, token: str) -> bool:
 TOKEN_FILE = ".dask-token"
 
 
+class RunAloneDied(Exception):
+    """A Dask task's retry (:func:`dask_run_block`) whose own process died: its run kills
+    any process it runs in."""
+
+
 def dask_run_block(block: Block, fmu_sha256: str, attachment: Attachment | None,
                    out_dir: str, token: str, var_map: VariableMap | None = None
                    ) -> BlockResult:
@@ -564,17 +565,43 @@ def dask_run_block(block: Block, fmu_sha256: str, attachment: Attachment | None,
     A worker that sees the batch folder (same host or shared file system: it holds the
     client's ``token``) writes each log there, atomically, and the journal lines; any other
     writes each log to a private temp file and sends its bytes back for the client to write.
+
+    A retry (``block.retry``: a run whose worker died) runs in a process of its own
+    (:func:`run_alone`), as the local pool's retry runs alone in a fresh worker: a run that
+    crashes every process again takes only that one with it.  In the worker itself it
+    killed the worker again, and Dask counts every task queued on a worker that dies as a
+    suspect (``allowed-failures``) and loses the results still held there: the retry of
+    another run queued beside it was seen to end "died twice" though it never failed.
+
+    Raises
+    ------
+    RunAloneDied
+        A retry's process died.
     """
-    holder = _holder(fmu_sha256, var_map)
+    path = _FMUS.get(fmu_sha256)
+    if path is None:
+        raise RuntimeError(f"FMU {fmu_sha256[:12]} was not shipped to this worker "
+                           "(FmuPlugin not registered)")
     att = materialise(attachment.name, attachment.data) if attachment is not None else None
     shared = sees_folder(out_dir, token)
+    if block.retry:
+        return run_alone(block, path, att, out_dir if shared else None, var_map)
+    return block_on(_holder(fmu_sha256, path, var_map), block, att,
+                    out_dir if shared else None)
+
+
+def block_on(holder: PlantHolder, block: Block, attachment: Path | None,
+             out_dir: str | None) -> BlockResult:
+    """The runs of ``block`` on ``holder``'s plant: each log written in ``out_dir``'s
+    ``runs`` folder, atomically, or, ``out_dir`` None, to a private temp file whose bytes go
+    back in the result."""
 
     def run_one(task: Task) -> tuple[dict[str, Any], bytes | None]:
-        if shared:
+        if out_dir is not None:
             final = Path(out_dir) / "runs" / task.log_relpath
             part = final.with_name(f"{final.name}.{os.getpid()}.{threading.get_ident()}.part")
             try:
-                record = holder.run(task, part, att)
+                record = holder.run(task, part, attachment)
                 if record.get("mcap") is not None and part.exists():  # kept (the log policy)
                     os.replace(part, final)
                     record["mcap"] = str(final)
@@ -584,17 +611,57 @@ def dask_run_block(block: Block, fmu_sha256: str, attachment: Attachment | None,
         folder = Path(tempfile.mkdtemp(prefix="wmr-run-"))
         try:
             path = folder / f"{task.run_id}.mcap"
-            record = holder.run(task, path, att)
+            record = holder.run(task, path, attachment)
             data = path.read_bytes() if record.get("mcap") is not None and path.exists() \
                 else None
         finally:
             shutil.rmtree(folder, ignore_errors=True)
         return record, data
 
-    return run_block(block, run_one, Path(out_dir) if shared else None, "")
+    return run_block(block, run_one, Path(out_dir) if out_dir is not None else None, "")
+
+
+def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: str | None,
+              var_map: VariableMap | None) -> BlockResult:
+    """:func:`block_on` in a new Python process (``python -m wmr.apps.batch.alone PID``) on
+    its own plant of ``fmu_path``; its result comes back through a file of a private temp
+    folder (pickled: the process is this one's child, running this package).  It ends with
+    this process, even one killed outright.
+
+    Raises
+    ------
+    RunAloneDied
+        The process ended without a result (it died, or was killed).
+    """
+    import pickle
+    import subprocess
+    import sys
+
+    import wmr
+
+    folder = Path(tempfile.mkdtemp(prefix="wmr-alone-"))
+    try:
+        result = folder / "result.pickle"
+        job = pickle.dumps((block, str(fmu_path), None if attachment is None else str(attachment),
+                            out_dir, var_map, str(result)))
+        env = dict(os.environ)
+        # the package this process runs, whatever put it on its path
+        package_root = str(Path(wmr.__file__).resolve().parents[1])
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH"))
+                                            if p)
+        proc = subprocess.run([sys.executable, "-m", "wmr.apps.batch.alone", str(os.getpid())],
+                              input=job, env=env, check=False)
+        if proc.returncode != 0 or not result.exists():
+            raise RunAloneDied(f"the process of the retry ended with exit code "
+                               f"{proc.returncode}")
+        done: BlockResult = pickle.loads(result.read_bytes())
+        return done
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 __all__ = ["FAULTS", "KEPT", "STARTED", "STATUS_CODES", "STATUS_MASK", "Attachment", "Block",
-           "BlockResult", "PlantHolder", "Task", "WallClockLimit", "block_lines",
-           "dask_run_block", "execute", "fmu_digest", "line_ends", "materialise", "run_block",
-           "run_code", "table_bytes", "table_of", "wall_limit_message"]
+           "BlockResult", "PlantHolder", "RunAloneDied", "Task", "WallClockLimit",
+           "block_lines", "block_on", "dask_run_block", "execute", "fmu_digest",
+           "line_ends", "materialise", "run_alone", "run_block", "run_code", "table_bytes",
+           "table_of", "wall_limit_message"]
