@@ -249,6 +249,22 @@ def test_workers_die_with_a_killed_batch(tmp_path: Path, fmu3: Path) -> None:
     _wait_for(lambda: _processes_with(marker) == [], timeout_s=10)
 
 
+@pytest.mark.parametrize("how", ["pidfd", "polling"])
+def test_a_process_ends_with_the_one_it_watches(how: str) -> None:
+    """:func:`wmr.infra.orphans.die_with`, by a pidfd (Linux) and by polling (elsewhere)."""
+    from wmr.infra.orphans import ORPHANED
+
+    watched = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(1)"])
+    code = ("import os, sys, time\n"
+            + ("del os.pidfd_open\n" if how == "polling" else "")
+            + "from wmr.infra.orphans import die_with\n"
+            "die_with(int(sys.argv[1]))\n"
+            "time.sleep(60)\n")
+    watcher = subprocess.Popen([sys.executable, "-c", code, str(watched.pid)], env=_env())
+    watched.wait()
+    assert watcher.wait(timeout=10) == ORPHANED
+
+
 # -- disk full -------------------------------------------------------------------------------
 
 

@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 from typing import BinaryIO
 
-from wmr.apps.batch.local import die_with
 from wmr.apps.batch.worker import PlantHolder, block_on
+from wmr.infra.orphans import die_with
 
 
 def main(argv: list[str], stdin: BinaryIO) -> None:

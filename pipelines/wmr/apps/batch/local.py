@@ -25,7 +25,6 @@ import multiprocessing.context
 import multiprocessing.popen_forkserver
 import multiprocessing.spawn
 import os
-import select
 import signal
 import threading
 import time
@@ -51,11 +50,11 @@ from wmr.apps.batch.worker import (
 from wmr.core.energy import ENERGY_KEYS
 from wmr.infra.durable import open_own
 from wmr.infra.errors import FmuError, WmrError
+from wmr.infra.orphans import die_with
 
-#: Exit code of a worker that could not open the FMU.
+#: Exit code of a worker that could not open the FMU (one whose batch process is gone:
+#: :data:`wmr.infra.orphans.ORPHANED`).
 _INIT_FAILED = 3
-#: Exit code of a worker whose batch process is gone.
-_ORPHANED = 4
 
 
 #: Open files a batch needs besides its workers' (standard streams, the journal and its lock,
@@ -166,36 +165,6 @@ def made_up_record(run_id: str, status: str, message: str) -> dict[str, Any]:
             **dict.fromkeys(ENERGY_KEYS),
             "torque_sq_integral_n2m2s": None, "peak_torque_nm": None, "steps": None,
             "mcap": None}
-
-
-def die_with(batch_pid: int) -> None:
-    """End this worker (or a Dask task's retry, :mod:`wmr.apps.batch.alone`) as soon as the
-    batch process ``batch_pid`` (the Dask worker) is gone, even killed by SIGKILL: an orphan
-    must not go on writing into a folder that a resumed batch uses.
-
-    The worker's parent is the forkserver, not the batch process, and the forkserver outlives
-    the batch while workers hold its liveness pipe, so ``PR_SET_PDEATHSIG`` cannot do this.
-    A daemon thread waits on a pidfd of the batch process (Linux >= 5.3), else polls it.
-    """
-    def watch() -> None:
-        try:
-            fd = os.pidfd_open(batch_pid)
-        except (AttributeError, OSError):
-            fd = None
-        if fd is not None:
-            select.select([fd], [], [])  # readable when the process has ended
-        else:
-            while True:
-                time.sleep(0.5)
-                try:
-                    os.kill(batch_pid, 0)
-                except ProcessLookupError:
-                    break
-                except PermissionError:  # alive, someone else's: cannot be ours
-                    continue
-        os._exit(_ORPHANED)
-
-    threading.Thread(target=watch, name="wmr-die-with-batch", daemon=True).start()
 
 
 def _worker_main(conn: Connection, fmu_path: str, runs_dir: str, attachment: str | None,
@@ -522,5 +491,5 @@ class LocalPool:
                 self._stop(slot, kill=slot.block is not None)
 
 
-__all__ = ["DIED_TWICE", "Killed", "LocalPool", "Outcome", "check_open_files", "die_with",
-           "made_up_record", "open_files_needed"]
+__all__ = ["DIED_TWICE", "Killed", "LocalPool", "Outcome", "check_open_files", "made_up_record",
+           "open_files_needed"]
