@@ -265,6 +265,24 @@ def test_a_process_ends_with_the_one_it_watches(how: str) -> None:
     assert watcher.wait(timeout=10) == ORPHANED
 
 
+def test_nothing_watches_on_windows_where_a_probe_would_kill(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Windows' ``os.kill(pid, 0)`` terminates the process: polling would have killed the
+    Dask worker that started a retry."""
+    import threading
+
+    from wmr.infra import orphans
+
+    probed: list[int] = []
+    monkeypatch.setattr(orphans, "_ON_WINDOWS", True)
+    monkeypatch.setattr(orphans.os, "kill", lambda pid, sig: probed.append(pid))
+    monkeypatch.delattr(orphans.os, "pidfd_open")  # polling, as on Windows
+    before = threading.active_count()
+    orphans.die_with(os.getpid())
+    time.sleep(0.6)
+    assert threading.active_count() == before and probed == []
+
+
 # -- disk full -------------------------------------------------------------------------------
 
 

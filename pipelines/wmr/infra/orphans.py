@@ -11,6 +11,8 @@ from typing import Final
 
 #: Exit status of a process whose watched process had gone.
 ORPHANED: Final = 4
+#: Windows, where ``os.kill(pid, 0)`` ends the process instead of probing it.
+_ON_WINDOWS: Final = os.name == "nt"
 
 
 def die_with(batch_pid: int) -> None:
@@ -20,8 +22,13 @@ def die_with(batch_pid: int) -> None:
 
     The worker's parent is the forkserver, not the batch process, and the forkserver outlives
     the batch while workers hold its liveness pipe, so ``PR_SET_PDEATHSIG`` cannot do this.
-    A daemon thread waits on a pidfd of the batch process (Linux >= 5.3), else polls it.
+    A daemon thread waits on a pidfd of the batch process (Linux >= 5.3), else polls it;
+    on Windows nothing watches (its ``os.kill(pid, 0)`` would end the batch process, a Dask
+    worker there: a retry outlives a worker killed outright).
     """
+    if _ON_WINDOWS:
+        return
+
     def watch() -> None:
         try:
             fd = os.pidfd_open(batch_pid)
