@@ -8,7 +8,9 @@ log's header, attachments and summary, its fsync and rename) cancels:
 ``(t_long - t_short) / (steps_long - steps_short)``, in CPU time (the process's, every thread:
 steadier than the wall time on a shared machine, and what a batch that keeps every core busy
 pays) and in wall time.  Each repetition runs every row once, in turn (interleaved); the table
-shows medians over ``--repeats``.
+shows medians over ``--repeats``.  The last column is what a log costs once a run whatever
+its length (opening it, its header and attachments, the scene topics, its summary, an fsync
+where there is one): the short run's CPU beyond its steps, less the unlogged loop's.
 
 Rows:
 
@@ -16,6 +18,8 @@ Rows:
   stepper) and no sink: the loop a log is measured against;
 * ``wmr run, logged``: :func:`wmr.apps.run.run_to_log` as ``wmr run`` calls it (the shipped
   log: per-step topics, scene topics, default chunk compression, fsynced);
+* ``a batch's log (not fsynced, a new file)``: the same log as a batch's worker writes it (no
+  fsync: a resumed batch checks every log; a new file each run);
 * ``logged, no scene topics``: the same without the drawable topics
   (:mod:`wmr.adapters.mcap.scene`), to show what they cost;
 * ``logged, zstd level 1 chunks (before)``: the same with the chunk compression of the logs
@@ -63,21 +67,32 @@ def main(argv: list[str] | None = None) -> None:
     short = dataclasses.replace(long, t_max_s=SHORT_S)
     fmu = build_fmus(platforms="host").fmus[3]
     samples: dict[str, list[tuple[float, float]]] = {}  # (CPU, wall) s per step
+    fixed: dict[str, list[float]] = {}  # CPU s of a run beyond its steps
     with FmuPlant(fmu) as plant, tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "run.mcap"
         sizes: dict[str, int] = {}
 
-        def logged(**options: Any) -> Callable[[RunSpec], int]:
-            # the MCAP opener run_to_log opens for a path, with ``options`` in place of its own
+        made = iter(range(1 << 30))
+        last = {"path": log}  # the log last written, whose size is read
+
+        def logged(fresh: bool = False, **options: Any) -> Callable[[RunSpec], int]:
+            # the MCAP opener run_to_log opens for a path, with ``options`` in place of its own;
+            # ``fresh``: a new file each run, as a batch's (ext4 writes out at once a file
+            # renamed over another), all kept until the end (a few MB)
             opener = McapOpener(log, **options)
 
             def run(spec: RunSpec) -> int:
-                return int(app_run.run_to_log(spec, opener, plant)["steps"])
+                if not fresh:
+                    last["path"] = log
+                    return int(app_run.run_to_log(spec, opener, plant)["steps"])
+                last["path"] = path = Path(tmp) / f"fresh-{next(made)}.mcap"
+                return int(app_run.run_to_log(spec, McapOpener(path, **options), plant)["steps"])
             return run
 
         rows: dict[str, Callable[[RunSpec], int]] = {
             UNLOGGED: lambda s: run_closed_loop(s, plant, controller=CompiledLawController()).steps,
             "wmr run, logged": logged(),
+            "a batch's log (not fsynced, a new file)": logged(fresh=True, durable=False),
             "logged, no scene topics": logged(scene=False),
             "logged, zstd level 1 chunks (before)": logged(compression="zstd"),
             "logged, uncompressed chunks": logged(compression=""),
@@ -90,25 +105,31 @@ def main(argv: list[str] | None = None) -> None:
                 n_long = fun(long)
                 c1, w1 = process_time(), perf_counter()
                 if name != UNLOGGED:
-                    sizes[name] = log.stat().st_size
+                    sizes[name] = last["path"].stat().st_size
                 n_short = fun(short)
                 c2, w2 = process_time(), perf_counter()
                 per_step = n_long - n_short
+                step_cpu = ((c1 - c0) - (c2 - c1)) / per_step
                 samples.setdefault(name, []).append(
-                    (((c1 - c0) - (c2 - c1)) / per_step, ((w1 - w0) - (w2 - w1)) / per_step))
+                    (step_cpu, ((w1 - w0) - (w2 - w1)) / per_step))
+                # what the short run cost beyond its steps: start-up, the log's open and close
+                fixed.setdefault(name, []).append((c2 - c1) - step_cpu * n_short)
     cpu0 = statistics.median(c for c, _ in samples[UNLOGGED])
     width = max(len(n) for n in samples)
     print(f"Far-goal cruise (Fig. 11 robot, goal 1 km ahead): marginal cost of one control step, "
           f"runs of {LONG_S:g} s and {SHORT_S:g} s, median of {args.repeats}")
     print(f"{'path':<{width}}  {'CPU us':>7}  {'x unlogged':>10}  {'wall us':>7}  "
-          f"{'log B/step':>10}")
+          f"{'log B/step':>10}  {'fixed CPU us':>12}")
     steps = round(LONG_S / base.period_s) + 1
+    fixed0 = statistics.median(fixed[UNLOGGED])
     for name, values in samples.items():
         cpu = statistics.median(c for c, _ in values)
         wall = statistics.median(w for _, w in values)
         size = f"{sizes[name] / steps:>10.0f}" if name in sizes else f"{'':>10}"
+        # a log's own fixed cost: the run's beyond its steps, less the unlogged loop's
+        extra = statistics.median(fixed[name]) - fixed0
         print(f"{name:<{width}}  {cpu * 1e6:>7.3f}  {cpu / cpu0:>10.2f}  {wall * 1e6:>7.3f}  "
-              f"{size}")
+              f"{size}  {extra * 1e6:>12.0f}")
 
 
 if __name__ == "__main__":
