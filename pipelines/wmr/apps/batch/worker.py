@@ -395,7 +395,8 @@ def materialise(name: str, data: bytes) -> Path:
     """Write ``data`` once per process to a private temp folder as ``name``; return the path.
 
     Keeps the file's own name, which the logs record (``fmu_file``), so that a log written
-    by a Dask worker is identical to one written locally.
+    by a Dask worker records the FMU as one written locally does (its ``result`` record's
+    ``mcap`` names where the worker wrote it: a temp file, or one beside the log's place).
     """
     digest = hashlib.sha256(data).hexdigest()
     key = f"{digest}/{name}"
