@@ -164,12 +164,12 @@ def test_a_dask_retry_s_process_ends_with_its_killed_worker(fmu3: Path, tmp_path
 
 def test_the_retry_s_process_runs_its_job_and_watches_its_worker(
         fmu3: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """``python -m wmr.apps.batch.alone PID``'s main, in this process: it watches the worker
+    """``python -m wmr.apps.batch.retry PID``'s main, in this process: it watches the worker
     ``PID``, runs the job's block and leaves its result, as the worker's own run of it."""
     import io
     import pickle
 
-    from wmr.apps.batch import alone
+    from wmr.apps.batch import retry
     from wmr.apps.batch.spec import BatchRun
     from wmr.apps.batch.worker import Block, PlantHolder, block_on
     from wmr.config.scenario import load_scenario
@@ -178,10 +178,10 @@ def test_the_retry_s_process_runs_its_job_and_watches_its_worker(
     block = Block([0], {0: BatchRun("0000-x", spec, spec.name, "", {}, "x")}, 1, (), "f",
                   retry=True)
     watched: list[int] = []
-    monkeypatch.setattr(alone, "die_with", watched.append)
+    monkeypatch.setattr(retry, "die_with", watched.append)
     result = tmp_path / "result.pickle"
     job = pickle.dumps((block, str(fmu3), None, None, None, str(result)))
-    alone.main(["alone", "4242"], io.BytesIO(job))
+    retry.main(["retry", "4242"], io.BytesIO(job))
     assert watched == [4242]
     done = pickle.loads(result.read_bytes())
     holder = PlantHolder(fmu3)

@@ -16,7 +16,7 @@ _ON_WINDOWS: Final = os.name == "nt"
 
 
 def die_with(batch_pid: int) -> None:
-    """End this worker (or a Dask task's retry, :mod:`wmr.apps.batch.alone`) as soon as the
+    """End this worker (or a Dask task's retry, :mod:`wmr.apps.batch.retry`) as soon as the
     batch process ``batch_pid`` (the Dask worker) is gone, even killed by SIGKILL: an orphan
     must not go on writing into a folder that a resumed batch uses.
 

@@ -624,7 +624,7 @@ def block_on(holder: PlantHolder, block: Block, attachment: Path | None,
 
 def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: str | None,
               var_map: VariableMap | None) -> BlockResult:
-    """:func:`block_on` in a new Python process (``python -m wmr.apps.batch.alone PID``) on
+    """:func:`block_on` in a new Python process (``python -m wmr.apps.batch.retry PID``) on
     its own plant of ``fmu_path``; its result comes back through a file of a private temp
     folder (pickled: the process is this one's child, running this package).  It ends with
     this process, even one killed outright.
@@ -650,7 +650,7 @@ def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: st
         package_root = str(Path(wmr.__file__).resolve().parents[1])
         env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH"))
                                             if p)
-        proc = subprocess.run([sys.executable, "-m", "wmr.apps.batch.alone", str(os.getpid())],
+        proc = subprocess.run([sys.executable, "-m", "wmr.apps.batch.retry", str(os.getpid())],
                               input=job, env=env, check=False)
         if proc.returncode != 0 or not result.exists():
             raise RunAloneDied(f"the process of the retry ended with exit code "

@@ -1,5 +1,5 @@
 """The process of a Dask task's retry (:func:`wmr.apps.batch.worker.run_alone`):
-``python -m wmr.apps.batch.alone PID``, its pickled arguments on stdin, its result, pickled,
+``python -m wmr.apps.batch.retry PID``, its pickled arguments on stdin, its result, pickled,
 in the file they name; it ends with the process ``PID`` (the Dask worker that started it)."""
 
 from __future__ import annotations
