@@ -33,7 +33,6 @@ from wmr.adapters.mcap import read_run
 from wmr.apps.batch import BatchOptions, dask_exec, load_batch, run_batch
 from wmr.apps.batch.dask_exec import task_failure, task_runs
 from wmr.apps.batch.runner import _test_hooks
-from wmr.apps.batch.worker import RunAloneDied
 from wmr.cli import main
 
 #: 40 short runs (about 25 ms each): 2 list entries x 20 random samples.
@@ -79,7 +78,6 @@ DASK = shutil.which("dask", path=str(Path(sys.executable).parent)) or "dask"
     (ValueError("anything"), "error", "connecting", "cluster"),
     # the worker died (or took the result with it): one more try
     (KilledWorker("k", cast(Any, "tcp://127.0.0.1:2"), 3), "error", "running", "worker"),
-    (RunAloneDied("exit code 70"), "error", "running", "worker"),  # its try, alone, died
     (TimeoutError("no result for k within 30 s"), "finished", "running", "worker"),
     (TimeoutError("no result for k within 30 s"), "lost", "running", "worker"),
     # the run's own failure: a failed row
@@ -106,15 +104,11 @@ out = Path(sys.argv[2])
 worker._FMUS["f"] = Path(sys.argv[1])
 (out / "runs").mkdir(parents=True)
 (out / worker.TOKEN_FILE).write_text("t")
-runs = {i: BatchRun(f"000{i}-x", spec, spec.name, "", {}, "x") for i in range(2)}
-crash = worker.Block([0], runs, 2, (), "f", faults={"0000-x": "crash"}, retry=True)
-try:
-    worker.dask_run_block(crash, "f", None, str(out), "t")
-except worker.RunAloneDied as exc:
-    print("died alone:", exc)
-done = worker.dask_run_block(worker.Block([1], runs, 2, (), "f", retry=True), "f", None,
-                             str(out), "t")
-print("ran alone:", list(done.indices), done.ids)
+runs = {i: BatchRun(f"000{i}-x", spec, spec.name, "", {}, "x") for i in range(3)}
+again = worker.Block([0, 1, 2], runs, 3, (), "f", faults={"0001-x": "crash"}, retry=True)
+done = worker.dask_run_block(again, "f", None, str(out), "t")
+print("died alone:", done.died)
+print("ran alone:", [list(r.indices) for r in done.results])
 """
 
 
@@ -123,14 +117,17 @@ def test_a_dask_retry_runs_alone_and_its_crash_leaves_the_worker(fmu3: Path,
     """A retry crashed the worker it ran in again: Dask counted the tasks queued there as
     suspects and lost the results held there, and the retry of a run queued beside one that
     crashes every time ended "died twice" (test_robustness'
-    test_dask_retries_a_dead_worker_s_run_like_the_local_pool, 1 CI in 3).  Now it runs in
-    a process of its own; the worker (here this script) lives on."""
+    test_dask_retries_a_dead_worker_s_run_like_the_local_pool, 1 CI in 3).  Now a range's
+    retry runs in a process of its own, one run after the other: a run that crashes it costs
+    only itself, the runs after it run in a new one, and the worker (here this script) lives
+    on."""
     proc = subprocess.run([sys.executable, "-c", ALONE, str(fmu3), str(tmp_path / "out")],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "died alone: the process of the retry ended with exit code 70" in proc.stdout
-    assert "ran alone: [1] b'0001-x\\n'" in proc.stdout
-    assert (tmp_path / "out" / "runs" / "0001-x.mcap").is_file()
+    assert "died alone: [1]" in proc.stdout
+    assert "ran alone: [[0], [2]]" in proc.stdout
+    logs = sorted(p.name for p in (tmp_path / "out" / "runs").iterdir())
+    assert logs == ["0000-x.mcap", "0002-x.mcap"]
 
 
 def test_a_dask_retry_s_process_ends_with_its_killed_worker(fmu3: Path, tmp_path: Path) -> None:
@@ -171,7 +168,7 @@ def test_the_retry_s_process_runs_its_job_and_watches_its_worker(
 
     from wmr.apps.batch import retry
     from wmr.apps.batch.spec import BatchRun
-    from wmr.apps.batch.worker import Block, PlantHolder, block_on
+    from wmr.apps.batch.worker import Block, PlantHolder, block_on, read_frames
     from wmr.config.scenario import load_scenario
 
     spec = load_scenario("fig11").runs[0]
@@ -183,7 +180,7 @@ def test_the_retry_s_process_runs_its_job_and_watches_its_worker(
     job = pickle.dumps((block, str(fmu3), None, None, None, str(result)))
     retry.main(["retry", "4242"], io.BytesIO(job))
     assert watched == [4242]
-    done = pickle.loads(result.read_bytes())
+    (done,) = read_frames(result)
     holder = PlantHolder(fmu3)
     try:
         here = block_on(holder, block, None, None)
@@ -194,6 +191,23 @@ def test_the_retry_s_process_runs_its_job_and_watches_its_worker(
     a.write_bytes(done.logs[0][2])  # the log's bytes come back
     b.write_bytes(here.logs[0][2])
     np.testing.assert_array_equal(read_run(a).block(), read_run(b).block())
+
+
+def test_a_result_cut_by_its_process_s_death_is_not_one(tmp_path: Path) -> None:
+    """The results file of a retry's process: a result whose bytes are not all there (the
+    process died writing it) is not read, and what comes before it is."""
+    from wmr.apps.batch.worker import BlockResult, read_frames, write_frame
+
+    path = tmp_path / "results"
+    with open(path, "ab") as f:
+        for i in range(2):
+            write_frame(f, BlockResult(indices=[i], ids=f"{i:04d}-x\n".encode()))
+    whole = path.read_bytes()
+    for cut in (len(whole), len(whole) - 1, len(whole) // 2 + 4, 3):
+        path.write_bytes(whole[:cut])
+        got = [list(r.indices) for r in read_frames(path)]
+        assert got == ([[0], [1]] if cut == len(whole) else [[0]] if cut > len(whole) // 2
+                       else []), cut
 
 
 class _FakeClient:

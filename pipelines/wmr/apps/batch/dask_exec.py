@@ -35,7 +35,7 @@ from wmr.apps.batch.worker import (
     Attachment,
     Block,
     BlockResult,
-    RunAloneDied,
+    RetryResult,
     TaskSource,
     dask_run_block,
 )
@@ -255,6 +255,10 @@ class DaskExecutor:
                     group: list[BlockResult | Killed] = []
                     for fut, block, result in zip(finished, blocks, _results(client, finished),
                                                   strict=True):
+                        if isinstance(result, RetryResult):  # each died alone: its own run
+                            group += result.results
+                            group += [Killed(i, "failed", DIED_TWICE, 0.0) for i in result.died]
+                            continue
                         if not isinstance(result, BaseException):
                             group.append(result)
                             continue
@@ -271,16 +275,17 @@ class DaskExecutor:
                             fut.cancel()
                         died = how == "worker"
                         # the rule of the local pool: a run whose worker died gets one more
-                        # try, alone (the others of its range too: they died with it)
-                        for index in block.indices:
-                            if died and index not in retried:
-                                retried.add(index)
-                                done.add(submit(replace(block, indices=[index], retry=True),
-                                                "-retry"))
-                                continue
-                            group.append(Killed(index, "failed", DIED_TWICE if died else
-                                                f"the Dask task failed: {type(result).__name__}: "
-                                                f"{result}", 0.0))
+                        # try, alone (the others of its range too: they died with it, and
+                        # which one killed it is not known): the range's runs once more, in a
+                        # process of the worker's own that costs a run that dies only itself
+                        again = [i for i in block.indices if died and i not in retried]
+                        if again:
+                            retried.update(again)
+                            done.add(submit(replace(block, indices=again, retry=True), "-retry"))
+                        group += [Killed(index, "failed", DIED_TWICE if died else
+                                         f"the Dask task failed: {type(result).__name__}: "
+                                         f"{result}", 0.0)
+                                  for index in block.indices if index not in again]
                     if group:
                         yield group
         finally:
@@ -396,8 +401,7 @@ def task_failure(exc: BaseException, future_status: str | None, client_status: s
     str
         ``"run"``: the task's runs failed (they raised): each is a ``failed`` row.
         ``"worker"``: the worker running them died (``KilledWorker``), or took their result
-        with it (no result within :data:`RESULT_WAIT_S`): each gets one more try; or the
-        process of such a try died (:class:`~wmr.apps.batch.worker.RunAloneDied`).
+        with it (no result within :data:`RESULT_WAIT_S`): each gets one more try.
         ``"cluster"``: the scheduler or the connection to it went away (a cancelled future,
         a closed comm or client, a connection that timed out, anything while the client is
         not connected): the runs were not run, or their results never came back; none of
@@ -410,7 +414,7 @@ def task_failure(exc: BaseException, future_status: str | None, client_status: s
     if isinstance(exc, CancelledError | CommClosedError) \
             or type(exc).__name__ == "ClosedClientError":
         return "cluster"
-    if type(exc).__name__ == "KilledWorker" or isinstance(exc, RunAloneDied):
+    if type(exc).__name__ == "KilledWorker":
         return "worker"
     if future_status == "error":
         return "run"

@@ -17,7 +17,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final, Protocol
 
@@ -112,7 +112,8 @@ class Block:
     faults
         Test hooks by run id (:data:`FAULTS`).
     retry
-        The block is a run given once more after its worker died.
+        The block's runs are given once more after their worker died (one run, locally; a
+        Dask task's runs, each alone in a process of its own: :func:`run_alone`).
     """
 
     indices: Sequence[int]
@@ -553,31 +554,44 @@ def sees_folder(out_dir: str, token: str) -> bool:
 TOKEN_FILE = ".dask-token"
 
 
-class RunAloneDied(Exception):
-    """A Dask task's retry (:func:`dask_run_block`) whose own process died: its run kills
-    any process it runs in."""
+@dataclass
+class RetryResult:
+    """What a Dask task's retry returns (:func:`run_alone`): a result for each of its runs that
+    finished, and the runs that died again, each alone in its process.
+
+    Attributes
+    ----------
+    results
+        One :class:`BlockResult` a finished run, in index order (the last may say the batch
+        must stop: ``stop``).
+    died
+        The runs whose process died while each was the one running.
+    """
+
+    results: list[BlockResult]
+    died: list[int]
+
+
+#: Bytes of the length before each result a retry's process writes (little-endian).
+_FRAME_HEAD: Final = 8
 
 
 def dask_run_block(block: Block, fmu_sha256: str, attachment: Attachment | None,
                    out_dir: str, token: str, var_map: VariableMap | None = None
-                   ) -> BlockResult:
+                   ) -> BlockResult | RetryResult:
     """A Dask task: the runs of ``block`` (:func:`run_block`), one task per range.
 
     A worker that sees the batch folder (same host or shared file system: it holds the
     client's ``token``) writes each log there, atomically, and the journal lines; any other
     writes each log to a private temp file and sends its bytes back for the client to write.
 
-    A retry (``block.retry``: a run whose worker died) runs in a process of its own
-    (:func:`run_alone`), as the local pool's retry runs alone in a fresh worker: a run that
-    crashes every process again takes only that one with it.  In the worker itself it
-    killed the worker again, and Dask counts every task queued on a worker that dies as a
-    suspect (``allowed-failures``) and loses the results still held there: the retry of
-    another run queued beside it was seen to end "died twice" though it never failed.
-
-    Raises
-    ------
-    RunAloneDied
-        A retry's process died.
+    A retry (``block.retry``: the runs of a task whose worker died) runs in a process of its
+    own (:func:`run_alone`: a :class:`RetryResult`), as the local pool's retry runs alone in
+    a fresh worker: a run that crashes every process again takes only that one with it.  In
+    the worker itself it killed the worker again, and Dask counts every task queued on a
+    worker that dies as a suspect (``allowed-failures``) and loses the results still held
+    there: the retry of another run queued beside it was seen to end "died twice" though it
+    never failed.
     """
     path = _FMUS.get(fmu_sha256)
     if path is None:
@@ -623,16 +637,17 @@ def block_on(holder: PlantHolder, block: Block, attachment: Path | None,
 
 
 def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: str | None,
-              var_map: VariableMap | None) -> BlockResult:
-    """:func:`block_on` in a new Python process (``python -m wmr.apps.batch.retry PID``) on
-    its own plant of ``fmu_path``; its result comes back through a file of a private temp
-    folder (pickled: the process is this one's child, running this package).  It ends with
-    this process, even one killed outright.
+              var_map: VariableMap | None) -> RetryResult:
+    """The runs of ``block`` one after the other in a new Python process
+    (``python -m wmr.apps.batch.retry PID``) on its own plant of ``fmu_path``, each as
+    :func:`block_on` runs it; a process that dies costs only the run it was on, and a new one
+    takes the runs after it.  It ends with this process, even one killed outright.
 
-    Raises
-    ------
-    RunAloneDied
-        The process ended without a result (it died, or was killed).
+    The process writes each run's result, pickled (it is this one's child, running this
+    package), to a file of a private temp folder as the run ends, a length before it: the
+    results whole in the file are those of the runs that finished, and the run after them is
+    the one the process died on.  A process per range, not per run: one costs about 0.6 s to
+    start, and a range whose worker died is given again whole.
     """
     import pickle
     import subprocess
@@ -640,29 +655,68 @@ def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: st
 
     import wmr
 
-    folder = Path(tempfile.mkdtemp(prefix="wmr-alone-"))
+    env = dict(os.environ)
+    # the package this process runs, whatever put it on its path
+    package_root = str(Path(wmr.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
+    pending = list(block.indices)
+    done = RetryResult([], [])
+    folder = Path(tempfile.mkdtemp(prefix="wmr-retry-"))
     try:
-        result = folder / "result.pickle"
-        job = pickle.dumps((block, str(fmu_path), None if attachment is None else str(attachment),
-                            out_dir, var_map, str(result)))
-        env = dict(os.environ)
-        # the package this process runs, whatever put it on its path
-        package_root = str(Path(wmr.__file__).resolve().parents[1])
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH"))
-                                            if p)
-        proc = subprocess.run([sys.executable, "-m", "wmr.apps.batch.retry", str(os.getpid())],
-                              input=job, env=env, check=False)
-        if proc.returncode != 0 or not result.exists():
-            raise RunAloneDied(f"the process of the retry ended with exit code "
-                               f"{proc.returncode}")
-        done: BlockResult = pickle.loads(result.read_bytes())
+        while pending:
+            out = folder / f"results-{len(done.died)}"
+            job = pickle.dumps((replace(block, indices=pending), str(fmu_path),
+                                None if attachment is None else str(attachment), out_dir,
+                                var_map, str(out)))
+            proc = subprocess.run([sys.executable, "-m", "wmr.apps.batch.retry",
+                                   str(os.getpid())], input=job, env=env, check=False)
+            results = read_frames(out) if out.exists() else []
+            done.results += results
+            if results and results[-1].stop is not None:
+                break  # the batch stops: the runs after are not results
+            finished = sum(len(r.indices) for r in results)
+            if finished >= len(pending):
+                break
+            if proc.returncode == 0:
+                raise RuntimeError(f"the process of a retry ended without the results of "
+                                   f"{len(pending) - finished} of its runs")
+            died = pending[finished]
+            done.died.append(died)
+            pending = pending[finished + 1:]
         return done
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def write_frame(f: Any, result: BlockResult) -> None:
+    """Append ``result`` to the results file of a retry's process (:func:`run_alone`)."""
+    import pickle
+
+    data = pickle.dumps(result)
+    f.write(len(data).to_bytes(_FRAME_HEAD, "little") + data)
+    f.flush()
+
+
+def read_frames(path: Path) -> list[BlockResult]:
+    """The results whole in ``path``, the results file of a retry's process: one cut by its
+    death is not one."""
+    import pickle
+
+    data = path.read_bytes()
+    results: list[BlockResult] = []
+    at = 0
+    while at + _FRAME_HEAD <= len(data):
+        size = int.from_bytes(data[at:at + _FRAME_HEAD], "little")
+        if at + _FRAME_HEAD + size > len(data):
+            break
+        results.append(pickle.loads(data[at + _FRAME_HEAD:at + _FRAME_HEAD + size]))
+        at += _FRAME_HEAD + size
+    return results
+
+
 __all__ = ["FAULTS", "KEPT", "STARTED", "STATUS_CODES", "STATUS_MASK", "Attachment", "Block",
-           "BlockResult", "PlantHolder", "RunAloneDied", "Task", "WallClockLimit",
+           "BlockResult", "PlantHolder", "RetryResult", "Task", "WallClockLimit",
            "block_lines", "block_on", "dask_run_block", "execute", "fmu_digest",
-           "line_ends", "materialise", "run_alone", "run_block", "run_code", "table_bytes",
-           "table_of", "wall_limit_message"]
+           "line_ends", "materialise", "read_frames", "run_alone", "run_block", "run_code",
+           "table_bytes",
+           "table_of", "wall_limit_message", "write_frame"]
