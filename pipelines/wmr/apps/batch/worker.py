@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import pickle
 import shutil
 import tempfile
 import threading
@@ -649,7 +650,6 @@ def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: st
     the one the process died on.  A process per range, not per run: one costs about 0.6 s to
     start, and a range whose worker died is given again whole.
     """
-    import pickle
     import subprocess
     import sys
 
@@ -690,8 +690,6 @@ def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: st
 
 def write_frame(f: Any, result: BlockResult) -> None:
     """Append ``result`` to the results file of a retry's process (:func:`run_alone`)."""
-    import pickle
-
     data = pickle.dumps(result)
     f.write(len(data).to_bytes(_FRAME_HEAD, "little") + data)
     f.flush()
@@ -700,8 +698,6 @@ def write_frame(f: Any, result: BlockResult) -> None:
 def read_frames(path: Path) -> list[BlockResult]:
     """The results whole in ``path``, the results file of a retry's process: one cut by its
     death is not one."""
-    import pickle
-
     data = path.read_bytes()
     results: list[BlockResult] = []
     at = 0
@@ -718,5 +714,4 @@ __all__ = ["FAULTS", "KEPT", "STARTED", "STATUS_CODES", "STATUS_MASK", "Attachme
            "BlockResult", "PlantHolder", "RetryResult", "Task", "WallClockLimit",
            "block_lines", "block_on", "dask_run_block", "execute", "fmu_digest",
            "line_ends", "materialise", "read_frames", "run_alone", "run_block", "run_code",
-           "table_bytes",
-           "table_of", "wall_limit_message", "write_frame"]
+           "table_bytes", "table_of", "wall_limit_message", "write_frame"]
