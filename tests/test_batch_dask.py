@@ -177,13 +177,14 @@ def test_the_retry_s_process_runs_its_job_and_watches_its_worker(
     watched: list[int] = []
     monkeypatch.setattr(retry, "die_with", watched.append)
     result = tmp_path / "result.pickle"
-    job = pickle.dumps((block, str(fmu3), None, None, None, str(result)))
+    batch_dir = str(tmp_path / "batch")
+    job = pickle.dumps((block, str(fmu3), None, None, None, str(result), batch_dir))
     retry.main(["retry", "4242"], io.BytesIO(job))
     assert watched == [4242]
     (done,) = read_frames(result)
     holder = PlantHolder(fmu3)
     try:
-        here = block_on(holder, block, None, None)
+        here = block_on(holder, block, None, None, batch_dir)
     finally:
         holder.close()
     assert (done.indices, done.ids, done.codes) == (here.indices, here.ids, here.codes)
@@ -191,6 +192,39 @@ def test_the_retry_s_process_runs_its_job_and_watches_its_worker(
     a.write_bytes(done.logs[0][2])  # the log's bytes come back
     b.write_bytes(here.logs[0][2])
     np.testing.assert_array_equal(read_run(a).block(), read_run(b).block())
+    # each names where the client keeps it, as a local worker's log does
+    kept = str(Path(batch_dir) / block.log_relpath("0000-x"))
+    assert _logged_mcap(a) == _logged_mcap(b) == kept
+
+
+def test_a_dask_worker_s_log_names_where_it_is_kept(fmu3: Path, tmp_path: Path) -> None:
+    """A Dask worker that sees the batch folder writes each log under a name of its own
+    (two tries of a run never share a file) and moves it into place: the log's own result
+    record names the place, not the name it was written under, as the journal does."""
+    from wmr.apps.batch.spec import BatchRun
+    from wmr.apps.batch.worker import Block, PlantHolder, block_on
+    from wmr.config.scenario import load_scenario
+
+    spec = load_scenario("fig11").runs[0]
+    block = Block([0], {0: BatchRun("0000-x", spec, spec.name, "", {}, "x")}, 1, (), "f")
+    out = tmp_path / "batch"
+    holder = PlantHolder(fmu3)
+    try:
+        done = block_on(holder, block, None, str(out), str(out))
+    finally:
+        holder.close()
+    final = out / block.log_relpath("0000-x")
+    assert not done.logs and sorted(p.name for p in final.parent.iterdir()) == [final.name]
+    assert _logged_mcap(final) == str(final)
+
+
+def _logged_mcap(log: Path) -> str:
+    """The ``mcap`` field of the finished log's own ``result`` record."""
+    from wmr.adapters.mcap.reader import finished_result
+
+    result = finished_result(log)
+    assert result is not None, f"{log} is not a finished log"
+    return result["mcap"]
 
 
 def test_a_result_cut_by_its_process_s_death_is_not_one(tmp_path: Path) -> None:

@@ -841,6 +841,10 @@ class RunLogWriter:
         :class:`~wmr.core.runlog.LogHeader`'s: :meth:`from_header`); ``None``: parsed from
         ``run``'s ``params`` and ``stop_radius_m``
         (:meth:`~wmr.adapters.mcap.scene.SceneRecorder.from_run_record`).
+    location
+        Where the log is kept once finished (:attr:`location`, the ``mcap`` field of the
+        run's result record), when not ``path``: a log written under a name of its own and
+        moved there after (a Dask worker's: two tries of a run never share a file).
 
     Raises
     ------
@@ -864,8 +868,10 @@ class RunLogWriter:
         durable: bool = True,
         scene: bool = False,
         scene_values: tuple[float, float, float | None] | None = None,
+        location: str | os.PathLike[str] | None = None,
     ) -> None:
         self.path = os.fspath(path)
+        self._location = self.path if location is None else os.fspath(location)
         if chunk_period_ns <= 0:
             raise LogError(f"chunk_period_ns must be positive, got {chunk_period_ns}")
         run_record = _str_dict("run", run)
@@ -919,7 +925,8 @@ class RunLogWriter:
                     compression: Compression = DEFAULT_COMPRESSION,
                     chunk_period_ns: int = 1_000_000_000,
                     topics: tuple[TopicLayout, ...] = STEP_TOPICS, durable: bool = True,
-                    scene: bool = True) -> RunLogWriter:
+                    scene: bool = True,
+                    location: str | os.PathLike[str] | None = None) -> RunLogWriter:
         """The log of the run ``header`` describes, at ``path`` (the other parameters as
         the constructor's): its metadata, goal and attachments, and the scene's typed
         values."""
@@ -927,12 +934,13 @@ class RunLogWriter:
                    attachments=header.attachment_map(), compression=compression,
                    chunk_period_ns=chunk_period_ns, topics=topics, durable=durable,
                    scene=scene, scene_values=(header.half_track_m, header.wheel_radius_m,
-                                              header.stop_radius_m))
+                                              header.stop_radius_m), location=location)
 
     @property
     def location(self) -> str:
-        """The log's final path (a :class:`~wmr.core.runlog.RunLog`'s location)."""
-        return self.path
+        """The log's final path (a :class:`~wmr.core.runlog.RunLog`'s location): ``path``,
+        or the ``location`` it is moved to once finished."""
+        return self._location
 
     # -- context manager ---------------------------------------------------------------------
     def __enter__(self) -> RunLogWriter:
@@ -1190,6 +1198,8 @@ class McapOpener:
     on_open
         Called with ``path`` once the log's ``.partial`` file is open (a supervising parent
         finishes it if the run's process dies: :mod:`wmr.apps.supervise`).
+    location
+        As :class:`RunLogWriter`'s: where the log is moved once finished, if not ``path``.
     """
 
     path: Path
@@ -1198,6 +1208,7 @@ class McapOpener:
     topics: tuple[TopicLayout, ...] = STEP_TOPICS
     compression: Compression = DEFAULT_COMPRESSION
     on_open: Callable[[Path], None] | None = None
+    location: Path | None = None
 
     def __call__(self, header: LogHeader) -> RunLogWriter:
         path = Path(self.path)
@@ -1205,7 +1216,7 @@ class McapOpener:
             path.parent.mkdir(parents=True, exist_ok=True)
         log = RunLogWriter.from_header(path, header, compression=self.compression,
                                        topics=self.topics, durable=self.durable,
-                                       scene=self.scene)
+                                       scene=self.scene, location=self.location)
         if self.on_open is not None:
             self.on_open(path)
         return log

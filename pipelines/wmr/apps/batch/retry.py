@@ -21,13 +21,15 @@ def main(argv: list[str], stdin: BinaryIO) -> None:
     ``argv[1]`` is the worker's process id."""
     die_with(int(argv[1]))
     # the job comes from the worker that started this process, running this package
-    block, fmu_path, attachment, out_dir, var_map, results = pickle.loads(stdin.read())
+    block, fmu_path, attachment, out_dir, var_map, results, batch_dir = pickle.loads(
+        stdin.read())
     holder = PlantHolder(Path(fmu_path), var_map)
     try:
         with open(results, "ab") as f:
             for index in block.indices:
                 done = block_on(holder, replace(block, indices=[index]),
-                                None if attachment is None else Path(attachment), out_dir)
+                                None if attachment is None else Path(attachment), out_dir,
+                                batch_dir)
                 write_frame(f, done)
                 if done.stop is not None:  # the batch stops: no run after
                     break

@@ -397,8 +397,7 @@ def materialise(name: str, data: bytes) -> Path:
     """Write ``data`` once per process to a private temp folder as ``name``; return the path.
 
     Keeps the file's own name, which the logs record (``fmu_file``), so that a log written
-    by a Dask worker records the FMU as one written locally does (its ``result`` record's
-    ``mcap`` names where the worker wrote it: a temp file, or one beside the log's place).
+    by a Dask worker records the FMU as one written locally does.
     """
     digest = hashlib.sha256(data).hexdigest()
     key = f"{digest}/{name}"
@@ -413,9 +412,10 @@ def materialise(name: str, data: bytes) -> Path:
 
 
 def execute(task: Task, plant: FmuPlant, mcap_path: Path,
-            attachment: Path | None) -> dict[str, Any]:
+            attachment: Path | None, location: Path | None = None) -> dict[str, Any]:
     """Run ``task`` on ``plant`` into ``mcap_path``; return the result record of
-    :func:`wmr.apps.run.run_to_log`.
+    :func:`wmr.apps.run.run_to_log`.  ``location``: where the log is moved once finished,
+    if not ``mcap_path`` (its ``mcap`` field, in the record and in the log).
 
     A run past its wall-clock limit ends with status ``timeout`` and the message of
     :func:`wall_limit_message` (its log says ``failed``: it was stopped from outside the loop).
@@ -462,7 +462,8 @@ def execute(task: Task, plant: FmuPlant, mcap_path: Path,
                 int(plant.fmi_version[0]))
             ctrl = stack.enter_context(FmuController(ctrl_path))
         # no fsync per log: the resume checks every log, and redoes one a power loss damaged
-        record = run_to_log(task.spec, McapOpener(mcap_path, durable=False), plant,
+        record = run_to_log(task.spec, McapOpener(mcap_path, durable=False,
+                                                  location=location), plant,
                             scenario_file=attachment, progress=progress, controller_fmu=ctrl,
                             log=task.log)
     if limit is not None and record["status"] == "failed" \
@@ -485,20 +486,22 @@ class PlantHolder:
         #: The last optimum this worker solved: the next one's warm start.
         self.previous_optimum: Any = None
 
-    def run(self, task: Task, mcap_path: Path, attachment: Path | None) -> dict[str, Any]:
+    def run(self, task: Task, mcap_path: Path, attachment: Path | None,
+            location: Path | None = None) -> dict[str, Any]:
         """:func:`execute` on the held plant; a fresh plant after a failure.
 
         An exception outside the run itself (the log cannot be created, ...) is a ``failed``
         record, never the end of the worker.
         """
         try:
-            record = execute(task, self.plant, mcap_path, attachment)
+            record = execute(task, self.plant, mcap_path, attachment, location)
         except DiskFullError as exc:  # not the run's fault: the batch stops, the run is redone
             return {"name": task.spec.name, "status": "failed", "message": str(exc),
-                    "mcap": str(mcap_path), DISK_FULL: True}
+                    "mcap": str(location or mcap_path), DISK_FULL: True}
         except Exception as exc:
             record = {"name": task.spec.name, "status": "failed",
-                      "message": f"{type(exc).__name__}: {exc}", "mcap": str(mcap_path)}
+                      "message": f"{type(exc).__name__}: {exc}",
+                      "mcap": str(location or mcap_path)}
         if record["status"] == "failed":
             self.plant.close()
             self.plant = FmuPlant(self.fmu_path, var_map=self.var_map)
@@ -601,23 +604,25 @@ def dask_run_block(block: Block, fmu_sha256: str, attachment: Attachment | None,
     att = materialise(attachment.name, attachment.data) if attachment is not None else None
     shared = sees_folder(out_dir, token)
     if block.retry:
-        return run_alone(block, path, att, out_dir if shared else None, var_map)
+        return run_alone(block, path, att, out_dir if shared else None, var_map, out_dir)
     return block_on(_holder(fmu_sha256, path, var_map), block, att,
-                    out_dir if shared else None)
+                    out_dir if shared else None, out_dir)
 
 
 def block_on(holder: PlantHolder, block: Block, attachment: Path | None,
-             out_dir: str | None) -> BlockResult:
+             out_dir: str | None, batch_dir: str | None = None) -> BlockResult:
     """The runs of ``block`` on ``holder``'s plant: each log written in ``out_dir``'s
     ``runs`` folder, atomically, or, ``out_dir`` None, to a private temp file whose bytes go
-    back in the result."""
+    back in the result, for the client to write in its batch folder ``batch_dir``.  Either
+    way the log's result record names where it is kept (the log written under a name of its
+    own and moved there, or sent there)."""
 
     def run_one(task: Task) -> tuple[dict[str, Any], bytes | None]:
         if out_dir is not None:
             final = Path(out_dir) / "runs" / task.log_relpath
             part = final.with_name(f"{final.name}.{os.getpid()}.{threading.get_ident()}.part")
             try:
-                record = holder.run(task, part, attachment)
+                record = holder.run(task, part, attachment, location=final)
                 if record.get("mcap") is not None and part.exists():  # kept (the log policy)
                     os.replace(part, final)
                     record["mcap"] = str(final)
@@ -627,7 +632,8 @@ def block_on(holder: PlantHolder, block: Block, attachment: Path | None,
         folder = Path(tempfile.mkdtemp(prefix="wmr-run-"))
         try:
             path = folder / f"{task.run_id}.mcap"
-            record = holder.run(task, path, attachment)
+            record = holder.run(task, path, attachment, location=None if batch_dir is None
+                                else Path(batch_dir) / "runs" / task.log_relpath)
             data = path.read_bytes() if record.get("mcap") is not None and path.exists() \
                 else None
         finally:
@@ -638,7 +644,7 @@ def block_on(holder: PlantHolder, block: Block, attachment: Path | None,
 
 
 def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: str | None,
-              var_map: VariableMap | None) -> RetryResult:
+              var_map: VariableMap | None, batch_dir: str | None = None) -> RetryResult:
     """The runs of ``block`` one after the other in a new Python process
     (``python -m wmr.apps.batch.retry PID``) on its own plant of ``fmu_path``, each as
     :func:`block_on` runs it; a process that dies costs only the run it was on, and a new one
@@ -648,7 +654,8 @@ def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: st
     package), to a file of a private temp folder as the run ends, a length before it: the
     results whole in the file are those of the runs that finished, and the run after them is
     the one the process died on.  A process per range, not per run: one costs about 0.6 s to
-    start, and a range whose worker died is given again whole.
+    start, and a range whose worker died is given again whole.  ``out_dir`` and
+    ``batch_dir`` are :func:`block_on`'s.
     """
     import subprocess
     import sys
@@ -667,7 +674,7 @@ def run_alone(block: Block, fmu_path: Path, attachment: Path | None, out_dir: st
             out = folder / f"results-{len(done.died)}"
             job = pickle.dumps((replace(block, indices=pending), str(fmu_path),
                                 None if attachment is None else str(attachment), out_dir,
-                                var_map, str(out)))
+                                var_map, str(out), batch_dir))
             proc = subprocess.run([sys.executable, "-m", "wmr.apps.batch.retry",
                                    str(os.getpid())], input=job, env=env, check=False)
             results = read_frames(out) if out.exists() else []
