@@ -56,6 +56,17 @@ Three measurements, each printed as a table:
     must keep up with there.  Per configuration: tasks, wall time, runs per second, and the
     client's CPU (``RUSAGE_SELF``, its per second share, measured idle, taken out) per task.
 
+``python benchmarks/batch.py rows N_RUNS [--repeats R]``
+    What the summary rows crossing to the Dask client cost it: ``N_RUNS`` runs of
+    ``mc_fig10`` (failed-only) on a Dask cluster of 2 worker processes in tasks of 1,024
+    runs, as shipped and with each task's rows dropped by its worker (a worker plugin
+    empties :attr:`~wmr.apps.batch.worker.BlockResult.table`: a batch without a summary,
+    measured only), in turn ``R`` times (default 3; medians).  The difference is what the
+    client would save if the workers wrote the rows into the batch folder themselves, the
+    journal lines alone crossing (the next step of docs/batch.md's projection).  The
+    client's CPU (``RUSAGE_SELF``) with its idle share and the summary's merge at the end
+    (``runner._finish``, timed) taken out: what it spends while the workers run.
+
 ``python benchmarks/batch.py policies N_RUNS [--dask] [--policy P ...]``
     One batch of ``N_RUNS`` runs of ``mc_fig10`` (its ``n`` raised to ``N_RUNS``) per log
     policy (``full``, ``failed``, ``none``; default all three), on 2 local workers and, with
@@ -81,6 +92,8 @@ from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
+
+from distributed.diagnostics.plugin import WorkerPlugin
 
 from wmr.apps.batch import BatchOptions, BatchSpec, load_batch, run_batch
 from wmr.apps.batch.spec import RunList
@@ -491,6 +504,83 @@ def backlog(n_runs: int, sizes: list[int], repeats: int) -> None:
               f"{1e3 * wall / tasks:>10.2f} {1e3 * cpu / tasks:>19.3f}")
 
 
+class _DropRows(WorkerPlugin):
+    """Makes the worker's ranges return no summary rows (``drop``), or restores them."""
+
+    def __init__(self, drop: bool) -> None:
+        self.drop = drop
+
+    def setup(self, worker: Any) -> None:
+        import wmr.apps.batch.worker as batch_worker
+
+        shipped = getattr(batch_worker, "_shipped_block_on", batch_worker.block_on)
+        batch_worker._shipped_block_on = shipped  # type: ignore[attr-defined]
+
+        def rowless(*args: Any, **kwargs: Any) -> Any:
+            return replace(shipped(*args, **kwargs), table=b"")
+
+        batch_worker.block_on = rowless if self.drop else shipped
+
+
+def rows(n_runs: int, repeats: int) -> None:
+    """The Dask client's CPU while its workers run, with and without the rows crossing."""
+    from distributed import Client
+
+    import wmr.apps.batch.runner as runner
+
+    batch = _mc_fig10(n_runs)
+    fmu = default_fmu()
+    merges: list[float] = []
+    finish = runner._finish
+    runner._finish = _timed(finish, merges)
+    samples: dict[bool, list[float]] = {False: [], True: []}
+    try:
+        with dask_cluster(2) as address, Client(address, timeout="60s") as client:
+            warm = replace(batch, runs=batch.runs.head(50)) \
+                if isinstance(batch.runs, RunList) else batch
+            folder = Path(tempfile.mkdtemp(prefix="wmr-bench-warm-"))
+            run_batch(warm, folder, BatchOptions(fmu_path=fmu, log=LogPolicy("failed"),
+                                                 scheduler=address), progress=False)
+            shutil.rmtree(folder, ignore_errors=True)
+            per_s = _idle_client_cpu(address)
+            for _ in range(repeats):
+                for drop in (False, True):
+                    client.register_plugin(_DropRows(drop), name="wmr-bench-rows")
+                    folder = Path(tempfile.mkdtemp(prefix="wmr-bench-rows-", dir=os.getcwd()))
+                    try:
+                        before = resource.getrusage(resource.RUSAGE_SELF)
+                        t0 = time.perf_counter()
+                        result = run_batch(batch, folder, BatchOptions(
+                            fmu_path=fmu, log=LogPolicy("failed"), scheduler=address),
+                            progress=False)
+                        wall = time.perf_counter() - t0
+                        after = resource.getrusage(resource.RUSAGE_SELF)
+                    finally:
+                        shutil.rmtree(folder, ignore_errors=True)
+                    assert len(result.executed) == n_runs
+                    cpu = (after.ru_utime - before.ru_utime) \
+                        + (after.ru_stime - before.ru_stime)
+                    samples[drop].append(cpu - per_s * wall - merges[-1])
+                    print("rows dropped" if drop else "as shipped", f"{cpu:.3f} s CPU, "
+                          f"merge {merges[-1]:.3f} s, {wall:.1f} s wall", file=sys.stderr,
+                          flush=True)
+    finally:
+        runner._finish = finish
+    tasks = -(-n_runs // 1024)
+    print(f"rows: {n_runs} runs of mc_fig10, failed-only, Dask, 2 worker processes, {tasks} "
+          f"tasks of 1,024 runs, median of {repeats} (in turn; load "
+          f"{os.getloadavg()[0]:.1f}; the client idle {1e3 * per_s:.2f} ms/s and the merge "
+          "taken out)")
+    print(f"{'':<24} {'client CPU s':>12} {'ms a task':>10} {'us a run':>9}")
+    for drop, got in samples.items():
+        cpu = statistics.median(got)
+        print(f"{'rows dropped' if drop else 'as shipped':<24} {cpu:>12.3f} "
+              f"{1e3 * cpu / tasks:>10.2f} {1e6 * cpu / n_runs:>9.2f}")
+    saved = statistics.median(samples[False]) - statistics.median(samples[True])
+    print(f"{'the rows crossing':<24} {saved:>12.3f} {1e3 * saved / tasks:>10.2f} "
+          f"{1e6 * saved / n_runs:>9.2f}")
+
+
 def _timed(fun: Callable[..., Any], into: list[float]) -> Callable[..., Any]:
     """``fun``, appending the CPU time (this process's) of each call to ``into``."""
     def timed(*args: Any, **kwargs: Any) -> Any:
@@ -532,6 +622,9 @@ def main(argv: list[str]) -> None:
     bl.add_argument("n_runs", type=int)
     bl.add_argument("--runs-a-task", type=int, action="append")
     bl.add_argument("--repeats", type=int, default=3)
+    ro = sub.add_parser("rows")
+    ro.add_argument("n_runs", type=int)
+    ro.add_argument("--repeats", type=int, default=3)
     po = sub.add_parser("policies")
     po.add_argument("n_runs", type=int)
     po.add_argument("--dask", action="store_true")
@@ -545,6 +638,8 @@ def main(argv: list[str]) -> None:
         costs(args.n_runs, args.dask, args.repeats, args.workers)
     elif args.what == "backlog":
         backlog(args.n_runs, args.runs_a_task or [2, 1024], args.repeats)
+    elif args.what == "rows":
+        rows(args.n_runs, args.repeats)
     elif args.what == "policies":
         policies(args.n_runs, args.policy or ["full", "failed", "none"], args.dask)
     else:
