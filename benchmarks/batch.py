@@ -464,31 +464,15 @@ def backlog(n_runs: int, sizes: list[int], repeats: int) -> None:
     fmu = default_fmu()
     samples: dict[int, list[tuple[float, float]]] = {size: [] for size in sizes}
     with dask_cluster(2) as address:
-        warm = replace(batch, runs=batch.runs.head(50)) if isinstance(batch.runs, RunList) \
-            else batch
-        folder = Path(tempfile.mkdtemp(prefix="wmr-bench-warm-"))
-        run_batch(warm, folder, BatchOptions(fmu_path=fmu, log=LogPolicy("failed"),
-                                             scheduler=address), progress=False)
-        shutil.rmtree(folder, ignore_errors=True)
-        per_s = _idle_client_cpu(address)
+        per_s = _warm_client(batch, fmu, address)
         for _ in range(repeats):
             for size in sizes:
-                folder = Path(tempfile.mkdtemp(prefix="wmr-bench-backlog-", dir=os.getcwd()))
                 saved = dask_exec.MAX_CHUNK
                 dask_exec.MAX_CHUNK = size  # type: ignore[misc]  # as costs does
                 try:
-                    before = resource.getrusage(resource.RUSAGE_SELF)
-                    t0 = time.perf_counter()
-                    result = run_batch(batch, folder, BatchOptions(
-                        fmu_path=fmu, log=LogPolicy("failed"), scheduler=address),
-                        progress=False)
-                    wall = time.perf_counter() - t0
-                    after = resource.getrusage(resource.RUSAGE_SELF)
+                    wall, cpu = _client_batch(batch, fmu, address, "backlog")
                 finally:
                     dask_exec.MAX_CHUNK = saved  # type: ignore[misc]
-                    shutil.rmtree(folder, ignore_errors=True)
-                assert len(result.executed) == n_runs
-                cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
                 samples[size].append((wall, cpu - per_s * wall))
                 print(size, f"{cpu:.3f} s CPU, {wall:.1f} s wall", file=sys.stderr, flush=True)
     print(f"backlog: {n_runs} runs of mc_fig10, failed-only, Dask, 2 worker processes, median "
@@ -536,30 +520,11 @@ def rows(n_runs: int, repeats: int) -> None:
     samples: dict[bool, list[float]] = {False: [], True: []}
     try:
         with dask_cluster(2) as address, Client(address, timeout="60s") as client:
-            warm = replace(batch, runs=batch.runs.head(50)) \
-                if isinstance(batch.runs, RunList) else batch
-            folder = Path(tempfile.mkdtemp(prefix="wmr-bench-warm-"))
-            run_batch(warm, folder, BatchOptions(fmu_path=fmu, log=LogPolicy("failed"),
-                                                 scheduler=address), progress=False)
-            shutil.rmtree(folder, ignore_errors=True)
-            per_s = _idle_client_cpu(address)
+            per_s = _warm_client(batch, fmu, address)
             for _ in range(repeats):
                 for drop in (False, True):
                     client.register_plugin(_DropRows(drop), name="wmr-bench-rows")
-                    folder = Path(tempfile.mkdtemp(prefix="wmr-bench-rows-", dir=os.getcwd()))
-                    try:
-                        before = resource.getrusage(resource.RUSAGE_SELF)
-                        t0 = time.perf_counter()
-                        result = run_batch(batch, folder, BatchOptions(
-                            fmu_path=fmu, log=LogPolicy("failed"), scheduler=address),
-                            progress=False)
-                        wall = time.perf_counter() - t0
-                        after = resource.getrusage(resource.RUSAGE_SELF)
-                    finally:
-                        shutil.rmtree(folder, ignore_errors=True)
-                    assert len(result.executed) == n_runs
-                    cpu = (after.ru_utime - before.ru_utime) \
-                        + (after.ru_stime - before.ru_stime)
+                    wall, cpu = _client_batch(batch, fmu, address, "rows")
                     samples[drop].append(cpu - per_s * wall - merges[-1])
                     print("rows dropped" if drop else "as shipped", f"{cpu:.3f} s CPU, "
                           f"merge {merges[-1]:.3f} s, {wall:.1f} s wall", file=sys.stderr,
@@ -579,6 +544,36 @@ def rows(n_runs: int, repeats: int) -> None:
     saved = statistics.median(samples[False]) - statistics.median(samples[True])
     print(f"{'the rows crossing':<24} {saved:>12.3f} {1e3 * saved / tasks:>10.2f} "
           f"{1e6 * saved / n_runs:>9.2f}")
+
+
+def _warm_client(batch: BatchSpec, fmu: Path, address: str) -> float:
+    """Warm the Dask cluster at ``address`` up with 50 runs of ``batch`` (the workers' FMU,
+    imports); return the client's idle CPU per second (:func:`_idle_client_cpu`)."""
+    warm = replace(batch, runs=batch.runs.head(50)) if isinstance(batch.runs, RunList) \
+        else batch
+    folder = Path(tempfile.mkdtemp(prefix="wmr-bench-warm-"))
+    run_batch(warm, folder, BatchOptions(fmu_path=fmu, log=LogPolicy("failed"),
+                                         scheduler=address), progress=False)
+    shutil.rmtree(folder, ignore_errors=True)
+    return _idle_client_cpu(address)
+
+
+def _client_batch(batch: BatchSpec, fmu: Path, address: str, what: str
+                  ) -> tuple[float, float]:
+    """``batch``, failed-only, on the Dask cluster at ``address``, in a folder of the current
+    one (removed after); its wall time and the CPU of this process (the client), seconds."""
+    folder = Path(tempfile.mkdtemp(prefix=f"wmr-bench-{what}-", dir=os.getcwd()))
+    try:
+        before = resource.getrusage(resource.RUSAGE_SELF)
+        t0 = time.perf_counter()
+        result = run_batch(batch, folder, BatchOptions(fmu_path=fmu, log=LogPolicy("failed"),
+                                                       scheduler=address), progress=False)
+        wall = time.perf_counter() - t0
+        after = resource.getrusage(resource.RUSAGE_SELF)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    assert len(result.executed) == len(batch.runs)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def _timed(fun: Callable[..., Any], into: list[float]) -> Callable[..., Any]:
