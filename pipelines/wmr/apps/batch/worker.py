@@ -617,23 +617,24 @@ def block_on(holder: PlantHolder, block: Block, attachment: Path | None,
     way the log's result record names where it is kept (the log written under a name of its
     own and moved there, or sent there)."""
 
+    root = out_dir if out_dir is not None else batch_dir  # where the logs are kept
+
     def run_one(task: Task) -> tuple[dict[str, Any], bytes | None]:
-        if out_dir is not None:
-            final = Path(out_dir) / "runs" / task.log_relpath
-            part = final.with_name(f"{final.name}.{os.getpid()}.{threading.get_ident()}.part")
+        # the record's mcap field, and the log's own, name this (run_to_log: its location)
+        kept = None if root is None else Path(root) / "runs" / task.log_relpath
+        if out_dir is not None and kept is not None:
+            part = kept.with_name(f"{kept.name}.{os.getpid()}.{threading.get_ident()}.part")
             try:
-                record = holder.run(task, part, attachment, location=final)
+                record = holder.run(task, part, attachment, location=kept)
                 if record.get("mcap") is not None and part.exists():  # kept (the log policy)
-                    os.replace(part, final)
-                    record["mcap"] = str(final)
+                    os.replace(part, kept)
             finally:
                 part.unlink(missing_ok=True)
             return record, None
         folder = Path(tempfile.mkdtemp(prefix="wmr-run-"))
         try:
             path = folder / f"{task.run_id}.mcap"
-            record = holder.run(task, path, attachment, location=None if batch_dir is None
-                                else Path(batch_dir) / "runs" / task.log_relpath)
+            record = holder.run(task, path, attachment, location=kept)
             data = path.read_bytes() if record.get("mcap") is not None and path.exists() \
                 else None
         finally:
